@@ -1,0 +1,34 @@
+"""The exception hierarchy: every error the engine raises on purpose derives from ApproxTreeError.
+
+Each message says what was wrong and what to do about it, so the CLI can print it as it is.
+"""
+
+from __future__ import annotations
+
+
+class ApproxTreeError(Exception):
+    """Base class of every error approxtree raises for bad input or an unusable environment."""
+
+
+class TerrainFormatError(ApproxTreeError):
+    """A terrain file is missing, unreadable, of an unknown format, or malformed."""
+
+
+class EmptyTerrainError(ApproxTreeError):
+    """A terrain has too few valid data points to form a surface (all nodata, 1 × N, ...)."""
+
+
+class InvalidParameterError(ApproxTreeError, ValueError):
+    """A parameter is out of range (negative epsilon, max_points < 4, unknown policy, ...)."""
+
+
+class UnsupportedStrategyError(ApproxTreeError):
+    """The requested approximation strategy cannot be applied to this kind of terrain."""
+
+
+class StoreError(ApproxTreeError):
+    """A tree file is corrupted, truncated, of another format version, or cannot be written."""
+
+
+class ContextUnavailableError(ApproxTreeError):
+    """No OpenGL context can be created (headless EGL or a window)."""

@@ -1,0 +1,202 @@
+"""Grid: a regular, georeferenced height grid — the most common terrain.
+
+Data points sit at cell centres (rasters are pixel-is-area): the point of row r, column c is
+``transform * (c + 0.5, r + 0.5)``. Row 0 is the first row of the file (north for north-up
+rasters). Nodata cells hold NaN in ``heights`` and are never data points.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+from affine import Affine
+
+from approxtree.errors import EmptyTerrainError, TerrainFormatError
+from approxtree.geometry.base import GeometryData
+from approxtree.geometry.rect import Rect
+from approxtree.kernels.grid_interp import grid_height_at
+
+
+def _as_heights(heights: np.ndarray) -> np.ndarray:
+    """Heights as float32 (exact for integer DEMs up to 2^24) unless they are float64 already."""
+    a = np.asarray(heights)
+    if a.dtype == np.float64:
+        return np.ascontiguousarray(a)
+    return np.ascontiguousarray(a, dtype=np.float32)
+
+
+class Grid(GeometryData):
+    """A regular grid of heights with an affine georeference.
+
+    heights: (rows, cols) float32 or float64, NaN where there is no data.
+    transform: affine map from (col, row) pixel-corner coordinates to world (x, y); rotation and
+        shear are not supported. Defaults to cell size 1 with row 0 at the top (y = rows).
+    crs: EPSG code or WKT of x and y, or None.
+    nodata: the original nodata value of the source (kept for reporting; cells are NaN already).
+    """
+
+    def __init__(
+        self,
+        heights: np.ndarray,
+        transform: Affine | None = None,
+        crs: str | None = None,
+        nodata: float | None = None,
+    ) -> None:
+        h = _as_heights(heights)
+        if h.ndim != 2:
+            raise TerrainFormatError(f"A grid needs a 2-D height array, got shape {h.shape}.")
+        rows, cols = h.shape
+        if rows < 2 or cols < 2:
+            raise EmptyTerrainError(
+                f"A grid needs at least 2 × 2 points to form a surface, got {rows} × {cols} "
+                "(rows × columns). Use a larger raster or read it as scattered points."
+            )
+        valid = np.isfinite(h)
+        n_valid = int(np.count_nonzero(valid))
+        if n_valid == 0:
+            raise EmptyTerrainError(
+                f"The grid of {rows} × {cols} points has no valid elevation (all nodata or NaN). "
+                "Check the nodata value of the file or choose another file."
+            )
+        if transform is None:
+            transform = Affine(1.0, 0.0, 0.0, 0.0, -1.0, float(rows))
+        if transform.b != 0.0 or transform.d != 0.0:
+            raise TerrainFormatError(
+                "Rotated or sheared grids are not supported; warp the raster to a north-up grid "
+                "first (for example with gdalwarp)."
+            )
+        if transform.a == 0.0 or transform.e == 0.0:
+            raise TerrainFormatError(f"The grid's cell size is zero: transform {tuple(transform)}.")
+        self.heights = h
+        self.transform = transform
+        #: How the reader treated nodata: "mask" (holes stay NaN) or "fill" (interpolated).
+        self.nodata_policy = "mask"
+        #: Cells the fill policy gave an interpolated height.
+        self.filled_count = 0
+        self.crs = crs
+        self.nodata = nodata
+        self._n_valid = n_valid
+
+    # -- shape and coordinates ---------------------------------------------------------------
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(rows, cols)."""
+        return self.heights.shape  # type: ignore[return-value]
+
+    @property
+    def width(self) -> int:
+        return self.heights.shape[1]
+
+    @property
+    def height(self) -> int:
+        return self.heights.shape[0]
+
+    @property
+    def cell_size(self) -> tuple[float, float]:
+        """(dx, dy) cell size in world units, both positive."""
+        return (abs(self.transform.a), abs(self.transform.e))
+
+    @cached_property
+    def x_coords(self) -> np.ndarray:
+        """(cols,) float64 x of the data points of each column."""
+        t = self.transform
+        return t.c + (np.arange(self.width) + 0.5) * t.a
+
+    @cached_property
+    def y_coords(self) -> np.ndarray:
+        """(rows,) float64 y of the data points of each row."""
+        t = self.transform
+        return t.f + (np.arange(self.height) + 0.5) * t.e
+
+    @property
+    def valid(self) -> np.ndarray:
+        """(rows, cols) bool, True where the cell holds a data point."""
+        return np.isfinite(self.heights)
+
+    @property
+    def nodata_count(self) -> int:
+        return self.heights.size - self._n_valid
+
+    def fractional_index(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World (x, y) → fractional (row, col) of the data-point lattice; arrays of one shape."""
+        t = self.transform
+        fc = (np.asarray(x, dtype=np.float64) - t.c) / t.a - 0.5
+        fr = (np.asarray(y, dtype=np.float64) - t.f) / t.e - 0.5
+        return fr, fc
+
+    def index_range(self, rect: Rect) -> tuple[int, int, int, int]:
+        """(r0, r1, c0, c1): inclusive index ranges of the data points inside the closed rect.
+
+        Empty ranges come back with r1 < r0 or c1 < c0.
+        """
+        fr_a, fc_a = self.fractional_index(np.array(rect.xmin), np.array(rect.ymin))
+        fr_b, fc_b = self.fractional_index(np.array(rect.xmax), np.array(rect.ymax))
+        # A tolerance of 1e-9 cells keeps points on the rectangle's border inside it despite
+        # round-off in world coordinates.
+        eps = 1e-9
+        r0 = max(int(np.ceil(min(fr_a, fr_b) - eps)), 0)
+        r1 = min(int(np.floor(max(fr_a, fr_b) + eps)), self.height - 1)
+        c0 = max(int(np.ceil(min(fc_a, fc_b) - eps)), 0)
+        c1 = min(int(np.floor(max(fc_a, fc_b) + eps)), self.width - 1)
+        return r0, r1, c0, c1
+
+    def rect_of(self, r0: int, r1: int, c0: int, c1: int) -> Rect:
+        """The world rectangle spanned by the data points of an inclusive index range."""
+        xs = self.x_coords[[c0, c1]]
+        ys = self.y_coords[[r0, r1]]
+        return Rect(float(xs.min()), float(ys.min()), float(xs.max()), float(ys.max()))
+
+    # -- GeometryData ------------------------------------------------------------------------
+
+    @cached_property
+    def domain(self) -> Rect:
+        return self.rect_of(0, self.height - 1, 0, self.width - 1)
+
+    def points(self, rect: Rect | None = None) -> np.ndarray:
+        if rect is None:
+            r0, r1, c0, c1 = 0, self.height - 1, 0, self.width - 1
+        else:
+            r0, r1, c0, c1 = self.index_range(rect)
+            if r1 < r0 or c1 < c0:
+                return np.empty((0, 3))
+        z = self.heights[r0 : r1 + 1, c0 : c1 + 1]
+        rr, cc = np.nonzero(np.isfinite(z))
+        return np.column_stack(
+            [self.x_coords[c0 + cc], self.y_coords[r0 + rr], z[rr, cc].astype(np.float64)]
+        )
+
+    def height_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.float64)
+        shape = np.broadcast_shapes(x.shape, y.shape)
+        fr, fc = self.fractional_index(np.broadcast_to(x, shape), np.broadcast_to(y, shape))
+        out = grid_height_at(self.heights, fr.ravel().copy(), fc.ravel().copy())
+        return out.reshape(shape)
+
+    @cached_property
+    def z_range(self) -> tuple[float, float]:
+        return (float(np.nanmin(self.heights)), float(np.nanmax(self.heights)))
+
+    @property
+    def point_count(self) -> int:
+        return self._n_valid
+
+    def to_record(self) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+        attrs = {"transform": list(self.transform)[:6], "crs": self.crs, "nodata": self.nodata}
+        return attrs, {"heights": self.heights}
+
+    @classmethod
+    def from_record(cls, attrs: dict[str, Any], arrays: dict[str, np.ndarray]) -> Grid:
+        return cls(arrays["heights"], Affine(*attrs["transform"]), attrs["crs"], attrs["nodata"])
+
+    def split_position(self, rect: Rect, axis: int) -> float | None:
+        r0, r1, c0, c1 = self.index_range(rect)
+        lo, hi = (c0, c1) if axis == 0 else (r0, r1)
+        # A single cell (two data lines) cannot be cut further.
+        if hi - lo < 2:
+            return None
+        mid = (lo + hi) // 2
+        return float(self.x_coords[mid] if axis == 0 else self.y_coords[mid])

@@ -1,0 +1,168 @@
+"""TIN and TINPointSet: terrains given by triangles, or by scattered points to triangulate.
+
+h_T is the linear interpolation on the triangles; outside them it is NaN. Point location uses a
+uniform bucket grid (``kernels.tin_locate``), built once on first use.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+
+from approxtree.errors import EmptyTerrainError, TerrainFormatError
+from approxtree.geometry.base import GeometryData
+from approxtree.geometry.rect import Rect
+from approxtree.kernels.tin_locate import build_buckets, locate_and_interpolate
+
+
+class TIN(GeometryData):
+    """A triangulated irregular network.
+
+    vertices: (n, 3) float64 world x, y, z; triangles: (m, 3) integer indices into vertices.
+    crs: EPSG code or WKT of x and y, or None.
+    """
+
+    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, crs: str | None = None):
+        v = np.ascontiguousarray(vertices, dtype=np.float64)
+        t = np.ascontiguousarray(triangles, dtype=np.int64)
+        if v.ndim != 2 or v.shape[1] != 3:
+            raise TerrainFormatError(f"TIN vertices must have shape (n, 3), got {v.shape}.")
+        if t.ndim != 2 or t.shape[1] != 3:
+            raise TerrainFormatError(f"TIN triangles must have shape (m, 3), got {t.shape}.")
+        if len(t) == 0 or len(v) < 3:
+            raise EmptyTerrainError(
+                f"A TIN needs at least 3 vertices and 1 triangle, got {len(v)} and {len(t)}."
+            )
+        if not np.all(np.isfinite(v)):
+            raise TerrainFormatError("TIN vertices contain NaN or infinite coordinates.")
+        if t.min() < 0 or t.max() >= len(v):
+            raise TerrainFormatError(
+                f"TIN triangle indices must lie in 0..{len(v) - 1}, got {t.min()}..{t.max()}."
+            )
+        # Counter-clockwise seen from above (z up), so front faces point up for the renderer.
+        e1 = v[t[:, 1], :2] - v[t[:, 0], :2]
+        e2 = v[t[:, 2], :2] - v[t[:, 0], :2]
+        clockwise = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] < 0
+        if clockwise.any():
+            t = t.copy()
+            t[clockwise] = t[clockwise][:, [0, 2, 1]]
+        self.vertices = v
+        self.triangles = t
+        self.crs = crs
+
+    @cached_property
+    def domain(self) -> Rect:
+        lo = self.vertices[:, :2].min(axis=0)
+        hi = self.vertices[:, :2].max(axis=0)
+        return Rect(float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+
+    def points(self, rect: Rect | None = None) -> np.ndarray:
+        if rect is None:
+            return self.vertices.copy()
+        return self.vertices[rect.contains(self.vertices[:, 0], self.vertices[:, 1])]
+
+    @cached_property
+    def _buckets(self) -> tuple:
+        d = self.domain
+        m = len(self.triangles)
+        # About one triangle per bucket, buckets shaped like the domain.
+        w = max(d.width, 1e-12)
+        h = max(d.height, 1e-12)
+        nbx = max(1, round(np.sqrt(m * w / h)))
+        nby = max(1, round(np.sqrt(m * h / w)))
+        cw, ch = w / nbx, h / nby
+        vx = np.ascontiguousarray(self.vertices[:, 0])
+        vy = np.ascontiguousarray(self.vertices[:, 1])
+        start, items = build_buckets(vx, vy, self.triangles, d.xmin, d.ymin, cw, ch, nbx, nby)
+        return vx, vy, start, items, cw, ch, nbx, nby
+
+    def locate(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(triangle index or -1, linear height or NaN) at the points (x, y); flat (q,) arrays."""
+        vx, vy, start, items, cw, ch, nbx, nby = self._buckets
+        qx = np.ascontiguousarray(np.ravel(x), dtype=np.float64)
+        qy = np.ascontiguousarray(np.ravel(y), dtype=np.float64)
+        d = self.domain
+        return locate_and_interpolate(
+            vx,
+            vy,
+            np.ascontiguousarray(self.vertices[:, 2]),
+            self.triangles,
+            start,
+            items,
+            d.xmin,
+            d.ymin,
+            cw,
+            ch,
+            nbx,
+            nby,
+            qx,
+            qy,
+            1e-10,
+        )
+
+    def height_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.float64)
+        shape = np.broadcast_shapes(x.shape, y.shape)
+        _, z = self.locate(np.broadcast_to(x, shape), np.broadcast_to(y, shape))
+        return z.reshape(shape)
+
+    @cached_property
+    def z_range(self) -> tuple[float, float]:
+        z = self.vertices[:, 2]
+        return (float(z.min()), float(z.max()))
+
+    @property
+    def point_count(self) -> int:
+        return len(self.vertices)
+
+    def to_record(self) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+        return {"crs": self.crs}, {"vertices": self.vertices, "triangles": self.triangles}
+
+    @classmethod
+    def from_record(cls, attrs: dict[str, Any], arrays: dict[str, np.ndarray]) -> TIN:
+        # Bypass subclass constructors (TINPointSet would re-triangulate): the stored triangles
+        # are the terrain.
+        tin = cls.__new__(cls)
+        TIN.__init__(tin, arrays["vertices"], arrays["triangles"], attrs["crs"])
+        return tin
+
+    def split_position(self, rect: Rect, axis: int) -> float | None:
+        lo, hi = (rect.xmin, rect.xmax) if axis == 0 else (rect.ymin, rect.ymax)
+        if hi <= lo:
+            return None
+        return 0.5 * (lo + hi)
+
+
+class TINPointSet(TIN):
+    """Scattered data points, Delaunay-triangulated with scipy.
+
+    points: (n, 3) float64 x, y, z. Points sharing the same (x, y) are merged into one data point
+    at their mean height, since a height field has one height per position.
+    """
+
+    def __init__(self, points: np.ndarray, crs: str | None = None):
+        p = np.asarray(points, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 3:
+            raise TerrainFormatError(f"Scattered points must have shape (n, 3), got {p.shape}.")
+        p = p[np.all(np.isfinite(p), axis=1)]
+        if len(p) < 3:
+            raise EmptyTerrainError(
+                f"A point set needs at least 3 finite points to triangulate, got {len(p)}."
+            )
+        xy, inverse, counts = np.unique(p[:, :2], axis=0, return_inverse=True, return_counts=True)
+        z = np.bincount(inverse.ravel(), weights=p[:, 2]) / counts
+        merged = np.column_stack([xy, z])
+        from scipy.spatial import Delaunay, QhullError
+
+        try:
+            tri = Delaunay(merged[:, :2])
+        except QhullError as exc:
+            raise EmptyTerrainError(
+                "The points cannot be triangulated (all on one line or one position)."
+            ) from exc
+        #: Input points dropped because another point had the same (x, y).
+        self.duplicates_merged = int(len(p) - len(merged))
+        super().__init__(merged, tri.simplices, crs=crs)

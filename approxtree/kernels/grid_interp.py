@@ -1,0 +1,50 @@
+"""Linear interpolation on a triangulated regular grid, in index space.
+
+Every grid cell (r, c)–(r+1, c+1) is cut by the diagonal from (r, c) to (r+1, c+1); the same
+convention is used by h_T, by the error of grid patches and by the triangles sent to the GPU, so
+the measured error is the error of what is drawn:
+
+    (r, c) ●───────● (r, c+1)        triangle A: fc >= fr  (corners 00, 01, 11)
+           │ ╲   A │                 triangle B: fc <  fr  (corners 00, 11, 10)
+           │  B ╲  │
+  (r+1, c) ●───────● (r+1, c+1)
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+
+@njit(cache=True, inline="always")
+def interpolate_cell(z00: float, z01: float, z10: float, z11: float, fr: float, fc: float):
+    """Height at fractional position (fr, fc) in [0, 1]² of a cell with the given corners."""
+    if fc >= fr:
+        return z00 + fc * (z01 - z00) + fr * (z11 - z01)
+    return z00 + fr * (z10 - z00) + fc * (z11 - z10)
+
+
+@njit(cache=True, parallel=True)
+def grid_height_at(heights: np.ndarray, fr: np.ndarray, fc: np.ndarray) -> np.ndarray:
+    """h_T at fractional row/column indices.
+
+    heights: (rows, cols) float, NaN = nodata; fr, fc: (n,) float64 fractional indices.
+    Returns (n,) float64, NaN outside the grid or in a triangle touching nodata.
+    """
+    rows, cols = heights.shape
+    n = fr.shape[0]
+    out = np.empty(n, dtype=np.float64)
+    for i in prange(n):
+        r = fr[i]
+        c = fc[i]
+        if not (r >= 0.0 and r <= rows - 1 and c >= 0.0 and c <= cols - 1):
+            out[i] = np.nan
+            continue
+        r0 = min(int(r), rows - 2) if rows > 1 else 0
+        c0 = min(int(c), cols - 2) if cols > 1 else 0
+        r1 = min(r0 + 1, rows - 1)
+        c1 = min(c0 + 1, cols - 1)
+        out[i] = interpolate_cell(
+            heights[r0, c0], heights[r0, c1], heights[r1, c0], heights[r1, c1], r - r0, c - c0
+        )
+    return out
