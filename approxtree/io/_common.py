@@ -1,0 +1,277 @@
+"""Shared pieces of the terrain readers: option checks, error wrapping, nodata policy, georeference.
+
+Every reader turns a library's own exceptions into TerrainFormatError through ``reading`` and
+checks its keyword options here, so that all readers word their messages the same way.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+from affine import Affine
+
+from approxtree.errors import ApproxTreeError, InvalidParameterError, TerrainFormatError
+from approxtree.geometry import Grid
+
+#: Nodata policies: "mask" leaves nodata cells out, "fill" interpolates holes from their border.
+NODATA_POLICIES = ("mask", "fill")
+
+#: How far (in cells) the "fill" policy searches for valid cells; holes wider stay nodata.
+FILL_SEARCH_DISTANCE = 100.0
+
+#: Integers beyond ±2^24 are not exact in float32; such grids are stored as float64.
+_FLOAT32_EXACT_LIMIT = 2**24
+
+
+# -- paths and errors --------------------------------------------------------------------------
+
+
+def existing_file(path: str | os.PathLike) -> Path:
+    """The path as a Path, or TerrainFormatError when it is missing or not a file."""
+    p = Path(path)
+    if not p.exists():
+        raise TerrainFormatError(f"The terrain file {p} does not exist; check the path.")
+    if not p.is_file():
+        raise TerrainFormatError(f"{p} is a folder, not a terrain file; give a file inside it.")
+    return p
+
+
+def _reason(exc: BaseException) -> str:
+    """The library's message for an exception, or its type name when it has none."""
+    text = str(exc).strip()
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+@contextlib.contextmanager
+def reading(path: str | os.PathLike, what: str) -> Iterator[None]:
+    """Turn any library exception raised inside the block into TerrainFormatError.
+
+    Our own ApproxTreeErrors (and MemoryError) pass through unchanged.
+    """
+    try:
+        yield
+    except (ApproxTreeError, MemoryError):
+        raise
+    except Exception as exc:
+        raise TerrainFormatError(f"Cannot read {path} as {what}: {_reason(exc)}") from exc
+
+
+# -- option checks -----------------------------------------------------------------------------
+
+
+def check_nodata_policy(nodata: str) -> str:
+    """The nodata policy, or InvalidParameterError naming the valid ones."""
+    if not isinstance(nodata, str) or nodata not in NODATA_POLICIES:
+        raise InvalidParameterError(
+            f"Unknown nodata policy {nodata!r}; use 'mask' (leave nodata cells out) or "
+            "'fill' (interpolate holes from their border)."
+        )
+    return nodata
+
+
+def _finite_number(value: object, name: str) -> float:
+    """A real finite number, or InvalidParameterError."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise InvalidParameterError(f"{name} must be a number, got {value!r}.")
+    number = float(value)
+    if not math.isfinite(number):
+        raise InvalidParameterError(f"{name} must be finite, got {value!r}.")
+    return number
+
+
+def _number_pair(value: object, name: str) -> tuple[float, float]:
+    """Two finite numbers from a 2-sequence, or InvalidParameterError."""
+    try:
+        items = list(value)  # type: ignore[call-overload]
+    except TypeError:
+        items = []
+    if len(items) != 2:
+        raise InvalidParameterError(f"{name} must be a pair of numbers (x, y), got {value!r}.")
+    return (_finite_number(items[0], name), _finite_number(items[1], name))
+
+
+def check_cell_size(cell_size: object) -> tuple[float, float] | None:
+    """(dx, dy) from a positive number or a pair of positive numbers; None stays None."""
+    if cell_size is None:
+        return None
+    if isinstance(cell_size, int | float | np.integer | np.floating) and not isinstance(
+        cell_size, bool
+    ):
+        dx = dy = _finite_number(cell_size, "cell_size")
+    else:
+        dx, dy = _number_pair(cell_size, "cell_size")
+    if dx <= 0 or dy <= 0:
+        raise InvalidParameterError(f"cell_size must be positive, got {cell_size!r}.")
+    return (dx, dy)
+
+
+def check_origin(origin: object) -> tuple[float, float] | None:
+    """(x of the left edge, y of the top edge), or None."""
+    return None if origin is None else _number_pair(origin, "origin")
+
+
+def check_bounds(bounds: object) -> tuple[float, float, float, float] | None:
+    """(west, south, east, north) with west < east and south < north, or None."""
+    if bounds is None:
+        return None
+    try:
+        items = list(bounds)  # type: ignore[call-overload]
+    except TypeError:
+        items = []
+    if len(items) != 4:
+        raise InvalidParameterError(
+            f"bounds must be four numbers (west, south, east, north), got {bounds!r}."
+        )
+    west, south, east, north = (_finite_number(v, "bounds") for v in items)
+    if not (west < east and south < north):
+        raise InvalidParameterError(
+            f"bounds must satisfy west < east and south < north, got {bounds!r}."
+        )
+    return (west, south, east, north)
+
+
+def check_crs(crs: object) -> str | None:
+    """A CRS string (EPSG code or WKT), or None."""
+    if crs is None:
+        return None
+    if not isinstance(crs, str) or not crs.strip():
+        raise InvalidParameterError(
+            f"crs must be a non-empty string such as 'EPSG:4326' or a WKT, got {crs!r}."
+        )
+    return crs.strip()
+
+
+def check_flag(value: object, name: str) -> bool:
+    """A boolean option, or InvalidParameterError."""
+    if not isinstance(value, bool | np.bool_):
+        raise InvalidParameterError(f"{name} must be True or False, got {value!r}.")
+    return bool(value)
+
+
+def check_number(value: object, name: str, *, nonzero: bool = False) -> float:
+    """A finite number (non-zero when asked), or InvalidParameterError."""
+    number = _finite_number(value, name)
+    if nonzero and number == 0.0:
+        raise InvalidParameterError(f"{name} must not be zero.")
+    return number
+
+
+# -- heights and georeference ------------------------------------------------------------------
+
+
+def as_heights(values: np.ndarray) -> np.ndarray:
+    """Heights as float32, or float64 when that is needed to keep the values exact.
+
+    values: (rows, cols) real numbers or a masked array; masked and infinite cells become NaN.
+    """
+    a = values
+    dtype = np.dtype(a.dtype)
+    if dtype.kind not in "iuf":
+        raise TerrainFormatError(f"Heights must be real numbers, got an array of {dtype}.")
+    wide = dtype == np.float64
+    # Wide integers keep float64 only when their valid values leave float32's exact range.
+    if dtype.kind in "iu" and dtype.itemsize >= 4:
+        valid = a.compressed() if np.ma.isMaskedArray(a) else a.ravel()
+        wide = valid.size > 0 and (
+            int(valid.min()) < -_FLOAT32_EXACT_LIMIT or int(valid.max()) > _FLOAT32_EXACT_LIMIT
+        )
+    out_type = np.float64 if wide else np.float32
+    if np.ma.isMaskedArray(a):
+        out = np.ma.filled(a.astype(out_type), np.nan)
+    else:
+        out = np.array(a, dtype=out_type)
+    # Infinite heights are as unusable as NaN; keep one marker of nodata.
+    out[np.isinf(out)] = np.nan
+    return out
+
+
+def plain_transform(
+    shape: tuple[int, int],
+    cell_size: tuple[float, float] | None,
+    origin: tuple[float, float] | None,
+) -> Affine:
+    """Georeference for data without one: cell size 1 and row 0 at the top unless told.
+
+    origin is (x of the left edge, y of the top edge); by default the bottom edge lies at y = 0.
+    """
+    rows = shape[0]
+    dx, dy = cell_size if cell_size is not None else (1.0, 1.0)
+    x0, y_top = origin if origin is not None else (0.0, rows * dy)
+    return Affine(dx, 0.0, x0, 0.0, -dy, y_top)
+
+
+def own_transform(ds) -> Affine | None:
+    """The dataset's affine transform, or None when GDAL found no georeference.
+
+    rasterio reports a raster without georeference by the identity transform (y growing down).
+    """
+    if ds.transform.is_identity and ds.crs is None:
+        if ds.gcps[0]:
+            raise TerrainFormatError(
+                f"{ds.name} is georeferenced by ground control points only; warp it to a "
+                "north-up grid first (for example with gdalwarp)."
+            )
+        return None
+    return ds.transform
+
+
+def resolve_transform(
+    own: Affine | None,
+    shape: tuple[int, int],
+    cell_size: tuple[float, float] | None,
+    origin: tuple[float, float] | None,
+    path: Path,
+) -> Affine:
+    """The file's own georeference, or one built from cell_size/origin when it has none."""
+    if own is None:
+        return plain_transform(shape, cell_size, origin)
+    if cell_size is not None or origin is not None:
+        raise InvalidParameterError(
+            f"{path} carries its own georeference; cell_size and origin apply only to data "
+            "without one. Leave them out."
+        )
+    return own
+
+
+def fill_holes(heights: np.ndarray) -> tuple[np.ndarray, int]:
+    """Fill NaN cells from their valid neighbours with GDAL's inverse-distance fill.
+
+    heights: (rows, cols) float32/float64 with NaN holes. Returns the filled copy (cells farther
+    than FILL_SEARCH_DISTANCE from valid data stay NaN) and the number of cells filled.
+    """
+    from rasterio.fill import fillnodata
+
+    valid = np.isfinite(heights)
+    n_holes = int(heights.size - np.count_nonzero(valid))
+    # Nothing to fill, or nothing to fill from.
+    if n_holes == 0 or n_holes == heights.size:
+        return heights, 0
+    filled = fillnodata(
+        heights.copy(), mask=valid.astype(np.uint8), max_search_distance=FILL_SEARCH_DISTANCE
+    )
+    return filled, n_holes - int(np.count_nonzero(np.isnan(filled)))
+
+
+def make_grid(
+    heights: np.ndarray,
+    transform: Affine,
+    crs: str | None,
+    nodata_value: float | None,
+    policy: str,
+) -> Grid:
+    """A Grid with the nodata policy applied and reported.
+
+    The grid carries ``nodata_policy`` ("mask" or "fill") and ``filled_count`` (cells filled).
+    """
+    filled_count = 0
+    if policy == "fill":
+        heights, filled_count = fill_holes(heights)
+    grid = Grid(heights, transform, crs=crs, nodata=nodata_value)
+    grid.nodata_policy = policy
+    grid.filled_count = filled_count
+    return grid

@@ -1,0 +1,72 @@
+"""LAS/LAZ point clouds through laspy (LAZ decompressed by the lazrs backend).
+
+The scaled x, y, z coordinates become a TINPointSet (which merges points sharing an (x, y)
+position into their mean height). The CRS comes from the WKT VLR when the file has one, else
+from an EPSG code in the GeoTIFF keys; pyproj is not needed.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from approxtree.errors import EmptyTerrainError
+from approxtree.geometry import TINPointSet
+from approxtree.io._common import check_crs, check_flag, existing_file, reading
+
+#: ASPRS classification code of ground points.
+GROUND_CLASS = 2
+
+# GeoTIFF keys holding an EPSG code (projected first); 32767 means "user-defined".
+_EPSG_GEOKEYS = (3072, 2048)
+_USER_DEFINED = 32767
+
+
+def read_point_cloud(
+    path: str | os.PathLike,
+    *,
+    ground_only: bool = False,
+    crs: str | None = None,
+) -> TINPointSet:
+    """Read a .las/.laz file as scattered data points.
+
+    ground_only: keep only points classified as ground (class 2). crs: replaces the file's CRS.
+    Returns a TINPointSet of the (n, 3) float64 scaled coordinates.
+    """
+    p = existing_file(path)
+    ground_only = check_flag(ground_only, "ground_only")
+    crs = check_crs(crs)
+    with reading(p, "a LAS/LAZ point cloud"):
+        import laspy
+
+        las = laspy.read(p)
+        points = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)])
+        if ground_only:
+            points = points[np.asarray(las.classification) == GROUND_CLASS]
+        file_crs = _crs_of(las.header)
+    if len(points) == 0:
+        what = "ground points (classification 2)" if ground_only else "points"
+        hint = " Leave ground_only off to use all points." if ground_only else ""
+        raise EmptyTerrainError(f"{p} has no {what}.{hint}")
+    return TINPointSet(points, crs=crs or file_crs)
+
+
+def _crs_of(header) -> str | None:
+    """The CRS of a LAS header: its WKT VLR, else an EPSG code from its GeoTIFF keys, or None."""
+    from laspy.vlrs.known import GeoKeyDirectoryVlr, WktCoordinateSystemVlr
+
+    records = [*header.vlrs, *(header.evlrs or [])]
+    for record in records:
+        if isinstance(record, WktCoordinateSystemVlr):
+            wkt = record.string.strip("\x00 \n")
+            if wkt:
+                return wkt
+    for record in records:
+        if isinstance(record, GeoKeyDirectoryVlr):
+            keys = {k.id: k.value_offset for k in record.geo_keys}
+            for key in _EPSG_GEOKEYS:
+                code = keys.get(key)
+                if code and code != _USER_DEFINED:
+                    return f"EPSG:{code}"
+    return None
