@@ -1,0 +1,56 @@
+"""approxtree: real-time terrain visualization with approximation trees."""
+
+from approxtree.errors import (
+    ApproxTreeError,
+    ContextUnavailableError,
+    EmptyTerrainError,
+    InvalidParameterError,
+    StoreError,
+    TerrainFormatError,
+    UnsupportedStrategyError,
+)
+from approxtree.geometry import (
+    TIN,
+    GeometryData,
+    Grid,
+    GridRefinement,
+    NonRegularGrid,
+    Rect,
+    TINPointSet,
+)
+
+__version__ = "0.1.0"
+
+from approxtree.tree import ApproximationTree, Node, StrategyPolicy
+
+
+def __getattr__(name: str):
+    # The readers pull in rasterio, laspy and friends: import them on first use only.
+    if name == "open_terrain":
+        from approxtree.io import open_terrain
+
+        return open_terrain
+    raise AttributeError(f"module 'approxtree' has no attribute {name!r}")
+
+
+__all__ = [
+    "TIN",
+    "ApproxTreeError",
+    "ApproximationTree",
+    "ContextUnavailableError",
+    "EmptyTerrainError",
+    "GeometryData",
+    "Grid",
+    "GridRefinement",
+    "InvalidParameterError",
+    "Node",
+    "NonRegularGrid",
+    "Rect",
+    "StoreError",
+    "StrategyPolicy",
+    "TINPointSet",
+    "TerrainFormatError",
+    "UnsupportedStrategyError",
+    "__version__",
+    "open_terrain",
+]

@@ -1,0 +1,9 @@
+"""Geometry patches = approximation strategies, registered by name for policies and tree files."""
+
+from approxtree.patches.base import GeometryPatch
+from approxtree.patches.grid import GridPatch
+
+#: Strategy name → patch class. A new strategy is one new GeometryPatch subclass added here.
+STRATEGIES: dict[str, type[GeometryPatch]] = {GridPatch.kind: GridPatch}
+
+__all__ = ["STRATEGIES", "GeometryPatch", "GridPatch"]

@@ -1,0 +1,91 @@
+"""GeometryPatch: the approximating terrain T_N of one node, built by one strategy.
+
+Subclassing contract: a strategy sets ``kind`` and implements ``build_many`` (build patches for
+many rectangles at once, so kernels can batch), ``vertices``, ``triangles``, ``to_record`` and
+``from_record``. Every patch reports its exact error ε_T(N): the true maximum of
+|h_T(p) − h_TN(p)| over the data points p of its rectangle, never an estimate.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from typing import ClassVar
+
+import numpy as np
+
+from approxtree.geometry.base import GeometryData
+from approxtree.geometry.rect import Rect
+
+
+class GeometryPatch(ABC):
+    """T_N: up to s data points approximating the terrain on a rectangle D_N."""
+
+    #: Strategy name, as used by policies, the CLI and tree files.
+    kind: ClassVar[str]
+
+    rect: Rect
+    #: ε_T(N) over the data points of ``rect`` (inf if some data point is not represented).
+    error: float
+    #: (z_min, z_max) of the terrain's data points inside ``rect`` (NaN when it has none).
+    z_range: tuple[float, float]
+    #: Valid data points of the terrain inside ``rect``.
+    data_count: int
+
+    @classmethod
+    @abstractmethod
+    def build_many(
+        cls,
+        terrain: GeometryData,
+        rects: Sequence[Rect],
+        max_points: int,
+        epsilon: float = 0.0,
+    ) -> list[GeometryPatch]:
+        """Build one patch of at most ``max_points`` points per rectangle.
+
+        Adaptive strategies may stop early, with fewer points, once the patch's error is at
+        most ``epsilon``; the reported error is exact either way.
+        """
+
+    @classmethod
+    def build(
+        cls, terrain: GeometryData, rect: Rect, max_points: int, epsilon: float = 0.0
+    ) -> GeometryPatch:
+        """Build the patch of a single rectangle."""
+        return cls.build_many(terrain, [rect], max_points, epsilon)[0]
+
+    @property
+    @abstractmethod
+    def vertices(self) -> np.ndarray:
+        """(n, 3) float64 world coordinates of the patch's points P_N."""
+
+    @property
+    @abstractmethod
+    def triangles(self) -> np.ndarray:
+        """(m, 3) int64 indices into ``vertices``, counter-clockwise seen from above."""
+
+    @property
+    @abstractmethod
+    def point_count(self) -> int:
+        """|P_N| <= s: the number of data points the patch selects."""
+
+    @property
+    @abstractmethod
+    def nbytes(self) -> int:
+        """Bytes the patch itself stores (shared terrain data not counted)."""
+
+    @property
+    def is_empty(self) -> bool:
+        """True when the rectangle holds no valid data point (all nodata)."""
+        return self.data_count == 0
+
+    @abstractmethod
+    def to_record(self) -> dict[str, np.ndarray]:
+        """The patch as named little-endian arrays, for the tree file."""
+
+    @classmethod
+    @abstractmethod
+    def from_record(
+        cls, terrain: GeometryData, rect: Rect, record: dict[str, np.ndarray]
+    ) -> GeometryPatch:
+        """Rebuild a patch from ``to_record``'s arrays, referencing the shared terrain."""

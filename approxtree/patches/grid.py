@@ -1,0 +1,146 @@
+"""GridPatch: the regular-grid strategy (core paper, section 3.2).
+
+The patch keeps every sr-th row and every sc-th column of the shared Grid inside its rectangle
+(plus the last ones, so it covers the rectangle exactly). Only the index range and the two
+steps are stored; vertices are read from the grid on demand. With s = k² max points the steps
+are the smallest that keep at most k lines per direction.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from approxtree.errors import UnsupportedStrategyError
+from approxtree.geometry.base import GeometryData
+from approxtree.geometry.grid import Grid
+from approxtree.geometry.rect import Rect
+from approxtree.kernels.grid_patch import grid_patch_errors, grid_patch_mesh
+from approxtree.patches.base import GeometryPatch
+
+
+def grid_steps(n_lines: int, max_lines: int) -> int:
+    """Smallest step keeping at most ``max_lines`` sampled lines out of ``n_lines`` (>= 2)."""
+    return max(1, math.ceil((n_lines - 1) / (max_lines - 1)))
+
+
+class GridPatch(GeometryPatch):
+    """Regular rows and columns of a Grid: stores (r0, r1, c0, c1) and the steps (sr, sc)."""
+
+    kind = "grid"
+
+    def __init__(
+        self,
+        grid: Grid,
+        rect: Rect,
+        index: tuple[int, int, int, int, int, int],
+        error: float,
+        z_range: tuple[float, float],
+        data_count: int,
+    ) -> None:
+        self.grid = grid
+        self.rect = rect
+        self.index = tuple(int(v) for v in index)
+        self.error = float(error)
+        self.z_range = (float(z_range[0]), float(z_range[1]))
+        self.data_count = int(data_count)
+        self._mesh: tuple[np.ndarray, np.ndarray] | None = None
+
+    @staticmethod
+    def _require_grid(terrain: GeometryData) -> Grid:
+        if not isinstance(terrain, Grid):
+            raise UnsupportedStrategyError(
+                f"The grid strategy needs a regular Grid, got a {type(terrain).__name__}; "
+                "choose a strategy made for this data type."
+            )
+        return terrain
+
+    @classmethod
+    def build_many(
+        cls,
+        terrain: GeometryData,
+        rects: Sequence[Rect],
+        max_points: int,
+        epsilon: float = 0.0,
+    ) -> list[GeometryPatch]:
+        # The steps depend on s alone: a regular grid cannot stop early at epsilon.
+        grid = cls._require_grid(terrain)
+        k = math.isqrt(max_points)
+        ranges = np.array([grid.index_range(r) for r in rects], dtype=np.int64).reshape(-1, 4)
+        steps = np.column_stack(
+            [
+                [grid_steps(r1 - r0 + 1, k) for r0, r1, _, _ in ranges],
+                [grid_steps(c1 - c0 + 1, k) for _, _, c0, c1 in ranges],
+            ]
+        ).astype(np.int64)
+        error, zmin, zmax, count = grid_patch_errors(grid.heights, ranges, steps)
+        return [
+            cls(grid, rect, (*ranges[i], *steps[i]), error[i], (zmin[i], zmax[i]), count[i])
+            for i, rect in enumerate(rects)
+        ]
+
+    @property
+    def steps(self) -> tuple[int, int]:
+        return self.index[4], self.index[5]
+
+    @property
+    def is_full_resolution(self) -> bool:
+        """True when every data line of the rectangle is sampled (the patch equals T there)."""
+        return self.steps == (1, 1)
+
+    def _build_mesh(self) -> tuple[np.ndarray, np.ndarray]:
+        g = self.grid
+        r0, r1, c0, c1, sr, sc = self.index
+        rows, cols, tris = grid_patch_mesh(g.heights, r0, r1, c0, c1, sr, sc)
+        rr, cc = np.meshgrid(rows, cols, indexing="ij")
+        verts = np.column_stack(
+            [g.x_coords[cc.ravel()], g.y_coords[rr.ravel()], g.heights[rr, cc].ravel()]
+        ).astype(np.float64)
+        # Index space is (col, row); a north-up transform mirrors it, so flip to stay CCW.
+        if g.transform.a * g.transform.e < 0:
+            tris = tris[:, [0, 2, 1]]
+        # Drop nodata vertices and renumber the triangles over the remaining ones.
+        keep = np.isfinite(verts[:, 2])
+        if not keep.all():
+            new_index = np.cumsum(keep) - 1
+            verts = verts[keep]
+            tris = new_index[tris]
+        return verts, np.ascontiguousarray(tris)
+
+    @property
+    def vertices(self) -> np.ndarray:
+        if self._mesh is None:
+            self._mesh = self._build_mesh()
+        return self._mesh[0]
+
+    @property
+    def triangles(self) -> np.ndarray:
+        if self._mesh is None:
+            self._mesh = self._build_mesh()
+        return self._mesh[1]
+
+    @property
+    def point_count(self) -> int:
+        r0, r1, c0, c1, sr, sc = self.index
+        return ((r1 - r0 + sr - 1) // sr + 1) * ((c1 - c0 + sc - 1) // sc + 1)
+
+    @property
+    def nbytes(self) -> int:
+        return 6 * 8
+
+    def to_record(self) -> dict[str, np.ndarray]:
+        return {
+            "index": np.array(self.index, dtype="<i8"),
+            "stats": np.array([self.error, *self.z_range, self.data_count], dtype="<f8"),
+        }
+
+    @classmethod
+    def from_record(
+        cls, terrain: GeometryData, rect: Rect, record: dict[str, np.ndarray]
+    ) -> GridPatch:
+        grid = cls._require_grid(terrain)
+        index = tuple(int(v) for v in record["index"])
+        error, zmin, zmax, count = (float(v) for v in record["stats"])
+        return cls(grid, rect, index, error, (zmin, zmax), int(count))

@@ -1,0 +1,245 @@
+"""ApproximationTree: the hierarchy A(s,d)(T) of geometry patches over one terrain.
+
+The tree keeps its nodes in flat arrays (breadth-first order, children contiguous) so that
+selection can run vectorized over many nodes; ``Node`` is a light view of one entry. Patches
+are objects, loaded from the tree file on first access when the tree was loaded lazily.
+"""
+
+from __future__ import annotations
+
+import os
+from collections import Counter
+from typing import Any
+
+import numpy as np
+
+from approxtree import __version__
+from approxtree.errors import StoreError
+from approxtree.geometry import TERRAIN_TYPES
+from approxtree.geometry.base import GeometryData
+from approxtree.geometry.rect import Rect
+from approxtree.patches import STRATEGIES, GeometryPatch
+from approxtree.tree.builder import build_levels
+from approxtree.tree.node import Node
+from approxtree.tree.policy import StrategyPolicy
+from approxtree.tree.store import TreeFile, write_tree_file
+
+
+class ApproximationTree:
+    """Nodes of an approximation tree over ``terrain``, as flat arrays.
+
+    rects: (n, 4) float64 D_N as (xmin, ymin, xmax, ymax).
+    errors: (n,) float64 ε_T(N).
+    bboxes: (n, 6) float64 B_N as (xmin, ymin, zmin, xmax, ymax, zmax).
+    levels: (n,) int32 depth, root = 0. parents: (n,) int64, −1 for the root.
+    child_start, child_count: (n,) int64 — children of i are child_start[i] + range(count).
+    strategies: (n,) uint8 index into ``strategy_names``.
+    origin: (3,) float64 local origin for float32 GPU buffers (domain centre, z_min).
+    """
+
+    def __init__(
+        self,
+        terrain: GeometryData,
+        rects: np.ndarray,
+        errors: np.ndarray,
+        bboxes: np.ndarray,
+        levels: np.ndarray,
+        parents: np.ndarray,
+        child_start: np.ndarray,
+        child_count: np.ndarray,
+        strategies: np.ndarray,
+        strategy_names: list[str],
+        params: dict[str, Any],
+        patches: list[GeometryPatch | None],
+        source: TreeFile | None = None,
+    ) -> None:
+        self.terrain = terrain
+        self.rects = rects
+        self.errors = errors
+        self.bboxes = bboxes
+        self.levels = levels
+        self.parents = parents
+        self.child_start = child_start
+        self.child_count = child_count
+        self.strategies = strategies
+        self.strategy_names = strategy_names
+        self.params = params
+        self._patches = patches
+        self._source = source
+        z0 = terrain.z_range[0]
+        cx, cy = terrain.domain.center
+        self.origin = np.array([cx, cy, z0], dtype=np.float64)
+
+    # -- construction --------------------------------------------------------------------------
+
+    @classmethod
+    def build(
+        cls,
+        terrain: GeometryData,
+        epsilon: float = 1.0,
+        max_points: int = 33 * 33,
+        fanout: int = 4,
+        policy: str | StrategyPolicy = "auto",
+        progress: bool | None = None,
+    ) -> ApproximationTree:
+        """Build A(s,d)(T): split nodes while ε_T(N) > epsilon, patches of at most s points.
+
+        epsilon: threshold ε in z units (>= 0); max_points: s (>= 4); fanout: d (4 quadtree,
+        2 k-d tree); policy: strategy name or "auto"; progress: tqdm bar (None = when large).
+        """
+        policy_obj = StrategyPolicy.resolve(policy)
+        built = build_levels(terrain, epsilon, max_points, fanout, policy_obj, progress)
+        n = len(built.patches)
+        names = list(dict.fromkeys(p.kind for p in built.patches))
+        bboxes = np.empty((n, 6))
+        rects = np.array([r.as_tuple() for r in built.rects], dtype=np.float64).reshape(n, 4)
+        bboxes[:, [0, 1, 3, 4]] = rects
+        bboxes[:, 2] = [p.z_range[0] for p in built.patches]
+        bboxes[:, 5] = [p.z_range[1] for p in built.patches]
+        tree = cls(
+            terrain,
+            rects=rects,
+            errors=np.array([p.error for p in built.patches], dtype=np.float64),
+            bboxes=bboxes,
+            levels=np.array(built.levels, dtype=np.int32),
+            parents=np.array(built.parents, dtype=np.int64),
+            child_start=np.array(built.child_start, dtype=np.int64),
+            child_count=np.array(built.child_count, dtype=np.int64),
+            strategies=np.array([names.index(p.kind) for p in built.patches], dtype=np.uint8),
+            strategy_names=names,
+            params={
+                "epsilon": float(epsilon),
+                "max_points": int(max_points),
+                "fanout": int(fanout),
+                "policy": policy_obj.name,
+            },
+            patches=list(built.patches),
+        )
+        tree.build_seconds = built.seconds
+        return tree
+
+    build_seconds: float = 0.0
+
+    # -- nodes ---------------------------------------------------------------------------------
+
+    def __len__(self) -> int:
+        return len(self.errors)
+
+    @property
+    def root(self) -> Node:
+        return Node(self, 0)
+
+    def node(self, index: int) -> Node:
+        return Node(self, index)
+
+    def nodes(self) -> list[Node]:
+        """All nodes in breadth-first order."""
+        return [Node(self, i) for i in range(len(self))]
+
+    @property
+    def leaves(self) -> np.ndarray:
+        """(k,) int64 indices of the leaves."""
+        return np.flatnonzero(self.child_count == 0)
+
+    def patch(self, index: int) -> GeometryPatch:
+        """T_N of node ``index`` (read from the tree file on first access)."""
+        p = self._patches[index]
+        if p is None:
+            if self._source is None:  # pragma: no cover - built trees hold every patch
+                raise StoreError(f"patch of node {index} is missing")
+            _, arrays = self._source.patch_record(index)
+            kind = self.strategy_names[int(self.strategies[index])]
+            rect = Rect(*(float(v) for v in self.rects[index]))
+            p = STRATEGIES[kind].from_record(self.terrain, rect, arrays)
+            self._patches[index] = p
+        return p
+
+    @property
+    def epsilon(self) -> float:
+        return self.params["epsilon"]
+
+    @property
+    def max_points(self) -> int:
+        return self.params["max_points"]
+
+    @property
+    def fanout(self) -> int:
+        return self.params["fanout"]
+
+    def stats(self) -> dict[str, Any]:
+        """Figures of the tree: nodes, levels, leaves, strategies, max_leaf_error."""
+        leaves = self.leaves
+        counts = Counter(self.strategy_names[int(s)] for s in self.strategies)
+        return {
+            "nodes": len(self),
+            "levels": int(self.levels.max()) + 1,
+            "leaves": len(leaves),
+            "strategies": dict(counts),
+            "max_leaf_error": float(self.errors[leaves].max()),
+        }
+
+    # -- storage -------------------------------------------------------------------------------
+
+    def save(self, path: str | os.PathLike) -> int:
+        """Write the tree (terrain included) atomically to ``path``; returns the file size."""
+        tattrs, tarrays = self.terrain.to_record()
+        meta = {
+            "library": f"approxtree {__version__}",
+            "terrain_kind": self.terrain.kind,
+            "params": self.params,
+            "strategy_names": self.strategy_names,
+        }
+        nodes = {
+            "rects": self.rects,
+            "errors": self.errors,
+            "bboxes": self.bboxes,
+            "levels": self.levels,
+            "parents": self.parents,
+            "child_start": self.child_start,
+            "child_count": self.child_count,
+            "strategies": self.strategies,
+        }
+        patches = [({}, self.patch(i).to_record()) for i in range(len(self))]
+        return write_tree_file(
+            path,
+            meta,
+            {"terrain": (tattrs, tarrays), "nodes": ({}, nodes)},
+            patches,
+            self.strategies,
+        )
+
+    @classmethod
+    def load(cls, path: str | os.PathLike, verify: bool = True) -> ApproximationTree:
+        """Open a tree file; patches load on first access.
+
+        verify: check the checksum of every patch now (sections are always checked), so a
+        corrupted file fails here rather than at render time.
+        """
+        f = TreeFile(path)
+        meta = f.meta
+        kind = meta.get("terrain_kind")
+        if kind not in TERRAIN_TYPES:
+            raise StoreError(f"{path} holds an unknown terrain kind {kind!r}.")
+        unknown = set(meta["strategy_names"]) - set(STRATEGIES)
+        if unknown:
+            raise StoreError(f"{path} uses strategies unknown to this version: {sorted(unknown)}.")
+        if verify:
+            f.verify_patches()
+        terrain = TERRAIN_TYPES[kind].from_record(*f.section("terrain"))
+        _, nodes = f.section("nodes")
+        n = len(nodes["errors"])
+        return cls(
+            terrain,
+            rects=nodes["rects"],
+            errors=nodes["errors"],
+            bboxes=nodes["bboxes"],
+            levels=nodes["levels"],
+            parents=nodes["parents"],
+            child_start=nodes["child_start"],
+            child_count=nodes["child_count"],
+            strategies=nodes["strategies"],
+            strategy_names=list(meta["strategy_names"]),
+            params=dict(meta["params"]),
+            patches=[None] * n,
+            source=f,
+        )

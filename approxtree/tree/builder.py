@@ -1,0 +1,106 @@
+"""Top-down construction of an approximation tree A(s,d)(T), one level at a time.
+
+Each level's nodes are built in one batch per strategy (so the numba kernels see many nodes at
+once); a node is split while ε_T(N) > ε and its domain can still be cut. Nodes are numbered in
+breadth-first order, so the children of a node are contiguous.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from approxtree.errors import InvalidParameterError
+from approxtree.geometry.base import GeometryData
+from approxtree.geometry.rect import Rect
+from approxtree.patches.base import GeometryPatch
+from approxtree.tree.policy import StrategyPolicy
+from approxtree.tree.subdivision import FANOUTS, subdivide
+
+
+@dataclass
+class BuiltLevels:
+    """The flat arrays of a freshly built tree (see ApproximationTree for their meaning)."""
+
+    rects: list[Rect] = field(default_factory=list)
+    patches: list[GeometryPatch] = field(default_factory=list)
+    levels: list[int] = field(default_factory=list)
+    parents: list[int] = field(default_factory=list)
+    child_start: list[int] = field(default_factory=list)
+    child_count: list[int] = field(default_factory=list)
+    seconds: float = 0.0
+
+
+def validate_parameters(epsilon: float, max_points: int, fanout: int) -> None:
+    """Raise InvalidParameterError for a threshold, point budget or fanout out of range."""
+    if not isinstance(epsilon, int | float) or not math.isfinite(epsilon) or epsilon < 0:
+        raise InvalidParameterError(
+            f"epsilon must be a finite number >= 0 (in the terrain's z units), got {epsilon!r}."
+        )
+    if not isinstance(max_points, int | np.integer) or max_points < 4:
+        raise InvalidParameterError(
+            f"max_points must be an integer >= 4 (a patch needs 2 × 2 points), got {max_points!r}."
+        )
+    if fanout not in FANOUTS:
+        raise InvalidParameterError(f"fanout must be one of {FANOUTS}, got {fanout!r}.")
+
+
+def build_levels(
+    terrain: GeometryData,
+    epsilon: float,
+    max_points: int,
+    fanout: int,
+    policy: StrategyPolicy,
+    progress: bool | None = None,
+) -> BuiltLevels:
+    """Build the nodes level by level; ``progress`` None shows a bar only for large terrains."""
+    validate_parameters(epsilon, max_points, fanout)
+    t0 = time.perf_counter()
+    out = BuiltLevels()
+    show = terrain.point_count > 1_000_000 if progress is None else progress
+    # Progress is the share of the domain's area already covered by finished leaves.
+    domain_area = terrain.domain.area or 1.0
+    bar = tqdm(
+        total=100.0,
+        unit="%",
+        desc="building tree",
+        disable=not show,
+        leave=False,
+        bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f}% [{elapsed}<{remaining}]",
+    )
+    # Each entry of the frontier: (rect, parent index); the root has no parent.
+    frontier: list[tuple[Rect, int]] = [(terrain.domain, -1)]
+    level = 0
+    while frontier:
+        # Group the level's nodes by strategy so every strategy builds its batch in one call.
+        kinds = [policy.strategy_for(terrain, level, rect) for rect, _ in frontier]
+        patches: list[GeometryPatch | None] = [None] * len(frontier)
+        for kind in dict.fromkeys(kinds):
+            idx = [i for i, k in enumerate(kinds) if k is kind]
+            built = kind.build_many(terrain, [frontier[i][0] for i in idx], max_points, epsilon)
+            for i, p in zip(idx, built, strict=True):
+                patches[i] = p
+        first = len(out.rects)
+        next_frontier: list[tuple[Rect, int]] = []
+        next_first = first + len(frontier)
+        for i, ((rect, parent), patch) in enumerate(zip(frontier, patches, strict=True)):  # type: ignore[assignment]
+            node = first + i
+            out.rects.append(rect)
+            out.patches.append(patch)
+            out.levels.append(level)
+            out.parents.append(parent)
+            children = subdivide(terrain, rect, fanout) if patch.error > epsilon else []
+            out.child_start.append(next_first + len(next_frontier) if children else 0)
+            out.child_count.append(len(children))
+            next_frontier.extend((c, node) for c in children)
+            if not children:
+                bar.update(100.0 * rect.area / domain_area)
+        frontier = next_frontier
+        level += 1
+    bar.close()
+    out.seconds = time.perf_counter() - t0
+    return out

@@ -1,0 +1,114 @@
+"""The .atree file: checksums catch corruption and truncation; writes are atomic."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+from approxtree import ApproximationTree, StoreError
+from approxtree.datasets import fractal_terrain
+from approxtree.patches import GridPatch
+from approxtree.tree.store import TreeFile
+
+
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory):
+    """A small tree saved to disk, with its bytes."""
+    tree = ApproximationTree.build(
+        fractal_terrain(65, seed=4, relief=100.0), epsilon=1.0, max_points=25
+    )
+    path = tmp_path_factory.mktemp("store") / "tree.atree"
+    tree.save(path)
+    return tree, path, path.read_bytes()
+
+
+def _corrupt(tmp_path, data: bytes, offset: int) -> os.PathLike:
+    bad = bytearray(data)
+    bad[offset] ^= 0xFF
+    path = tmp_path / "bad.atree"
+    path.write_bytes(bytes(bad))
+    return path
+
+
+@pytest.mark.parametrize("where", ["header", "terrain", "nodes", "patch_index", "patch"])
+def test_flipped_byte_is_detected(saved, tmp_path, where):
+    """One flipped byte anywhere — header, any section, a patch — is a StoreError on load."""
+    _, path, data = saved
+    f = TreeFile(path)
+    if where == "header":
+        offset = 30
+    elif where == "patch":
+        offset = f.patch_span(3)[0] + 2
+    else:
+        start, length = f.section_span(where)
+        offset = start + length // 2
+    with pytest.raises(StoreError, match="corrupted"):
+        ApproximationTree.load(_corrupt(tmp_path, data, offset))
+
+
+def test_corrupted_patch_is_caught_when_read_alone(saved, tmp_path):
+    """Without eager verification a corrupted patch fails when that node's patch is read."""
+    _, path, data = saved
+    f = TreeFile(path)
+    offset = f.patch_span(5)[0] + 1
+    tree = ApproximationTree.load(_corrupt(tmp_path, data, offset), verify=False)
+    assert tree.node(4).patch.error == tree.errors[4]  # an intact neighbour loads fine
+    with pytest.raises(StoreError, match="patch of node 5"):
+        _ = tree.node(5).patch
+
+
+@pytest.mark.parametrize("keep", [0, 10, 100, -1])
+def test_truncated_file_is_detected(saved, tmp_path, keep):
+    """Truncated files (empty, mid-header, mid-data, one byte short) are StoreErrors."""
+    _, _, data = saved
+    path = tmp_path / "short.atree"
+    path.write_bytes(data[:keep] if keep >= 0 else data[:-1])
+    with pytest.raises(StoreError):
+        ApproximationTree.load(path)
+
+
+def test_other_files_and_versions_are_refused(saved, tmp_path):
+    """A non-tree file and a future format version are refused with a clear message."""
+    _, _, data = saved
+    other = tmp_path / "x.atree"
+    other.write_bytes(b"GeoTIFF? no." * 10)
+    with pytest.raises(StoreError, match="not an approxtree tree file"):
+        ApproximationTree.load(other)
+    future = bytearray(data)
+    future[8] = 99
+    other.write_bytes(bytes(future))
+    with pytest.raises(StoreError, match="version 99"):
+        ApproximationTree.load(other)
+    with pytest.raises(StoreError, match="does not exist"):
+        ApproximationTree.load(tmp_path / "missing.atree")
+
+
+def test_interrupted_save_leaves_the_old_file_intact(saved, tmp_path, monkeypatch):
+    """A save that fails midway keeps the previous tree file and leaves no temp file."""
+    tree, _, data = saved
+    path = tmp_path / "keep.atree"
+    path.write_bytes(data)
+    calls = {"n": 0}
+    original = GridPatch.to_record
+
+    def failing(self):
+        calls["n"] += 1
+        if calls["n"] > 10:
+            raise KeyboardInterrupt
+        return original(self)
+
+    monkeypatch.setattr(GridPatch, "to_record", failing)
+    with pytest.raises(KeyboardInterrupt):
+        tree.save(path)
+    assert path.read_bytes() == data
+    assert os.listdir(tmp_path) == ["keep.atree"]
+
+
+def test_one_patch_loads_on_its_own(saved):
+    """A single node's patch can be read from the file without loading the others."""
+    tree, path, _ = saved
+    f = TreeFile(path)
+    _, arrays = f.patch_record(7)
+    np.testing.assert_array_equal(arrays["index"], np.array(tree.node(7).patch.index))
