@@ -1,0 +1,248 @@
+"""The ``approxtree`` command line (click). Every command with --json prints one JSON object.
+
+Errors of the ApproxTreeError hierarchy are printed as one line on stderr (exit code 2), never
+as a traceback.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import click
+
+from approxtree.errors import ApproxTreeError
+
+
+def _reports_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """Turn an ApproxTreeError into a one-line message on stderr and exit code 2."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(*args, **kwargs)
+        except ApproxTreeError as exc:
+            click.echo(f"Error: {exc}", err=True)
+            sys.exit(2)
+
+    return wrapper
+
+
+def _finite(value: float) -> float | None:
+    """JSON has no inf or NaN: report them as null."""
+    return value if math.isfinite(value) else None
+
+
+def _emit(figures: dict[str, Any], as_json: bool) -> None:
+    if as_json:
+        click.echo(json.dumps(figures))
+    else:
+        width = max(len(k) for k in figures)
+        for k, v in figures.items():
+            click.echo(f"{k:<{width}}  {v}")
+
+
+def reader_options(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """Options that choose how a terrain file is read (shared by info and build)."""
+    fn = click.option(
+        "--encoding",
+        type=click.Choice(["terrain-rgb", "terrarium"]),
+        help="Height encoding of an RGB PNG.",
+    )(fn)
+    fn = click.option(
+        "--nodata",
+        "nodata_policy",
+        type=click.Choice(["mask", "fill"]),
+        default="mask",
+        show_default=True,
+        help="Leave nodata out of the terrain (mask) or fill the holes by interpolation.",
+    )(fn)
+    fn = click.option(
+        "--ground-only", is_flag=True, help="Point clouds: keep ground points (class 2) only."
+    )(fn)
+    fn = click.option(
+        "--height-scale", type=float, help="16-bit grayscale PNG: metres per grey level."
+    )(fn)
+    return fn
+
+
+def _open(
+    path: str,
+    encoding: str | None,
+    nodata_policy: str,
+    ground_only: bool,
+    height_scale: float | None,
+):
+    from approxtree.io import open_terrain
+
+    options: dict[str, Any] = {"nodata": nodata_policy}
+    if encoding:
+        options["encoding"] = encoding
+    if ground_only:
+        options["ground_only"] = True
+    if height_scale is not None:
+        options["height_scale"] = height_scale
+    return open_terrain(path, **options)
+
+
+def terrain_figures(terrain) -> dict[str, Any]:
+    """The figures of ``approxtree info`` for any terrain."""
+    from approxtree.geometry import Grid
+
+    z_min, z_max = terrain.z_range
+    figures: dict[str, Any] = {"kind": terrain.kind}
+    if isinstance(terrain, Grid):
+        figures.update(
+            width=terrain.width,
+            height=terrain.height,
+            crs=terrain.crs,
+            cell_size=list(terrain.cell_size),
+            z_min=z_min,
+            z_max=z_max,
+            nodata_count=terrain.nodata_count,
+        )
+    else:
+        figures.update(
+            width=None,
+            height=None,
+            crs=terrain.crs,
+            cell_size=None,
+            z_min=z_min,
+            z_max=z_max,
+            nodata_count=0,
+        )
+    d = terrain.domain
+    figures.update(points=terrain.point_count, domain=[d.xmin, d.ymin, d.xmax, d.ymax])
+    return figures
+
+
+def tree_figures(tree, seconds: float, nbytes: int) -> dict[str, Any]:
+    """The figures of ``approxtree build`` for a built tree."""
+    stats = tree.stats()
+    stats["max_leaf_error"] = _finite(stats["max_leaf_error"])
+    stats.update(
+        epsilon=tree.epsilon,
+        max_points=tree.max_points,
+        fanout=tree.fanout,
+        seconds=round(seconds, 4),
+        bytes=nbytes,
+    )
+    return stats
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="approxtree")
+def main() -> None:
+    """approxtree: approximation trees for real-time terrain visualization."""
+
+
+@main.command()
+@click.argument("dem", type=click.Path(dir_okay=False))
+@reader_options
+@click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
+@_reports_errors
+def info(dem: str, encoding, nodata_policy, ground_only, height_scale, as_json: bool) -> None:
+    """Size, CRS, cell size, z range and nodata count of a terrain file."""
+    terrain = _open(dem, encoding, nodata_policy, ground_only, height_scale)
+    _emit(terrain_figures(terrain), as_json)
+
+
+@main.command()
+@click.argument("dem", type=click.Path(dir_okay=False))
+@click.option(
+    "--out",
+    "out",
+    required=True,
+    type=click.Path(dir_okay=False),
+    help="Tree file to write (.atree).",
+)
+@click.option(
+    "--epsilon",
+    type=float,
+    default=1.0,
+    show_default=True,
+    help="Threshold ε: nodes split while their error exceeds it (z units).",
+)
+@click.option(
+    "--max-points",
+    type=int,
+    default=33 * 33,
+    show_default=True,
+    help="s: most data points per geometry patch.",
+)
+@click.option(
+    "--fanout",
+    type=click.Choice(["2", "4"]),
+    default="4",
+    show_default=True,
+    help="d: children per node (4 quadtree, 2 k-d tree).",
+)
+@click.option(
+    "--policy",
+    default="auto",
+    show_default=True,
+    help="Approximation strategy per node (auto or a strategy name).",
+)
+@reader_options
+@click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
+@_reports_errors
+def build(
+    dem: str,
+    out: str,
+    epsilon: float,
+    max_points: int,
+    fanout: str,
+    policy: str,
+    encoding,
+    nodata_policy,
+    ground_only,
+    height_scale,
+    as_json: bool,
+) -> None:
+    """Build the approximation tree of a terrain file and save it."""
+    from approxtree.tree import ApproximationTree
+
+    terrain = _open(dem, encoding, nodata_policy, ground_only, height_scale)
+    t0 = time.perf_counter()
+    tree = ApproximationTree.build(
+        terrain, epsilon=epsilon, max_points=max_points, fanout=int(fanout), policy=policy
+    )
+    seconds = time.perf_counter() - t0
+    nbytes = tree.save(out)
+    _emit(tree_figures(tree, seconds, nbytes), as_json)
+
+
+@main.command()
+@click.option(
+    "--out",
+    type=click.Path(dir_okay=False),
+    default="demo.atree",
+    show_default=True,
+    help="Where to save the tree of the sample terrain.",
+)
+@click.option(
+    "--epsilon", type=float, default=1.0, show_default=True, help="Threshold ε in metres."
+)
+@click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
+@_reports_errors
+def demo(out: str, epsilon: float, as_json: bool) -> None:
+    """Build the tree of the sample terrain (matplotlib's Jacksboro fault DEM) and show it."""
+    from approxtree.datasets import sample_terrain
+    from approxtree.tree import ApproximationTree
+
+    terrain = sample_terrain()
+    t0 = time.perf_counter()
+    tree = ApproximationTree.build(terrain, epsilon=epsilon)
+    seconds = time.perf_counter() - t0
+    nbytes = tree.save(out)
+    figures = {"terrain": "jacksboro_fault_dem (matplotlib sample data)"}
+    figures.update(terrain_figures(terrain))
+    figures.update(tree_figures(tree, seconds, nbytes))
+    figures["tree_file"] = str(Path(out))
+    _emit(figures, as_json)
