@@ -1,0 +1,150 @@
+"""Cartographic hillshade over a height grid, with gdaldem's formulas and nodata rules.
+
+Gradients from the 3 × 3 window (cell 4 in the centre)::
+
+    0 1 2        Horn:                 x = ((w0 + 2 w3 + w6) − (w2 + 2 w5 + w8)) / (8 Δx)
+    3 4 5                              y = ((w6 + 2 w7 + w8) − (w0 + 2 w1 + w2)) / (8 Δy)
+    6 7 8        Zevenbergen–Thorne:   x = (w3 − w5) / (2 Δx),  y = (w7 − w1) / (2 Δy)
+
+Δy is the signed row step (negative for north-up grids), as in gdaldem. The shade of a cell is
+1 + 254 · cos(angle between the surface normal and the light), clamped to 1 when the cell faces
+away from the light; 0 marks nodata (a window touching nodata, or the outer border).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+HORN = 0
+ZEVENBERGEN_THORNE = 1
+
+STANDARD = 0
+COMBINED = 1
+MULTIDIRECTIONAL = 2
+
+
+@njit(cache=True, inline="always")
+def _gradient(z, r, c, inv_ew, inv_ns, algorithm):
+    """(x, y) gradient at interior cell (r, c), unscaled by the z factor's 1/8 or 1/2."""
+    if algorithm == HORN:
+        x = (
+            (z[r - 1, c - 1] + 2.0 * z[r, c - 1] + z[r + 1, c - 1])
+            - (z[r - 1, c + 1] + 2.0 * z[r, c + 1] + z[r + 1, c + 1])
+        ) * inv_ew
+        y = (
+            (z[r + 1, c - 1] + 2.0 * z[r + 1, c] + z[r + 1, c + 1])
+            - (z[r - 1, c - 1] + 2.0 * z[r - 1, c] + z[r - 1, c + 1])
+        ) * inv_ns
+    else:
+        x = (z[r, c - 1] - z[r, c + 1]) * inv_ew
+        y = (z[r + 1, c] - z[r - 1, c]) * inv_ns
+    return x, y
+
+
+@njit(cache=True, parallel=True)
+def hillshade(
+    z: np.ndarray,
+    dx: float,
+    dy: float,
+    z_factor: float,
+    altitude: float,
+    azimuth: float,
+    algorithm: int,
+    mode: int,
+) -> np.ndarray:
+    """Shade values of a height grid.
+
+    z: (rows, cols) float, NaN = nodata. dx: column step (> 0); dy: signed row step in the same
+    horizontal units (negative when row 0 is north). altitude, azimuth in degrees.
+    Returns (rows, cols) float32 in [1, 255], 0 = nodata.
+    """
+    rows, cols = z.shape
+    out = np.zeros((rows, cols), dtype=np.float32)
+    inv_ew = 1.0 / dx
+    inv_ns = 1.0 / dy
+    zf = z_factor / (8.0 if algorithm == HORN else 2.0)
+    alt = math.radians(altitude)
+    az = math.radians(azimuth)
+    sin_alt = math.sin(alt)
+    cos_alt_z = math.cos(alt) * zf
+    cos_az = math.cos(az) * cos_alt_z
+    sin_az = math.sin(az) * cos_alt_z
+    c225 = math.cos(math.radians(225.0)) * cos_alt_z
+    square_z = zf * zf
+    for r in prange(1, rows - 1):
+        for c in range(1, cols - 1):
+            # Any nodata in the window leaves the cell nodata, as gdaldem does.
+            bad = False
+            for i in range(-1, 2):
+                for j in range(-1, 2):
+                    if np.isnan(z[r + i, c + j]):
+                        bad = True
+            if bad:
+                continue
+            x, y = _gradient(z, r, c, inv_ew, inv_ns, algorithm)
+            xx_yy = x * x + y * y
+            if mode == STANDARD:
+                v = (
+                    254.0
+                    * (sin_alt - (y * cos_az - x * sin_az))
+                    / math.sqrt(1.0 + square_z * xx_yy)
+                )
+                out[r, c] = 1.0 if v <= 0.0 else 1.0 + v
+            elif mode == COMBINED:
+                slope = xx_yy * square_z
+                cang = (sin_alt - (y * cos_az - x * sin_az)) / math.sqrt(1.0 + slope)
+                cang = math.acos(min(1.0, max(-1.0, cang)))
+                # Steeper cells get darker: weight the angle by the slope.
+                cang = 1.0 - cang * math.atan(math.sqrt(slope)) / (math.pi * math.pi / 4.0)
+                out[r, c] = 1.0 if cang <= 0.0 else 1.0 + 254.0 * cang
+            else:
+                if xx_yy == 0.0:
+                    out[r, c] = 1.0 + 254.0 * sin_alt
+                    continue
+                # Four lights (225°, 270°, 315°, 360°) weighted by the aspect (USGS OF 92-422).
+                v225 = max(0.0, 127.0 * (sin_alt + (x - y) * c225))
+                v270 = max(0.0, 127.0 * (sin_alt - x * cos_alt_z))
+                v315 = max(0.0, 127.0 * (sin_alt + (x + y) * c225))
+                v360 = max(0.0, 127.0 * (sin_alt - y * cos_alt_z))
+                w225 = 0.5 * xx_yy - x * y
+                w270 = x * x
+                w315 = xx_yy - w225
+                w360 = y * y
+                v = (w225 * v225 + w270 * v270 + w315 * v315 + w360 * v360) / xx_yy
+                out[r, c] = 1.0 + v / math.sqrt(1.0 + square_z * xx_yy)
+    return out
+
+
+@njit(cache=True, parallel=True)
+def slope_degrees(z: np.ndarray, dx: float, dy: float, z_factor: float, algorithm: int):
+    """Slope in degrees (gdaldem slope): (rows, cols) float32, NaN = nodata or border."""
+    rows, cols = z.shape
+    out = np.full((rows, cols), np.nan, dtype=np.float32)
+    div = 8.0 if algorithm == HORN else 2.0
+    for r in prange(1, rows - 1):
+        for c in range(1, cols - 1):
+            x, y = _gradient(z, r, c, 1.0 / dx, 1.0 / dy, algorithm)
+            if not (np.isnan(x) or np.isnan(y)):
+                out[r, c] = math.degrees(math.atan(z_factor * math.sqrt(x * x + y * y) / div))
+    return out
+
+
+@njit(cache=True, parallel=True)
+def profile_curvature(z: np.ndarray, dx: float, dy: float) -> np.ndarray:
+    """Second derivative of height across the grid (Laplacian): (rows, cols) float32.
+
+    Positive in hollows and valleys, negative on ridges and crests; NaN at nodata and borders.
+    """
+    rows, cols = z.shape
+    out = np.full((rows, cols), np.nan, dtype=np.float32)
+    for r in prange(1, rows - 1):
+        for c in range(1, cols - 1):
+            zxx = (z[r, c - 1] - 2.0 * z[r, c] + z[r, c + 1]) / (dx * dx)
+            zyy = (z[r - 1, c] - 2.0 * z[r, c] + z[r + 1, c]) / (dy * dy)
+            v = zxx + zyy
+            if not np.isnan(v):
+                out[r, c] = v
+    return out

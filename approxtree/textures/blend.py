@@ -1,0 +1,86 @@
+"""MultiTexture: layers blended into one texture (multiply, overlay, soft light, alpha over).
+
+Formulas are the W3C compositing ones, on colours in [0, 1]; a layer only acts where its alpha
+is non-zero, weighted by that alpha. All layers must share the first layer's lattice.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from approxtree.errors import InvalidParameterError
+from approxtree.textures.base import TextureData
+
+
+def _soft_light(b: np.ndarray, s: np.ndarray) -> np.ndarray:
+    d = np.where(b <= 0.25, ((16 * b - 12) * b + 4) * b, np.sqrt(b))
+    return np.where(s <= 0.5, b - (1 - 2 * s) * b * (1 - b), b + (2 * s - 1) * (d - b))
+
+
+#: Blend mode → function (backdrop, source) of colours in [0, 1].
+BLEND_MODES = {
+    "multiply": lambda b, s: b * s,
+    "overlay": lambda b, s: np.where(b <= 0.5, 2 * b * s, 1 - 2 * (1 - b) * (1 - s)),
+    "soft-light": _soft_light,
+    "over": lambda b, s: s,
+}
+
+
+def blend(backdrop: np.ndarray, source: np.ndarray, mode: str) -> np.ndarray:
+    """Blend RGBA ``source`` onto RGBA ``backdrop``: both (rows, cols, 4) uint8."""
+    if mode not in BLEND_MODES:
+        raise InvalidParameterError(
+            f"Unknown blend mode {mode!r}; choose one of {list(BLEND_MODES)}."
+        )
+    b = backdrop[..., :3] / 255.0
+    s = source[..., :3] / 255.0
+    ab = backdrop[..., 3:] / 255.0
+    a_s = source[..., 3:] / 255.0
+    mixed = BLEND_MODES[mode](b, s)
+    # Source alpha decides how much of the blended colour replaces the backdrop; where the
+    # backdrop is empty the source shows as it is.
+    colour = np.where(ab > 0, b * (1 - a_s) + mixed * a_s, s)
+    alpha = a_s + ab * (1 - a_s)
+    out = np.concatenate([colour, alpha], axis=-1)
+    return np.clip(np.round(out * 255.0), 0, 255).astype(np.uint8)
+
+
+class MultiTexture(TextureData):
+    """Two or more textures on one lattice, blended in order: layer 0 is the backdrop.
+
+    layers: the textures; modes: one blend mode per layer after the first.
+    """
+
+    def __init__(self, layers: Sequence[TextureData], modes: Sequence[str]) -> None:
+        if len(layers) < 2:
+            raise InvalidParameterError("MultiTexture needs at least two layers.")
+        if len(modes) != len(layers) - 1:
+            raise InvalidParameterError(
+                f"Give one blend mode per layer after the first: {len(layers) - 1} modes for "
+                f"{len(layers)} layers, got {len(modes)}."
+            )
+        base = layers[0]
+        for layer in layers[1:]:
+            if layer.shape != base.shape or not layer.transform.almost_equals(base.transform):
+                raise InvalidParameterError(
+                    "All layers of a MultiTexture must share one lattice (shape and transform); "
+                    "resample them to the first layer first."
+                )
+        for m in modes:
+            if m not in BLEND_MODES:
+                raise InvalidParameterError(
+                    f"Unknown blend mode {m!r}; choose one of {list(BLEND_MODES)}."
+                )
+        self.layers = list(layers)
+        self.modes = list(modes)
+        self.transform = base.transform
+        self.shape = base.shape
+        self.crs = base.crs
+
+    def rgba(self) -> np.ndarray:
+        out = self.layers[0].rgba()
+        for layer, mode in zip(self.layers[1:], self.modes, strict=True):
+            out = blend(out, layer.rgba(), mode)
+        return out

@@ -1,0 +1,171 @@
+"""Shading textures: cartographic hillshade and procedural morphology of a height grid.
+
+``TopographicShading`` reproduces ``gdaldem hillshade`` (Horn or Zevenbergen–Thorne gradients,
+azimuth, altitude, z factor, scale, -combined, -multidirectional) value for value, nodata
+included; slope and curvature weights and cast shadows refine it for cartographic use.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from approxtree.errors import InvalidParameterError
+from approxtree.geometry.grid import Grid
+from approxtree.kernels import hillshade as hs
+from approxtree.kernels.shadows import cast_shadows
+from approxtree.textures.base import TextureData, grey_to_rgba
+
+ALGORITHMS = {"horn": hs.HORN, "zevenbergen-thorne": hs.ZEVENBERGEN_THORNE}
+
+#: Metres per degree used by gdaldem's documentation for geographic grids (-s 111120).
+METRES_PER_DEGREE = 111120.0
+
+
+def is_geographic(crs: str | None) -> bool:
+    """True when the CRS has angular (degree) x and y."""
+    if not crs:
+        return False
+    from rasterio.crs import CRS
+
+    try:
+        return bool(CRS.from_user_input(crs).is_geographic)
+    except Exception:
+        return False
+
+
+class ShadingTexture(TextureData):
+    """A grey texture computed from the heights of a Grid, on the grid's lattice."""
+
+    def __init__(self, terrain: Grid) -> None:
+        if not isinstance(terrain, Grid):
+            raise InvalidParameterError(
+                f"Shading needs a regular Grid, got a {type(terrain).__name__}; "
+                "resample the data to a grid first."
+            )
+        self.terrain = terrain
+        self.transform = terrain.transform
+        self.shape = terrain.shape
+        self.crs = terrain.crs
+
+    def shade(self) -> np.ndarray:
+        """(rows, cols) uint8 grey levels, 0 = nodata."""
+        raise NotImplementedError
+
+    def rgba(self) -> np.ndarray:
+        return grey_to_rgba(self.shade())
+
+
+class TopographicShading(ShadingTexture):
+    """Cartographic hillshade with gdaldem's meaning for every option.
+
+    algorithm: "horn" or "zevenbergen-thorne". azimuth, altitude: light direction in degrees
+    (azimuth clockwise from north). z_factor: vertical exaggeration. scale: horizontal units
+    per z unit; None picks 111120 for geographic grids (degrees vs metres) and 1 otherwise.
+    combined / multidirectional: gdaldem's -combined and -multidirectional.
+    slope_weight in [0, 1] darkens steep slopes; curvature_weight in [0, 1] brightens ridges
+    and darkens hollows; shadows casts the shadows of the light (both off for gdaldem output).
+    """
+
+    def __init__(
+        self,
+        terrain: Grid,
+        algorithm: str = "horn",
+        azimuth: float = 315.0,
+        altitude: float = 45.0,
+        z_factor: float = 1.0,
+        scale: float | None = None,
+        combined: bool = False,
+        multidirectional: bool = False,
+        slope_weight: float = 0.0,
+        curvature_weight: float = 0.0,
+        shadows: bool = False,
+    ) -> None:
+        super().__init__(terrain)
+        if algorithm not in ALGORITHMS:
+            raise InvalidParameterError(
+                f"Unknown hillshade algorithm {algorithm!r}; choose one of {sorted(ALGORITHMS)}."
+            )
+        if combined and multidirectional:
+            raise InvalidParameterError("combined and multidirectional exclude each other.")
+        if not 0.0 <= altitude <= 90.0:
+            raise InvalidParameterError(f"altitude must lie in [0, 90] degrees, got {altitude}.")
+        for name, w in (("slope_weight", slope_weight), ("curvature_weight", curvature_weight)):
+            if not 0.0 <= w <= 1.0:
+                raise InvalidParameterError(f"{name} must lie in [0, 1], got {w}.")
+        if scale is not None and not scale > 0:
+            raise InvalidParameterError(f"scale must be > 0, got {scale}.")
+        self.algorithm = algorithm
+        self.azimuth = float(azimuth)
+        self.altitude = float(altitude)
+        self.z_factor = float(z_factor)
+        self.scale = (
+            float(scale)
+            if scale is not None
+            else (METRES_PER_DEGREE if is_geographic(terrain.crs) else 1.0)
+        )
+        self.combined = combined
+        self.multidirectional = multidirectional
+        self.slope_weight = slope_weight
+        self.curvature_weight = curvature_weight
+        self.shadows = shadows
+
+    @property
+    def _steps(self) -> tuple[float, float]:
+        """(dx, signed dy) in z units, as gdaldem's geotransform[1], [5] times scale."""
+        t = self.transform
+        return t.a * self.scale, t.e * self.scale
+
+    def hillshade(self) -> np.ndarray:
+        """(rows, cols) float32 shade in [1, 255] (gdaldem before rounding), 0 = nodata."""
+        dx, dy = self._steps
+        mode = hs.COMBINED if self.combined else hs.STANDARD
+        if self.multidirectional:
+            mode = hs.MULTIDIRECTIONAL
+        return hs.hillshade(
+            self.terrain.heights,
+            dx,
+            dy,
+            self.z_factor,
+            self.altitude,
+            self.azimuth,
+            ALGORITHMS[self.algorithm],
+            mode,
+        )
+
+    def slope(self) -> np.ndarray:
+        """(rows, cols) float32 slope in degrees (gdaldem slope), NaN at nodata and border."""
+        dx, dy = self._steps
+        return hs.slope_degrees(
+            self.terrain.heights, dx, dy, self.z_factor, ALGORITHMS[self.algorithm]
+        )
+
+    def curvature(self) -> np.ndarray:
+        """(rows, cols) float32 Laplacian of height (1/z units): > 0 hollows, < 0 ridges."""
+        dx, dy = self._steps
+        return hs.profile_curvature(self.terrain.heights * self.z_factor, dx, abs(dy))
+
+    def shadow_mask(self) -> np.ndarray:
+        """(rows, cols) bool: cells that the light cannot see."""
+        dx, dy = self._steps
+        return cast_shadows(
+            self.terrain.heights * self.z_factor, dx, dy, self.azimuth, self.altitude
+        )
+
+    def shade(self) -> np.ndarray:
+        v = self.hillshade().astype(np.float64)
+        valid = v > 0
+        # Morphology darkens steep slopes and hollows multiplicatively, keeping nodata at 0.
+        if self.slope_weight:
+            s = np.nan_to_num(self.slope(), nan=0.0) / 90.0
+            v = np.where(valid, 1.0 + (v - 1.0) * (1.0 - self.slope_weight * s), 0.0)
+        if self.curvature_weight:
+            k = np.nan_to_num(self.curvature(), nan=0.0)
+            spread = np.percentile(np.abs(k[valid]), 95) if valid.any() else 0.0
+            if spread > 0:
+                k = np.clip(-k / spread, -1.0, 1.0)
+                v = np.where(
+                    valid, np.clip(v * (1.0 + 0.5 * self.curvature_weight * k), 1, 255), 0.0
+                )
+        if self.shadows:
+            v = np.where(valid & self.shadow_mask(), np.maximum(1.0, 0.5 * v), v)
+        return np.round(v).astype(np.uint8)

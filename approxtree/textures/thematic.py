@@ -1,0 +1,285 @@
+"""Thematic textures: a class raster or a continuous field turned into colours by a mapper.
+
+Mappers (each a callable (rows, cols) values + valid mask → (rows, cols, 4) uint8):
+
+- ``ClassTable``: class value → colour, from a dict or a raster's embedded colour table.
+- ``ColourRamp``: a continuous field through a matplotlib colormap between vmin and vmax.
+- ``ColourReliefFile``: a ``gdaldem color-relief`` colour file (``value R G B [A]``, ``nv``,
+  percentages, GRASS colour names), interpolated exactly as gdaldem does.
+
+Vector layers (roads, rivers) become thematic layers by rasterization (``rasterize_lines``).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+from affine import Affine
+
+from approxtree.errors import InvalidParameterError, TerrainFormatError
+from approxtree.textures.base import TextureData
+
+Colour = tuple[int, int, int, int]
+
+#: GRASS colour names understood in gdaldem colour files.
+NAMED_COLOURS: dict[str, tuple[int, int, int]] = {
+    "white": (255, 255, 255),
+    "black": (0, 0, 0),
+    "red": (255, 0, 0),
+    "green": (0, 255, 0),
+    "blue": (0, 0, 255),
+    "yellow": (255, 255, 0),
+    "magenta": (255, 0, 255),
+    "cyan": (0, 255, 255),
+    "aqua": (0, 191, 191),
+    "grey": (191, 191, 191),
+    "gray": (191, 191, 191),
+    "orange": (255, 127, 0),
+    "brown": (191, 127, 63),
+    "purple": (127, 0, 255),
+    "violet": (127, 0, 255),
+    "indigo": (0, 127, 255),
+}
+
+
+class ClassTable:
+    """Class value → RGBA colour; unknown classes and nodata are transparent."""
+
+    def __init__(self, colours: Mapping[int, tuple[int, ...]]) -> None:
+        self.colours: dict[int, Colour] = {}
+        for k, c in colours.items():
+            if len(c) not in (3, 4):
+                raise InvalidParameterError(f"Colour of class {k} must be RGB or RGBA, got {c}.")
+            self.colours[int(k)] = (*(int(v) for v in c[:3]), int(c[3]) if len(c) == 4 else 255)
+
+    @classmethod
+    def from_raster(cls, path: str | os.PathLike, band: int = 1) -> ClassTable:
+        """The colour table embedded in a raster (e.g. a GeoTIFF palette)."""
+        import rasterio
+
+        try:
+            with rasterio.open(path) as ds:
+                return cls(ds.colormap(band))
+        except ValueError as exc:
+            raise TerrainFormatError(f"{path} has no embedded colour table: {exc}") from exc
+
+    def __call__(self, values: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        keys = np.array(sorted(self.colours), dtype=np.int64)
+        lut = np.array([self.colours[k] for k in keys], dtype=np.uint8).reshape(-1, 4)
+        classes = np.where(valid, values, keys.min() - 1 if len(keys) else 0).astype(np.int64)
+        pos = np.clip(np.searchsorted(keys, classes), 0, max(len(keys) - 1, 0))
+        known = valid & (keys[pos] == classes) if len(keys) else np.zeros_like(valid)
+        out = np.zeros((*values.shape, 4), dtype=np.uint8)
+        out[known] = lut[pos[known]]
+        return out
+
+
+class ColourRamp:
+    """A continuous field through a matplotlib colormap, vmin → 0 and vmax → 1."""
+
+    def __init__(
+        self, cmap: str = "terrain", vmin: float | None = None, vmax: float | None = None
+    ) -> None:
+        import matplotlib
+
+        try:
+            self.cmap = matplotlib.colormaps[cmap]
+        except KeyError as exc:
+            raise InvalidParameterError(
+                f"Unknown colormap {cmap!r}; use a matplotlib colormap name such as 'terrain'."
+            ) from exc
+        self.vmin, self.vmax = vmin, vmax
+
+    def __call__(self, values: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        v = values[valid]
+        vmin = float(v.min()) if self.vmin is None and v.size else (self.vmin or 0.0)
+        vmax = float(v.max()) if self.vmax is None and v.size else (self.vmax or 1.0)
+        t = (values - vmin) / (vmax - vmin) if vmax > vmin else np.zeros_like(values)
+        out = self.cmap(np.clip(np.nan_to_num(t), 0.0, 1.0), bytes=True)
+        out[~valid] = 0
+        return out
+
+
+class ColourReliefFile:
+    """A gdaldem colour-relief file, applied with gdaldem's linear interpolation.
+
+    Lines are ``value R G B [A]`` (or a GRASS colour name), ``nv`` for nodata and ``N%`` for a
+    percentage of the [min, max] range of the valid values; ``#`` starts a comment. Nodata
+    takes the ``nv`` colour, or stays transparent: unlike gdaldem, which looks the nodata value
+    up like an elevation when the file has no ``nv`` line, nodata is never coloured as a height.
+    """
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise TerrainFormatError(f"Colour file {self.path} does not exist.")
+        self.entries: list[tuple[str, Colour]] = []
+        self.nodata_colour: Colour | None = None
+        for lineno, raw in enumerate(self.path.read_text().splitlines(), 1):
+            line = raw.strip()
+            if not line or line.startswith("#"):
+                continue
+            tokens = [t for t in re.split(r"[\s,:]+", line) if t]
+            value, colour = tokens[0], self._colour(tokens[1:], lineno)
+            if value.lower() == "nv":
+                self.nodata_colour = colour
+            else:
+                self.entries.append((value, colour))
+        if not self.entries:
+            raise TerrainFormatError(f"Colour file {self.path} holds no colour entry.")
+
+    def _colour(self, tokens: list[str], lineno: int) -> Colour:
+        if len(tokens) == 1 and tokens[0].lower() in NAMED_COLOURS:
+            return (*NAMED_COLOURS[tokens[0].lower()], 255)
+        try:
+            vals = [int(float(t)) for t in tokens]
+        except ValueError:
+            vals = []
+        if len(vals) not in (3, 4):
+            raise TerrainFormatError(
+                f"{self.path}:{lineno}: expected 'value R G B [A]' or a colour name, got "
+                f"{' '.join(tokens)!r}."
+            )
+        return (vals[0], vals[1], vals[2], vals[3] if len(vals) == 4 else 255)
+
+    def table(self, values: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Sorted entry values (k,) and their colours (k, 4), percentages resolved."""
+        v = values[valid]
+        lo, hi = (float(v.min()), float(v.max())) if v.size else (0.0, 0.0)
+        keys = []
+        for value, _ in self.entries:
+            if value.endswith("%"):
+                keys.append(lo + float(value[:-1]) / 100.0 * (hi - lo))
+            else:
+                keys.append(float(value))
+        order = np.argsort(np.array(keys), kind="stable")
+        k = np.array(keys)[order]
+        c = np.array([self.entries[i][1] for i in order], dtype=np.float64)
+        return k, c
+
+    def __call__(self, values: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        keys, colours = self.table(values, valid)
+        v = np.where(valid, values, keys[0]).astype(np.float64)
+        # Index i of the first entry >= v: below the first or above the last entry the end
+        # colours hold; between entries each channel is int(0.45 + a + t (b − a)), which is
+        # what gdaldem 3.6 computes (measured pixel for pixel against it).
+        i = np.searchsorted(keys, v, side="left")
+        lo = np.clip(i - 1, 0, len(keys) - 1)
+        hi = np.clip(i, 0, len(keys) - 1)
+        span = keys[hi] - keys[lo]
+        t = np.where(span > 0, (v - keys[lo]) / np.where(span > 0, span, 1.0), 0.0)
+        exact = keys[hi] == v
+        mixed = np.floor(0.45 + colours[lo] + t[..., None] * (colours[hi] - colours[lo]))
+        mixed = np.where(exact[..., None], colours[hi], mixed)
+        out = np.clip(mixed, 0, 255).astype(np.uint8)
+        out[~valid] = self.nodata_colour if self.nodata_colour is not None else (0, 0, 0, 0)
+        return out
+
+
+class ThematicTexture(TextureData):
+    """Thematic data on a georeferenced lattice, coloured by a mapper.
+
+    values: (rows, cols) numbers (class codes or a continuous field); valid: (rows, cols) bool
+    or None (finite values); transform: affine pixel corner → world; mapper: ClassTable,
+    ColourRamp, ColourReliefFile or any callable (values, valid) → (rows, cols, 4) uint8.
+    """
+
+    def __init__(
+        self,
+        values: np.ndarray,
+        transform: Affine,
+        mapper,
+        crs: str | None = None,
+        valid: np.ndarray | None = None,
+    ) -> None:
+        values = np.asarray(values)
+        if values.ndim != 2:
+            raise InvalidParameterError(f"Thematic values must be 2-D, got {values.shape}.")
+        self.values = values
+        self.valid = np.isfinite(values) if valid is None else np.asarray(valid, dtype=bool)
+        self.transform = transform
+        self.shape = values.shape  # type: ignore[assignment]
+        self.crs = crs
+        self.mapper = mapper
+
+    @classmethod
+    def from_raster(cls, path: str | os.PathLike, mapper=None, band: int = 1) -> ThematicTexture:
+        """Read a thematic raster; without a mapper its embedded colour table is used."""
+        import rasterio
+
+        path = Path(path)
+        if not path.is_file():
+            raise TerrainFormatError(f"Thematic raster {path} does not exist.")
+        try:
+            with rasterio.open(path) as ds:
+                data = ds.read(band, masked=True)
+                transform, crs = ds.transform, ds.crs.to_string() if ds.crs else None
+                if mapper is None:
+                    try:
+                        mapper = ClassTable(ds.colormap(band))
+                    except ValueError as exc:
+                        raise InvalidParameterError(
+                            f"{path} has no embedded colour table; give a mapper (a colour "
+                            "ramp or a colour file)."
+                        ) from exc
+        except rasterio.errors.RasterioIOError as exc:
+            raise TerrainFormatError(f"Cannot read {path}: {exc}") from exc
+        valid = ~np.ma.getmaskarray(data)
+        return cls(np.ma.getdata(data), transform, mapper, crs=crs, valid=valid)
+
+    def rgba(self) -> np.ndarray:
+        return self.mapper(self.values, self.valid)
+
+
+def rasterize_lines(
+    path: str | os.PathLike,
+    transform: Affine,
+    shape: tuple[int, int],
+    crs: str | None,
+    colour: tuple[int, ...] = (30, 90, 200, 255),
+    width: float | None = None,
+) -> ThematicTexture:
+    """A vector layer (lines or polygons, read with pyogrio) as a thematic texture.
+
+    The geometries are reprojected to ``crs`` when the layer's CRS differs, buffered to
+    ``width`` world units (default: one texel) and burnt into a (rows, cols) lattice.
+    """
+    import pyogrio
+    import shapely
+    from rasterio.features import rasterize
+    from rasterio.warp import transform_geom
+
+    path = Path(path)
+    if not path.is_file():
+        raise TerrainFormatError(f"Vector layer {path} does not exist.")
+    try:
+        info = pyogrio.read_info(path)
+        _, _, wkb, _ = pyogrio.raw.read(path, read_geometry=True, columns=[])
+    except Exception as exc:
+        raise TerrainFormatError(f"Cannot read {path} as a vector layer: {exc}") from exc
+    geoms = shapely.from_wkb(wkb)
+    geoms = geoms[~shapely.is_missing(geoms)]
+    src_crs = info.get("crs")
+    # Reproject only when both CRSs are known and differ.
+    if crs and src_crs:
+        from rasterio.crs import CRS
+
+        if CRS.from_user_input(src_crs) != CRS.from_user_input(crs):
+            geoms = [
+                shapely.geometry.shape(transform_geom(src_crs, crs, g.__geo_interface__))
+                for g in geoms
+            ]
+    w = width if width is not None else max(abs(transform.a), abs(transform.e))
+    shapes = [(shapely.buffer(g, w / 2.0), 1) for g in geoms]
+    burnt = (
+        rasterize(
+            shapes, out_shape=shape, transform=transform, fill=0, dtype="uint8", all_touched=False
+        )
+        if shapes
+        else np.zeros(shape, dtype=np.uint8)
+    )
+    return ThematicTexture(burnt, transform, ClassTable({1: colour}), crs=crs, valid=burnt > 0)
