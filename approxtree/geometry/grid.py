@@ -1,7 +1,7 @@
 """Grid: a regular, georeferenced height grid — the most common terrain.
 
 Data points sit at cell centres (rasters are pixel-is-area): the point of row r, column c is
-``transform * (c + 0.5, r + 0.5)``. Row 0 is the first row of the file (north for north-up
+``transform @ (c + 0.5, r + 0.5)``. Row 0 is the first row of the file (north for north-up
 rasters). Nodata cells hold NaN in ``heights`` and are never data points.
 """
 

@@ -2,6 +2,8 @@
 
 from approxtree.textures.base import TextureData
 from approxtree.textures.blend import BLEND_MODES, MultiTexture, blend
+from approxtree.textures.patch import TexturePatch
+from approxtree.textures.pyramid import PyramidLevel, TexturePyramid
 from approxtree.textures.shading import ShadingTexture, TopographicShading
 from approxtree.textures.thematic import (
     ClassTable,
@@ -17,8 +19,11 @@ __all__ = [
     "ColourRamp",
     "ColourReliefFile",
     "MultiTexture",
+    "PyramidLevel",
     "ShadingTexture",
     "TextureData",
+    "TexturePatch",
+    "TexturePyramid",
     "ThematicTexture",
     "TopographicShading",
     "blend",

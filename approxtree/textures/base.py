@@ -31,8 +31,8 @@ class TextureData(ABC):
     def extent(self) -> Rect:
         """D(Q): the world rectangle covered by the texels (pixel edges, not centres)."""
         rows, cols = self.shape
-        x0, y0 = self.transform * (0, 0)
-        x1, y1 = self.transform * (cols, rows)
+        x0, y0 = self.transform @ (0, 0)
+        x1, y1 = self.transform @ (cols, rows)
         return Rect(min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1))
 
     @property
