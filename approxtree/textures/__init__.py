@@ -4,7 +4,12 @@ from approxtree.textures.base import TextureData
 from approxtree.textures.blend import BLEND_MODES, MultiTexture, blend
 from approxtree.textures.patch import TexturePatch
 from approxtree.textures.pyramid import PyramidLevel, TexturePyramid
-from approxtree.textures.shading import ShadingTexture, TopographicShading
+from approxtree.textures.shading import (
+    GouraudShading,
+    PhongShading,
+    ShadingTexture,
+    TopographicShading,
+)
 from approxtree.textures.thematic import (
     ClassTable,
     ColourRamp,
@@ -18,7 +23,9 @@ __all__ = [
     "ClassTable",
     "ColourRamp",
     "ColourReliefFile",
+    "GouraudShading",
     "MultiTexture",
+    "PhongShading",
     "PyramidLevel",
     "ShadingTexture",
     "TextureData",

@@ -8,6 +8,7 @@ included; slope and curvature weights and cast shadows refine it for cartographi
 from __future__ import annotations
 
 import numpy as np
+from affine import Affine
 
 from approxtree.errors import InvalidParameterError
 from approxtree.geometry.grid import Grid
@@ -169,3 +170,117 @@ class TopographicShading(ShadingTexture):
         if self.shadows:
             v = np.where(valid & self.shadow_mask(), np.maximum(1.0, 0.5 * v), v)
         return np.round(v).astype(np.uint8)
+
+
+def _light_vector(azimuth: float, altitude: float) -> np.ndarray:
+    """Unit vector towards the light: azimuth clockwise from north, altitude above horizon."""
+    az, alt = np.radians(azimuth), np.radians(altitude)
+    return np.array([np.sin(az) * np.cos(alt), np.cos(az) * np.cos(alt), np.sin(alt)])
+
+
+class _LitShading(ShadingTexture):
+    """Shared parameters of the lighting-model shadings (Phong and Gouraud).
+
+    Lighting: ambient + diffuse · max(0, n·l) + specular · max(0, n·h)^shininess with h the
+    half vector between the light and a viewer straight above; grey = 1 + 254 · clamp(I, 0, 1).
+    oversample: texels per grid cell along each axis (1 = one texel per data point).
+    """
+
+    def __init__(
+        self,
+        terrain: Grid,
+        azimuth: float = 315.0,
+        altitude: float = 45.0,
+        z_factor: float = 1.0,
+        scale: float | None = None,
+        ambient: float = 0.15,
+        diffuse: float = 0.85,
+        specular: float = 0.0,
+        shininess: float = 16.0,
+        oversample: int = 1,
+    ) -> None:
+        super().__init__(terrain)
+        if not (isinstance(oversample, int) and oversample >= 1):
+            raise InvalidParameterError(f"oversample must be an integer >= 1, got {oversample!r}.")
+        self.light = _light_vector(azimuth, altitude)
+        self.z_factor = float(z_factor)
+        self.scale = (
+            float(scale)
+            if scale is not None
+            else (METRES_PER_DEGREE if is_geographic(terrain.crs) else 1.0)
+        )
+        self.ambient, self.diffuse = float(ambient), float(diffuse)
+        self.specular, self.shininess = float(specular), float(shininess)
+        self.oversample = oversample
+        rows, cols = terrain.shape
+        # Oversampled texels subdivide each cell; texel centres stay inside the data lattice.
+        self.shape = ((rows - 1) * oversample + 1, (cols - 1) * oversample + 1)
+        t = terrain.transform
+        self.transform = t @ Affine.translation(0.5 - 0.5 / oversample, 0.5 - 0.5 / oversample)
+        self.transform = self.transform @ Affine.scale(1.0 / oversample)
+
+    def vertex_normals(self) -> np.ndarray:
+        """(rows, cols, 3) unit normals at the data points (central differences), NaN at holes."""
+        z = self.terrain.heights.astype(np.float64) * self.z_factor
+        t = self.terrain.transform
+        dx, dy = t.a * self.scale, t.e * self.scale
+        gx = np.full(z.shape, np.nan)
+        gy = np.full(z.shape, np.nan)
+        gx[:, 1:-1] = (z[:, 2:] - z[:, :-2]) / (2 * dx)
+        gy[1:-1, :] = (z[2:, :] - z[:-2, :]) / (2 * dy)
+        # One-sided differences on the border rows and columns.
+        gx[:, 0], gx[:, -1] = (z[:, 1] - z[:, 0]) / dx, (z[:, -1] - z[:, -2]) / dx
+        gy[0, :], gy[-1, :] = (z[1, :] - z[0, :]) / dy, (z[-1, :] - z[-2, :]) / dy
+        n = np.stack([-gx, -gy, np.ones_like(z)], axis=-1)
+        return n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+    def intensity(self, normals: np.ndarray) -> np.ndarray:
+        """Light intensity in [0, 1] for (..., 3) unit normals (NaN stays NaN)."""
+        ndl = np.clip(normals @ self.light, 0.0, None)
+        i = self.ambient + self.diffuse * ndl
+        if self.specular:
+            h = self.light + np.array([0.0, 0.0, 1.0])
+            h /= np.linalg.norm(h)
+            i = i + self.specular * np.clip(normals @ h, 0.0, None) ** self.shininess
+        return np.clip(i, 0.0, 1.0)
+
+    def _fine_lattice(self, values: np.ndarray) -> np.ndarray:
+        """Linear interpolation of per-vertex values (rows, cols, k) onto the texel lattice."""
+        from approxtree.kernels.grid_interp import grid_height_at
+
+        k = self.oversample
+        if k == 1:
+            return values
+        rows, cols = self.shape
+        fr, fc = np.meshgrid(np.arange(rows) / k, np.arange(cols) / k, indexing="ij")
+        fr, fc = fr.ravel(), fc.ravel()
+        out = np.stack(
+            [
+                grid_height_at(np.ascontiguousarray(values[..., j]), fr, fc)
+                for j in range(values.shape[-1])
+            ],
+            axis=-1,
+        )
+        return out.reshape(rows, cols, -1)
+
+    @staticmethod
+    def _grey(i: np.ndarray) -> np.ndarray:
+        ok = np.isfinite(i)
+        return np.where(ok, np.round(1.0 + 254.0 * np.nan_to_num(i)), 0).astype(np.uint8)
+
+
+class PhongShading(_LitShading):
+    """Per-pixel lighting: normals interpolated across each triangle, then lit per texel."""
+
+    def shade(self) -> np.ndarray:
+        n = self._fine_lattice(self.vertex_normals())
+        n = n / np.linalg.norm(n, axis=-1, keepdims=True)
+        return self._grey(self.intensity(n))
+
+
+class GouraudShading(_LitShading):
+    """Per-vertex lighting: intensities computed at the data points, interpolated per texel."""
+
+    def shade(self) -> np.ndarray:
+        i = self.intensity(self.vertex_normals())
+        return self._grey(self._fine_lattice(i[..., None])[..., 0])

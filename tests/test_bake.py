@@ -1,0 +1,100 @@
+"""Baking without GL: lattices, layer order, shading models and the NC land-use case."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import rasterio
+from conftest import data_file
+
+import approxtree as at
+from approxtree import InvalidParameterError
+from approxtree.datasets import fractal_terrain
+from approxtree.textures import GouraudShading, PhongShading, TopographicShading
+from approxtree.textures.bake import bake, texture_lattice
+
+
+def test_nc_bake_puts_land_use_classes_at_their_map_positions(data_dir, tmp_path):
+    """Baked NC texture: 10 m lattice, land-use hue at sampled map points, shading varies."""
+    dem = at.open_terrain(data_file(data_dir, "nc/elev_ned_30m.tif"))
+    landuse = data_file(data_dir, "nc/landuse_r.tif")
+    result = bake(dem, tmp_path, thematic=landuse, max_texture_size=1024)
+    figures = result.figures()
+    assert figures["sizes"][0] == [1500, 1350]
+    assert figures["levels"] == 2
+    level0 = result.pyramid.level(0)
+    with rasterio.open(landuse) as ds:
+        classes = ds.read(1)
+        table = ds.colormap(1)
+        assert result.pyramid.levels[0].transform.almost_equals(ds.transform)
+    rng = np.random.default_rng(0)
+    # Away from the outer half-cell border (no shading there), each texel is its class colour
+    # darkened by the shade: the hue ratios are kept up to rounding.
+    for _ in range(200):
+        r, c = rng.integers(3, 1347), rng.integers(3, 1497)
+        k = classes[r, c]
+        if k == 255:
+            assert level0[r, c, 3] == 0 or level0[r, c, 3] == 255
+            continue
+        colour = np.array(table[k][:3], dtype=float)
+        texel = level0[r, c, :3].astype(float)
+        shade = texel.max() / colour.max()
+        assert 0 < shade <= 1.0 + 1e-9
+        np.testing.assert_allclose(texel, colour * shade, atol=2.5)
+    assert level0[..., 0].std() > 10
+
+
+def test_overlays_are_drawn_on_top(data_dir, tmp_path):
+    """Stream pixels of a shading + streams bake carry the overlay colour."""
+    dem = at.open_terrain(data_file(data_dir, "nc/elev_ned_30m.tif"))
+    streams = data_file(data_dir, "nc/streams.shp")
+    result = bake(dem, tmp_path, overlays=[streams], max_texture_size=512)
+    level0 = result.pyramid.level(0)
+    blue = (level0[..., 0] == 30) & (level0[..., 1] == 90) & (level0[..., 2] == 200)
+    assert 0.01 < blue.mean() < 0.5
+    assert result.figures()["layers"] == ["shading:topographic", "overlay:streams.shp"]
+
+
+def test_shading_only_bake_is_the_hillshade(tmp_path):
+    """A pure topographic bake at DEM resolution has R = G = B = the hillshade value."""
+    g = fractal_terrain(100, 120, seed=4, relief=200.0)
+    result = bake(g, tmp_path, max_texture_size=128)
+    level0 = np.asarray(result.pyramid.level(0))
+    shade = TopographicShading(g).shade()
+    np.testing.assert_array_equal(level0[..., 0], shade)
+    np.testing.assert_array_equal(level0[..., 1], shade)
+    np.testing.assert_array_equal(level0[..., 2], shade)
+
+
+def test_texture_lattice_covers_the_grid_cells():
+    """The lattice at a finer texel size spans exactly the DEM's cell extent."""
+    g = fractal_terrain(50, 80, seed=1)
+    t, (rows, cols) = texture_lattice(g, 10.0 / 3)
+    assert (rows, cols) == (150, 240)
+    assert t @ (0, 0) == g.transform @ (0, 0)
+    assert np.allclose(t @ (cols, rows), g.transform @ (80, 50))
+
+
+def test_phong_and_gouraud_agree_at_vertices_and_differ_between():
+    """Phong and Gouraud are equal at the data points and differ inside oversampled cells."""
+    g = fractal_terrain(33, seed=5, relief=300.0)
+    p = PhongShading(g, oversample=4).shade()
+    q = GouraudShading(g, oversample=4).shade()
+    np.testing.assert_array_equal(p[::4, ::4], q[::4, ::4])
+    assert (p != q).mean() > 0.1
+    flat = at.Grid(np.zeros((5, 5)))
+    lit = PhongShading(flat, altitude=90.0, ambient=0.0, diffuse=1.0).shade()
+    assert (lit == 255).all()
+
+
+def test_bad_bake_requests(tmp_path):
+    """Unknown shading or blend, nothing to bake, or a missing raster are clear errors."""
+    g = fractal_terrain(9)
+    with pytest.raises(InvalidParameterError, match="shading"):
+        bake(g, tmp_path, shading="toon")
+    with pytest.raises(InvalidParameterError, match="blend"):
+        bake(g, tmp_path, blend="screen")
+    with pytest.raises(InvalidParameterError, match="Nothing to bake"):
+        bake(g, tmp_path, shading=None)
+    with pytest.raises(at.TerrainFormatError, match="does not exist"):
+        bake(g, tmp_path, thematic=tmp_path / "none.tif")
