@@ -76,15 +76,20 @@ def hillshade(
     square_z = zf * zf
     for r in prange(1, rows - 1):
         for c in range(1, cols - 1):
-            # Any nodata in the window leaves the cell nodata, as gdaldem does.
-            bad = False
-            for i in range(-1, 2):
-                for j in range(-1, 2):
-                    if np.isnan(z[r + i, c + j]):
-                        bad = True
-            if bad:
+            # Any nodata in the window leaves the cell nodata, as gdaldem does. Horn's gradient
+            # reads the eight neighbours, so NaN shows up in it; only the centre needs a test.
+            if np.isnan(z[r, c]):
+                continue
+            if algorithm != HORN and (
+                np.isnan(z[r - 1, c - 1])
+                or np.isnan(z[r - 1, c + 1])
+                or np.isnan(z[r + 1, c - 1])
+                or np.isnan(z[r + 1, c + 1])
+            ):
                 continue
             x, y = _gradient(z, r, c, inv_ew, inv_ns, algorithm)
+            if np.isnan(x) or np.isnan(y):
+                continue
             xx_yy = x * x + y * y
             if mode == STANDARD:
                 v = (

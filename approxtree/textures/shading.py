@@ -153,6 +153,10 @@ class TopographicShading(ShadingTexture):
         )
 
     def shade(self) -> np.ndarray:
+        if not (self.slope_weight or self.curvature_weight or self.shadows):
+            # Plain gdaldem output: round in place, no float64 copy of a large grid.
+            plain = self.hillshade()
+            return np.rint(plain, out=plain).astype(np.uint8)
         v = self.hillshade().astype(np.float64)
         valid = v > 0
         # Morphology darkens steep slopes and hollows multiplicatively, keeping nodata at 0.
