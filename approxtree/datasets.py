@@ -99,3 +99,58 @@ def fractal_terrain(
     z = fractal_heights(rows, cols, seed=seed, hurst=hurst, relief=relief)
     transform = Affine(cell_size, 0.0, 0.0, 0.0, -cell_size, z.shape[0] * cell_size)
     return Grid(z, transform=transform)
+
+
+def _meander(rng: np.random.Generator, start: np.ndarray, steps: int, step: float) -> np.ndarray:
+    """A random meandering polyline: (steps + 1, 2) points with smoothly turning heading."""
+    heading = rng.uniform(0, 2 * np.pi) + np.cumsum(rng.normal(0.0, 0.25, steps))
+    moves = step * np.column_stack([np.cos(heading), np.sin(heading)])
+    return np.vstack([start, start + np.cumsum(moves, axis=0)])
+
+
+def case_study_terrain(
+    seed: int = 0,
+    rows: int = 321,
+    cols: int = 641,
+    microstructures: int = 20_652,
+    cell_size: float = 30.0,
+    width: float = 1.3,
+    spacing: float = 1.1,
+):
+    """The scale of the core paper's cartographic case study, made synthetically.
+
+    A fractal grid of rows × cols points plus ``microstructures`` river-bed TINs (incised
+    corridors along random meandering rivers, each river cut into pieces of one microstructure
+    each); width and spacing of the corridors are in cells. Returns (grid, list of TINs);
+    with the defaults the full model has about 500,000
+    triangles, as in the paper (641 × 321 grid, 20,652 microstructures).
+    """
+    import shapely
+
+    from approxtree.io.microstructures import corridor_microstructures
+
+    grid = fractal_terrain(rows, cols, seed=seed, relief=600.0, cell_size=cell_size)
+    rng = np.random.default_rng(seed)
+    d = grid.domain
+    inner = shapely.box(d.xmin, d.ymin, d.xmax, d.ymax).buffer(-cell_size)
+    # Rivers of 40 steps of one cell, cut into pieces of two steps; each piece inside the
+    # domain is one microstructure. A few spare pieces make up for the ones that end up with
+    # no triangle of their own (crossed by a nearer river).
+    pieces_per_river = 20
+    lines: list = []
+    while len(lines) < microstructures * 1.04:
+        start = rng.uniform([d.xmin, d.ymin], [d.xmax, d.ymax])
+        path = _meander(rng, start, 2 * pieces_per_river, cell_size)
+        pieces = [shapely.linestrings(path[2 * k : 2 * k + 3]) for k in range(pieces_per_river)]
+        lines.extend(p for p in pieces if inner.contains(p))
+    tins = corridor_microstructures(
+        grid,
+        np.array(lines, dtype=object),
+        width=width * cell_size,
+        spacing=spacing * cell_size,
+        profile="incised",
+        depth=3.0,
+    )
+    if len(tins) < microstructures:
+        raise RuntimeError(f"only {len(tins)} microstructures could be made")  # pragma: no cover
+    return grid, tins[:microstructures]
