@@ -112,3 +112,21 @@ def test_one_patch_loads_on_its_own(saved):
     f = TreeFile(path)
     _, arrays = f.patch_record(7)
     np.testing.assert_array_equal(arrays["index"], np.array(tree.node(7).patch.index))
+
+
+def test_records_round_trip_empty_and_odd_arrays():
+    """Empty arrays, odd byte counts and several dtypes survive encode → decode exactly."""
+    from approxtree.tree.store import decode_record, encode_record
+
+    arrays = {
+        "empty": np.zeros((0, 3), dtype=np.int64),
+        "bytes": np.arange(5, dtype=np.uint8),
+        "floats": np.linspace(0, 1, 7, dtype=np.float32).reshape(7, 1),
+        "big": np.arange(6, dtype=">i4"),
+    }
+    buf = b"".join(bytes(c) for c in encode_record({"k": 1}, arrays))
+    attrs, back = decode_record(memoryview(buf))
+    assert attrs == {"k": 1}
+    for name, a in arrays.items():
+        assert back[name].shape == a.shape
+        np.testing.assert_array_equal(back[name], a)

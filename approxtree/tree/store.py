@@ -55,7 +55,9 @@ def encode_record(attrs: dict[str, Any], arrays: dict[str, np.ndarray]) -> list[
         a = np.asarray(value)
         a = np.ascontiguousarray(a.astype(a.dtype.newbyteorder("<"), copy=False))
         entries.append([name, a.dtype.str, list(a.shape), offset, a.nbytes])
-        chunks.append(memoryview(a).cast("B"))
+        # memoryview cannot cast an empty array; an empty array has no bytes to write anyway.
+        if a.nbytes:
+            chunks.append(memoryview(a.reshape(-1)).cast("B"))
         pad = _pad(a.nbytes)
         if pad:
             chunks.append(memoryview(bytes(pad)))
