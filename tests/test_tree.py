@@ -190,8 +190,8 @@ def test_nan_only_and_thin_grids_are_rejected():
         Grid(np.ones((1, 50)))
 
 
-def test_scattered_points_need_a_point_strategy():
+def test_scattered_points_refuse_the_grid_strategy():
     """The grid strategy refuses a point set with a message naming the data type."""
     pts = np.random.default_rng(0).uniform(0, 10, (50, 3))
     with pytest.raises(at.UnsupportedStrategyError, match="TINPointSet"):
-        ApproximationTree.build(at.TINPointSet(pts))
+        ApproximationTree.build(at.TINPointSet(pts), policy="grid")

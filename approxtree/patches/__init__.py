@@ -2,8 +2,14 @@
 
 from approxtree.patches.base import GeometryPatch
 from approxtree.patches.grid import GridPatch
+from approxtree.patches.rtin import RTINPatch
+from approxtree.patches.tin import TINPatch
 
 #: Strategy name → patch class. A new strategy is one new GeometryPatch subclass added here.
-STRATEGIES: dict[str, type[GeometryPatch]] = {GridPatch.kind: GridPatch}
+STRATEGIES: dict[str, type[GeometryPatch]] = {
+    GridPatch.kind: GridPatch,
+    TINPatch.kind: TINPatch,
+    RTINPatch.kind: RTINPatch,
+}
 
-__all__ = ["STRATEGIES", "GeometryPatch", "GridPatch"]
+__all__ = ["STRATEGIES", "GeometryPatch", "GridPatch", "RTINPatch", "TINPatch"]

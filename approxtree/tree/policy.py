@@ -1,7 +1,8 @@
 """StrategyPolicy: which approximation strategy (patch type) builds each node.
 
 This version knows the fixed policies (one strategy for every node) and ``auto``, which picks
-the strategy made for the terrain's data type. Policies by level and by data semantics plug in
+the strategy made for the terrain's data type (grid for a Grid, tin for a TIN or TINPointSet).
+Policies by level and by data semantics plug in
 here by overriding ``strategy_for``.
 """
 
@@ -11,6 +12,7 @@ from approxtree.errors import InvalidParameterError, UnsupportedStrategyError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
+from approxtree.geometry.tin import TIN
 from approxtree.patches import STRATEGIES, GeometryPatch
 
 
@@ -29,6 +31,8 @@ class StrategyPolicy:
             return STRATEGIES[self.name]
         if isinstance(terrain, Grid):
             return STRATEGIES["grid"]
+        if isinstance(terrain, TIN) and "tin" in STRATEGIES:
+            return STRATEGIES["tin"]
         raise UnsupportedStrategyError(
             f"No approximation strategy for a {type(terrain).__name__} is available in this "
             f"version (strategies: {', '.join(STRATEGIES)}); convert the data to a regular grid."

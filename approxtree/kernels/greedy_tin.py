@@ -1,0 +1,336 @@
+"""Greedy insertion TIN over a height grid (Garland & Heckbert, Algorithms III and IV).
+
+Start from the two triangles on the window's corners; repeatedly take the triangle whose
+candidate (its grid point of largest error) is worst, insert that point, restore the mesh by
+edge flips, and rescan only the triangles the insertion changed. Candidates sit in a max-heap
+of triangles (``tri_heap``), so a pass costs O(log m) plus the rescanned area: O((m + n) log m)
+expected in all.
+
+Two flip rules:
+
+- Delaunay (Algorithm III): flip when the far vertex lies inside the circumcircle.
+- Data-dependent (Algorithm IV): flip when the other diagonal fits the data better (sum of
+  the two triangles' max errors, L∞ accumulate / L1 combine as the paper found best), unless
+  one split has much better shape: with q = area₁·area₂ / (diam₁·diam₂) for each diagonal, a
+  ratio min(q)/max(q) <= ``QTHRESH`` = 0.5 (the paper's best threshold) decides by shape.
+
+Stops when the worst candidate's error is <= ``max_error``, at ``max_points`` vertices, or
+before the triangle count would exceed ``max_triangles``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from approxtree.kernels.tin_mesh import (
+    flip,
+    grow,
+    in_circle,
+    next_edge,
+    orient,
+    prev_edge,
+    split_edge,
+    split_interior,
+)
+from approxtree.kernels.tin_scan import (
+    row_span,
+    scan_triangle,
+    scan_with_holes,
+    triangle_error,
+)
+from approxtree.kernels.tri_heap import heap_push, heap_remove
+
+#: Shape-quality ratio under which the data-dependent rule decides by shape (paper: 0.5).
+QTHRESH = 0.5
+
+
+@njit(cache=True, inline="always")
+def _shape(ax, ay, bx, by, cx, cy) -> float:
+    """Area / longest edge of a triangle (a length: scale-consistent shape rating)."""
+    area = 0.5 * abs(orient(ax, ay, bx, by, cx, cy))
+    d = max(
+        (bx - ax) ** 2 + (by - ay) ** 2,
+        max((cx - bx) ** 2 + (cy - by) ** 2, (ax - cx) ** 2 + (ay - cy) ** 2),
+    )
+    return area / math.sqrt(d)
+
+
+@njit(cache=True)
+def _flip_improves(heights, r0, c0, vx, vy, a, b, p, q, has_nan) -> bool:
+    """Algorithm IV's test: is diagonal p–q better than a–b for the quadrilateral a, q, b, p?"""
+    ax, ay, bx, by = vx[a], vy[a], vx[b], vy[b]
+    px, py, qx, qy = vx[p], vy[p], vx[q], vy[q]
+    # Only a strictly convex quadrilateral can take the other diagonal.
+    if orient(ax, ay, qx, qy, px, py) <= 0 or orient(qx, qy, bx, by, px, py) <= 0:
+        return False
+    q_ab = _shape(ax, ay, bx, by, px, py) * _shape(bx, by, ax, ay, qx, qy)
+    q_pq = _shape(ax, ay, qx, qy, px, py) * _shape(qx, qy, bx, by, px, py)
+    if min(q_ab, q_pq) <= QTHRESH * max(q_ab, q_pq):
+        return q_pq > q_ab
+    e_ab = triangle_error(heights, r0, c0, ax, ay, bx, by, px, py, has_nan) + triangle_error(
+        heights, r0, c0, bx, by, ax, ay, qx, qy, has_nan
+    )
+    e_pq = triangle_error(heights, r0, c0, ax, ay, qx, qy, px, py, has_nan) + triangle_error(
+        heights, r0, c0, qx, qy, bx, by, px, py, has_nan
+    )
+    return e_pq < e_ab
+
+
+@njit(cache=True)
+def greedy_tin(
+    heights: np.ndarray,
+    r0: int,
+    c0: int,
+    rows: int,
+    cols: int,
+    max_error: float,
+    max_points: int,
+    max_triangles: int,
+    data_dependent: bool,
+    has_nan: bool,
+):
+    """Greedy insertion over the window heights[r0:r0+rows, c0:c0+cols] (rows, cols >= 2).
+
+    heights: (R, C) float32/float64, NaN = nodata. max_error < 0, max_points <= 0 or
+    max_triangles <= 0 disable that stopping rule (at least one must be active, or the run
+    goes to full resolution).
+    Returns vx, vy (n,) int64 window-local column/row of the vertices, and tv (3m,) int32,
+    he (3m,) int32 the triangles (orient > 0 in (column, row) space) and their twins.
+    """
+    cap_v = 64
+    cap_t = 128
+    vx = np.empty(cap_v, dtype=np.int64)
+    vy = np.empty(cap_v, dtype=np.int64)
+    tv = np.empty(3 * cap_t, dtype=np.int32)
+    he = np.full(3 * cap_t, -1, dtype=np.int32)
+    cand = np.full(cap_t, -1, dtype=np.int64)
+    hpos = np.full(cap_t, -1, dtype=np.int32)
+    heap = np.empty(cap_t, dtype=np.int32)
+    hkey = np.empty(cap_t, dtype=np.float64)
+    pending = np.empty(cap_t, dtype=np.int32)
+    is_pending = np.zeros(cap_t, dtype=np.bool_)
+    stack = np.empty(64, dtype=np.int32)
+    changed = np.empty(4, dtype=np.int64)
+    suspects = np.empty(4, dtype=np.int64)
+
+    # The window's corners and its two triangles, cut along the (0, 0)–(cols−1, rows−1)
+    # diagonal like the grid's own cells.
+    w = cols - 1
+    h = rows - 1
+    vx[0], vy[0] = 0, 0
+    vx[1], vy[1] = w, 0
+    vx[2], vy[2] = w, h
+    vx[3], vy[3] = 0, h
+    nv = 4
+    tv[0], tv[1], tv[2] = 0, 1, 2
+    tv[3], tv[4], tv[5] = 0, 2, 3
+    he[2] = 3
+    he[3] = 2
+    nt = 2
+    n_pending = 2
+    pending[0] = 0
+    pending[1] = 1
+    is_pending[0] = True
+    is_pending[1] = True
+    size = 0
+    sp = 0
+    if data_dependent:
+        stack[0] = 2
+        sp = 1
+
+    while True:
+        # Restore the mesh: test every suspect edge, flipping until none is left.
+        while sp > 0:
+            sp -= 1
+            e = stack[sp]
+            f = he[e]
+            if f < 0:
+                continue
+            a = tv[e]
+            b = tv[next_edge(e)]
+            p = tv[prev_edge(e)]
+            q = tv[prev_edge(f)]
+            if data_dependent:
+                do_flip = _flip_improves(heights, r0, c0, vx, vy, a, b, p, q, has_nan)
+            else:
+                do_flip = in_circle(vx[a], vy[a], vx[b], vy[b], vx[p], vy[p], vx[q], vy[q])
+            if not do_flip:
+                continue
+            t = e // 3
+            u = f // 3
+            flip(tv, he, e)
+            for s in (t, u):
+                if not is_pending[s]:
+                    is_pending[s] = True
+                    pending[n_pending] = s
+                    n_pending += 1
+                    size = heap_remove(heap, hkey, hpos, size, s)
+            if sp + 2 > stack.shape[0]:
+                stack = grow(stack, 2 * stack.shape[0], 0)
+            stack[sp] = 3 * t
+            stack[sp + 1] = 3 * u
+            sp += 2
+
+        # Rescan the changed triangles and put them back in the heap.
+        for i in range(n_pending):
+            t = pending[i]
+            is_pending[t] = False
+            a, b, c = tv[3 * t], tv[3 * t + 1], tv[3 * t + 2]
+            if has_nan:
+                k, cy, cx = scan_with_holes(
+                    heights, r0, c0, vx[a], vy[a], vx[b], vy[b], vx[c], vy[c]
+                )
+            else:
+                k, cy, cx = scan_triangle(heights, r0, c0, vx[a], vy[a], vx[b], vy[b], vx[c], vy[c])
+            cand[t] = cy * cols + cx
+            size = heap_push(heap, hkey, hpos, size, t, k)
+        n_pending = 0
+
+        # Stopping rules: the worst candidate is good enough, or a budget is spent.
+        if size == 0:
+            break
+        t = heap[0]
+        worst = hkey[0]
+        if worst <= max(max_error, 0.0):
+            break
+        if 0 < max_points <= nv:
+            break
+        if 0 < max_triangles < nt + 2:
+            break
+
+        # Room for one more vertex and two more triangles.
+        if nv + 1 > cap_v:
+            cap_v *= 2
+            vx = grow(vx, cap_v, 0)
+            vy = grow(vy, cap_v, 0)
+        if nt + 2 > cap_t:
+            cap_t *= 2
+            tv = grow(tv, 3 * cap_t, 0)
+            he = grow(he, 3 * cap_t, -1)
+            hkey = grow(hkey, cap_t, 0.0)
+            cand = grow(cand, cap_t, -1)
+            hpos = grow(hpos, cap_t, -1)
+            heap = grow(heap, cap_t, 0)
+            pending = grow(pending, cap_t, 0)
+            is_pending = grow(is_pending, cap_t, False)
+
+        # Insert the candidate: inside t (three triangles) or on one of its edges (four, or two
+        # on the window border).
+        p = nv
+        px = cand[t] % cols
+        py = cand[t] // cols
+        vx[p] = px
+        vy[p] = py
+        nv += 1
+        size = heap_remove(heap, hkey, hpos, size, t)
+        on_edge = -1
+        for k3 in range(3):
+            e = 3 * t + k3
+            a = tv[e]
+            b = tv[next_edge(e)]
+            if orient(vx[a], vy[a], vx[b], vy[b], px, py) == 0:
+                on_edge = e
+        n1 = nt
+        n2 = nt + 1
+        changed[:] = -1
+        suspects[:] = -1
+        changed[0] = t
+        changed[1] = n1
+        if on_edge < 0:
+            split_interior(tv, he, t, n1, n2, p)
+            nt += 2
+            changed[2] = n2
+            suspects[0] = 3 * t
+            suspects[1] = 3 * n1
+            suspects[2] = 3 * n2
+        else:
+            u = he[on_edge] // 3 if he[on_edge] >= 0 else -1
+            if u >= 0:
+                size = heap_remove(heap, hkey, hpos, size, u)
+            added = split_edge(tv, he, on_edge, n1, n2, p)
+            nt += added
+            suspects[0] = 3 * t + 2
+            suspects[1] = 3 * n1 + 1
+            if added == 2:
+                changed[2] = u
+                changed[3] = n2
+                suspects[2] = 3 * u + 2
+                suspects[3] = 3 * n2 + 1
+        for s in changed:
+            if s >= 0 and not is_pending[s]:
+                is_pending[s] = True
+                pending[n_pending] = s
+                n_pending += 1
+        for e in suspects:
+            if e >= 0:
+                stack[sp] = e
+                sp += 1
+
+    return vx[:nv].copy(), vy[:nv].copy(), tv[: 3 * nt].copy(), he[: 3 * nt].copy()
+
+
+@njit(cache=True)
+def mesh_error(heights, r0, c0, rows, cols, vx, vy, tv, he):
+    """Exact error of a lattice mesh over the valid data points of its window.
+
+    Triangles with a nodata corner are not drawn. Every data point is counted once: a point on
+    an edge shared by two drawn triangles belongs to the lower-numbered one, corners are exact.
+    Returns (max error, sum of squared errors, points represented, drawn (m,) bool); the
+    caller compares the count with the window's valid points (missing ones: infinite error).
+    """
+    nt = tv.shape[0] // 3
+    drawn = np.empty(nt, dtype=np.bool_)
+    for t in range(nt):
+        ok = True
+        for k in range(3):
+            v = tv[3 * t + k]
+            if np.isnan(heights[r0 + vy[v], c0 + vx[v]]):
+                ok = False
+        drawn[t] = ok
+    vmax = 0.0
+    sumsq = 0.0
+    count = 0
+    for t in range(nt):
+        if not drawn[t]:
+            continue
+        a, b, c = tv[3 * t], tv[3 * t + 1], tv[3 * t + 2]
+        ax, ay, bx, by, cx, cy = vx[a], vy[a], vx[b], vy[b], vx[c], vy[c]
+        za = float(heights[r0 + ay, c0 + ax])
+        zb = float(heights[r0 + by, c0 + bx])
+        zc = float(heights[r0 + cy, c0 + cx])
+        d = float(orient(ax, ay, bx, by, cx, cy))
+        gx = ((zb - za) * (cy - ay) - (zc - za) * (by - ay)) / d
+        gy = ((zc - za) * (bx - ax) - (zb - za) * (cx - ax)) / d
+        # A point on edge k is skipped when the drawn twin triangle with a lower id owns it.
+        f0, f1, f2 = he[3 * t], he[3 * t + 1], he[3 * t + 2]
+        skip0 = f0 >= 0 and drawn[f0 // 3] and f0 // 3 < t
+        skip1 = f1 >= 0 and drawn[f1 // 3] and f1 // 3 < t
+        skip2 = f2 >= 0 and drawn[f2 // 3] and f2 // 3 < t
+        y0 = min(ay, min(by, cy))
+        y1 = max(ay, max(by, cy))
+        for y in range(y0, y1 + 1):
+            lo, hi = row_span(ax, ay, bx, by, cx, cy, y)
+            # Only the ends of a row, or a whole row along a horizontal edge, touch an edge.
+            flat = (ay == by == y) or (by == cy == y) or (cy == ay == y)
+            for x in range(lo, hi + 1):
+                if flat or x == lo or x == hi:
+                    wab = orient(ax, ay, bx, by, x, y)
+                    wbc = orient(bx, by, cx, cy, x, y)
+                    wca = orient(cx, cy, ax, ay, x, y)
+                    zeros = (wab == 0) + (wbc == 0) + (wca == 0)
+                    if zeros >= 2:
+                        continue
+                    if (wab == 0 and skip0) or (wbc == 0 and skip1) or (wca == 0 and skip2):
+                        continue
+                z = heights[r0 + y, c0 + x]
+                if np.isnan(z):
+                    continue
+                err = abs(z - (za + gx * (x - ax) + gy * (y - ay)))
+                count += 1
+                sumsq += err * err
+                if err > vmax:
+                    vmax = err
+    return vmax, sumsq, count, drawn

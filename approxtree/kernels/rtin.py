@@ -1,0 +1,287 @@
+"""RTIN (Evans, Kirkpatrick & Townsend): right-triangle binary hierarchy with true error bounds.
+
+The hierarchy lives on a padded (2^k + 1)² lattice of side s = 2^k. A triangle (apex, l, r)
+with hypotenuse l–r splits at the midpoint m of l–r into (m, l, apex) and (m, apex, r). Two
+kinds of levels alternate, for square sizes L = s, s/2, ..., 2:
+
+- A(L): each L-square is cut by one diagonal (main where (i + j) is even, else the other); the
+  hypotenuse midpoint is the square's centre.
+- D(L): the children of A(L): four triangles per square, apex at the centre, hypotenuse on a
+  side; the midpoint is the side's midpoint, shared with the neighbouring square.
+
+``vertex_errors`` stores at each midpoint m the true max error of the (one or two) triangles
+whose hypotenuse midpoint is m, maxed with the errors stored at their children's midpoints.
+Splitting every triangle whose E[m] > ε then yields a mesh without cracks or T-junctions (the
+two triangles sharing a hypotenuse split together; a child never splits without its parent)
+whose leaves all have true error <= ε.
+
+Padding: lattice points beyond the window (x > cols − 1 or y > rows − 1) have no height. A
+triangle reaching past the window must split while it still covers window points off its own
+border (E = inf); triangles entirely outside are never drawn. Nodata inside the window follows
+the TIN rules (``tin_scan.scan_with_holes``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from approxtree.kernels.tin_mesh import orient
+from approxtree.kernels.tin_scan import row_span, scan_triangle, scan_with_holes
+
+
+@njit(cache=True)
+def _tri_error(heights, r0, c0, rows, cols, ax, ay, bx, by, cx, cy, has_nan) -> float:
+    """True error of one hierarchy triangle (inf: it must split), see the module docstring."""
+    if orient(ax, ay, bx, by, cx, cy) < 0:
+        bx, by, cx, cy = cx, cy, bx, by
+    w1 = cols - 1
+    h1 = rows - 1
+    if max(ax, max(bx, cx)) <= w1 and max(ay, max(by, cy)) <= h1:
+        if has_nan:
+            k, _, _ = scan_with_holes(heights, r0, c0, ax, ay, bx, by, cx, cy)
+        else:
+            k, _, _ = scan_triangle(heights, r0, c0, ax, ay, bx, by, cx, cy)
+        return max(k, 0.0)
+    # Partly or wholly outside the window: split while it reaches window points other than
+    # those on its own edges along the window's far border.
+    y0 = min(ay, min(by, cy))
+    y1 = min(max(ay, max(by, cy)), h1)
+    for y in range(y0, y1 + 1):
+        lo, hi = row_span(ax, ay, bx, by, cx, cy, y)
+        hi = min(hi, w1)
+        if lo > hi:
+            continue
+        if y < h1 and lo < w1:
+            return np.inf
+        # Far-border points: fine as corners, or on an edge running along that border (the
+        # triangle on the window side of that edge draws them); otherwise split.
+        for x in range(lo, hi + 1):
+            if (x == ax and y == ay) or (x == bx and y == by) or (x == cx and y == cy):
+                continue
+            # The far corner can only be drawn as a corner of a triangle inside the window.
+            if x == w1 and y == h1:
+                return np.inf
+            if orient(ax, ay, bx, by, x, y) == 0:
+                if _along_border(ax, ay, bx, by, x, y, w1, h1):
+                    continue
+            elif orient(bx, by, cx, cy, x, y) == 0:
+                if _along_border(bx, by, cx, cy, x, y, w1, h1):
+                    continue
+            elif orient(cx, cy, ax, ay, x, y) == 0:
+                if _along_border(cx, cy, ax, ay, x, y, w1, h1):
+                    continue
+            return np.inf
+    return 0.0
+
+
+@njit(cache=True, inline="always")
+def _along_border(ux, uy, vx, vy, x, y, w1, h1) -> bool:
+    """True when edge u–v lies on the far border line (x = w1 or y = h1) through (x, y)."""
+    return (ux == vx == x == w1) or (uy == vy == y == h1)
+
+
+@njit(cache=True, inline="always")
+def _store(e: float) -> np.float32:
+    """float32 of e rounded up, so stored errors stay upper bounds."""
+    v = np.float32(e)
+    if v < e:
+        v = np.float32(e + abs(e) * 2.4e-7)
+    return v
+
+
+@njit(cache=True, parallel=True)
+def vertex_errors(
+    heights: np.ndarray, r0: int, c0: int, rows: int, cols: int, size: int, has_nan: bool
+) -> np.ndarray:
+    """E (size+1, size+1) float32 over the window heights[r0:r0+rows, c0:c0+cols].
+
+    size: s = 2^k >= max(rows, cols) − 1. Entries that are no midpoint stay 0.
+    """
+    n = size + 1
+    err = np.zeros((n, n), dtype=np.float32)
+    big = size
+    L = 2
+    while L <= big:
+        h = L // 2
+        q = h // 2
+        m = big // L
+        # D(L), horizontal sides y = j·L: triangles of the squares above and below.
+        for j in prange(m + 1):
+            y = j * L
+            for i in range(m):
+                x0 = i * L
+                e = 0.0
+                if j < m:
+                    e = max(
+                        e,
+                        _tri_error(
+                            heights, r0, c0, rows, cols, x0 + h, y + h, x0, y, x0 + L, y, has_nan
+                        ),
+                    )
+                    if q > 0:
+                        e = max(e, err[y + q, x0 + q], err[y + q, x0 + h + q])
+                if j > 0:
+                    e = max(
+                        e,
+                        _tri_error(
+                            heights, r0, c0, rows, cols, x0 + h, y - h, x0 + L, y, x0, y, has_nan
+                        ),
+                    )
+                    if q > 0:
+                        e = max(e, err[y - q, x0 + q], err[y - q, x0 + h + q])
+                err[y, x0 + h] = _store(e)
+        # D(L), vertical sides x = i·L.
+        for i in prange(m + 1):
+            x = i * L
+            for j in range(m):
+                y0 = j * L
+                e = 0.0
+                if i < m:
+                    e = max(
+                        e,
+                        _tri_error(
+                            heights, r0, c0, rows, cols, x + h, y0 + h, x, y0 + L, x, y0, has_nan
+                        ),
+                    )
+                    if q > 0:
+                        e = max(e, err[y0 + q, x + q], err[y0 + h + q, x + q])
+                if i > 0:
+                    e = max(
+                        e,
+                        _tri_error(
+                            heights, r0, c0, rows, cols, x - h, y0 + h, x, y0, x, y0 + L, has_nan
+                        ),
+                    )
+                    if q > 0:
+                        e = max(e, err[y0 + q, x - q], err[y0 + h + q, x - q])
+                err[y0 + h, x] = _store(e)
+        # A(L): both triangles of each square's diagonal, and the four side midpoints.
+        for j in prange(m):
+            y0 = j * L
+            for i in range(m):
+                x0 = i * L
+                if (i + j) % 2 == 0:
+                    e1 = _tri_error(
+                        heights, r0, c0, rows, cols, x0 + L, y0, x0, y0, x0 + L, y0 + L, has_nan
+                    )
+                    e2 = _tri_error(
+                        heights, r0, c0, rows, cols, x0, y0 + L, x0 + L, y0 + L, x0, y0, has_nan
+                    )
+                else:
+                    e1 = _tri_error(
+                        heights, r0, c0, rows, cols, x0, y0, x0, y0 + L, x0 + L, y0, has_nan
+                    )
+                    e2 = _tri_error(
+                        heights, r0, c0, rows, cols, x0 + L, y0 + L, x0 + L, y0, x0, y0 + L, has_nan
+                    )
+                e = max(e1, e2)
+                e = max(e, err[y0, x0 + h], err[y0 + L, x0 + h])
+                e = max(e, err[y0 + h, x0], err[y0 + h, x0 + L])
+                err[y0 + h, x0 + h] = _store(e)
+        L *= 2
+    return err
+
+
+@njit(cache=True)
+def extract(
+    err: np.ndarray,
+    threshold: float,
+    heights: np.ndarray,
+    r0: int,
+    c0: int,
+    rows: int,
+    cols: int,
+    count_only: bool,
+):
+    """One pass over the hierarchy: split every triangle whose E[midpoint] > threshold.
+
+    Emits the triangles inside the window without nodata corners, orient > 0 in (column, row);
+    the valid corners of leaves with a nodata corner are vertices too (exact, not drawn).
+    Returns (triangle count, vertex count, vx (n,), vy (n,) int64, tv (3m,) int32); with
+    count_only the arrays are empty.
+    """
+    size = err.shape[0] - 1
+    mark = np.full(rows * cols, -1, dtype=np.int64)
+    stack = np.empty((64 * 6,), dtype=np.int64)
+    cap = 1024
+    tv = np.empty(3 * cap if not count_only else 0, dtype=np.int32)
+    vx = np.empty(cap if not count_only else 0, dtype=np.int64)
+    vy = np.empty(cap if not count_only else 0, dtype=np.int64)
+    nt = 0
+    nv = 0
+    # Roots: the two triangles of the main diagonal (apex, l, r).
+    sp = 0
+    roots = (size, 0, 0, 0, size, size, 0, size, size, size, 0, 0)
+    for k in range(12):
+        stack[k] = roots[k]
+    sp = 2
+    while sp > 0:
+        sp -= 1
+        b = 6 * sp
+        ax, ay, lx, ly, rx, ry = (
+            stack[b],
+            stack[b + 1],
+            stack[b + 2],
+            stack[b + 3],
+            stack[b + 4],
+            stack[b + 5],
+        )
+        sx = lx + rx
+        sy = ly + ry
+        if sx % 2 == 0 and sy % 2 == 0:
+            mx = sx // 2
+            my = sy // 2
+            if err[my, mx] > threshold:
+                if 6 * (sp + 2) > stack.shape[0]:
+                    bigger = np.empty(2 * stack.shape[0], dtype=np.int64)
+                    bigger[: stack.shape[0]] = stack
+                    stack = bigger
+                c = (mx, my, lx, ly, ax, ay, mx, my, ax, ay, rx, ry)
+                for k in range(12):
+                    stack[b + k] = c[k]
+                sp += 2
+                continue
+        # A leaf: drawn when inside the window with valid corners.
+        if max(ax, max(lx, rx)) > cols - 1 or max(ay, max(ly, ry)) > rows - 1:
+            continue
+        # A leaf with a nodata corner is not drawn, but its valid corners are vertices.
+        hole = (
+            np.isnan(heights[r0 + ay, c0 + ax])
+            or np.isnan(heights[r0 + ly, c0 + lx])
+            or np.isnan(heights[r0 + ry, c0 + rx])
+        )
+        if orient(ax, ay, lx, ly, rx, ry) < 0:
+            lx, ly, rx, ry = rx, ry, lx, ly
+        if not count_only and max(nt, nv) + 3 > cap:
+            cap *= 2
+            tv2 = np.empty(3 * cap, dtype=np.int32)
+            tv2[: tv.shape[0]] = tv
+            tv = tv2
+            vx2 = np.empty(cap, dtype=np.int64)
+            vy2 = np.empty(cap, dtype=np.int64)
+            vx2[: vx.shape[0]] = vx
+            vy2[: vy.shape[0]] = vy
+            vx = vx2
+            vy = vy2
+        for k in range(3):
+            if k == 0:
+                px, py = ax, ay
+            elif k == 1:
+                px, py = lx, ly
+            else:
+                px, py = rx, ry
+            key = py * cols + px
+            if mark[key] < 0 and not np.isnan(heights[r0 + py, c0 + px]):
+                mark[key] = nv
+                if not count_only:
+                    vx[nv] = px
+                    vy[nv] = py
+                nv += 1
+            if not count_only and not hole:
+                tv[3 * nt + k] = mark[key]
+        if not hole:
+            nt += 1
+    if count_only:
+        return nt, nv, vx, vy, tv
+    return nt, nv, vx[:nv].copy(), vy[:nv].copy(), tv[: 3 * nt].copy()

@@ -1,0 +1,149 @@
+"""Half-edge triangle arrays for incremental TIN insertion on a lattice (integer coordinates).
+
+A triangle t owns the half-edges 3t, 3t+1, 3t+2; half-edge e runs from ``tv[e]`` to
+``tv[next(e)]`` and ``he[e]`` is its twin in the neighbouring triangle (−1 on the border).
+Vertices are integer lattice points (column x, row y), so orientation and in-circle tests are
+exact in int64 for grids up to about 2^15 points a side. Every triangle has orient(a, b, c) > 0.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, inline="always")
+def next_edge(e: int) -> int:
+    return e - 2 if e % 3 == 2 else e + 1
+
+
+@njit(cache=True, inline="always")
+def prev_edge(e: int) -> int:
+    return e + 2 if e % 3 == 0 else e - 1
+
+
+@njit(cache=True, inline="always")
+def orient(ax: int, ay: int, bx: int, by: int, px: int, py: int) -> int:
+    """Twice the signed area of (a, b, p): > 0 when p lies left of a→b (inside for our tris)."""
+    return (bx - ax) * (py - ay) - (by - ay) * (px - ax)
+
+
+@njit(cache=True, inline="always")
+def in_circle(ax, ay, bx, by, cx, cy, dx, dy) -> bool:
+    """True when d lies strictly inside the circumcircle of (a, b, c), orient(a, b, c) > 0."""
+    adx = ax - dx
+    ady = ay - dy
+    bdx = bx - dx
+    bdy = by - dy
+    cdx = cx - dx
+    cdy = cy - dy
+    ad = adx * adx + ady * ady
+    bd = bdx * bdx + bdy * bdy
+    cd = cdx * cdx + cdy * cdy
+    det = adx * (bdy * cd - bd * cdy) - ady * (bdx * cd - bd * cdx) + ad * (bdx * cdy - bdy * cdx)
+    return det > 0
+
+
+@njit(cache=True)
+def set_triangle(tv, he, t, a, b, c, hab, hbc, hca) -> None:
+    """Write triangle t = (a, b, c) and link its three half-edges with their twins."""
+    e = 3 * t
+    tv[e] = a
+    tv[e + 1] = b
+    tv[e + 2] = c
+    he[e] = hab
+    he[e + 1] = hbc
+    he[e + 2] = hca
+    if hab >= 0:
+        he[hab] = e
+    if hbc >= 0:
+        he[hbc] = e + 1
+    if hca >= 0:
+        he[hca] = e + 2
+
+
+@njit(cache=True)
+def split_interior(tv, he, t, n1, n2, p) -> None:
+    """Split triangle t = (a, b, c) at interior vertex p into (a,b,p), (b,c,p) = n1, (c,a,p) = n2.
+
+    The edges opposite p (ab, bc, ca) are the half-edges 3t, 3n1, 3n2.
+    """
+    e = 3 * t
+    a, b, c = tv[e], tv[e + 1], tv[e + 2]
+    hab, hbc, hca = he[e], he[e + 1], he[e + 2]
+    set_triangle(tv, he, t, a, b, p, hab, 3 * n1 + 2, 3 * n2 + 1)
+    set_triangle(tv, he, n1, b, c, p, hbc, 3 * n2 + 2, 3 * t + 1)
+    set_triangle(tv, he, n2, c, a, p, hca, 3 * t + 2, 3 * n1 + 1)
+
+
+@njit(cache=True)
+def split_edge(tv, he, e, n1, n2, p) -> int:
+    """Split half-edge e = a→b (and its twin b→a, if any) at vertex p lying on it.
+
+    t = (a, b, c) becomes (a, p, c) and n1 = (p, b, c); the twin's triangle u = (b, a, d)
+    becomes (b, p, d) and n2 = (p, a, d). Returns the number of new triangles (1 or 2); the
+    edges opposite p are 3t+2, 3n1+1 and, with a twin, 3u+2, 3n2+1.
+    """
+    t = e // 3
+    ea = e
+    eb = next_edge(ea)
+    ec = next_edge(eb)
+    a, b, c = tv[ea], tv[eb], tv[ec]
+    hab, hbc, hca = he[ea], he[eb], he[ec]
+    if hab < 0:
+        set_triangle(tv, he, t, a, p, c, -1, 3 * n1 + 2, hca)
+        set_triangle(tv, he, n1, p, b, c, -1, hbc, 3 * t + 1)
+        return 1
+    f = hab
+    u = f // 3
+    fa = next_edge(f)
+    fd = next_edge(fa)
+    d = tv[fd]
+    had, hdb = he[fa], he[fd]
+    set_triangle(tv, he, t, a, p, c, 3 * n2, 3 * n1 + 2, hca)
+    set_triangle(tv, he, n1, p, b, c, 3 * u, hbc, 3 * t + 1)
+    set_triangle(tv, he, u, b, p, d, 3 * n1, 3 * n2 + 2, hdb)
+    set_triangle(tv, he, n2, p, a, d, 3 * t, had, 3 * u + 1)
+    return 2
+
+
+@njit(cache=True)
+def flip(tv, he, e) -> None:
+    """Swap the diagonal of the quadrilateral around half-edge e (p is opposite e in t).
+
+    ::
+
+              p                       p
+             / \\                     /|\\
+            /   \\                   / | \\
+           /  t  \\                 /  |  \\
+          a-------b      ─▶       a t'|u' b
+           \\  u  /                 \\  |  /
+            \\   /                   \\ | /
+             \\ /                     \\|/
+              q                       q
+
+    t = (a, b, p), u = (b, a, q) become t = (a, q, p) and u = (q, b, p). The edges now
+    opposite p, a→q (3t) and q→b (3u), are the ones to test next.
+    """
+    t = e // 3
+    f = he[e]
+    u = f // 3
+    eb = next_edge(e)
+    ep = next_edge(eb)
+    fa = next_edge(f)
+    fq = next_edge(fa)
+    a, b, p = tv[e], tv[eb], tv[ep]
+    q = tv[fq]
+    hbp, hpa = he[eb], he[ep]
+    haq, hqb = he[fa], he[fq]
+    set_triangle(tv, he, t, a, q, p, haq, 3 * u + 2, hpa)
+    set_triangle(tv, he, u, q, b, p, hqb, hbp, 3 * t + 1)
+
+
+@njit(cache=True)
+def grow(a: np.ndarray, size: int, fill) -> np.ndarray:
+    """A copy of ``a`` with room for ``size`` items, new slots set to ``fill``."""
+    out = np.full(size, fill, dtype=a.dtype)
+    out[: a.shape[0]] = a
+    return out

@@ -1,0 +1,181 @@
+"""Scan conversion of lattice triangles over a height grid: candidates and exact errors.
+
+A triangle's grid points are visited row by row between the exact integer bounds given by its
+three edge functions (no bounding-box waste, no rounding), and the plane through its corners is
+evaluated relative to corner a so that thin triangles far from the origin stay accurate.
+
+Keys returned for the heap:
+
+- ``>= 0``: the largest |z − plane| over the triangle's non-vertex data points (its candidate),
+- ``-1``: no candidate (every point is a vertex, or a hole triangle holding only nodata),
+- ``inf``: the triangle must be refined because of nodata (see ``scan_with_holes``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+NO_CANDIDATE = -1.0
+
+
+@njit(cache=True, inline="always")
+def _bound(a: int, k: int, lo: int, hi: int):
+    """Tighten [lo, hi] to the x with a·x + k >= 0 (exact: float guess, integer fix-up)."""
+    if a > 0:
+        x = math.ceil(-k / a)
+        if a * (x - 1) + k >= 0:
+            x -= 1
+        elif a * x + k < 0:
+            x += 1
+        return max(lo, x), hi
+    if a < 0:
+        x = math.floor(k / -a)
+        if a * (x + 1) + k >= 0:
+            x += 1
+        elif a * x + k < 0:
+            x -= 1
+        return lo, min(hi, x)
+    if k < 0:
+        return 1, 0
+    return lo, hi
+
+
+@njit(cache=True, inline="always")
+def row_span(ax, ay, bx, by, cx, cy, y):
+    """Inclusive column range (lo, hi) of lattice row y inside the closed triangle (a, b, c).
+
+    Each edge u→v gives E(x) = (uy − vy)·x + (vx − ux)·(y − uy) + (vy − uy)·ux >= 0 inside.
+    """
+    lo = min(ax, min(bx, cx))
+    hi = max(ax, max(bx, cx))
+    lo, hi = _bound(ay - by, (bx - ax) * (y - ay) + (by - ay) * ax, lo, hi)
+    lo, hi = _bound(by - cy, (cx - bx) * (y - by) + (cy - by) * bx, lo, hi)
+    lo, hi = _bound(cy - ay, (ax - cx) * (y - cy) + (ay - cy) * cx, lo, hi)
+    return lo, hi
+
+
+@njit(cache=True, inline="always")
+def plane(za, zb, zc, ax, ay, bx, by, cx, cy):
+    """Gradient (gx, gy) of the plane through the corners, for z = za + gx·dx + gy·dy."""
+    d = float((bx - ax) * (cy - ay) - (by - ay) * (cx - ax))
+    db = zb - za
+    dc = zc - za
+    gx = (db * (cy - ay) - dc * (by - ay)) / d
+    gy = (dc * (bx - ax) - db * (cx - ax)) / d
+    return gx, gy
+
+
+@njit(cache=True, fastmath=True)
+def _row_max(row: np.ndarray, start: int, n: int, base: float, gx: float) -> float:
+    """max |row[start + i] − (base + gx·i)| for i < n, no nodata (SIMD under fastmath)."""
+    m = 0.0
+    for i in range(n):
+        m = max(m, abs(row[start + i] - (base + gx * i)))
+    return m
+
+
+@njit(cache=True)
+def scan_triangle(heights, r0, c0, ax, ay, bx, by, cx, cy):
+    """(key, candidate y, candidate x) of a triangle on a grid without nodata."""
+    za = float(heights[r0 + ay, c0 + ax])
+    zb = float(heights[r0 + by, c0 + bx])
+    zc = float(heights[r0 + cy, c0 + cx])
+    gx, gy = plane(za, zb, zc, ax, ay, bx, by, cx, cy)
+    best = NO_CANDIDATE
+    best_x = -1
+    best_y = -1
+    y0 = min(ay, min(by, cy))
+    y1 = max(ay, max(by, cy))
+    for y in range(y0, y1 + 1):
+        lo, hi = row_span(ax, ay, bx, by, cx, cy, y)
+        if lo > hi:
+            continue
+        base = za + gy * (y - ay) + gx * (lo - ax)
+        row = heights[r0 + y]
+        # A vectorized row maximum first (with slack for its fused arithmetic); the position is
+        # searched only when it may beat the best so far.
+        if _row_max(row, c0 + lo, hi - lo + 1, base, gx) + 1e-9 <= best:
+            continue
+        for i in range(hi - lo + 1):
+            x = lo + i
+            e = abs(row[c0 + x] - (base + gx * i))
+            if e > best:
+                # Corners are reproduced exactly; round-off must not make them candidates.
+                if (x == ax and y == ay) or (x == bx and y == by) or (x == cx and y == cy):
+                    continue
+                best = e
+                best_x = x
+                best_y = y
+    return best, best_y, best_x
+
+
+@njit(cache=True)
+def scan_with_holes(heights, r0, c0, ax, ay, bx, by, cx, cy):
+    """(key, candidate y, candidate x) of a triangle on a grid with nodata (NaN).
+
+    A triangle with a nodata corner is a hole triangle (never drawn): while it still holds a
+    valid non-corner point it gets key inf and that point (the most interior one) as candidate,
+    so the valid data around holes end up in drawn triangles. A triangle with valid corners that
+    holds nodata gets key inf and its most interior nodata point as candidate, so holes are cut
+    out of the mesh. Otherwise the key is the ordinary largest error.
+    """
+    za = float(heights[r0 + ay, c0 + ax])
+    zb = float(heights[r0 + by, c0 + bx])
+    zc = float(heights[r0 + cy, c0 + cx])
+    hole = np.isnan(za) or np.isnan(zb) or np.isnan(zc)
+    gx, gy = (0.0, 0.0) if hole else plane(za, zb, zc, ax, ay, bx, by, cx, cy)
+    best = NO_CANDIDATE
+    best_x = -1
+    best_y = -1
+    odd_depth = -1
+    odd_x = -1
+    odd_y = -1
+    y0 = min(ay, min(by, cy))
+    y1 = max(ay, max(by, cy))
+    for y in range(y0, y1 + 1):
+        lo, hi = row_span(ax, ay, bx, by, cx, cy, y)
+        if lo > hi:
+            continue
+        for x in range(lo, hi + 1):
+            if (x == ax and y == ay) or (x == bx and y == by) or (x == cx and y == cy):
+                continue
+            z = heights[r0 + y, c0 + x]
+            # Points that force refinement: valid ones in a hole triangle, nodata otherwise.
+            if hole != np.isnan(z):
+                depth = min(
+                    orient_i(bx, by, cx, cy, x, y),
+                    min(orient_i(cx, cy, ax, ay, x, y), orient_i(ax, ay, bx, by, x, y)),
+                )
+                if depth > odd_depth:
+                    odd_depth = depth
+                    odd_x = x
+                    odd_y = y
+                continue
+            if hole:
+                continue
+            e = abs(z - (za + gx * (x - ax) + gy * (y - ay)))
+            if e > best:
+                best = e
+                best_x = x
+                best_y = y
+    if odd_depth >= 0:
+        return np.inf, odd_y, odd_x
+    return best, best_y, best_x
+
+
+@njit(cache=True, inline="always")
+def orient_i(ax, ay, bx, by, px, py):
+    return (bx - ax) * (py - ay) - (by - ay) * (px - ax)
+
+
+@njit(cache=True)
+def triangle_error(heights, r0, c0, ax, ay, bx, by, cx, cy, has_nan) -> float:
+    """Largest |z − plane| over the triangle's data points (inf when nodata forces a split)."""
+    if has_nan:
+        k, _, _ = scan_with_holes(heights, r0, c0, ax, ay, bx, by, cx, cy)
+    else:
+        k, _, _ = scan_triangle(heights, r0, c0, ax, ay, bx, by, cx, cy)
+    return max(k, 0.0)

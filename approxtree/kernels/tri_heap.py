@@ -1,0 +1,73 @@
+"""An array-based binary max-heap of triangles keyed by their candidate error.
+
+``heap[i]`` is a triangle id and ``hkey[i]`` its key, side by side so that sifting walks
+contiguous memory; ``pos[t]`` is the slot of triangle t (−1 when absent), so a triangle changed
+by an insertion is taken out in O(log m) without lazy tombstones. Functions return the new heap
+size; the arrays must be large enough for every triangle id.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, inline="always")
+def _place(heap, hkey, pos, i, t, k) -> None:
+    heap[i] = t
+    hkey[i] = k
+    pos[t] = i
+
+
+@njit(cache=True)
+def _sift_up(heap, hkey, pos, i, t, k) -> None:
+    """Move entry (t, k) up from slot i to where it belongs."""
+    while i > 0:
+        parent = (i - 1) >> 1
+        if k <= hkey[parent]:
+            break
+        _place(heap, hkey, pos, i, heap[parent], hkey[parent])
+        i = parent
+    _place(heap, hkey, pos, i, t, k)
+
+
+@njit(cache=True)
+def _sift_down(heap, hkey, pos, i, t, k, size) -> None:
+    """Move entry (t, k) down from slot i to where it belongs."""
+    while True:
+        child = 2 * i + 1
+        if child >= size:
+            break
+        if child + 1 < size and hkey[child + 1] > hkey[child]:
+            child += 1
+        if hkey[child] <= k:
+            break
+        _place(heap, hkey, pos, i, heap[child], hkey[child])
+        i = child
+    _place(heap, hkey, pos, i, t, k)
+
+
+@njit(cache=True)
+def heap_push(heap: np.ndarray, hkey: np.ndarray, pos: np.ndarray, size: int, t: int, k: float):
+    """Add triangle t (not yet in the heap) with key k."""
+    _sift_up(heap, hkey, pos, size, t, k)
+    return size + 1
+
+
+@njit(cache=True)
+def heap_remove(heap: np.ndarray, hkey: np.ndarray, pos: np.ndarray, size: int, t: int):
+    """Take triangle t out of the heap if it is there."""
+    i = pos[t]
+    if i < 0:
+        return size
+    pos[t] = -1
+    last = size - 1
+    if i != last:
+        # The last entry fills the hole; it may belong above or below slot i.
+        mt = heap[last]
+        mk = hkey[last]
+        if i > 0 and mk > hkey[(i - 1) >> 1]:
+            _sift_up(heap, hkey, pos, i, mt, mk)
+        else:
+            _sift_down(heap, hkey, pos, i, mt, mk, last)
+    return last

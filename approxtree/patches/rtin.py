@@ -1,0 +1,109 @@
+"""RTINPatch: right-triangulated irregular network (Evans, Kirkpatrick & Townsend).
+
+The window of the rectangle is embedded in the smallest (2^k + 1)² lattice that holds it; the
+lattice points beyond the window get no height (no invented height is ever drawn: triangles
+reaching past the window split until they no longer cover window points, and are then left
+out). ``kernels.rtin`` computes true per-triangle errors once; extraction at a threshold is a
+single pass. A point or triangle budget is met by the smallest threshold whose mesh fits:
+triangles split in decreasing order of their (propagated) error, i.e. greedy refinement by
+badness with the forced splits that keep the mesh free of cracks and T-junctions.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from approxtree.geometry.base import GeometryData
+from approxtree.geometry.grid import Grid
+from approxtree.geometry.rect import Rect
+from approxtree.kernels.rtin import extract, vertex_errors
+from approxtree.patches.base import GeometryPatch
+from approxtree.patches.lattice import LatticePatch, Window, grid_window, require_grid, twins
+
+
+def lattice_size(rows: int, cols: int) -> int:
+    """s = 2^k: the smallest power of two with s + 1 >= rows and s + 1 >= cols."""
+    s = 1
+    while s + 1 < max(rows, cols):
+        s *= 2
+    return s
+
+
+def _threshold(
+    err: np.ndarray,
+    grid: Grid,
+    win: Window,
+    max_error: float | None,
+    max_points: int | None,
+    max_triangles: int | None,
+) -> float:
+    """The smallest threshold meeting the budgets (bisection: counts fall as it grows)."""
+    base = 0.0 if max_error is None else float(max_error)
+
+    def fits(t: float) -> bool:
+        nt, nv, _, _, _ = extract(err, t, grid.heights, win.r0, win.c0, win.rows, win.cols, True)
+        return (max_points is None or nv <= max_points) and (
+            max_triangles is None or nt <= max_triangles
+        )
+
+    if (max_points is None and max_triangles is None) or fits(base):
+        return base
+    # Only stored errors matter as thresholds: bisect over their sorted distinct values.
+    values = np.unique(err[np.isfinite(err) & (err > base)])
+    if values.size == 0 or not fits(float(values[-1])):
+        return float("inf")
+    lo, hi = -1, values.size - 1
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if fits(float(values[mid])):
+            hi = mid
+        else:
+            lo = mid
+    return float(values[hi])
+
+
+def rtin_patch(
+    grid: Grid,
+    rect: Rect,
+    max_error: float | None = None,
+    max_points: int | None = None,
+    max_triangles: int | None = None,
+) -> RTINPatch:
+    """The RTIN of one rectangle meeting the error goal and the budgets."""
+    win = grid_window(grid, rect)
+    size = lattice_size(win.rows, win.cols)
+    err = vertex_errors(grid.heights, win.r0, win.c0, win.rows, win.cols, size, win.has_nan)
+    t = _threshold(err, grid, win, max_error, max_points, max_triangles)
+    _, _, vx, vy, tv = extract(err, t, grid.heights, win.r0, win.c0, win.rows, win.cols, False)
+    he = twins(tv.reshape(-1, 3))
+    return RTINPatch.from_window_mesh(grid, rect, win, vx, vy, tv, he)  # type: ignore[return-value]
+
+
+class RTINPatch(LatticePatch):
+    """RTIN of a Grid window: stores (row, col) vertex indices and triangles."""
+
+    kind = "rtin"
+
+    @classmethod
+    def build_many(
+        cls,
+        terrain: GeometryData,
+        rects: Sequence[Rect],
+        max_points: int,
+        epsilon: float = 0.0,
+    ) -> list[GeometryPatch]:
+        grid = require_grid(terrain, cls.kind)
+        return [rtin_patch(grid, r, epsilon, max_points) for r in rects]
+
+
+def approximate_rtin(
+    terrain: GeometryData,
+    max_error: float | None,
+    max_points: int | None,
+    max_triangles: int | None,
+) -> GeometryPatch:
+    """The RTIN of a whole grid (see ``patches.approximate``)."""
+    grid = require_grid(terrain, "rtin")
+    return rtin_patch(grid, grid.domain, max_error, max_points, max_triangles)
