@@ -30,6 +30,11 @@ def __getattr__(name: str):
         from approxtree.io import open_terrain
 
         return open_terrain
+    # The renderer pulls in pyrr, and the Engine moderngl: import them on first use too.
+    if name in ("Camera", "Engine", "Frame", "FrameState"):
+        from approxtree import render
+
+        return getattr(render, name)
     raise AttributeError(f"module 'approxtree' has no attribute {name!r}")
 
 
@@ -37,8 +42,12 @@ __all__ = [
     "TIN",
     "ApproxTreeError",
     "ApproximationTree",
+    "Camera",
     "ContextUnavailableError",
     "EmptyTerrainError",
+    "Engine",
+    "Frame",
+    "FrameState",
     "GeometryData",
     "Grid",
     "GridRefinement",

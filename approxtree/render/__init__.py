@@ -1,0 +1,36 @@
+"""Rendering: camera, frame state, visual errors, selection (pure) and the moderngl Engine.
+
+Only this package touches OpenGL, and only inside ``Engine`` and the GPU helpers it owns,
+always through a context passed in or created by the Engine. The selection modules (camera,
+frame_state, frustum, visual_error, selector) import no GL and can be used without a GPU.
+"""
+
+from approxtree.render.camera import Camera, Projection
+from approxtree.render.frame_state import FrameState, display_scale, overview_camera
+from approxtree.render.selector import Selection, SelectionResult, select
+from approxtree.render.visual_error import texel_sizes, visual_errors
+
+
+def __getattr__(name: str):
+    # The Engine imports moderngl: load it on first use so selection stays GL-free.
+    if name in ("Engine", "Frame"):
+        from approxtree.render import engine
+
+        return getattr(engine, name)
+    raise AttributeError(f"module 'approxtree.render' has no attribute {name!r}")
+
+
+__all__ = [
+    "Camera",
+    "Engine",
+    "Frame",
+    "FrameState",
+    "Projection",
+    "Selection",
+    "SelectionResult",
+    "display_scale",
+    "overview_camera",
+    "select",
+    "texel_sizes",
+    "visual_errors",
+]

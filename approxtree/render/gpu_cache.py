@@ -1,0 +1,113 @@
+"""GpuCache: patch meshes on the GPU, bounded in bytes, least recently used out.
+
+Each entry owns a vertex buffer, an index buffer and one vertex array per program it was drawn
+with. ``get`` returns the entry of a key, building and uploading it on a miss; when the total
+exceeds the budget, the least recently used entries are released — except the one just
+requested, so a single patch larger than the budget can still be drawn. Nothing relies on the
+garbage collector: ``release()`` frees every buffer now.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Callable, Hashable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from approxtree.render.shaders import VERTEX_LAYOUT
+
+
+@dataclass
+class GpuMesh:
+    """One uploaded mesh. nbytes: vertex + index buffer bytes; triangles: index count / 3."""
+
+    vbo: Any
+    ibo: Any
+    nbytes: int
+    triangles: int
+    vaos: dict[int, Any] = field(default_factory=dict)
+
+    def vao(self, ctx: Any, program: Any) -> Any:
+        """The vertex array binding this mesh to ``program`` (made on first use)."""
+        key = program.glo
+        if key not in self.vaos:
+            # skip_errors: a program may leave an attribute of the layout unused.
+            self.vaos[key] = ctx.vertex_array(
+                program,
+                [(self.vbo, *VERTEX_LAYOUT)],
+                self.ibo,
+                index_element_size=4,
+                skip_errors=True,
+            )
+        return self.vaos[key]
+
+    def release(self) -> None:
+        for vao in self.vaos.values():
+            vao.release()
+        self.vaos.clear()
+        self.vbo.release()
+        self.ibo.release()
+
+
+class GpuCache:
+    """LRU cache of GpuMesh entries on ``ctx``, at most ``budget_bytes`` (soft, see above).
+
+    Figures: ``nbytes`` in use, ``uploads`` and ``evictions`` since creation.
+    """
+
+    def __init__(self, ctx: Any, budget_bytes: int) -> None:
+        if budget_bytes <= 0:
+            raise ValueError(f"budget_bytes must be > 0, got {budget_bytes}")
+        self.ctx = ctx
+        self.budget_bytes = int(budget_bytes)
+        self._entries: OrderedDict[Hashable, GpuMesh] = OrderedDict()
+        self.nbytes = 0
+        self.uploads = 0
+        self.evictions = 0
+
+    def __contains__(self, key: Hashable) -> bool:
+        return key in self._entries
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def keys(self) -> list[Hashable]:
+        """Keys from least to most recently used."""
+        return list(self._entries)
+
+    def get(self, key: Hashable, build: Callable[[], tuple[np.ndarray, np.ndarray]]) -> GpuMesh:
+        """The mesh of ``key``; on a miss ``build()`` gives (vertex data (n, 4) float32 in
+        VERTEX_LAYOUT, triangles (m, 3) uint32) to upload."""
+        entry = self._entries.get(key)
+        if entry is not None:
+            self._entries.move_to_end(key)
+            return entry
+        vertex_data, triangles = build()
+        vbo = self.ctx.buffer(np.ascontiguousarray(vertex_data, dtype="f4").tobytes())
+        ibo = self.ctx.buffer(np.ascontiguousarray(triangles, dtype="u4").tobytes())
+        entry = GpuMesh(vbo, ibo, vbo.size + ibo.size, len(triangles))
+        self._entries[key] = entry
+        self.nbytes += entry.nbytes
+        self.uploads += 1
+        self._evict(keep=key)
+        return entry
+
+    def _evict(self, keep: Hashable) -> None:
+        """Release least recently used entries until the budget holds (``keep`` stays)."""
+        while self.nbytes > self.budget_bytes and len(self._entries) > 1:
+            old_key, old = next(iter(self._entries.items()))
+            if old_key == keep:
+                break
+            del self._entries[old_key]
+            self.nbytes -= old.nbytes
+            old.release()
+            self.evictions += 1
+
+    def release(self) -> None:
+        """Free every buffer and vertex array now; the cache stays usable (empty)."""
+        for entry in self._entries.values():
+            entry.release()
+        self._entries.clear()
+        self.nbytes = 0

@@ -1,0 +1,111 @@
+"""Skirts: vertical walls hanging down from the border of a geometry patch.
+
+Neighbouring patches of different resolution meet on a common border line of their
+rectangles, but their border polylines differ in height (a T-junction seen from the side), so
+pixels can fall through the vertical gap between them. A skirt closes it.
+
+*Skirt depth.* Along a shared border line both border polylines interpolate data points of
+that line (grid patches sample the rectangle's own border rows and columns), and h_T along a
+grid line is linear between consecutive data points, so z_N − h_T is piecewise linear with
+breaks at data points of D_N, where it is at most ε_T(N). Hence at every border point
+|z_A − z_B| <= ε_T(A) + ε_T(B). The wall of the higher patch covers the gap when its depth is
+at least that, so each patch gets depth ε_T(N) + ε_max, where ε_max is the largest finite
+error in the tree (the neighbour is unknown when the patch is uploaded), plus a small margin
+for float32 rounding. The walls sit under the neighbour's surface, so depth testing hides
+everything but the gap. Walls end no lower than a common base z_min − ε_max; edges on the
+terrain's outer border hang down to that base, so that from outside the domain the terrain
+reads as a block whose sides hide the interior walls under the terrain sheet.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def border_edges(triangles: np.ndarray) -> np.ndarray:
+    """(k, 2) int64 directed edges used by exactly one triangle, interior on their left.
+
+    triangles: (m, 3) vertex indices, counter-clockwise seen from above.
+    """
+    t = np.asarray(triangles, dtype=np.int64)
+    if len(t) == 0:
+        return np.empty((0, 2), dtype=np.int64)
+    directed = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
+    # Undirected edge key lo·n + hi: one 1-D unique instead of a row-wise one.
+    n = int(t.max()) + 1
+    key = np.minimum(directed[:, 0], directed[:, 1]) * n + np.maximum(
+        directed[:, 0], directed[:, 1]
+    )
+    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    return directed[counts[inverse] == 1]
+
+
+def add_skirts(
+    vertices: np.ndarray,
+    triangles: np.ndarray,
+    depth: float,
+    domain: tuple[float, float, float, float] | None = None,
+    base: float = -np.inf,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The patch plus its skirt: (vertices (n', 3), triangles (m', 3), skirt flags (n',)).
+
+    vertices: (n, 3) world; triangles: (m, 3) CCW from above; depth: wall height (z units);
+    domain: (xmin, ymin, xmax, ymax) of the terrain; base: lowest z of any wall.
+    Interior border edges hang down to max(z − depth, base). Edges on the domain's outer
+    border hang down to ``base`` (a curtain: seen from outside the domain it hides the
+    interior walls below the terrain sheet); with an infinite base they get no wall.
+    Flags are 0 for the patch's vertices, 1 for the bottom vertices of the walls. The walls
+    face outwards (counter-clockwise seen from outside the patch).
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    t = np.asarray(triangles, dtype=np.int64)
+    edges = border_edges(t)
+    outer = np.zeros(len(edges), dtype=bool)
+    if domain is not None and len(edges):
+        xmin, ymin, xmax, ymax = domain
+        tol = 1e-9 * max(xmax - xmin, ymax - ymin, 1e-300)
+        a, b = v[edges[:, 0]], v[edges[:, 1]]
+        for axis, bound in ((0, xmin), (0, xmax), (1, ymin), (1, ymax)):
+            outer |= (np.abs(a[:, axis] - bound) <= tol) & (np.abs(b[:, axis] - bound) <= tol)
+        if not np.isfinite(base):
+            edges, outer = edges[~outer], outer[~outer]
+    flags = np.zeros(len(v), dtype=np.float32)
+    if len(edges) == 0:
+        return v, t, flags
+    # Two bottom vertices per wall quad: outer and interior walls end at different heights.
+    k = len(edges)
+    low = np.concatenate([v[edges[:, 0]], v[edges[:, 1]]])
+    outer2 = np.concatenate([outer, outer])
+    low[:, 2] = np.where(outer2, base, np.maximum(low[:, 2] - depth, base))
+    a, b = edges[:, 0], edges[:, 1]
+    a2 = len(v) + np.arange(k)
+    b2 = a2 + k
+    # Seen from outside, a is top-left and b top-right: (a', b', b) and (a', b, a) are CCW.
+    walls = np.concatenate([np.column_stack([a2, b2, b]), np.column_stack([a2, b, a])])
+    return (
+        np.concatenate([v, low]),
+        np.concatenate([t, walls]),
+        np.concatenate([flags, np.ones(2 * k, dtype=np.float32)]),
+    )
+
+
+def skirt_base(errors: np.ndarray, z_range: tuple[float, float]) -> float:
+    """Lowest z any wall needs: z_min − ε_max − margin.
+
+    Every patch lies at or above z_min − ε_T(N) at its border points, so clamping the walls
+    there keeps the gap argument above intact.
+    """
+    relief = max(z_range[1] - z_range[0], 0.0)
+    e = np.where(np.isfinite(errors), errors, relief)
+    return float(z_range[0] - e.max(initial=0.0) - 1e-3 * max(relief, 1.0))
+
+
+def skirt_depths(errors: np.ndarray, z_range: tuple[float, float]) -> np.ndarray:
+    """(n,) skirt depth of every node: ε_T(N) + ε_max + margin (see the module docstring).
+
+    errors: (n,) ε_T(N), inf where a patch misses data points (then the terrain's relief).
+    """
+    relief = max(z_range[1] - z_range[0], 0.0)
+    e = np.where(np.isfinite(errors), errors, relief)
+    margin = 1e-3 * max(relief, 1.0)
+    return e + float(e.max(initial=0.0)) + margin
