@@ -229,10 +229,16 @@ def build(
 @click.option(
     "--epsilon", type=float, default=1.0, show_default=True, help="Threshold ε in metres."
 )
+@click.option(
+    "--png",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Where to write the rendered overview [default: --out with .png, i.e. demo.png].",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
 @_reports_errors
-def demo(out: str, epsilon: float, as_json: bool) -> None:
-    """Build the tree of the sample terrain (matplotlib's Jacksboro fault DEM) and show it."""
+def demo(out: str, epsilon: float, png: str | None, as_json: bool) -> None:
+    """Build the tree of the sample terrain (matplotlib's Jacksboro fault DEM) and render it."""
     from approxtree.datasets import sample_terrain
     from approxtree.tree import ApproximationTree
 
@@ -245,4 +251,113 @@ def demo(out: str, epsilon: float, as_json: bool) -> None:
     figures.update(terrain_figures(terrain))
     figures.update(tree_figures(tree, seconds, nbytes))
     figures["tree_file"] = str(Path(out))
+    # Render the oblique overview of the whole terrain and add the frame's figures.
+    png_path = Path(png) if png else Path(out).with_suffix(".png")
+    figures.update(_render_to_png(tree, png_path, None, None, 45.0, (1280, 720), 1.0, 2.0))
     _emit(figures, as_json)
+
+
+def _xyz(ctx: click.Context, param: click.Parameter, value: str | None):
+    """Parse "X,Y,Z" into three floats (None when the option is absent)."""
+    if value is None:
+        return None
+    parts = value.split(",")
+    try:
+        xyz = tuple(float(v) for v in parts)
+    except ValueError:
+        xyz = ()
+    if len(xyz) != 3:
+        raise click.BadParameter(f"expected X,Y,Z (three numbers), got {value!r}")
+    return xyz
+
+
+def _size(ctx: click.Context, param: click.Parameter, value: str) -> tuple[int, int]:
+    """Parse "WxH" into (width, height)."""
+    try:
+        w, h = (int(v) for v in value.lower().split("x"))
+    except ValueError:
+        raise click.BadParameter(f"expected WxH in pixels, e.g. 1280x720, got {value!r}") from None
+    return w, h
+
+
+def _render_to_png(
+    tree,
+    path: Path,
+    eye: tuple[float, float, float] | None,
+    target: tuple[float, float, float] | None,
+    fov: float,
+    size: tuple[int, int],
+    alpha: float,
+    gamma: float,
+    wireframe: bool = False,
+    full_resolution: bool = False,
+) -> dict[str, Any]:
+    """Render one frame of ``tree`` to an RGBA PNG at ``path``; returns the frame's stats.
+
+    Without ``eye``: the oblique overview of the whole terrain. Without ``target``: the centre
+    of the tree's root box.
+    """
+    from PIL import Image
+
+    from approxtree.io.atomic import atomic_write
+    from approxtree.render import Camera, Engine, overview_camera
+
+    with Engine(tree) as engine:
+        box = tree.bboxes[0]
+        if eye is None:
+            camera = overview_camera(box, engine.scale, fov=fov)
+            if target is not None:
+                camera.update(target=target)
+        else:
+            centre = tuple(0.5 * (box[:3] + box[3:]))
+            camera = Camera.look_at(eye, target if target is not None else centre, fov=fov)
+        frame = engine.render(
+            camera, size, alpha, gamma, wireframe=wireframe, full_resolution=full_resolution
+        )
+    with atomic_write(path) as f:
+        Image.fromarray(frame.image, mode="RGBA").save(f, format="PNG")
+    stats = {k: (_finite(v) if isinstance(v, float) else v) for k, v in frame.stats.items()}
+    stats["image"] = str(path)
+    return stats
+
+
+@main.command()
+@click.argument("tree_file", type=click.Path(exists=True, dir_okay=False))
+@click.option("--eye", callback=_xyz, help="Camera position X,Y,Z in world units.")
+@click.option("--target", callback=_xyz, help="Point looked at X,Y,Z [default: tree centre].")
+@click.option(
+    "--fov", type=float, default=45.0, show_default=True, help="Vertical field of view, degrees."
+)
+@click.option(
+    "--size", callback=_size, default="1280x720", show_default=True, help="Image size WxH."
+)
+@click.option("--alpha", type=float, default=1.0, show_default=True, help="Threshold α, pixels.")
+@click.option(
+    "--gamma", type=float, default=2.0, show_default=True, help="Threshold γ, pixels² (inf: off)."
+)
+@click.option("--wireframe", is_flag=True, help="Draw triangle edges.")
+@click.option("--full-resolution", is_flag=True, help="Draw the unsimplified terrain (reference).")
+@click.option("--out", required=True, type=click.Path(dir_okay=False), help="PNG to write (RGBA).")
+@click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
+@_reports_errors
+def render(
+    tree_file: str,
+    eye,
+    target,
+    fov: float,
+    size: tuple[int, int],
+    alpha: float,
+    gamma: float,
+    wireframe: bool,
+    full_resolution: bool,
+    out: str,
+    as_json: bool,
+) -> None:
+    """Render a tree file to a PNG (alpha 0 where no terrain is drawn) and print the stats."""
+    from approxtree.tree import ApproximationTree
+
+    tree = ApproximationTree.load(tree_file)
+    stats = _render_to_png(
+        tree, Path(out), eye, target, fov, size, alpha, gamma, wireframe, full_resolution
+    )
+    _emit(stats, as_json)
