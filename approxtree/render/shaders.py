@@ -1,4 +1,4 @@
-"""Shader loader: GLSL programs from ``approxtree/shaders/*.glsl``, one program per file.
+"""Shader loader: GLSL programs from ``shaders/*.glsl`` (installed as ``approxtree.shaders``).
 
 A program file starts with ``#version`` on line 1 and holds its stages in
 ``#if defined VERTEX_SHADER … #elif defined FRAGMENT_SHADER … #endif`` sections (a
@@ -48,7 +48,7 @@ class ShaderError(ApproxTreeError):
 
 def shader_dir() -> Path:
     """The folder holding the .glsl files (inside the installed package)."""
-    return Path(str(resources.files("approxtree") / "shaders"))
+    return Path(str(resources.files("approxtree.shaders")))
 
 
 @dataclass(frozen=True)
