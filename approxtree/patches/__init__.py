@@ -2,6 +2,7 @@
 
 from approxtree.patches.base import GeometryPatch
 from approxtree.patches.grid import GridPatch
+from approxtree.patches.nonregular import NonRegularGridPatch
 from approxtree.patches.rtin import RTINPatch
 from approxtree.patches.tin import TINPatch
 
@@ -10,6 +11,14 @@ STRATEGIES: dict[str, type[GeometryPatch]] = {
     GridPatch.kind: GridPatch,
     TINPatch.kind: TINPatch,
     RTINPatch.kind: RTINPatch,
+    NonRegularGridPatch.kind: NonRegularGridPatch,
 }
 
-__all__ = ["STRATEGIES", "GeometryPatch", "GridPatch", "RTINPatch", "TINPatch"]
+__all__ = [
+    "STRATEGIES",
+    "GeometryPatch",
+    "GridPatch",
+    "NonRegularGridPatch",
+    "RTINPatch",
+    "TINPatch",
+]

@@ -17,8 +17,8 @@ from approxtree.errors import InvalidParameterError
 from approxtree.geometry.base import GeometryData
 from approxtree.patches.base import GeometryPatch
 
-#: Strategies ``approximate`` knows (grid and nonregular are not wired in yet).
-MESH_STRATEGIES = ("tin", "rtin")
+#: Strategies ``approximate`` knows.
+MESH_STRATEGIES = ("grid", "nonregular", "tin", "rtin")
 
 
 @dataclass
@@ -73,9 +73,11 @@ def approximate(
     max_triangles: int | None = None,
     data_dependent: bool = False,
 ) -> Mesh:
-    """Approximate the whole terrain with one strategy (tin or rtin).
+    """Approximate the whole terrain with one strategy (grid, nonregular, tin or rtin).
 
-    data_dependent: for ``tin`` on grids, Algorithm IV's data-dependent flips.
+    grid: one uniform step in both directions (see ``patches.grid.uniform_step``);
+    nonregular: row–column insertion; data_dependent: for ``tin`` on grids, Algorithm IV's
+    data-dependent flips.
     """
     _check_goal(max_error, max_points, max_triangles)
     if strategy not in MESH_STRATEGIES:
@@ -83,7 +85,15 @@ def approximate(
             f"Unknown strategy {strategy!r}; choose one of: {', '.join(MESH_STRATEGIES)}."
         )
     t0 = time.perf_counter()
-    if strategy == "tin":
+    if strategy == "grid":
+        from approxtree.patches.grid import approximate_grid
+
+        patch = approximate_grid(terrain, max_error, max_points, max_triangles)
+    elif strategy == "nonregular":
+        from approxtree.patches.nonregular import approximate_nonregular
+
+        patch = approximate_nonregular(terrain, max_error, max_points, max_triangles)
+    elif strategy == "tin":
         from approxtree.patches.tin import approximate_tin
 
         patch = approximate_tin(terrain, max_error, max_points, max_triangles, data_dependent)

@@ -18,6 +18,7 @@ from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
 from approxtree.kernels.grid_patch import grid_patch_errors, grid_patch_mesh
+from approxtree.kernels.row_column import lattice_error
 from approxtree.patches.base import GeometryPatch
 
 
@@ -90,6 +91,21 @@ class GridPatch(GeometryPatch):
         """True when every data line of the rectangle is sampled (the patch equals T there)."""
         return self.steps == (1, 1)
 
+    @property
+    def lines(self) -> tuple[np.ndarray, np.ndarray]:
+        """Sampled rows (kr,) and columns (kc,) int64: every step-th line and the last one."""
+        r0, r1, c0, c1, sr, sc = self.index
+        rows = np.append(np.arange(r0, r1, sr), r1).astype(np.int64)
+        cols = np.append(np.arange(c0, c1, sc), c1).astype(np.int64)
+        return rows, cols
+
+    @property
+    def rms_error(self) -> float:
+        """Exact RMS of |h_T − h_TN| over the rectangle's valid data points (measured on demand)."""
+        rows, cols = self.lines
+        _, sumsq, count, _, _ = lattice_error(self.grid.heights, rows, cols)
+        return float(np.sqrt(sumsq / max(count, 1)))
+
     def _build_mesh(self) -> tuple[np.ndarray, np.ndarray]:
         g = self.grid
         r0, r1, c0, c1, sr, sc = self.index
@@ -144,3 +160,72 @@ class GridPatch(GeometryPatch):
         index = tuple(int(v) for v in record["index"])
         error, zmin, zmax, count = (float(v) for v in record["stats"])
         return cls(grid, rect, index, error, (zmin, zmax), int(count))
+
+
+def _uniform_counts(rows: int, cols: int, step: int) -> tuple[int, int]:
+    """(lattice points, triangles) of a whole-grid patch with the same step in both directions."""
+    nbr = (rows - 1 + step - 1) // step
+    nbc = (cols - 1 + step - 1) // step
+    return (nbr + 1) * (nbc + 1), 2 * nbr * nbc
+
+
+def uniform_step(
+    grid: Grid,
+    max_error: float | None,
+    max_points: int | None,
+    max_triangles: int | None,
+) -> int:
+    """The step of the uniform regular grid over the whole terrain meeting the goal.
+
+    A point or triangle budget: the smallest step whose lattice fits it. An error goal: the
+    coarsest step s such that every step 1..s meets it. (Errors are not monotone in the step;
+    stopping at the first failing step keeps point counts monotone in the error goal.)
+    """
+    rows, cols = grid.shape
+    longest = max(rows, cols) - 1
+    if max_error is None:
+        for step in range(1, longest + 1):
+            points, tris = _uniform_counts(rows, cols, step)
+            if (max_points is None or points <= max_points) and (
+                max_triangles is None or tris <= max_triangles
+            ):
+                return step
+        return longest
+    # Steps are tried in batches so the kernel measures several lattices per call.
+    full = np.array([[0, rows - 1, 0, cols - 1]], dtype=np.int64)
+    start = 2
+    batch = 8
+    while start <= longest:
+        steps = np.arange(start, min(start + batch, longest + 1), dtype=np.int64)
+        ranges = np.repeat(full, len(steps), axis=0)
+        error, _, _, _ = grid_patch_errors(grid.heights, ranges, np.column_stack([steps, steps]))
+        failed = np.flatnonzero(~(error <= max_error))
+        if failed.size:
+            return int(steps[failed[0]]) - 1
+        start += batch
+        batch *= 2
+    return longest
+
+
+def approximate_grid(
+    terrain: GeometryData,
+    max_error: float | None,
+    max_points: int | None,
+    max_triangles: int | None,
+) -> GridPatch:
+    """The uniform regular grid of a whole terrain (see ``patches.approximate``)."""
+    grid = GridPatch._require_grid(terrain)
+    step = uniform_step(grid, max_error, max_points, max_triangles)
+    rows, cols = grid.shape
+    index = np.array([[0, rows - 1, 0, cols - 1]], dtype=np.int64)
+    error, zmin, zmax, count = grid_patch_errors(
+        grid.heights, index, np.array([[step, step]], dtype=np.int64)
+    )
+    return GridPatch(
+        grid,
+        grid.domain,
+        (0, rows - 1, 0, cols - 1, step, step),
+        error[0],
+        (zmin[0], zmax[0]),
+        count[0],
+    )
