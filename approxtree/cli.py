@@ -361,3 +361,65 @@ def render(
         tree, Path(out), eye, target, fov, size, alpha, gamma, wireframe, full_resolution
     )
     _emit(stats, as_json)
+
+
+@main.command()
+@click.argument("dem", type=click.Path(dir_okay=False))
+@click.option(
+    "--strategy",
+    type=click.Choice(["grid", "nonregular", "tin", "rtin"]),
+    default="tin",
+    show_default=True,
+    help="Approximation strategy for the whole terrain.",
+)
+@click.option("--max-error", type=float, help="Goal: largest error allowed (z units).")
+@click.option("--max-points", type=int, help="Goal: most vertices.")
+@click.option("--max-triangles", type=int, help="Goal: most triangles.")
+@click.option(
+    "--out",
+    type=click.Path(dir_okay=False),
+    help="Mesh file to write (.ply, .obj or .glb). PLY and OBJ hold world coordinates; GLB "
+    "holds float32 coordinates relative to a local origin (x, y centre, lowest z), stored in "
+    "the GLB scene extras as 'origin' and printed in the figures: world = position + origin. "
+    "All formats are z-up.",
+)
+@click.option(
+    "--data-dependent",
+    is_flag=True,
+    help="tin on grids: data-dependent triangulation (edge flips by error) instead of Delaunay.",
+)
+@reader_options
+@click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
+@_reports_errors
+def mesh(
+    dem: str,
+    strategy: str,
+    max_error: float | None,
+    max_points: int | None,
+    max_triangles: int | None,
+    out: str | None,
+    data_dependent: bool,
+    encoding,
+    nodata_policy,
+    ground_only,
+    height_scale,
+    as_json: bool,
+) -> None:
+    """Approximate a whole terrain with one strategy to exactly one goal (--max-error,
+    --max-points or --max-triangles); print its exact max and RMS errors, optionally write it."""
+    from approxtree.io.mesh_file import mesh_format, write_mesh
+    from approxtree.patches.approximate import approximate, check_goal
+
+    # Check the cheap things before reading and approximating the terrain.
+    check_goal(max_error, max_points, max_triangles)
+    if out is not None:
+        mesh_format(out)
+    terrain = _open(dem, encoding, nodata_policy, ground_only, height_scale)
+    result = approximate(
+        terrain, strategy, max_error, max_points, max_triangles, data_dependent=data_dependent
+    )
+    figures = result.figures()
+    if out is not None:
+        meta = {"strategy": strategy, "crs": terrain.crs, "max_error": figures["max_error"]}
+        figures.update(write_mesh(out, result.vertices, result.triangles, meta))
+    _emit(figures, as_json)

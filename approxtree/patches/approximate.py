@@ -49,7 +49,8 @@ class Mesh:
         }
 
 
-def _check_goal(max_error: float | None, max_points: int | None, max_triangles: int | None) -> None:
+def check_goal(max_error: float | None, max_points: int | None, max_triangles: int | None) -> None:
+    """Raise InvalidParameterError unless exactly one valid goal is given."""
     goals = [g for g in (max_error, max_points, max_triangles) if g is not None]
     if len(goals) != 1:
         raise InvalidParameterError(
@@ -79,10 +80,14 @@ def approximate(
     nonregular: row–column insertion; data_dependent: for ``tin`` on grids, Algorithm IV's
     data-dependent flips.
     """
-    _check_goal(max_error, max_points, max_triangles)
+    check_goal(max_error, max_points, max_triangles)
     if strategy not in MESH_STRATEGIES:
         raise InvalidParameterError(
             f"Unknown strategy {strategy!r}; choose one of: {', '.join(MESH_STRATEGIES)}."
+        )
+    if data_dependent and strategy != "tin":
+        raise InvalidParameterError(
+            f"data_dependent applies to the tin strategy only, not {strategy!r}."
         )
     t0 = time.perf_counter()
     if strategy == "grid":

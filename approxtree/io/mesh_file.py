@@ -1,0 +1,81 @@
+"""Mesh writers: a terrain approximation as PLY, OBJ or GLB, through trimesh.
+
+PLY and OBJ hold world coordinates (x east, y north, z up) as written: PLY as float64, OBJ as
+decimal text. GLB (glTF) stores float32 positions, too coarse for map coordinates such as
+UTM eastings, so GLB positions are relative to a local origin (the centre of the mesh's x, y
+extent and its lowest z) and the origin is recorded in the scene's extras as ``origin``
+(trimesh reads it back as ``scene.metadata["origin"]``); world = position + origin. Axes stay
+z-up in every format. Files are written atomically.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from approxtree.errors import InvalidParameterError, StoreError
+from approxtree.io.atomic import atomic_write
+
+#: Extension → trimesh file type.
+MESH_FORMATS = {".ply": "ply", ".obj": "obj", ".glb": "glb"}
+
+
+def mesh_format(path: str | os.PathLike) -> str:
+    """The trimesh file type of ``path`` from its extension; checks the folder exists."""
+    target = Path(path)
+    kind = MESH_FORMATS.get(target.suffix.lower())
+    if kind is None:
+        raise InvalidParameterError(
+            f"Cannot write a mesh to {target}: unknown extension {target.suffix!r}; "
+            f"use one of {', '.join(MESH_FORMATS)}."
+        )
+    folder = target.parent if str(target.parent) else Path(".")
+    if not folder.is_dir():
+        raise StoreError(f"Cannot write {target}: the folder {folder} does not exist.")
+    return kind
+
+
+def local_origin(vertices: np.ndarray) -> np.ndarray:
+    """(3,) float64 centre of the x, y extent and lowest z of ``vertices`` (n, 3)."""
+    lo = vertices.min(axis=0)
+    hi = vertices.max(axis=0)
+    return np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]], dtype=np.float64)
+
+
+def write_mesh(
+    path: str | os.PathLike,
+    vertices: np.ndarray,
+    triangles: np.ndarray,
+    metadata: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Write a mesh atomically; returns {"out": path, "format": kind} (+ "origin" for GLB).
+
+    vertices: (n, 3) float64 world coordinates; triangles: (m, 3) int, counter-clockwise seen
+    from above; metadata: JSON-serializable facts stored in the GLB scene extras.
+    """
+    import trimesh
+
+    kind = mesh_format(path)
+    v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    t = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    if len(v) == 0:
+        raise InvalidParameterError("The mesh has no vertex to write.")
+    out: dict[str, Any] = {"out": str(path), "format": kind}
+    if kind == "glb":
+        origin = local_origin(v)
+        mesh = trimesh.Trimesh((v - origin).astype(np.float32), t, process=False)
+        scene = trimesh.Scene(mesh)
+        scene.metadata.update(metadata or {})
+        scene.metadata["origin"] = origin.tolist()
+        data = scene.export(file_type="glb")
+        out["origin"] = origin.tolist()
+    else:
+        data = trimesh.Trimesh(v, t, process=False).export(file_type=kind)
+    if isinstance(data, str):
+        data = data.encode("utf-8")
+    with atomic_write(path) as f:
+        f.write(data)
+    return out
