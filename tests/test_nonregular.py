@@ -107,6 +107,19 @@ def test_grid_lattice_error_agrees_with_the_grid_patch_kernel():
     assert approximate(terrain, "grid", max_points=10_000).max_error == 0.0
 
 
+def test_grid_error_goal_picks_the_largest_step_that_meets_it(data_dir):
+    """For an error goal the uniform grid takes the largest step whose measured error meets
+    it (errors are not monotone in the step, so every step is checked)."""
+    terrain = crop(at.open_terrain(data_file(data_dir, "scape/crater.stm")), 120, 100)
+    steps = np.arange(1, 120, dtype=np.int64)
+    full = np.repeat(np.array([[0, 119, 0, 99]], dtype=np.int64), len(steps), axis=0)
+    errors, _, _, _ = grid_patch_errors(terrain.heights, full, np.column_stack([steps, steps]))
+    for goal in (10.0, 30.0, 60.0, 100.0, 200.0):
+        mesh = approximate(terrain, "grid", max_error=goal)
+        assert mesh.patch.steps[0] == steps[errors <= goal].max()
+        assert mesh.max_error == errors[steps == mesh.patch.steps[0]][0] <= goal
+
+
 @pytest.mark.parametrize("strategy", GRIDS)
 def test_vertex_counts_fall_as_error_grows(data_dir, strategy):
     """Vertex counts are monotonically non-increasing in the requested error."""

@@ -13,7 +13,7 @@ Every cell keeps its worst data point; inserting a row only changes the cells of
 it splits, inserting a column only those of the column strip it splits, so only those strips
 are re-evaluated. Cells are stored by stable strip ids (a new strip gets the next free id), so
 insertion never moves stored cells; each row strip keeps its worst cell, and the global worst is
-found by scanning the row strips.
+found by scanning the row strips. Ties go to the first data point in row-major order.
 
 Nodata during refinement: a point whose triangle in its own cell has a nodata corner (and that
 is not on the cell's diagonal with the other triangle drawn) counts as infinitely wrong. That is
@@ -87,41 +87,49 @@ def _insert(lines, ids, n, pos, value, new_id):
 
 
 @njit(cache=True)
+def _worse(e1, k1, e2, k2):
+    """True when point 1 (error e1, row-major index k1) is worse than point 2.
+
+    Ties go to the first data point in row-major order, so the choice does not depend on the
+    order in which cells are visited.
+    """
+    return e1 > e2 or (e1 == e2 and k1 < k2)
+
+
+@njit(cache=True)
 def _eval_cell(heights, R, C, rid, cid, i, j, E, AR, AC):
-    """Evaluate cell (i, j) of the current lattice into its stable storage slot."""
+    """Evaluate cell (i, j) of the current lattice into its stable storage slot.
+
+    Returns the cell's (error, row-major index of its worst point).
+    """
     e, r, c = _cell_worst(heights, R[i], R[i + 1], C[j], C[j + 1])
     E[rid[i], cid[j]] = e
     AR[rid[i], cid[j]] = r
     AC[rid[i], cid[j]] = c
-    return e
+    return e, r * heights.shape[1] + c
 
 
 @njit(cache=True)
-def _eval_row_strip(heights, R, C, rid, cid, i, nc, E, AR, AC, rowmax, rowarg):
-    """Evaluate every cell of row strip i and set the strip's worst cell."""
+def _set_strip_worst(heights, rid, cid, i, nc, E, AR, AC, strip):
+    """Recompute the worst cell of row strip i from the stored cell errors.
+
+    strip: (cap, 3) float64 per row-strip id: error, row-major point index, cell column id.
+    """
+    w = heights.shape[1]
+    k = rid[i]
     best = -1.0
+    best_key = 0
     arg = 0
     for j in range(nc - 1):
-        e = _eval_cell(heights, R, C, rid, cid, i, j, E, AR, AC)
-        if e > best:
+        e = E[k, cid[j]]
+        key = AR[k, cid[j]] * w + AC[k, cid[j]]
+        if _worse(e, key, best, best_key):
             best = e
+            best_key = key
             arg = cid[j]
-    rowmax[rid[i]] = best
-    rowarg[rid[i]] = arg
-
-
-@njit(cache=True)
-def _rescan_row_strip(R, C, rid, cid, i, nc, E, rowmax, rowarg):
-    """Recompute the worst cell of row strip i from the stored cell errors."""
-    best = -1.0
-    arg = 0
-    for j in range(nc - 1):
-        e = E[rid[i], cid[j]]
-        if e > best:
-            best = e
-            arg = cid[j]
-    rowmax[rid[i]] = best
-    rowarg[rid[i]] = arg
+    strip[k, 0] = best
+    strip[k, 1] = best_key
+    strip[k, 2] = arg
 
 
 @njit(cache=True)
@@ -154,19 +162,22 @@ def refine_lattice(heights, r0, r1, c0, c1, epsilon, max_points, max_cells, rows
     E = np.zeros((cap_r - 1, cap_c - 1))
     AR = np.full((cap_r - 1, cap_c - 1), -1, dtype=np.int64)
     AC = np.full((cap_r - 1, cap_c - 1), -1, dtype=np.int64)
-    rowmax = np.zeros(cap_r - 1)
-    rowarg = np.zeros(cap_r - 1, dtype=np.int64)
-    _eval_row_strip(heights, R, C, rid, cid, 0, nc, E, AR, AC, rowmax, rowarg)
+    # Per row strip: its worst cell's error, point index and column id (exact in float64).
+    strip = np.zeros((cap_r - 1, 3))
+    _eval_cell(heights, R, C, rid, cid, 0, 0, E, AR, AC)
+    _set_strip_worst(heights, rid, cid, 0, nc, E, AR, AC, strip)
     while True:
-        # The worst cell: scan the row strips' maxima.
+        # The worst cell: scan the row strips' worst cells.
         bi = 0
         for i in range(1, nr - 1):
-            if rowmax[rid[i]] > rowmax[rid[bi]]:
+            a = strip[rid[i]]
+            b = strip[rid[bi]]
+            if _worse(a[0], a[1], b[0], b[1]):
                 bi = i
-        worst = rowmax[rid[bi]]
+        worst = strip[rid[bi], 0]
         if worst <= epsilon or worst <= 0.0:
             return nr, nc, max(worst, 0.0)
-        wc_id = rowarg[rid[bi]]
+        wc_id = np.int64(strip[rid[bi], 2])
         r = AR[rid[bi], wc_id]
         c = AC[rid[bi], wc_id]
         bj = 0
@@ -190,22 +201,31 @@ def refine_lattice(heights, r0, r1, c0, c1, epsilon, max_points, max_cells, rows
             _insert(R, rid, nr, bi + 1, r, nr - 1)
             nr += 1
             # Both halves of the split row strip, over all (possibly new) columns.
-            _eval_row_strip(heights, R, C, rid, cid, bi, nc, E, AR, AC, rowmax, rowarg)
-            _eval_row_strip(heights, R, C, rid, cid, bi + 1, nc, E, AR, AC, rowmax, rowarg)
+            for i in (bi, bi + 1):
+                for j in range(nc - 1):
+                    _eval_cell(heights, R, C, rid, cid, i, j, E, AR, AC)
+                _set_strip_worst(heights, rid, cid, i, nc, E, AR, AC, strip)
         if new_c:
             old_id = cid[bj]
             for i in range(nr - 1):
                 if new_r and (i == bi or i == bi + 1):
                     continue
-                e1 = _eval_cell(heights, R, C, rid, cid, i, bj, E, AR, AC)
-                e2 = _eval_cell(heights, R, C, rid, cid, i, bj + 1, E, AR, AC)
+                e1, k1 = _eval_cell(heights, R, C, rid, cid, i, bj, E, AR, AC)
+                e2, k2 = _eval_cell(heights, R, C, rid, cid, i, bj + 1, E, AR, AC)
                 k = rid[i]
-                if rowarg[k] == old_id:
+                if np.int64(strip[k, 2]) == old_id:
                     # The strip's worst cell was split: its maximum may have dropped.
-                    _rescan_row_strip(R, C, rid, cid, i, nc, E, rowmax, rowarg)
-                elif e1 > rowmax[k] or e2 > rowmax[k]:
-                    rowmax[k] = max(e1, e2)
-                    rowarg[k] = cid[bj] if e1 >= e2 else cid[bj + 1]
+                    _set_strip_worst(heights, rid, cid, i, nc, E, AR, AC, strip)
+                    continue
+                # Otherwise the old worst cell stands unless a new half beats it.
+                if _worse(e1, k1, strip[k, 0], strip[k, 1]):
+                    strip[k, 0] = e1
+                    strip[k, 1] = k1
+                    strip[k, 2] = cid[bj]
+                if _worse(e2, k2, strip[k, 0], strip[k, 1]):
+                    strip[k, 0] = e2
+                    strip[k, 1] = k2
+                    strip[k, 2] = cid[bj + 1]
 
 
 @njit(cache=True, parallel=True)
@@ -276,6 +296,12 @@ def lattice_error(heights, rows, cols):
     the data points are those of the window rows[0]..rows[-1] × cols[0]..cols[-1], each
     evaluated once. A valid point in no drawn triangle gives an infinite max error (and sum).
     """
+    return _lattice_error(heights, rows, cols, np.inf)
+
+
+@njit(cache=True)
+def _lattice_error(heights, rows, cols, limit):
+    """``lattice_error`` that returns early, with a partial result, once the error > limit."""
     err = 0.0
     sumsq = 0.0
     zmin = np.inf
@@ -325,7 +351,36 @@ def lattice_error(heights, rows, cols):
                         sumsq += e * e
                         if e > err:
                             err = e
+                    if err > limit:
+                        return err, sumsq, count, zmin, zmax
     return err, sumsq, count, zmin, zmax
+
+
+@njit(cache=True)
+def _uniform_lines(lo, hi, step):
+    """lo, lo + step, ... and hi: the lines of a regular lattice with the last one kept."""
+    n = (hi - lo + step - 1) // step
+    out = np.empty(n + 1, dtype=np.int64)
+    for k in range(n):
+        out[k] = lo + k * step
+    out[n] = hi
+    return out
+
+
+@njit(cache=True)
+def coarsest_uniform_step(heights, max_error):
+    """Largest step s (same in both directions) whose whole-grid lattice has error <= max_error.
+
+    Steps are tried from the largest down; a failing step stops at its first point beyond
+    max_error, so typically only the answer is measured in full. Returns 1 if no step > 1 fits.
+    """
+    rows, cols = heights.shape
+    for step in range(max(rows, cols) - 1, 1, -1):
+        r = _uniform_lines(0, rows - 1, step)
+        c = _uniform_lines(0, cols - 1, step)
+        if _lattice_error(heights, r, c, max_error)[0] <= max_error:
+            return step
+    return 1
 
 
 @njit(cache=True, parallel=True)

@@ -18,7 +18,7 @@ from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
 from approxtree.kernels.grid_patch import grid_patch_errors, grid_patch_mesh
-from approxtree.kernels.row_column import lattice_error
+from approxtree.kernels.row_column import coarsest_uniform_step, lattice_error
 from approxtree.patches.base import GeometryPatch
 
 
@@ -178,8 +178,9 @@ def uniform_step(
     """The step of the uniform regular grid over the whole terrain meeting the goal.
 
     A point or triangle budget: the smallest step whose lattice fits it. An error goal: the
-    coarsest step s such that every step 1..s meets it. (Errors are not monotone in the step;
-    stopping at the first failing step keeps point counts monotone in the error goal.)
+    largest step whose exact error is at most ``max_error`` (errors are not monotone in the
+    step, so every step is tried; the point count still falls as ``max_error`` grows, because
+    a larger goal admits every step a smaller one does).
     """
     rows, cols = grid.shape
     longest = max(rows, cols) - 1
@@ -191,20 +192,7 @@ def uniform_step(
             ):
                 return step
         return longest
-    # Steps are tried in batches so the kernel measures several lattices per call.
-    full = np.array([[0, rows - 1, 0, cols - 1]], dtype=np.int64)
-    start = 2
-    batch = 8
-    while start <= longest:
-        steps = np.arange(start, min(start + batch, longest + 1), dtype=np.int64)
-        ranges = np.repeat(full, len(steps), axis=0)
-        error, _, _, _ = grid_patch_errors(grid.heights, ranges, np.column_stack([steps, steps]))
-        failed = np.flatnonzero(~(error <= max_error))
-        if failed.size:
-            return int(steps[failed[0]]) - 1
-        start += batch
-        batch *= 2
-    return longest
+    return int(coarsest_uniform_step(grid.heights, float(max_error)))
 
 
 def approximate_grid(
