@@ -158,12 +158,13 @@ def refine_lattice(heights, r0, r1, c0, c1, epsilon, max_points, max_cells, rows
     cid[1] = 1
     nr = 2
     nc = 2
-    # Cell storage by stable strip ids: strip ids are never reused or moved.
-    E = np.zeros((cap_r - 1, cap_c - 1))
-    AR = np.full((cap_r - 1, cap_c - 1), -1, dtype=np.int64)
-    AC = np.full((cap_r - 1, cap_c - 1), -1, dtype=np.int64)
+    # Cell storage by stable strip ids: strip ids are never reused or moved. Every slot is
+    # written when its cell is created, before it is read, so the arrays start uninitialized.
+    E = np.empty((cap_r - 1, cap_c - 1))
+    AR = np.empty((cap_r - 1, cap_c - 1), dtype=np.int64)
+    AC = np.empty((cap_r - 1, cap_c - 1), dtype=np.int64)
     # Per row strip: its worst cell's error, point index and column id (exact in float64).
-    strip = np.zeros((cap_r - 1, 3))
+    strip = np.empty((cap_r - 1, 3))
     _eval_cell(heights, R, C, rid, cid, 0, 0, E, AR, AC)
     _set_strip_worst(heights, rid, cid, 0, nc, E, AR, AC, strip)
     while True:
