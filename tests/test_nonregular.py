@@ -162,7 +162,8 @@ def test_patch_keeps_border_lines_and_only_stores_line_indices():
 
 
 def test_nodata_holes_stay_out_and_error_is_exact(data_dir):
-    """On Mount St Helens (nodata) drawn triangles avoid holes and the error is exact."""
+    """On Mount St Helens (nodata) drawn triangles avoid holes and errors are exact, for the
+    whole-terrain mesh and for the nodes of a tree."""
     terrain = crop(at.open_terrain(data_file(data_dir, "edge/SainteHelens.dem")), 200, 200)
     assert terrain.nodata_count > 0
     mesh = approximate(terrain, "nonregular", max_error=20.0)
@@ -173,6 +174,13 @@ def test_nodata_holes_stay_out_and_error_is_exact(data_dir):
     rr, cc = np.nonzero(np.isnan(terrain.heights))
     finder = Triangulation(mesh.vertices[:, 0], mesh.vertices[:, 1], mesh.triangles)
     assert (finder.get_trifinder()(terrain.x_coords[cc], terrain.y_coords[rr]) == -1).all()
+    # In a tree, nodes split until every leaf represents its data points: finite errors.
+    tree = ApproximationTree.build(terrain, epsilon=5.0, max_points=17 * 17, policy="nonregular")
+    assert np.isfinite(tree.errors[tree.leaves]).all() and tree.errors.max() > 5.0
+    for i in range(0, len(tree), max(1, len(tree) // 20)):
+        node = tree.node(i)
+        expected = brute_force_error(terrain, node.rect, node.patch.vertices, node.patch.triangles)
+        assert node.error == pytest.approx(expected, abs=1e-6 * (1 + expected))
 
 
 def test_tree_with_nonregular_policy_satisfies_invariants(data_dir, tmp_path):
