@@ -19,6 +19,7 @@ from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
 from approxtree.kernels.rtin import extract, vertex_errors
+from approxtree.kernels.rtin_greedy import greedy_rtin
 from approxtree.patches.base import GeometryPatch
 from approxtree.patches.lattice import LatticePatch, Window, grid_window, require_grid, twins
 
@@ -70,10 +71,34 @@ def rtin_patch(
     max_error: float | None = None,
     max_points: int | None = None,
     max_triangles: int | None = None,
+    greedy: bool = False,
 ) -> RTINPatch:
-    """The RTIN of one rectangle meeting the error goal and the budgets."""
+    """The RTIN of one rectangle meeting the error goal and the budgets.
+
+    greedy: meet a point or triangle budget by greedy refinement (``kernels.rtin_greedy``)
+    instead of the smallest fitting threshold of the precomputed error hierarchy.
+    """
     win = grid_window(grid, rect)
     size = lattice_size(win.rows, win.cols)
+    if greedy and (max_points is not None or max_triangles is not None):
+        # A budget: greedy refinement by badness (worst leaf first, forced splits included).
+        split = greedy_rtin(
+            grid.heights,
+            win.r0,
+            win.c0,
+            win.rows,
+            win.cols,
+            size,
+            -1.0 if max_error is None else float(max_error),
+            0 if max_points is None else int(max_points),
+            0 if max_triangles is None else int(max_triangles),
+            win.has_nan,
+        )
+        _, _, vx, vy, tv = extract(
+            split, 0.5, grid.heights, win.r0, win.c0, win.rows, win.cols, False
+        )
+        he = twins(tv.reshape(-1, 3))
+        return RTINPatch.from_window_mesh(grid, rect, win, vx, vy, tv, he)  # type: ignore[return-value]
     err = vertex_errors(grid.heights, win.r0, win.c0, win.rows, win.cols, size, win.has_nan)
     t = _threshold(err, grid, win, max_error, max_points, max_triangles)
     _, _, vx, vy, tv = extract(err, t, grid.heights, win.r0, win.c0, win.rows, win.cols, False)
@@ -106,4 +131,4 @@ def approximate_rtin(
 ) -> GeometryPatch:
     """The RTIN of a whole grid (see ``patches.approximate``)."""
     grid = require_grid(terrain, "rtin")
-    return rtin_patch(grid, grid.domain, max_error, max_points, max_triangles)
+    return rtin_patch(grid, grid.domain, max_error, max_points, max_triangles, greedy=True)
