@@ -147,3 +147,42 @@ def grow(a: np.ndarray, size: int, fill) -> np.ndarray:
     out = np.full(size, fill, dtype=a.dtype)
     out[: a.shape[0]] = a
     return out
+
+
+@njit(cache=True)
+def half_edge_twins(tv: np.ndarray, n_vertices: int) -> np.ndarray:
+    """(3m,) int32 twin of each half-edge of the triangles tv (3m,), −1 on the border.
+
+    Half-edge 3t + k runs from tv[3t + k] to tv[3t + (k + 1) % 3]; an open-addressing hash
+    table keyed by (from, to) pairs them in O(m) expected.
+    """
+    ne = tv.shape[0]
+    out = np.full(ne, -1, dtype=np.int32)
+    cap = 1
+    while cap < 2 * ne + 2:
+        cap *= 2
+    mask = cap - 1
+    keys = np.full(cap, -1, dtype=np.int64)
+    vals = np.empty(cap, dtype=np.int32)
+    # Insert every half-edge by its (from, to) key.
+    for e in range(ne):
+        a = np.int64(tv[e])
+        b = np.int64(tv[next_edge(e)])
+        key = a * n_vertices + b
+        slot = (key * 0x9E3779B97F4A7C15 >> 17) & mask
+        while keys[slot] >= 0:
+            slot = (slot + 1) & mask
+        keys[slot] = key
+        vals[slot] = e
+    # Look up each half-edge's reverse.
+    for e in range(ne):
+        a = np.int64(tv[e])
+        b = np.int64(tv[next_edge(e)])
+        key = b * n_vertices + a
+        slot = (key * 0x9E3779B97F4A7C15 >> 17) & mask
+        while keys[slot] >= 0:
+            if keys[slot] == key:
+                out[e] = vals[slot]
+                break
+            slot = (slot + 1) & mask
+    return out

@@ -18,6 +18,7 @@ from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
 from approxtree.kernels.greedy_tin import mesh_error
+from approxtree.kernels.tin_mesh import half_edge_twins
 from approxtree.patches.base import GeometryPatch
 
 
@@ -71,21 +72,10 @@ def twins(tris: np.ndarray) -> np.ndarray:
 
     Half-edge 3t + k runs from tris[t, k] to tris[t, (k + 1) % 3].
     """
-    m = len(tris)
-    if m == 0:
+    if len(tris) == 0:
         return np.empty(0, dtype=np.int32)
-    a = tris.reshape(-1).astype(np.int64)
-    b = np.roll(tris, -1, axis=1).reshape(-1).astype(np.int64)
-    n = int(max(a.max(), b.max())) + 1
-    fwd = a * n + b
-    rev = b * n + a
-    order = np.argsort(fwd)
-    pos = np.searchsorted(fwd[order], rev)
-    pos = np.minimum(pos, len(fwd) - 1)
-    hit = fwd[order][pos] == rev
-    out = np.full(3 * m, -1, dtype=np.int32)
-    out[hit] = order[pos[hit]]
-    return out
+    tv = np.ascontiguousarray(tris, dtype=np.int64).reshape(-1)
+    return half_edge_twins(tv, int(tv.max()) + 1)
 
 
 @dataclass
