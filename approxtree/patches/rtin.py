@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numba
 import numpy as np
 
 from approxtree.geometry.base import GeometryData
@@ -65,6 +66,22 @@ def _threshold(
     return float(values[hi])
 
 
+#: Lattices with fewer points than this compute their errors on one thread: each of the ~60
+#: parallel levels costs a thread hand-off, more than the level's work on small windows.
+PARALLEL_MIN_POINTS = 2049 * 2049
+
+
+def _vertex_errors(grid: Grid, win: Window, size: int) -> np.ndarray:
+    """``kernels.rtin.vertex_errors`` of the window, threaded only for large lattices."""
+    threads = numba.get_num_threads()
+    if (size + 1) ** 2 < PARALLEL_MIN_POINTS:
+        numba.set_num_threads(1)
+    try:
+        return vertex_errors(grid.heights, win.r0, win.c0, win.rows, win.cols, size, win.has_nan)
+    finally:
+        numba.set_num_threads(threads)
+
+
 def rtin_patch(
     grid: Grid,
     rect: Rect,
@@ -99,7 +116,7 @@ def rtin_patch(
         )
         he = twins(tv.reshape(-1, 3))
         return RTINPatch.from_window_mesh(grid, rect, win, vx, vy, tv, he)  # type: ignore[return-value]
-    err = vertex_errors(grid.heights, win.r0, win.c0, win.rows, win.cols, size, win.has_nan)
+    err = _vertex_errors(grid, win, size)
     t = _threshold(err, grid, win, max_error, max_points, max_triangles)
     _, _, vx, vy, tv = extract(err, t, grid.heights, win.r0, win.c0, win.rows, win.cols, False)
     he = twins(tv.reshape(-1, 3))
