@@ -3,8 +3,8 @@
 numba kernels are warmed up first (compile time excluded). Each case: median of ``--repeats``
 runs of both engines, alternating; the JSON records wall and CPU times, their ratios (ours /
 theirs), vertex counts and true max errors. Peak memory of one TIN run at the largest size is
-measured for each engine in a fresh subprocess (ru_maxrss growth over a process that already
-holds the heights). RTIN is compared twice: time for the same threshold (pymartini: build +
+measured for each engine in a fresh subprocess (peak RSS growth over a process that already holds
+the heights). RTIN is compared twice: time for the same threshold (pymartini: build +
 extraction), and triangles needed for the same TRUE max error (pymartini's threshold is not a
 bound, so its meshes are measured and our RTIN is asked for that error, and for that triangle
 budget). Writes ``results/strategies.json`` and plots ``strategies_tin.png``,
@@ -138,8 +138,14 @@ def bench_rtin(terrain, repeats):
 
 
 _MEMORY_CHILD = """
-import resource, sys, numpy as np
+import sys, numpy as np
 engine, path, e = sys.argv[1], sys.argv[2], float(sys.argv[3])
+
+def status(field):
+    for line in open("/proc/self/status"):
+        if line.startswith(field):
+            return int(line.split()[1]) * 1024
+
 z = np.load(path)
 from approxtree.geometry.grid import Grid
 from approxtree.datasets import fractal_terrain
@@ -147,20 +153,22 @@ if engine == "ours":
     from approxtree.patches.approximate import approximate
     approximate(fractal_terrain(65, seed=0), "tin", max_error=1.0)
     g = Grid(z)
-    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    m = approximate(g, "tin", max_error=e)
+    run = lambda: approximate(g, "tin", max_error=e)
 else:
     from pydelatin import Delatin
     Delatin(fractal_terrain(65, seed=0).heights, max_error=1.0)
-    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    m = Delatin(z, max_error=e)
-peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-print((peak - base) * 1024, len(m.vertices))
+    run = lambda: Delatin(z, max_error=e)
+# Reset the kernel's peak-RSS mark (VmHWM) so only this run's growth counts.
+open("/proc/self/clear_refs", "w").write("5")
+base = status("VmRSS")
+m = run()
+print(status("VmHWM") - base, len(m.vertices))
 """
 
 
 def bench_memory(terrain, max_error: float) -> dict[str, object]:
-    """Peak resident-memory growth of one TIN run, each engine in a fresh process."""
+    """Peak resident-memory growth of one TIN run, each engine in a fresh process (VmHWM after
+    the run minus VmRSS before it, the peak mark reset through /proc/self/clear_refs)."""
     out: dict[str, object] = {"size": terrain.shape[0], "max_error": max_error}
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "z.npy"

@@ -41,7 +41,7 @@ from approxtree.kernels.tin_scan import (
     scan_with_holes,
     triangle_error,
 )
-from approxtree.kernels.tri_heap import heap_update
+from approxtree.kernels.tri_heap import heap_remove, heap_update
 
 #: Shape-quality ratio under which the data-dependent rule decides by shape (paper: 0.5).
 QTHRESH = 0.5
@@ -97,7 +97,7 @@ def greedy_tin(
     heights: (R, C) float32/float64, NaN = nodata. max_error < 0, max_points <= 0 or
     max_triangles <= 0 disable that stopping rule (at least one must be active, or the run
     goes to full resolution).
-    Returns vx, vy (n,) int64 window-local column/row of the vertices, tv (3m,) int32,
+    Returns vx, vy (n,) int32 window-local column/row of the vertices, tv (3m,) int32,
     he (3m,) int32 the triangles (orient > 0 in (column, row) space) and their twins, and the
     mesh's exact max error and sum of squared errors over the window's points (both only
     meaningful without nodata: every triangle's candidate key is the true maximum over its
@@ -105,16 +105,22 @@ def greedy_tin(
     """
     cap_v = 64
     cap_t = 128
-    vx = np.empty(cap_v, dtype=np.int64)
-    vy = np.empty(cap_v, dtype=np.int64)
+    vx = np.empty(cap_v, dtype=np.int32)
+    vy = np.empty(cap_v, dtype=np.int32)
     tv = np.empty(3 * cap_t, dtype=np.int32)
     he = np.full(3 * cap_t, -1, dtype=np.int32)
-    cand = np.full(cap_t, -1, dtype=np.int64)
+    # Candidate as y·cols + x: int32 holds it on every lattice the exact predicates allow.
+    cand = np.full(cap_t, -1, dtype=np.int32)
     hpos = np.full(cap_t, -1, dtype=np.int32)
-    heap = np.empty(cap_t, dtype=np.int32)
-    hkey = np.empty(cap_t, dtype=np.float64)
+    key = np.zeros(cap_t, dtype=np.float64)
     sse = np.zeros(cap_t, dtype=np.float64)
-    pending = np.empty(cap_t, dtype=np.int32)
+    # Only triangles still worse than the goal are in the heap (sized on its own): the others
+    # are never popped, and the final maximum is taken from ``key``.
+    cap_h = 128
+    heap = np.empty(cap_h, dtype=np.int32)
+    hkey = np.empty(cap_h, dtype=np.float64)
+    done = max(max_error, 0.0)
+    pending = np.empty(64, dtype=np.int32)
     is_pending = np.zeros(cap_t, dtype=np.bool_)
     stack = np.empty(64, dtype=np.int32)
     changed = np.empty(4, dtype=np.int64)
@@ -167,6 +173,8 @@ def greedy_tin(
             u = f // 3
             flip(tv, he, e)
             # Pending triangles keep their stale heap entry until rescanned (one sift, then).
+            if n_pending + 2 > pending.shape[0]:
+                pending = grow(pending, 2 * pending.shape[0], 0)
             for s in (t, u):
                 if not is_pending[s]:
                     is_pending[s] = True
@@ -204,7 +212,15 @@ def greedy_tin(
                     0.5 if he[3 * t + 2] >= 0 else 1.0,
                 )
             cand[t] = cy * cols + cx
-            size = heap_update(heap, hkey, hpos, size, t, k)
+            key[t] = k
+            if k > done:
+                if size + 1 > cap_h:
+                    cap_h += cap_h // 2
+                    heap = grow(heap, cap_h, 0)
+                    hkey = grow(hkey, cap_h, 0.0)
+                size = heap_update(heap, hkey, hpos, size, t, k)
+            else:
+                size = heap_remove(heap, hkey, hpos, size, t)
         n_pending = 0
 
         # Stopping rules: the worst candidate is good enough, or a budget is spent.
@@ -221,19 +237,17 @@ def greedy_tin(
 
         # Room for one more vertex and two more triangles.
         if nv + 1 > cap_v:
-            cap_v *= 2
+            cap_v += cap_v // 2
             vx = grow(vx, cap_v, 0)
             vy = grow(vy, cap_v, 0)
         if nt + 2 > cap_t:
-            cap_t *= 2
+            cap_t += cap_t // 2
             tv = grow(tv, 3 * cap_t, 0)
             he = grow(he, 3 * cap_t, -1)
-            hkey = grow(hkey, cap_t, 0.0)
+            key = grow(key, cap_t, 0.0)
             sse = grow(sse, cap_t, 0.0)
             cand = grow(cand, cap_t, -1)
             hpos = grow(hpos, cap_t, -1)
-            heap = grow(heap, cap_t, 0)
-            pending = grow(pending, cap_t, 0)
             is_pending = grow(is_pending, cap_t, False)
 
         # Insert the candidate: inside t (three triangles) or on one of its edges (four, or two
@@ -285,12 +299,13 @@ def greedy_tin(
                 stack[sp] = e
                 sp += 1
 
-    worst = max(hkey[0], 0.0) if size > 0 else 0.0
+    worst = max(key[:nt].max(), 0.0)
+    # Views, not copies: the work arrays are freed on return, so the peak stays lower.
     return (
-        vx[:nv].copy(),
-        vy[:nv].copy(),
-        tv[: 3 * nt].copy(),
-        he[: 3 * nt].copy(),
+        vx[:nv],
+        vy[:nv],
+        tv[: 3 * nt],
+        he[: 3 * nt],
         worst,
         sse[:nt].sum(),
     )

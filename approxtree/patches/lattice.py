@@ -163,15 +163,21 @@ class LatticePatch(GeometryPatch):
     def vertices(self) -> np.ndarray:
         g = self.grid
         r, c = self.ij[:, 0], self.ij[:, 1]
-        return np.column_stack([g.x_coords[c], g.y_coords[r], g.heights[r, c].astype(np.float64)])
+        # Filled column by column: no (n, 3) temporaries on million-vertex meshes.
+        out = np.empty((len(self.ij), 3), dtype=np.float64)
+        out[:, 0] = g.x_coords[c]
+        out[:, 1] = g.y_coords[r]
+        out[:, 2] = g.heights[r, c]
+        return out
 
     @property
     def triangles(self) -> np.ndarray:
-        t = self.tris.astype(np.int64)
         # Index space is (col, row); a north-up transform mirrors it, so flip to stay CCW.
-        if self.grid.transform.a * self.grid.transform.e < 0:
-            t = t[:, [0, 2, 1]]
-        return np.ascontiguousarray(t)
+        order = (0, 2, 1) if self.grid.transform.a * self.grid.transform.e < 0 else (0, 1, 2)
+        t = np.empty((len(self.tris), 3), dtype=np.int64)
+        for k in range(3):
+            t[:, k] = self.tris[:, order[k]]
+        return t
 
     @property
     def point_count(self) -> int:

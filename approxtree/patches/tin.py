@@ -75,7 +75,11 @@ class GridTINPatch(LatticePatch):
         vx, vy, tv, he, worst, sse = result
         if win.has_nan:
             return cls.from_window_mesh(grid, rect, win, vx, vy, tv, he)
-        ij = np.column_stack([win.r0 + vy, win.c0 + vx])
+        ij = np.empty((len(vx), 2), dtype=np.int32)
+        ij[:, 0] = vy
+        ij[:, 0] += win.r0
+        ij[:, 1] = vx
+        ij[:, 1] += win.c0
         rms = float(np.sqrt(sse / win.count))
         return cls(grid, rect, ij, tv.reshape(-1, 3), worst, rms, win.z_range, win.count)
 
