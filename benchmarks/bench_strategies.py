@@ -1,48 +1,74 @@
 """TIN vs pydelatin and RTIN vs pymartini on fractal DEMs, side by side in one run.
 
 numba kernels are warmed up first (compile time excluded). Each case: median of ``--repeats``
-runs of both engines; the JSON records times, ratios, vertex counts and true max errors.
+runs of both engines, alternating; the JSON records wall and CPU times, their ratios (ours /
+theirs), vertex counts and true max errors. Peak memory of one TIN run at the largest size is
+measured for each engine in a fresh subprocess (peak RSS growth over a process that already holds
+the heights). RTIN is compared twice: time for the same threshold (pymartini: build +
+extraction), and triangles needed for the same TRUE max error (pymartini's threshold is not a
+bound, so its meshes are measured and our RTIN is asked for that error, and for that triangle
+budget). Writes ``results/strategies.json`` and plots ``strategies_tin.png``,
+``strategies_rtin.png``.
 
-    python benchmarks/bench_strategies.py [--sizes 1025 2049 4097] [--repeats 3]
+    python benchmarks/bench_strategies.py [--sizes 1025 2049 4097] [--rtin-sizes 257 1025 4097]
+        [--repeats 3] [--out strategies]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import resource
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
 RESULTS = Path(__file__).resolve().parent / "results"
+TIN_ERRORS = [1.0, 5.0, 10.0, 30.0]
+RTIN_THRESHOLDS = [1.0, 2.0, 5.0, 10.0, 20.0, 50.0]
 
 
-def _median_time(fn, repeats: int):
-    times, out = [], None
+def _side_by_side(ours, theirs, repeats: int):
+    """Median wall and CPU seconds of both callables, run alternately; and their last results."""
+    wall = ([], [])
+    cpu = ([], [])
+    out = [None, None]
     for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), out
+        for k, fn in enumerate((ours, theirs)):
+            w0, c0 = time.perf_counter(), time.process_time()
+            out[k] = fn()
+            wall[k].append(time.perf_counter() - w0)
+            cpu[k].append(time.process_time() - c0)
+    med = [statistics.median(x) for x in (*wall, *cpu)]
+    return med, out
 
 
-def bench_tin(terrain, errors, repeats):
+def bench_tin(terrain, repeats):
     from pydelatin import Delatin
 
     from approxtree.patches.approximate import approximate
 
     rows = []
-    for e in errors:
-        t_ours, ours = _median_time(lambda e=e: approximate(terrain, "tin", max_error=e), repeats)
-        t_them, them = _median_time(lambda e=e: Delatin(terrain.heights, max_error=e), repeats)
+    for e in TIN_ERRORS:
+        (w_o, w_t, c_o, c_t), (ours, them) = _side_by_side(
+            lambda e=e: approximate(terrain, "tin", max_error=e),
+            lambda e=e: Delatin(terrain.heights, max_error=e),
+            repeats,
+        )
         rows.append(
             {
                 "max_error": e,
-                "seconds": t_ours,
-                "pydelatin_seconds": t_them,
-                "time_ratio": t_ours / t_them,
+                "seconds": w_o,
+                "pydelatin_seconds": w_t,
+                "time_ratio": w_o / w_t,
+                "cpu_seconds": c_o,
+                "pydelatin_cpu_seconds": c_t,
+                "cpu_ratio": c_o / c_t,
                 "vertices": len(ours.vertices),
                 "pydelatin_vertices": len(them.vertices),
                 "vertex_ratio": len(ours.vertices) / len(them.vertices),
@@ -53,57 +79,159 @@ def bench_tin(terrain, errors, repeats):
     return rows
 
 
-def bench_rtin(terrain, errors, repeats):
+def _martini_true_error(terrain, verts, tris) -> tuple[int, float]:
+    """(triangles, exact max error over all grid points) of a pymartini mesh."""
+    from approxtree.patches.lattice import grid_window, twins
+    from approxtree.patches.tin import GridTINPatch
+
+    v = verts.reshape(-1, 2).astype(np.int64)
+    t = tris.reshape(-1, 3).astype(np.int64)
+    vx, vy = v[:, 0], v[:, 1]
+    a2 = (vx[t[:, 1]] - vx[t[:, 0]]) * (vy[t[:, 2]] - vy[t[:, 0]]) - (vy[t[:, 1]] - vy[t[:, 0]]) * (
+        vx[t[:, 2]] - vx[t[:, 0]]
+    )
+    t[a2 < 0] = t[a2 < 0][:, [0, 2, 1]]
+    win = grid_window(terrain, terrain.domain)
+    tv = t.ravel().astype(np.int32)
+    p = GridTINPatch.from_window_mesh(terrain, terrain.domain, win, vx, vy, tv, twins(t))
+    return len(t), p.error
+
+
+def bench_rtin(terrain, repeats):
     from pymartini import Martini
 
     from approxtree.patches.approximate import approximate
-    from approxtree.patches.lattice import grid_window
-    from approxtree.patches.tin import GridTINPatch
 
-    rows = []
     n = terrain.shape[0]
-    for e in errors:
-        t_ours, ours = _median_time(lambda e=e: approximate(terrain, "rtin", max_error=e), repeats)
-
-        def martini(e=e):
-            tile = Martini(n).create_tile(terrain.heights.astype(np.float32))
-            return tile.get_mesh(e)
-
-        t_them, (verts, tris) = _median_time(martini, repeats)
-        # pymartini's threshold is not a bound: measure its true error on our kernel.
-        v = verts.reshape(-1, 2).astype(np.int64)
-        win = grid_window(terrain, terrain.domain)
-        t = tris.reshape(-1, 3).astype(np.int64)
-        from approxtree.kernels.tin_mesh import orient  # noqa: F401
-        from approxtree.patches.lattice import twins
-
-        vx, vy = v[:, 0], v[:, 1]
-        a2 = (vx[t[:, 1]] - vx[t[:, 0]]) * (vy[t[:, 2]] - vy[t[:, 0]]) - (
-            vy[t[:, 1]] - vy[t[:, 0]]
-        ) * (vx[t[:, 2]] - vx[t[:, 0]])
-        t[a2 < 0] = t[a2 < 0][:, [0, 2, 1]]
-        tv = t.ravel().astype(np.int32)
-        p = GridTINPatch.from_window_mesh(terrain, terrain.domain, win, vx, vy, tv, twins(t))
+    heights32 = terrain.heights.astype(np.float32)
+    rows = []
+    for e in RTIN_THRESHOLDS:
+        (w_o, w_t, c_o, c_t), (ours, (verts, tris)) = _side_by_side(
+            lambda e=e: approximate(terrain, "rtin", max_error=e),
+            lambda e=e: Martini(n).create_tile(heights32).get_mesh(e),
+            repeats,
+        )
+        m_tris, m_err = _martini_true_error(terrain, verts, tris)
+        # Equal true error: our RTIN asked for pymartini's measured error, and for its budget.
+        same_err = approximate(terrain, "rtin", max_error=m_err)
+        same_budget = approximate(terrain, "rtin", max_triangles=m_tris)
         rows.append(
             {
-                "max_error": e,
-                "seconds": t_ours,
-                "pymartini_seconds": t_them,
-                "time_ratio": t_ours / t_them,
+                "threshold": e,
+                "seconds": w_o,
+                "pymartini_seconds": w_t,
+                "time_ratio": w_o / w_t,
+                "cpu_ratio": c_o / c_t,
                 "triangles": len(ours.triangles),
                 "true_max_error": ours.max_error,
-                "pymartini_triangles": len(t),
-                "pymartini_true_max_error": p.error,
+                "pymartini_triangles": m_tris,
+                "pymartini_true_max_error": m_err,
+                "triangles_at_pymartini_error": len(same_err.triangles),
+                "true_error_at_pymartini_error": same_err.max_error,
+                "triangle_ratio_at_equal_error": len(same_err.triangles) / m_tris,
+                "greedy_true_error_at_pymartini_triangles": same_budget.max_error,
+                "greedy_triangles": len(same_budget.triangles),
             }
         )
         print("rtin", terrain.shape, rows[-1], flush=True)
     return rows
 
 
+_MEMORY_CHILD = """
+import sys, numpy as np
+engine, path, e = sys.argv[1], sys.argv[2], float(sys.argv[3])
+
+def status(field):
+    for line in open("/proc/self/status"):
+        if line.startswith(field):
+            return int(line.split()[1]) * 1024
+
+z = np.load(path)
+from approxtree.geometry.grid import Grid
+from approxtree.datasets import fractal_terrain
+if engine == "ours":
+    from approxtree.patches.approximate import approximate
+    approximate(fractal_terrain(65, seed=0), "tin", max_error=1.0)
+    g = Grid(z)
+    run = lambda: approximate(g, "tin", max_error=e)
+else:
+    from pydelatin import Delatin
+    Delatin(fractal_terrain(65, seed=0).heights, max_error=1.0)
+    run = lambda: Delatin(z, max_error=e)
+# Reset the kernel's peak-RSS mark (VmHWM) so only this run's growth counts.
+open("/proc/self/clear_refs", "w").write("5")
+base = status("VmRSS")
+m = run()
+print(status("VmHWM") - base, len(m.vertices))
+"""
+
+
+def bench_memory(terrain, max_error: float) -> dict[str, object]:
+    """Peak resident-memory growth of one TIN run, each engine in a fresh process (VmHWM after
+    the run minus VmRSS before it, the peak mark reset through /proc/self/clear_refs)."""
+    out: dict[str, object] = {"size": terrain.shape[0], "max_error": max_error}
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "z.npy"
+        np.save(path, terrain.heights)
+        for engine in ("ours", "pydelatin"):
+            res = subprocess.run(
+                [sys.executable, "-c", _MEMORY_CHILD, engine, str(path), str(max_error)],
+                capture_output=True,
+                text=True,
+                check=True,
+            )
+            grown, verts = res.stdout.split()
+            out[f"{engine}_peak_bytes"] = int(grown)
+            out[f"{engine}_vertices"] = int(verts)
+    out["memory_ratio"] = out["ours_peak_bytes"] / max(1, out["pydelatin_peak_bytes"])
+    print("memory", out, flush=True)
+    return out
+
+
+def plot(out: dict, name: str = "strategies") -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 4))
+    labels, ratios = [], []
+    for n, rows in out["tin"].items():
+        for r in rows:
+            labels.append(f"{n}²\n{r['max_error']:g} m")
+            ratios.append(r["time_ratio"])
+    ax.bar(range(len(ratios)), ratios, color="tab:blue")
+    ax.axhline(1.0, color="k", lw=0.8)
+    ax.axhline(1.5, color="tab:red", lw=0.8, ls="--", label="target 1.5×")
+    ax.set_xticks(range(len(ratios)), labels, fontsize=7)
+    ax.set_ylabel("time ours / pydelatin")
+    ax.set_title("TIN greedy insertion vs pydelatin (fractal, median of runs)")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(RESULTS / f"{name}_tin.png", dpi=120)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for n, rows in out["rtin"].items():
+        e = [r["pymartini_true_max_error"] for r in rows]
+        ax.loglog(e, [r["pymartini_triangles"] for r in rows], "o--", label=f"pymartini {n}²")
+        ax.loglog(e, [r["triangles_at_pymartini_error"] for r in rows], "s-", label=f"ours {n}²")
+    ax.set_xlabel("true max error (m)")
+    ax.set_ylabel("triangles")
+    ax.set_title("RTIN: triangles at equal true error")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(RESULTS / f"{name}_rtin.png", dpi=120)
+    plt.close(fig)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sizes", type=int, nargs="+", default=[1025, 2049, 4097])
+    ap.add_argument("--rtin-sizes", type=int, nargs="+", default=[257, 1025, 4097])
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--memory-error", type=float, default=5.0)
+    ap.add_argument("--out", default="strategies", help="name of the JSON and plots")
     args = ap.parse_args()
     from approxtree.datasets import fractal_terrain
     from approxtree.patches.approximate import approximate
@@ -111,13 +239,24 @@ def main() -> None:
     warm = fractal_terrain(65, seed=0)
     approximate(warm, "tin", max_error=1.0)
     approximate(warm, "rtin", max_error=1.0)
-    out = {"warmed_up": True, "note": "numba compile time excluded", "tin": {}, "rtin": {}}
+    approximate(warm, "rtin", max_triangles=500)
+    out = {
+        "warmed_up": True,
+        "note": "numba compile time excluded; ratios are ours / theirs (< 1: we are faster)",
+        "tin": {},
+        "rtin": {},
+    }
     for n in args.sizes:
+        out["tin"][n] = bench_tin(fractal_terrain(n, seed=1, relief=1000.0), args.repeats)
+    for n in args.rtin_sizes:
         terrain = fractal_terrain(n, seed=1, relief=1000.0)
-        out["tin"][n] = bench_tin(terrain, [1.0, 5.0, 10.0, 30.0], args.repeats)
-        out["rtin"][n] = bench_rtin(terrain, [1.0, 5.0, 30.0], args.repeats)
+        out["rtin"][n] = bench_rtin(terrain, args.repeats)
+    big = max(args.sizes)
+    out["memory"] = bench_memory(fractal_terrain(big, seed=1, relief=1000.0), args.memory_error)
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "strategies.json").write_text(json.dumps(out, indent=1))
+    (RESULTS / f"{args.out}.json").write_text(json.dumps(out, indent=1))
+    plot(out, args.out)
+    print("peak RSS of the benchmark process:", resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
 
 
 if __name__ == "__main__":

@@ -225,3 +225,92 @@ def test_patch_records_round_trip_exactly(tmp_path, policy):
 def test_registry_lists_every_strategy():
     """The tree knows the strategies by the names the CLI uses."""
     assert {"grid", "tin", "rtin"} <= set(STRATEGIES)
+
+
+def _has_t_junction(vertices: np.ndarray, triangles: np.ndarray) -> bool:
+    """True when some vertex lies inside an edge (exact, on the integer lattice of a grid)."""
+    v = vertices[:, :2]
+    edges = np.unique(
+        np.sort(np.concatenate([triangles[:, [k, (k + 1) % 3]] for k in range(3)]), axis=1), axis=0
+    )
+    a, b = v[edges[:, 0]], v[edges[:, 1]]
+    for p in v:
+        cross = (b[:, 0] - a[:, 0]) * (p[1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (p[0] - a[:, 0])
+        dot = (p[0] - a[:, 0]) * (b[:, 0] - a[:, 0]) + (p[1] - a[:, 1]) * (b[:, 1] - a[:, 1])
+        length2 = (b[:, 0] - a[:, 0]) ** 2 + (b[:, 1] - a[:, 1]) ** 2
+        if ((np.abs(cross) < 1e-9 * length2) & (dot > 0) & (dot < length2)).any():
+            return True
+    return False
+
+
+@pytest.mark.parametrize("shape", [(129, 129), (120, 90)])
+def test_rtin_triangle_budget_greedy_refinement(shape):
+    """Greedy RTIN under a triangle budget: never over budget, conforming, exact error, and
+    the error never grows with the budget (each mesh refines the previous one)."""
+    terrain = fractal_terrain(*shape, seed=11, relief=300.0)
+    errors = []
+    for budget in (800, 1500, 3000, 6000):
+        mesh = approximate(terrain, "rtin", max_triangles=budget)
+        assert len(mesh.triangles) <= budget
+        # The budget is used: one more forced split chain would not have fitted.
+        assert len(mesh.triangles) >= budget - 40
+        expected = brute_force_error(terrain, terrain.domain, mesh.vertices, mesh.triangles)
+        assert mesh.max_error == pytest.approx(expected, abs=1e-6 * (1 + expected))
+        check_mesh(mesh.vertices, mesh.triangles, terrain.domain)
+        # Unit cells: vertices are grid points, so any T-junction is found exactly.
+        ij = mesh.patch.ij[:, ::-1].astype(np.float64)
+        assert not _has_t_junction(ij, mesh.patch.tris.astype(np.int64))
+        errors.append(mesh.max_error)
+    assert np.all(np.diff(errors) <= 0) and errors[-1] < errors[0]
+
+
+def test_rtin_greedy_budget_beats_the_threshold_mesh_it_matches():
+    """At the true error the greedy mesh reaches, a threshold extraction needs no fewer
+    triangles (refinement by badness spends the budget where the error is)."""
+    terrain = fractal_terrain(257, seed=12, relief=500.0)
+    greedy = approximate(terrain, "rtin", max_triangles=5000)
+    by_error = approximate(terrain, "rtin", max_error=greedy.max_error)
+    assert by_error.max_error <= greedy.max_error
+    assert len(greedy.triangles) <= len(by_error.triangles)
+
+
+def test_tin_on_lidar_points_error_is_exact_at_the_input_points(data_dir):
+    """Greedy insertion on a LAS point cloud (Autzen, 40 m × 40 m around its median point):
+    the reported error is the brute-force max error over the input points, within request."""
+    cloud = at.open_terrain(data_file(data_dir, "lidar/autzen_trim.laz"))
+    pts = cloud.points()
+    x0, y0 = np.median(pts[:, 0]), np.median(pts[:, 1])
+    keep = (np.abs(pts[:, 0] - x0) < 20) & (np.abs(pts[:, 1] - y0) < 20)
+    terrain = at.TINPointSet(pts[keep])
+    assert 300 < len(terrain.points()) < 5000
+    mesh = approximate(terrain, "tin", max_error=1.0)
+    expected = brute_force_error(terrain, terrain.domain, mesh.vertices, mesh.triangles)
+    assert mesh.max_error == pytest.approx(expected, abs=1e-9)
+    assert mesh.max_error <= 1.0 and len(mesh.vertices) < len(terrain.points())
+
+
+def test_tin_delaunay_matches_scipy_on_a_real_dem(data_dir):
+    """The Delaunay variant on Crater Lake: every interior edge passes an independent
+    in-circle test (exact integers on grid indices), and its error is exact."""
+    terrain = crop(at.open_terrain(data_file(data_dir, "scape/crater.stm")), 150, 170)
+    mesh = approximate(terrain, "tin", max_error=5.0)
+    ij = mesh.patch.ij.astype(np.int64)
+    v = np.column_stack([ij[:, 1], ij[:, 0]])
+    t = mesh.patch.tris.astype(np.int64)
+    opposite = {}
+    for tri in t:
+        for k in range(3):
+            opposite[(int(tri[k]), int(tri[(k + 1) % 3]))] = int(tri[(k + 2) % 3])
+    checked = 0
+    for (a, b), c in opposite.items():
+        d = opposite.get((b, a))
+        if d is None:
+            continue
+        rows = [[*(v[i] - v[d]), int(((v[i] - v[d]) ** 2).sum())] for i in (a, b, c)]
+        (p, q, r), (s, u, w), (x, y, z) = rows
+        det = p * (u * z - w * y) - q * (s * z - w * x) + r * (s * y - u * x)
+        assert det <= 0  # d is not strictly inside the circumcircle of (a, b, c)
+        checked += 1
+    assert checked > 100
+    expected = brute_force_error(terrain, terrain.domain, mesh.vertices, mesh.triangles)
+    assert mesh.max_error == pytest.approx(expected, abs=1e-6 * (1 + expected))

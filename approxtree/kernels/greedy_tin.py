@@ -37,11 +37,11 @@ from approxtree.kernels.tin_mesh import (
 )
 from approxtree.kernels.tin_scan import (
     row_span,
-    scan_triangle,
+    scan_triangle_sse,
     scan_with_holes,
     triangle_error,
 )
-from approxtree.kernels.tri_heap import heap_push, heap_remove
+from approxtree.kernels.tri_heap import heap_remove, heap_update
 
 #: Shape-quality ratio under which the data-dependent rule decides by shape (paper: 0.5).
 QTHRESH = 0.5
@@ -97,20 +97,30 @@ def greedy_tin(
     heights: (R, C) float32/float64, NaN = nodata. max_error < 0, max_points <= 0 or
     max_triangles <= 0 disable that stopping rule (at least one must be active, or the run
     goes to full resolution).
-    Returns vx, vy (n,) int64 window-local column/row of the vertices, and tv (3m,) int32,
-    he (3m,) int32 the triangles (orient > 0 in (column, row) space) and their twins.
+    Returns vx, vy (n,) int32 window-local column/row of the vertices, tv (3m,) int32,
+    he (3m,) int32 the triangles (orient > 0 in (column, row) space) and their twins, and the
+    mesh's exact max error and sum of squared errors over the window's points (both only
+    meaningful without nodata: every triangle's candidate key is the true maximum over its
+    points, and each point is owned once, see ``scan_triangle_sse``).
     """
     cap_v = 64
     cap_t = 128
-    vx = np.empty(cap_v, dtype=np.int64)
-    vy = np.empty(cap_v, dtype=np.int64)
+    vx = np.empty(cap_v, dtype=np.int32)
+    vy = np.empty(cap_v, dtype=np.int32)
     tv = np.empty(3 * cap_t, dtype=np.int32)
     he = np.full(3 * cap_t, -1, dtype=np.int32)
-    cand = np.full(cap_t, -1, dtype=np.int64)
+    # Candidate as y·cols + x: int32 holds it on every lattice the exact predicates allow.
+    cand = np.full(cap_t, -1, dtype=np.int32)
     hpos = np.full(cap_t, -1, dtype=np.int32)
-    heap = np.empty(cap_t, dtype=np.int32)
-    hkey = np.empty(cap_t, dtype=np.float64)
-    pending = np.empty(cap_t, dtype=np.int32)
+    key = np.zeros(cap_t, dtype=np.float64)
+    sse = np.zeros(cap_t, dtype=np.float64)
+    # Only triangles still worse than the goal are in the heap (sized on its own): the others
+    # are never popped, and the final maximum is taken from ``key``.
+    cap_h = 128
+    heap = np.empty(cap_h, dtype=np.int32)
+    hkey = np.empty(cap_h, dtype=np.float64)
+    done = max(max_error, 0.0)
+    pending = np.empty(64, dtype=np.int32)
     is_pending = np.zeros(cap_t, dtype=np.bool_)
     stack = np.empty(64, dtype=np.int32)
     changed = np.empty(4, dtype=np.int64)
@@ -162,12 +172,14 @@ def greedy_tin(
             t = e // 3
             u = f // 3
             flip(tv, he, e)
+            # Pending triangles keep their stale heap entry until rescanned (one sift, then).
+            if n_pending + 2 > pending.shape[0]:
+                pending = grow(pending, 2 * pending.shape[0], 0)
             for s in (t, u):
                 if not is_pending[s]:
                     is_pending[s] = True
                     pending[n_pending] = s
                     n_pending += 1
-                    size = heap_remove(heap, hkey, hpos, size, s)
             if sp + 2 > stack.shape[0]:
                 stack = grow(stack, 2 * stack.shape[0], 0)
             stack[sp] = 3 * t
@@ -184,9 +196,31 @@ def greedy_tin(
                     heights, r0, c0, vx[a], vy[a], vx[b], vy[b], vx[c], vy[c]
                 )
             else:
-                k, cy, cx = scan_triangle(heights, r0, c0, vx[a], vy[a], vx[b], vy[b], vx[c], vy[c])
+                # An edge point is half this triangle's when the edge is shared.
+                k, cy, cx, sse[t] = scan_triangle_sse(
+                    heights,
+                    r0,
+                    c0,
+                    vx[a],
+                    vy[a],
+                    vx[b],
+                    vy[b],
+                    vx[c],
+                    vy[c],
+                    0.5 if he[3 * t] >= 0 else 1.0,
+                    0.5 if he[3 * t + 1] >= 0 else 1.0,
+                    0.5 if he[3 * t + 2] >= 0 else 1.0,
+                )
             cand[t] = cy * cols + cx
-            size = heap_push(heap, hkey, hpos, size, t, k)
+            key[t] = k
+            if k > done:
+                if size + 1 > cap_h:
+                    cap_h += cap_h // 2
+                    heap = grow(heap, cap_h, 0)
+                    hkey = grow(hkey, cap_h, 0.0)
+                size = heap_update(heap, hkey, hpos, size, t, k)
+            else:
+                size = heap_remove(heap, hkey, hpos, size, t)
         n_pending = 0
 
         # Stopping rules: the worst candidate is good enough, or a budget is spent.
@@ -203,18 +237,17 @@ def greedy_tin(
 
         # Room for one more vertex and two more triangles.
         if nv + 1 > cap_v:
-            cap_v *= 2
+            cap_v += cap_v // 2
             vx = grow(vx, cap_v, 0)
             vy = grow(vy, cap_v, 0)
         if nt + 2 > cap_t:
-            cap_t *= 2
+            cap_t += cap_t // 2
             tv = grow(tv, 3 * cap_t, 0)
             he = grow(he, 3 * cap_t, -1)
-            hkey = grow(hkey, cap_t, 0.0)
+            key = grow(key, cap_t, 0.0)
+            sse = grow(sse, cap_t, 0.0)
             cand = grow(cand, cap_t, -1)
             hpos = grow(hpos, cap_t, -1)
-            heap = grow(heap, cap_t, 0)
-            pending = grow(pending, cap_t, 0)
             is_pending = grow(is_pending, cap_t, False)
 
         # Insert the candidate: inside t (three triangles) or on one of its edges (four, or two
@@ -225,7 +258,6 @@ def greedy_tin(
         vx[p] = px
         vy[p] = py
         nv += 1
-        size = heap_remove(heap, hkey, hpos, size, t)
         on_edge = -1
         for k3 in range(3):
             e = 3 * t + k3
@@ -248,8 +280,6 @@ def greedy_tin(
             suspects[2] = 3 * n2
         else:
             u = he[on_edge] // 3 if he[on_edge] >= 0 else -1
-            if u >= 0:
-                size = heap_remove(heap, hkey, hpos, size, u)
             added = split_edge(tv, he, on_edge, n1, n2, p)
             nt += added
             suspects[0] = 3 * t + 2
@@ -269,7 +299,16 @@ def greedy_tin(
                 stack[sp] = e
                 sp += 1
 
-    return vx[:nv].copy(), vy[:nv].copy(), tv[: 3 * nt].copy(), he[: 3 * nt].copy()
+    worst = max(key[:nt].max(), 0.0)
+    # Views, not copies: the work arrays are freed on return, so the peak stays lower.
+    return (
+        vx[:nv],
+        vy[:nv],
+        tv[: 3 * nt],
+        he[: 3 * nt],
+        worst,
+        sse[:nt].sum(),
+    )
 
 
 @njit(cache=True)
@@ -298,9 +337,9 @@ def mesh_error(heights, r0, c0, rows, cols, vx, vy, tv, he):
             continue
         a, b, c = tv[3 * t], tv[3 * t + 1], tv[3 * t + 2]
         ax, ay, bx, by, cx, cy = vx[a], vy[a], vx[b], vy[b], vx[c], vy[c]
-        za = float(heights[r0 + ay, c0 + ax])
-        zb = float(heights[r0 + by, c0 + bx])
-        zc = float(heights[r0 + cy, c0 + cx])
+        za = np.float64(heights[r0 + ay, c0 + ax])
+        zb = np.float64(heights[r0 + by, c0 + bx])
+        zc = np.float64(heights[r0 + cy, c0 + cx])
         d = float(orient(ax, ay, bx, by, cx, cy))
         gx = ((zb - za) * (cy - ay) - (zc - za) * (by - ay)) / d
         gy = ((zc - za) * (bx - ax) - (zb - za) * (cx - ax)) / d

@@ -30,6 +30,17 @@ from approxtree.kernels.tin_mesh import orient
 from approxtree.kernels.tin_scan import row_span, scan_triangle, scan_with_holes
 
 
+@njit(cache=True, inline="always")
+def _mid_error(heights, r0, c0, ux, uy, vx, vy) -> float:
+    """|z − linear interpolation| at the midpoint of edge u–v (0 when it is no lattice point)."""
+    if (ux + vx) % 2 or (uy + vy) % 2:
+        return 0.0
+    zu = np.float64(heights[r0 + uy, c0 + ux])
+    zv = np.float64(heights[r0 + vy, c0 + vx])
+    zm = np.float64(heights[r0 + (uy + vy) // 2, c0 + (ux + vx) // 2])
+    return abs(zm - 0.5 * (zu + zv))
+
+
 @njit(cache=True)
 def _tri_error(heights, r0, c0, rows, cols, ax, ay, bx, by, cx, cy, has_nan) -> float:
     """True error of one hierarchy triangle (inf: it must split), see the module docstring."""
@@ -38,6 +49,16 @@ def _tri_error(heights, r0, c0, rows, cols, ax, ay, bx, by, cx, cy, has_nan) -> 
     w1 = cols - 1
     h1 = rows - 1
     if max(ax, max(bx, cx)) <= w1 and max(ay, max(by, cy)) <= h1:
+        if not has_nan and max(abs(bx - cx), abs(by - cy)) <= 2:
+            # The finest levels (most of the triangles): the only non-corner points are the
+            # midpoints of the edges with even extents.
+            return max(
+                _mid_error(heights, r0, c0, ax, ay, bx, by),
+                max(
+                    _mid_error(heights, r0, c0, bx, by, cx, cy),
+                    _mid_error(heights, r0, c0, cx, cy, ax, ay),
+                ),
+            )
         if has_nan:
             k, _, _ = scan_with_holes(heights, r0, c0, ax, ay, bx, by, cx, cy)
         else:

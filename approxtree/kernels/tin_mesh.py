@@ -147,3 +147,39 @@ def grow(a: np.ndarray, size: int, fill) -> np.ndarray:
     out = np.full(size, fill, dtype=a.dtype)
     out[: a.shape[0]] = a
     return out
+
+
+@njit(cache=True)
+def half_edge_twins(tv: np.ndarray, n_vertices: int) -> np.ndarray:
+    """(3m,) int32 twin of each half-edge of the triangles tv (3m,), −1 on the border.
+
+    Half-edge 3t + k runs from tv[3t + k] to tv[3t + (k + 1) % 3]. Half-edges are bucketed by
+    their lower vertex (counting sort, O(m)); a twin is the bucket mate with the same other end.
+    """
+    ne = tv.shape[0]
+    out = np.full(ne, -1, dtype=np.int32)
+    start = np.zeros(n_vertices + 1, dtype=np.int64)
+    for e in range(ne):
+        start[min(tv[e], tv[next_edge(e)]) + 1] += 1
+    for v in range(n_vertices):
+        start[v + 1] += start[v]
+    fill = start[:-1].copy()
+    bucket = np.empty(ne, dtype=np.int32)
+    for e in range(ne):
+        lo = min(tv[e], tv[next_edge(e)])
+        bucket[fill[lo]] = e
+        fill[lo] += 1
+    # Buckets hold a vertex's few edges: pair them by their other end.
+    for v in range(n_vertices):
+        for i in range(start[v], start[v + 1]):
+            e = bucket[i]
+            if out[e] >= 0:
+                continue
+            hi = max(tv[e], tv[next_edge(e)])
+            for j in range(i + 1, start[v + 1]):
+                f = bucket[j]
+                if max(tv[f], tv[next_edge(f)]) == hi:
+                    out[e] = f
+                    out[f] = e
+                    break
+    return out

@@ -80,9 +80,9 @@ def _row_max(row: np.ndarray, start: int, n: int, base: float, gx: float) -> flo
 @njit(cache=True)
 def scan_triangle(heights, r0, c0, ax, ay, bx, by, cx, cy):
     """(key, candidate y, candidate x) of a triangle on a grid without nodata."""
-    za = float(heights[r0 + ay, c0 + ax])
-    zb = float(heights[r0 + by, c0 + bx])
-    zc = float(heights[r0 + cy, c0 + cx])
+    za = np.float64(heights[r0 + ay, c0 + ax])
+    zb = np.float64(heights[r0 + by, c0 + bx])
+    zc = np.float64(heights[r0 + cy, c0 + cx])
     gx, gy = plane(za, zb, zc, ax, ay, bx, by, cx, cy)
     best = NO_CANDIDATE
     best_x = -1
@@ -112,6 +112,108 @@ def scan_triangle(heights, r0, c0, ax, ay, bx, by, cx, cy):
     return best, best_y, best_x
 
 
+@njit(cache=True, fastmath=True)
+def _row_max_sse(row: np.ndarray, start: int, n: int, base: float, gx: float):
+    """(max, sum of squares) of |row[start + i] − (base + gx·i)| for i < n (SIMD, no nodata)."""
+    m = 0.0
+    s = 0.0
+    for i in range(n):
+        e = abs(row[start + i] - (base + gx * i))
+        m = max(m, e)
+        s += e * e
+    return m, s
+
+
+@njit(cache=True, inline="always")
+def _edge_weight(ax, ay, bx, by, cx, cy, x, y, wab, wbc, wca) -> float:
+    """Share of point (x, y) of the closed triangle that the triangle owns.
+
+    1 inside, the edge's weight on an edge (½ shared with a neighbour, 1 on the border), 0 at a
+    corner (corners are exact vertices, counted apart).
+    """
+    on_ab = orient_i(ax, ay, bx, by, x, y) == 0
+    on_bc = orient_i(bx, by, cx, cy, x, y) == 0
+    on_ca = orient_i(cx, cy, ax, ay, x, y) == 0
+    if on_ab + on_bc + on_ca >= 2:
+        return 0.0
+    if on_ab:
+        return wab
+    if on_bc:
+        return wbc
+    if on_ca:
+        return wca
+    return 1.0
+
+
+@njit(cache=True)
+def scan_triangle_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca):
+    """``scan_triangle`` plus the triangle's owned sum of squared errors, no nodata.
+
+    wab, wbc, wca: the share of a point on edge ab, bc, ca this triangle owns (½ when the edge
+    is shared with a neighbour, 1 on the border), so the sums over a mesh's triangles count
+    every non-vertex point once (up to round-off: both neighbours interpolate the same line).
+    Returns (key, candidate y, candidate x, sum of squared errors).
+    """
+    za = np.float64(heights[r0 + ay, c0 + ax])
+    zb = np.float64(heights[r0 + by, c0 + bx])
+    zc = np.float64(heights[r0 + cy, c0 + cx])
+    gx, gy = plane(za, zb, zc, ax, ay, bx, by, cx, cy)
+    best = NO_CANDIDATE
+    best_x = -1
+    best_y = -1
+    sse = 0.0
+    y0 = min(ay, min(by, cy))
+    y1 = max(ay, max(by, cy))
+    for y in range(y0, y1 + 1):
+        lo, hi = row_span(ax, ay, bx, by, cx, cy, y)
+        if lo > hi:
+            continue
+        n = hi - lo + 1
+        base = za + gy * (y - ay) + gx * (lo - ax)
+        row = heights[r0 + y]
+        start = c0 + lo
+        # Long rows: a vectorized pass gives the row's maximum (with slack for its fused
+        # arithmetic) and sum; the position is searched only when it may beat the best.
+        # Short rows: one plain pass does both.
+        if n >= 16:
+            m, s = _row_max_sse(row, start, n, base, gx)
+            search = m + 1e-9 > best
+        else:
+            s = 0.0
+            for i in range(n):
+                e = abs(float(row[start + i]) - (base + gx * i))
+                s += e * e
+            search = True
+        if search:
+            for i in range(n):
+                e = abs(float(row[start + i]) - (base + gx * i))
+                if e > best:
+                    x = lo + i
+                    # Corners are reproduced exactly; round-off must not make them candidates.
+                    if (x == ax and y == ay) or (x == bx and y == by) or (x == cx and y == cy):
+                        continue
+                    best = e
+                    best_x = x
+                    best_y = y
+        # Edge points are shared: a row along a horizontal edge lies wholly on it, otherwise
+        # only the row's two ends can touch an edge.
+        if ay == by == y:
+            s *= wab
+        elif by == cy == y:
+            s *= wbc
+        elif cy == ay == y:
+            s *= wca
+        else:
+            e = abs(float(row[start]) - base)
+            s -= (1.0 - _edge_weight(ax, ay, bx, by, cx, cy, lo, y, wab, wbc, wca)) * e * e
+            if hi > lo:
+                e = abs(float(row[c0 + hi]) - (base + gx * (n - 1)))
+                w = _edge_weight(ax, ay, bx, by, cx, cy, hi, y, wab, wbc, wca)
+                s -= (1.0 - w) * e * e
+        sse += s
+    return best, best_y, best_x, max(sse, 0.0)
+
+
 @njit(cache=True)
 def scan_with_holes(heights, r0, c0, ax, ay, bx, by, cx, cy):
     """(key, candidate y, candidate x) of a triangle on a grid with nodata (NaN).
@@ -122,9 +224,9 @@ def scan_with_holes(heights, r0, c0, ax, ay, bx, by, cx, cy):
     holds nodata gets key inf and its most interior nodata point as candidate, so holes are cut
     out of the mesh. Otherwise the key is the ordinary largest error.
     """
-    za = float(heights[r0 + ay, c0 + ax])
-    zb = float(heights[r0 + by, c0 + bx])
-    zc = float(heights[r0 + cy, c0 + cx])
+    za = np.float64(heights[r0 + ay, c0 + ax])
+    zb = np.float64(heights[r0 + by, c0 + bx])
+    zc = np.float64(heights[r0 + cy, c0 + cx])
     hole = np.isnan(za) or np.isnan(zb) or np.isnan(zc)
     gx, gy = (0.0, 0.0) if hole else plane(za, zb, zc, ax, ay, bx, by, cx, cy)
     best = NO_CANDIDATE

@@ -71,3 +71,17 @@ def heap_remove(heap: np.ndarray, hkey: np.ndarray, pos: np.ndarray, size: int, 
         else:
             _sift_down(heap, hkey, pos, i, mt, mk, last)
     return last
+
+
+@njit(cache=True)
+def heap_update(heap: np.ndarray, hkey: np.ndarray, pos: np.ndarray, size: int, t: int, k: float):
+    """Give triangle t key k: pushed when absent, else moved up or down in place (one sift)."""
+    i = pos[t]
+    if i < 0:
+        _sift_up(heap, hkey, pos, size, t, k)
+        return size + 1
+    if k > hkey[i]:
+        _sift_up(heap, hkey, pos, i, t, k)
+    else:
+        _sift_down(heap, hkey, pos, i, t, k, size)
+    return size

@@ -18,6 +18,7 @@ from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
 from approxtree.kernels.greedy_tin import mesh_error
+from approxtree.kernels.tin_mesh import half_edge_twins
 from approxtree.patches.base import GeometryPatch
 
 
@@ -71,21 +72,10 @@ def twins(tris: np.ndarray) -> np.ndarray:
 
     Half-edge 3t + k runs from tris[t, k] to tris[t, (k + 1) % 3].
     """
-    m = len(tris)
-    if m == 0:
+    if len(tris) == 0:
         return np.empty(0, dtype=np.int32)
-    a = tris.reshape(-1).astype(np.int64)
-    b = np.roll(tris, -1, axis=1).reshape(-1).astype(np.int64)
-    n = int(max(a.max(), b.max())) + 1
-    fwd = a * n + b
-    rev = b * n + a
-    order = np.argsort(fwd)
-    pos = np.searchsorted(fwd[order], rev)
-    pos = np.minimum(pos, len(fwd) - 1)
-    hit = fwd[order][pos] == rev
-    out = np.full(3 * m, -1, dtype=np.int32)
-    out[hit] = order[pos[hit]]
-    return out
+    tv = np.ascontiguousarray(tris, dtype=np.int64).reshape(-1)
+    return half_edge_twins(tv, int(tv.max()) + 1)
 
 
 @dataclass
@@ -173,15 +163,21 @@ class LatticePatch(GeometryPatch):
     def vertices(self) -> np.ndarray:
         g = self.grid
         r, c = self.ij[:, 0], self.ij[:, 1]
-        return np.column_stack([g.x_coords[c], g.y_coords[r], g.heights[r, c].astype(np.float64)])
+        # Filled column by column: no (n, 3) temporaries on million-vertex meshes.
+        out = np.empty((len(self.ij), 3), dtype=np.float64)
+        out[:, 0] = g.x_coords[c]
+        out[:, 1] = g.y_coords[r]
+        out[:, 2] = g.heights[r, c]
+        return out
 
     @property
     def triangles(self) -> np.ndarray:
-        t = self.tris.astype(np.int64)
         # Index space is (col, row); a north-up transform mirrors it, so flip to stay CCW.
-        if self.grid.transform.a * self.grid.transform.e < 0:
-            t = t[:, [0, 2, 1]]
-        return np.ascontiguousarray(t)
+        order = (0, 2, 1) if self.grid.transform.a * self.grid.transform.e < 0 else (0, 1, 2)
+        t = np.empty((len(self.tris), 3), dtype=np.int64)
+        for k in range(3):
+            t[:, k] = self.tris[:, order[k]]
+        return t
 
     @property
     def point_count(self) -> int:

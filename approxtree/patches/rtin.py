@@ -13,12 +13,14 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numba
 import numpy as np
 
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
 from approxtree.kernels.rtin import extract, vertex_errors
+from approxtree.kernels.rtin_greedy import greedy_rtin
 from approxtree.patches.base import GeometryPatch
 from approxtree.patches.lattice import LatticePatch, Window, grid_window, require_grid, twins
 
@@ -64,17 +66,57 @@ def _threshold(
     return float(values[hi])
 
 
+#: Lattices with fewer points than this compute their errors on one thread: each of the ~60
+#: parallel levels costs a thread hand-off, more than the level's work on small windows.
+PARALLEL_MIN_POINTS = 2049 * 2049
+
+
+def _vertex_errors(grid: Grid, win: Window, size: int) -> np.ndarray:
+    """``kernels.rtin.vertex_errors`` of the window, threaded only for large lattices."""
+    threads = numba.get_num_threads()
+    if (size + 1) ** 2 < PARALLEL_MIN_POINTS:
+        numba.set_num_threads(1)
+    try:
+        return vertex_errors(grid.heights, win.r0, win.c0, win.rows, win.cols, size, win.has_nan)
+    finally:
+        numba.set_num_threads(threads)
+
+
 def rtin_patch(
     grid: Grid,
     rect: Rect,
     max_error: float | None = None,
     max_points: int | None = None,
     max_triangles: int | None = None,
+    greedy: bool = False,
 ) -> RTINPatch:
-    """The RTIN of one rectangle meeting the error goal and the budgets."""
+    """The RTIN of one rectangle meeting the error goal and the budgets.
+
+    greedy: meet a point or triangle budget by greedy refinement (``kernels.rtin_greedy``)
+    instead of the smallest fitting threshold of the precomputed error hierarchy.
+    """
     win = grid_window(grid, rect)
     size = lattice_size(win.rows, win.cols)
-    err = vertex_errors(grid.heights, win.r0, win.c0, win.rows, win.cols, size, win.has_nan)
+    if greedy and (max_points is not None or max_triangles is not None):
+        # A budget: greedy refinement by badness (worst leaf first, forced splits included).
+        split = greedy_rtin(
+            grid.heights,
+            win.r0,
+            win.c0,
+            win.rows,
+            win.cols,
+            size,
+            -1.0 if max_error is None else float(max_error),
+            0 if max_points is None else int(max_points),
+            0 if max_triangles is None else int(max_triangles),
+            win.has_nan,
+        )
+        _, _, vx, vy, tv = extract(
+            split, 0.5, grid.heights, win.r0, win.c0, win.rows, win.cols, False
+        )
+        he = twins(tv.reshape(-1, 3))
+        return RTINPatch.from_window_mesh(grid, rect, win, vx, vy, tv, he)  # type: ignore[return-value]
+    err = _vertex_errors(grid, win, size)
     t = _threshold(err, grid, win, max_error, max_points, max_triangles)
     _, _, vx, vy, tv = extract(err, t, grid.heights, win.r0, win.c0, win.rows, win.cols, False)
     he = twins(tv.reshape(-1, 3))
@@ -106,4 +148,4 @@ def approximate_rtin(
 ) -> GeometryPatch:
     """The RTIN of a whole grid (see ``patches.approximate``)."""
     grid = require_grid(terrain, "rtin")
-    return rtin_patch(grid, grid.domain, max_error, max_points, max_triangles)
+    return rtin_patch(grid, grid.domain, max_error, max_points, max_triangles, greedy=True)

@@ -32,8 +32,9 @@ def grid_tin(
     max_points: int | None = None,
     max_triangles: int | None = None,
     data_dependent: bool = False,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Greedy insertion over one window: (vx, vy, tv, he) window-local, see ``greedy_tin``."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """Greedy insertion over one window: (vx, vy, tv, he, max error, sum of squared errors)
+    window-local, see ``greedy_tin`` (the two figures only hold without nodata)."""
     if win.rows < 2 or win.cols < 2:
         raise UnsupportedStrategyError(
             f"A TIN needs a window of at least 2 × 2 grid points, got {win.rows} × {win.cols}."
@@ -56,6 +57,31 @@ class GridTINPatch(LatticePatch):
     """The TIN of one window of a Grid (vertices are grid points)."""
 
     kind = "tin"
+
+    @classmethod
+    def from_greedy(
+        cls,
+        grid: Grid,
+        rect: Rect,
+        win: Window,
+        result: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float],
+    ) -> LatticePatch:
+        """The patch of a ``grid_tin`` result.
+
+        Without nodata the greedy run already measured its mesh exactly (every triangle's key
+        is its true maximum, every point's squared error is summed once), so no second pass
+        over the window is needed; with nodata the mesh is measured afresh.
+        """
+        vx, vy, tv, he, worst, sse = result
+        if win.has_nan:
+            return cls.from_window_mesh(grid, rect, win, vx, vy, tv, he)
+        ij = np.empty((len(vx), 2), dtype=np.int32)
+        ij[:, 0] = vy
+        ij[:, 0] += win.r0
+        ij[:, 1] = vx
+        ij[:, 1] += win.c0
+        rms = float(np.sqrt(sse / win.count))
+        return cls(grid, rect, ij, tv.reshape(-1, 3), worst, rms, win.z_range, win.count)
 
     @classmethod
     def build_many(
@@ -83,10 +109,10 @@ class TINPatch(GeometryPatch):
         for rect in rects:
             if isinstance(terrain, Grid):
                 win = grid_window(terrain, rect)
-                vx, vy, tv, he = grid_tin(
+                result = grid_tin(
                     terrain, win, epsilon, max_points, data_dependent=cls.data_dependent
                 )
-                out.append(GridTINPatch.from_window_mesh(terrain, rect, win, vx, vy, tv, he))
+                out.append(GridTINPatch.from_greedy(terrain, rect, win, result))
             elif isinstance(terrain, TIN):
                 from approxtree.patches.tin_points import PointTINPatch
 
@@ -120,10 +146,8 @@ def approximate_tin(
     rect = terrain.domain
     if isinstance(terrain, Grid):
         win = grid_window(terrain, rect)
-        vx, vy, tv, he = grid_tin(
-            terrain, win, max_error, max_points, max_triangles, data_dependent
-        )
-        return GridTINPatch.from_window_mesh(terrain, rect, win, vx, vy, tv, he)
+        result = grid_tin(terrain, win, max_error, max_points, max_triangles, data_dependent)
+        return GridTINPatch.from_greedy(terrain, rect, win, result)
     if isinstance(terrain, TIN):
         from approxtree.patches.tin_points import PointTINPatch
 
