@@ -185,9 +185,9 @@ def info(dem: str, encoding, nodata_policy, ground_only, height_scale, as_json: 
 )
 @click.option(
     "--policy",
-    default="auto",
+    default="type",
     show_default=True,
-    help="Approximation strategy per node (auto or a strategy name).",
+    help="Strategy per node: type, auto, a name, level:grid@0-3,tin or semantic:tin@4,grid.",
 )
 @reader_options
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")

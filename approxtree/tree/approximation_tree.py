@@ -8,7 +8,6 @@ are objects, loaded from the tree file on first access when the tree was loaded 
 from __future__ import annotations
 
 import os
-from collections import Counter
 from typing import Any
 
 import numpy as np
@@ -79,7 +78,7 @@ class ApproximationTree:
         epsilon: float = 1.0,
         max_points: int = 33 * 33,
         fanout: int = 4,
-        policy: str | StrategyPolicy = "auto",
+        policy: str | StrategyPolicy = "type",
         progress: bool | None = None,
     ) -> ApproximationTree:
         """Build A(s,d)(T): split nodes while ε_T(N) > epsilon, patches of at most s points.
@@ -166,10 +165,16 @@ class ApproximationTree:
     def fanout(self) -> int:
         return self.params["fanout"]
 
+    @property
+    def strategy_counts(self) -> dict[str, int]:
+        """Strategy name → how many nodes its patches build (hybrid trees mix several)."""
+        counts = np.bincount(self.strategies, minlength=len(self.strategy_names))
+        return {name: int(c) for name, c in zip(self.strategy_names, counts, strict=True) if c}
+
     def stats(self) -> dict[str, Any]:
         """Figures of the tree: nodes, levels, leaves, strategies, max_leaf_error."""
         leaves = self.leaves
-        counts = Counter(self.strategy_names[int(s)] for s in self.strategies)
+        counts = self.strategy_counts
         return {
             "nodes": len(self),
             "levels": int(self.levels.max()) + 1,
