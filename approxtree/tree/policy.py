@@ -25,8 +25,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-import numpy as np
-
 from approxtree.errors import InvalidParameterError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
@@ -181,22 +179,12 @@ class SemanticPolicy(StrategyPolicy):
         self.name = f"semantic:{self.fine}@{self.from_level},{self.other}"
         self._fine = StrategyPolicy(self.fine)
         self._other = StrategyPolicy(self.other)
-        self._sorted: tuple[int, np.ndarray, np.ndarray] | None = None
 
-    def holds_microstructure(self, terrain: GeometryData, rect: Rect) -> bool:
-        """True when some microstructure vertex lies in the closed ``rect``."""
-        combined = getattr(terrain, "combined", None)
-        if combined is None:
-            return False
-        if self._sorted is None or self._sorted[0] != id(combined):
-            # Vertices sorted by x once, so each query is a binary search plus a short scan.
-            order = np.argsort(combined.vertices[:, 0], kind="stable")
-            self._sorted = (id(combined), combined.vertices[order, 0], combined.vertices[order, 1])
-        _, xs, ys = self._sorted
-        lo = np.searchsorted(xs, rect.xmin, side="left")
-        hi = np.searchsorted(xs, rect.xmax, side="right")
-        y = ys[lo:hi]
-        return bool(np.any((y >= rect.ymin) & (y <= rect.ymax)))
+    @staticmethod
+    def holds_microstructure(terrain: GeometryData, rect: Rect) -> bool:
+        """True when some microstructure vertex (a data point) lies in the closed ``rect``."""
+        micro_index = getattr(terrain, "micro_index", None)
+        return micro_index is not None and len(micro_index(rect)) > 0
 
     def candidates(self, terrain: GeometryData, level: int, rect: Rect) -> tuple[str, ...]:
         if level >= self.from_level and self.holds_microstructure(terrain, rect):
