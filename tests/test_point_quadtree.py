@@ -159,3 +159,20 @@ def test_autzen_ground_figures(data_dir):
     eye = (d.center[0], d.ymin - 0.1 * d.height, terrain.z_range[1] + 100.0)
     m = q.lod_mesh(eye, 60.0, 640, 10.0)
     assert 0 < len(m.triangles) < 0.1 * len(terrain.triangles)
+
+
+def test_kd_tree_a25_2_over_scattered_points(quadtree):
+    """A(25, 2) over a point set (core paper, figure 3): two children per inner node, at most
+    25 points per patch, exact errors, leaves within ε."""
+    from helpers import brute_force_error
+
+    terrain = quadtree.terrain
+    tree = at.ApproximationTree.build(terrain, 0.5, 25, fanout=2, policy="tin", progress=False)
+    inner = tree.child_count > 0
+    assert (tree.child_count[inner] == 2).all() and inner.sum() >= 10
+    assert tree.errors[tree.leaves].max() <= 0.5
+    for i in range(0, len(tree), max(1, len(tree) // 20)):
+        node = tree.node(i)
+        assert node.patch.point_count <= 25
+        expected = brute_force_error(terrain, node.rect, node.patch.vertices, node.patch.triangles)
+        assert node.error == pytest.approx(expected, abs=1e-9)
