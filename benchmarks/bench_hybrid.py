@@ -1,6 +1,8 @@
 """Hybrid trees: build time and memory, auto vs single-strategy memory, frames, Autzen table 1.
 
-Cases (each in a fresh worker process, so peak memory is the case's own):
+Cases (each in a fresh worker process). Build time is one plain run; build memory is the peak
+of Python and numpy allocations (tracemalloc) over a second run (numba's own buffers are not
+counted).
 
 - ``nc``: ../shared/data/nc/elev_ned_30m.tif refined by its streams (incised corridors, 30 m
   wide, 15 m samples), ε = 1 m, s = 33²;
@@ -34,28 +36,21 @@ RESULTS = Path(__file__).resolve().parent / "results"
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
-def _status_bytes(key: str) -> int:
-    """A memory figure of this process from /proc/self/status (VmRSS, VmHWM)."""
-    with open("/proc/self/status") as f:
-        for line in f:
-            if line.startswith(key + ":"):
-                return int(line.split()[1]) * 1024
-    raise RuntimeError(f"{key} not found in /proc/self/status")
-
-
-def _reset_peak() -> None:
-    with open("/proc/self/clear_refs", "w") as f:
-        f.write("5")
-
-
 def _measured(fn):
-    """(result, seconds, peak RSS rise in bytes) of fn()."""
-    _reset_peak()
-    base = _status_bytes("VmRSS")
+    """(result, seconds, peak bytes) of fn(): timed on a plain run, then run again under
+    tracemalloc (numpy registers its buffers there) for the peak of Python and numpy memory.
+    The rise of the process's peak RSS is no measure here: memory freed by an earlier step
+    (corridor building) is reused without raising RSS."""
+    import tracemalloc
+
     t0 = time.perf_counter()
     out = fn()
     seconds = time.perf_counter() - t0
-    return out, seconds, max(_status_bytes("VmHWM") - base, 0)
+    tracemalloc.start()
+    fn()
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return out, seconds, peak
 
 
 def _tree_bytes(tree) -> int:
