@@ -176,3 +176,25 @@ def test_kd_tree_a25_2_over_scattered_points(quadtree):
         assert node.patch.point_count <= 25
         expected = brute_force_error(terrain, node.rect, node.patch.vertices, node.patch.triangles)
         assert node.error == pytest.approx(expected, abs=1e-9)
+
+
+def test_save_load_round_trip(quadtree, tmp_path):
+    """save → load gives the same nodes, orders and LOD mesh; a foreign file is a StoreError."""
+    path = tmp_path / "q.npz"
+    assert quadtree.save(path) == path.stat().st_size
+    back = PointQuadtree.load(path)
+    assert back.children == quadtree.children and back.errors == quadtree.errors
+    for leaf in quadtree.leaves:
+        np.testing.assert_array_equal(back.orders[leaf][0], quadtree.orders[leaf][0])
+        np.testing.assert_array_equal(back.orders[leaf][1], quadtree.orders[leaf][1])
+    eye = (quadtree.x0 - 10, quadtree.y0 - 10, 30.0)
+    a, b = quadtree.lod_mesh(eye, 60.0, 640, 2.0), back.lod_mesh(eye, 60.0, 640, 2.0)
+    np.testing.assert_array_equal(a.triangles, b.triangles)
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, x=np.zeros(3))
+    with pytest.raises(at.StoreError, match="point quadtree"):
+        PointQuadtree.load(bad)
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    with pytest.raises(at.StoreError, match="Cannot read"):
+        PointQuadtree.load(tmp_path / "junk.npz")

@@ -23,14 +23,17 @@ on the straight edge otherwise, so the mesh is continuous.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 
 import numpy as np
 
-from approxtree.errors import InvalidParameterError
+from approxtree.errors import InvalidParameterError, StoreError
 from approxtree.geometry.tin import TIN
 from approxtree.kernels.point_quadtree import fan_errors, insert_points, morton_codes
 
+#: Version of the .npz layout written by ``PointQuadtree.save``.
+FORMAT_VERSION = 1
 #: Finest quadtree level (2^20 cells a side); points sharing a finest cell stay in one leaf.
 MAX_DEPTH = 20
 # Edge directions: west, east, south, north as (di, dj).
@@ -55,13 +58,15 @@ class PointQuadtree:
     Nodes are keyed (level, i, j): cell i (east), j (north) of the 2^level lattice.
     """
 
-    def __init__(self, terrain: TIN, max_points: int = 50) -> None:
+    def __init__(self, terrain: TIN, max_points: int = 50, _build: bool = True) -> None:
         if not isinstance(max_points, int | np.integer) or max_points < 1:
             raise InvalidParameterError(
                 f"max_points (δ) must be an integer >= 1, got {max_points!r}."
             )
         self.terrain = terrain
         self.max_points = int(max_points)
+        if not _build:
+            return
         d = terrain.domain
         self.size = max(d.width, d.height) * (1 + 1e-9) or 1.0
         self.x0, self.y0 = d.xmin, d.ymin
@@ -345,6 +350,78 @@ class PointQuadtree:
                         changed = True
                         break
         return drawn
+
+    # -- storage -------------------------------------------------------------------------------
+
+    def save(self, path: str | os.PathLike) -> int:
+        """Write the quadtree (terrain, nodes, heights, insertion orders) atomically as .npz;
+        returns the file size."""
+        from approxtree.io.atomic import atomic_write
+
+        nodes = list(self.children)
+        leaves = self.leaves
+        lattice = sorted(self.lattice.items())
+        _, tarrays = self.terrain.to_record()
+        arrays = {
+            "header": np.array(
+                [FORMAT_VERSION, self.max_points, self.size, self.x0, self.y0], dtype="<f8"
+            ),
+            "crs": np.array(self.terrain.crs or ""),
+            "terrain_vertices": tarrays["vertices"],
+            "terrain_triangles": tarrays["triangles"],
+            "points": self.points,
+            "codes": self.codes,
+            "nodes": np.array(nodes, dtype="<i8").reshape(-1, 3),
+            "internal": np.array([self.children[n] for n in nodes], dtype=bool),
+            "node_errors": np.array([self.errors[n] for n in nodes], dtype="<f8"),
+            "lattice_keys": np.array([k for k, _ in lattice], dtype="<i8").reshape(-1, 2),
+            "lattice_xyz": np.array([v for _, v in lattice], dtype="<f8").reshape(-1, 3),
+            "leaves": np.array(leaves, dtype="<i8").reshape(-1, 3),
+            "order_counts": np.array([len(self.orders[n][0]) for n in leaves], dtype="<i8"),
+            "orders": np.concatenate([self.orders[n][0] for n in leaves] or [np.zeros(0)]),
+            "order_errors": np.concatenate([self.orders[n][1] for n in leaves]),
+        }
+        with atomic_write(path) as f:
+            np.savez(f, **arrays)
+        return os.path.getsize(path)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> PointQuadtree:
+        """Read a quadtree written by ``save``."""
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                a = {k: z[k] for k in z.files}
+        except (OSError, ValueError, KeyError) as exc:
+            raise StoreError(f"Cannot read point quadtree {path}: {exc}") from exc
+        header = a.get("header")
+        if header is None or int(header[0]) != FORMAT_VERSION:
+            raise StoreError(
+                f"{path} is not a point quadtree file of format {FORMAT_VERSION}; rebuild it."
+            )
+        crs = str(a["crs"]) or None
+        terrain = TIN.from_record(
+            {"crs": crs}, {"vertices": a["terrain_vertices"], "triangles": a["terrain_triangles"]}
+        )
+        q = cls(terrain, int(header[1]), _build=False)
+        q.size, q.x0, q.y0 = float(header[2]), float(header[3]), float(header[4])
+        q.points, q.codes = a["points"], a["codes"]
+        nodes = [tuple(int(v) for v in n) for n in a["nodes"]]
+        q.children = dict(zip(nodes, a["internal"].tolist(), strict=True))
+        q.errors = dict(zip(nodes, a["node_errors"].tolist(), strict=True))
+        q.lattice = {
+            (int(k[0]), int(k[1])): tuple(float(c) for c in v)
+            for k, v in zip(a["lattice_keys"], a["lattice_xyz"], strict=True)
+        }
+        q.orders = {}
+        o = e = 0
+        for leaf, n in zip(a["leaves"], a["order_counts"], strict=True):
+            n = int(n)
+            q.orders[tuple(int(v) for v in leaf)] = (
+                a["orders"][o : o + n].astype(np.int64),
+                a["order_errors"][e : e + n + 1],
+            )
+            o, e = o + n, e + n + 1
+        return q
 
     # -- figures -------------------------------------------------------------------------------
 
