@@ -91,6 +91,26 @@ def _open(
     return open_terrain(path, **options)
 
 
+def _refine(terrain, files, width: float, depth: float, profile: str, spacing: float | None):
+    """The GridRefinement of a grid by the microstructures of ``files``."""
+    from approxtree.errors import InvalidParameterError
+    from approxtree.geometry import Grid, GridRefinement
+    from approxtree.io.microstructures import load_microstructures
+
+    if not isinstance(terrain, Grid):
+        raise InvalidParameterError(
+            f"--microstructures refines a regular grid, got a {type(terrain).__name__}."
+        )
+    tins = []
+    for f in files:
+        tins.extend(
+            load_microstructures(
+                f, terrain, width=width, profile=profile, depth=depth, spacing=spacing
+            )
+        )
+    return GridRefinement(terrain, tins)
+
+
 def terrain_figures(terrain) -> dict[str, Any]:
     """The figures of ``approxtree info`` for any terrain."""
     from approxtree.geometry import Grid
@@ -185,9 +205,44 @@ def info(dem: str, encoding, nodata_policy, ground_only, height_scale, as_json: 
 )
 @click.option(
     "--policy",
-    default="auto",
+    default="type",
     show_default=True,
-    help="Approximation strategy per node (auto or a strategy name).",
+    help="Strategy per node: type, auto, a name, level:grid@0-3,tin or semantic:tin@4,grid.",
+)
+@click.option(
+    "--microstructures",
+    "microstructure_files",
+    multiple=True,
+    type=click.Path(dir_okay=False),
+    help="TIN microstructures refining the grid: any TIN file, or a line layer "
+    "(shapefile, GeoPackage, GeoJSON) turned into corridors. Repeatable.",
+)
+@click.option(
+    "--microstructure-width",
+    type=float,
+    default=30.0,
+    show_default=True,
+    help="Corridor width around lines (map units).",
+)
+@click.option(
+    "--microstructure-depth",
+    type=float,
+    default=2.0,
+    show_default=True,
+    help="Channel depth of incised corridors (z units).",
+)
+@click.option(
+    "--microstructure-profile",
+    type=click.Choice(["incised", "resampled"]),
+    default="incised",
+    show_default=True,
+    help="Corridor heights: incised channel, or the grid resampled bicubically.",
+)
+@click.option(
+    "--microstructure-spacing",
+    type=float,
+    default=None,
+    help="Corridor sample spacing (map units) [default: a third of the grid cell].",
 )
 @reader_options
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
@@ -199,6 +254,11 @@ def build(
     max_points: int,
     fanout: str,
     policy: str,
+    microstructure_files: tuple[str, ...],
+    microstructure_width: float,
+    microstructure_depth: float,
+    microstructure_profile: str,
+    microstructure_spacing: float | None,
     encoding,
     nodata_policy,
     ground_only,
@@ -209,6 +269,15 @@ def build(
     from approxtree.tree import ApproximationTree
 
     terrain = _open(dem, encoding, nodata_policy, ground_only, height_scale)
+    if microstructure_files:
+        terrain = _refine(
+            terrain,
+            microstructure_files,
+            microstructure_width,
+            microstructure_depth,
+            microstructure_profile,
+            microstructure_spacing,
+        )
     t0 = time.perf_counter()
     tree = ApproximationTree.build(
         terrain, epsilon=epsilon, max_points=max_points, fanout=int(fanout), policy=policy

@@ -62,11 +62,35 @@ class GridRefinement(GeometryData):
             min(a.xmin, b.xmin), min(a.ymin, b.ymin), max(a.xmax, b.xmax), max(a.ymax, b.ymax)
         )
 
+    @cached_property
+    def _micro_by_x(self) -> tuple[np.ndarray, np.ndarray]:
+        """(order, sorted x) of the microstructure vertices, for window queries."""
+        x = self.combined.vertices[:, 0]
+        order = np.argsort(x, kind="stable")
+        return order, x[order]
+
+    def micro_index(self, rect: Rect) -> np.ndarray:
+        """(k,) int64 ascending indices of the microstructure vertices inside the closed rect."""
+        order, xs = self._micro_by_x
+        lo = np.searchsorted(xs, rect.xmin, side="left")
+        hi = np.searchsorted(xs, rect.xmax, side="right")
+        cand = order[lo:hi]
+        v = self.combined.vertices[cand]
+        return np.sort(cand[rect.contains(v[:, 0], v[:, 1])])
+
     def points(self, rect: Rect | None = None) -> np.ndarray:
         g = self.grid
-        rr, cc = np.nonzero(self.grid_outside)
+        if rect is None:
+            rr, cc = np.nonzero(self.grid_outside)
+            micro = self.combined.vertices
+        else:
+            # Only the grid window of the rectangle and the vertices in its x range are read.
+            r0, r1, c0, c1 = g.index_range(rect)
+            rr, cc = np.nonzero(self.grid_outside[r0 : r1 + 1, c0 : c1 + 1])
+            rr, cc = rr + r0, cc + c0
+            micro = self.combined.vertices[self.micro_index(rect)]
         pts = np.column_stack([g.x_coords[cc], g.y_coords[rr], g.heights[rr, cc]])
-        pts = np.concatenate([pts, self.combined.vertices])
+        pts = np.concatenate([pts, micro])
         if rect is not None:
             pts = pts[rect.contains(pts[:, 0], pts[:, 1])]
         return pts

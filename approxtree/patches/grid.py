@@ -51,6 +51,8 @@ class GridPatch(GeometryPatch):
 
     @staticmethod
     def _require_grid(terrain: GeometryData) -> Grid:
+        # A GridRefinement's grid patches sample its base grid (errors re-measured on build).
+        terrain = getattr(terrain, "grid", terrain)
         if not isinstance(terrain, Grid):
             raise UnsupportedStrategyError(
                 f"The grid strategy needs a regular Grid, got a {type(terrain).__name__}; "
@@ -77,10 +79,15 @@ class GridPatch(GeometryPatch):
             ]
         ).astype(np.int64)
         error, zmin, zmax, count = grid_patch_errors(grid.heights, ranges, steps)
-        return [
+        patches: list[GeometryPatch] = [
             cls(grid, rect, (*ranges[i], *steps[i]), error[i], (zmin[i], zmax[i]), count[i])
             for i, rect in enumerate(rects)
         ]
+        if terrain is not grid:
+            from approxtree.patches.refined import refine_grid_patches
+
+            refine_grid_patches(terrain, patches)  # type: ignore[arg-type]
+        return patches
 
     @property
     def steps(self) -> tuple[int, int]:

@@ -19,6 +19,7 @@ from approxtree.errors import UnsupportedStrategyError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
+from approxtree.geometry.refinement import GridRefinement
 from approxtree.geometry.tin import TIN
 from approxtree.kernels.greedy_tin import greedy_tin
 from approxtree.patches.base import GeometryPatch
@@ -105,6 +106,10 @@ class TINPatch(GeometryPatch):
         max_points: int,
         epsilon: float = 0.0,
     ) -> list[GeometryPatch]:
+        if isinstance(terrain, GridRefinement):
+            from approxtree.patches.refined import RefinedTINPatch
+
+            return RefinedTINPatch.build_many(terrain, rects, max_points, epsilon)
         out: list[GeometryPatch] = []
         for rect in rects:
             if isinstance(terrain, Grid):
@@ -119,7 +124,7 @@ class TINPatch(GeometryPatch):
                 out.append(PointTINPatch.build_rect(terrain, rect, max_points, epsilon))
             else:
                 raise UnsupportedStrategyError(
-                    f"The tin strategy needs a Grid, TIN or TINPointSet, got a "
+                    f"The tin strategy needs a Grid, TIN, TINPointSet or GridRefinement, got a "
                     f"{type(terrain).__name__}."
                 )
         return out
@@ -130,6 +135,10 @@ class TINPatch(GeometryPatch):
     ) -> GeometryPatch:
         if isinstance(terrain, Grid):
             return GridTINPatch.from_record(terrain, rect, record)
+        if isinstance(terrain, GridRefinement):
+            from approxtree.patches.refined import RefinedTINPatch
+
+            return RefinedTINPatch.from_record(terrain, rect, record)
         from approxtree.patches.tin_points import PointTINPatch
 
         return PointTINPatch.from_record(terrain, rect, record)

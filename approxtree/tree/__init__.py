@@ -2,7 +2,8 @@
 
 from approxtree.tree.approximation_tree import ApproximationTree
 from approxtree.tree.node import Node
+from approxtree.tree.point_quadtree import PointQuadtree
 from approxtree.tree.policy import StrategyPolicy
 from approxtree.tree.subdivision import subdivide
 
-__all__ = ["ApproximationTree", "Node", "StrategyPolicy", "subdivide"]
+__all__ = ["ApproximationTree", "Node", "PointQuadtree", "StrategyPolicy", "subdivide"]

@@ -8,14 +8,14 @@ are objects, loaded from the tree file on first access when the tree was loaded 
 from __future__ import annotations
 
 import os
-from collections import Counter
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from approxtree import __version__
-from approxtree.errors import StoreError
-from approxtree.geometry import TERRAIN_TYPES
+from approxtree.errors import InvalidParameterError, StoreError
+from approxtree.geometry import TERRAIN_TYPES, TIN, Grid, GridRefinement
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
 from approxtree.patches import STRATEGIES, GeometryPatch
@@ -23,6 +23,24 @@ from approxtree.tree.builder import build_levels
 from approxtree.tree.node import Node
 from approxtree.tree.policy import StrategyPolicy
 from approxtree.tree.store import TreeFile, write_tree_file
+
+
+def with_microstructures(
+    terrain: GeometryData, microstructures: Sequence[TIN | str | os.PathLike]
+) -> GridRefinement:
+    """The GridRefinement of a Grid by TINs, or by files (TIN files or line layers, which
+    become 30 m corridors; call ``io.microstructures.load_microstructures`` for other widths)."""
+    from approxtree.io.microstructures import load_microstructures
+
+    if not isinstance(terrain, Grid):
+        raise InvalidParameterError(
+            f"Microstructures refine a regular Grid, got a {type(terrain).__name__}; "
+            "open the terrain grid (e.g. a GeoTIFF DEM) to refine it."
+        )
+    tins: list[TIN] = []
+    for item in microstructures:
+        tins.extend([item] if isinstance(item, TIN) else load_microstructures(item, terrain))
+    return GridRefinement(terrain, tins)
 
 
 class ApproximationTree:
@@ -79,8 +97,9 @@ class ApproximationTree:
         epsilon: float = 1.0,
         max_points: int = 33 * 33,
         fanout: int = 4,
-        policy: str | StrategyPolicy = "auto",
+        policy: str | StrategyPolicy = "type",
         progress: bool | None = None,
+        microstructures: Sequence[TIN | str | os.PathLike] | None = None,
     ) -> ApproximationTree:
         """Build A(s,d)(T): split nodes while ε_T(N) > epsilon, patches of at most s points.
 
@@ -88,6 +107,8 @@ class ApproximationTree:
         2 k-d tree); policy: strategy name or "auto"; progress: tqdm bar (None = when large).
         """
         policy_obj = StrategyPolicy.resolve(policy)
+        if microstructures:
+            terrain = with_microstructures(terrain, microstructures)
         built = build_levels(terrain, epsilon, max_points, fanout, policy_obj, progress)
         n = len(built.patches)
         names = list(dict.fromkeys(p.kind for p in built.patches))
@@ -166,10 +187,16 @@ class ApproximationTree:
     def fanout(self) -> int:
         return self.params["fanout"]
 
+    @property
+    def strategy_counts(self) -> dict[str, int]:
+        """Strategy name → how many nodes its patches build (hybrid trees mix several)."""
+        counts = np.bincount(self.strategies, minlength=len(self.strategy_names))
+        return {name: int(c) for name, c in zip(self.strategy_names, counts, strict=True) if c}
+
     def stats(self) -> dict[str, Any]:
         """Figures of the tree: nodes, levels, leaves, strategies, max_leaf_error."""
         leaves = self.leaves
-        counts = Counter(self.strategy_names[int(s)] for s in self.strategies)
+        counts = self.strategy_counts
         return {
             "nodes": len(self),
             "levels": int(self.levels.max()) + 1,

@@ -14,9 +14,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm.auto import tqdm
 
-from approxtree.errors import InvalidParameterError
+from approxtree.errors import InvalidParameterError, UnsupportedStrategyError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
+from approxtree.patches import STRATEGIES
 from approxtree.patches.base import GeometryPatch
 from approxtree.tree.policy import StrategyPolicy
 from approxtree.tree.subdivision import FANOUTS, subdivide
@@ -49,6 +50,43 @@ def validate_parameters(epsilon: float, max_points: int, fanout: int) -> None:
         raise InvalidParameterError(f"fanout must be one of {FANOUTS}, got {fanout!r}.")
 
 
+def _build_level(
+    terrain: GeometryData,
+    policy: StrategyPolicy,
+    level: int,
+    frontier: list[tuple[Rect, int]],
+    max_points: int,
+    epsilon: float,
+) -> list[GeometryPatch]:
+    """The patch of every node of one level, as the policy chooses among its candidates."""
+    wanted = [policy.candidates(terrain, level, rect) for rect, _ in frontier]
+    built: list[list[GeometryPatch]] = [[] for _ in frontier]
+    refused: dict[str, UnsupportedStrategyError] = {}
+    # One batch per strategy so every kernel sees the whole level at once.
+    for name in dict.fromkeys(n for names in wanted for n in names):
+        idx = [i for i, names in enumerate(wanted) if name in names]
+        rects = [frontier[i][0] for i in idx]
+        try:
+            patches = STRATEGIES[name].build_many(terrain, rects, max_points, epsilon)
+        except UnsupportedStrategyError as exc:
+            # A strategy that cannot build this data type drops out of multi-candidate choices.
+            refused[name] = exc
+            continue
+        for i, p in zip(idx, patches, strict=True):
+            built[i].append(p)
+    out: list[GeometryPatch] = []
+    for names, options in zip(wanted, built, strict=True):
+        if not options:
+            if len(names) == 1:
+                raise refused[names[0]]
+            raise UnsupportedStrategyError(
+                f"No approximation strategy can build a {type(terrain).__name__} "
+                f"(tried {', '.join(names)}); convert the data to a regular grid."
+            )
+        out.append(policy.choose(options, epsilon))
+    return out
+
+
 def build_levels(
     terrain: GeometryData,
     epsilon: float,
@@ -76,14 +114,7 @@ def build_levels(
     frontier: list[tuple[Rect, int]] = [(terrain.domain, -1)]
     level = 0
     while frontier:
-        # Group the level's nodes by strategy so every strategy builds its batch in one call.
-        kinds = [policy.strategy_for(terrain, level, rect) for rect, _ in frontier]
-        patches: list[GeometryPatch | None] = [None] * len(frontier)
-        for kind in dict.fromkeys(kinds):
-            idx = [i for i, k in enumerate(kinds) if k is kind]
-            built = kind.build_many(terrain, [frontier[i][0] for i in idx], max_points, epsilon)
-            for i, p in zip(idx, built, strict=True):
-                patches[i] = p
+        patches = _build_level(terrain, policy, level, frontier, max_points, epsilon)
         first = len(out.rects)
         next_frontier: list[tuple[Rect, int]] = []
         next_first = first + len(frontier)

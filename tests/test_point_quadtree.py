@@ -1,0 +1,200 @@
+"""Point quadtree over scattered points (seed 003): δ per leaf, restricted balance, recorded
+insertion orders replayed at render time, the LOD mesh, and the Autzen figures."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import data_file
+from matplotlib.tri import LinearTriInterpolator, Triangulation
+
+import approxtree as at
+from approxtree import InvalidParameterError
+from approxtree.tree.point_quadtree import MAX_DEPTH, PointQuadtree
+
+
+def areas(v: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(m,) signed areas of triangles t (m, 3) over vertices v (n, 2+)."""
+    a, b, c = v[t[:, 0], :2], v[t[:, 1], :2], v[t[:, 2], :2]
+    return 0.5 * (
+        (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    )
+
+
+def max_crack(v: np.ndarray, t: np.ndarray) -> float:
+    """Largest height difference between triangles at the midpoints of every triangle edge
+    (brute force over all triangles holding the point): 0 for a crack-free mesh."""
+    t = t[np.abs(areas(v, t)) > 1e-12]
+    q = np.concatenate([(v[t[:, a], :2] + v[t[:, b], :2]) / 2 for a, b in ((0, 1), (1, 2), (2, 0))])
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    det = (b[:, 1] - c[:, 1]) * (a[:, 0] - c[:, 0]) + (c[:, 0] - b[:, 0]) * (a[:, 1] - c[:, 1])
+    worst = 0.0
+    for x, y in q:
+        l1 = ((b[:, 1] - c[:, 1]) * (x - c[:, 0]) + (c[:, 0] - b[:, 0]) * (y - c[:, 1])) / det
+        l2 = ((c[:, 1] - a[:, 1]) * (x - c[:, 0]) + (a[:, 0] - c[:, 0]) * (y - c[:, 1])) / det
+        l3 = 1 - l1 - l2
+        inside = (l1 >= -1e-9) & (l2 >= -1e-9) & (l3 >= -1e-9)
+        h = (l1 * a[:, 2] + l2 * b[:, 2] + l3 * c[:, 2])[inside]
+        worst = max(worst, float(h.max() - h.min()))
+    return worst
+
+
+def mesh_error(vertices: np.ndarray, triangles: np.ndarray, points: np.ndarray) -> float:
+    """max |z − mesh| at points, by matplotlib's interpolator (independent of our kernels)."""
+    if len(points) == 0:
+        return 0.0
+    # Patches of a cut repeat their shared vertices: merge them (their heights must agree).
+    xy, first, inverse = np.unique(vertices[:, :2], axis=0, return_index=True, return_inverse=True)
+    z = vertices[first, 2]
+    np.testing.assert_allclose(vertices[:, 2], z[inverse.ravel()], atol=1e-9)
+    t = inverse.ravel()[triangles]
+    keep = np.abs(areas(xy, t)) > 1e-12
+    tri = Triangulation(xy[:, 0], xy[:, 1], t[keep])
+    h = LinearTriInterpolator(tri, z)(points[:, 0], points[:, 1])
+    return float(np.max(np.abs(points[:, 2] - np.ma.filled(h, np.inf))))
+
+
+@pytest.fixture(scope="module")
+def quadtree() -> PointQuadtree:
+    """2,000 clustered points (dense in one corner, so leaf levels vary), δ = 20."""
+    rng = np.random.default_rng(7)
+    xy = np.concatenate([rng.uniform(0, 100, (800, 2)), rng.uniform(0, 20, (1200, 2))])
+    z = np.sin(xy[:, 0] / 9.0) * 5 + np.cos(xy[:, 1] / 7.0) * 3
+    return PointQuadtree(at.TINPointSet(np.column_stack([xy, z])), max_points=20)
+
+
+def test_leaves_hold_at_most_delta_points_and_partition_them(quadtree):
+    """Every point lies in exactly one leaf; no leaf holds more than δ points."""
+    counts = [np.subtract(*quadtree.point_range(leaf)[::-1]) for leaf in quadtree.leaves]
+    assert sum(counts) == len(quadtree.points)
+    assert max(counts) <= 20
+    assert len({leaf[0] for leaf in quadtree.leaves}) >= 3
+
+
+def test_quadtree_is_restricted(quadtree):
+    """Edge-neighbouring leaves differ by at most one level."""
+    leaves = set(quadtree.leaves)
+    for level, i, j in leaves:
+        for di, dj in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+            ni, nj = i + di, j + dj
+            if not (0 <= ni < 1 << level and 0 <= nj < 1 << level):
+                continue
+            nb = (level, ni, nj)
+            if nb in quadtree.children:
+                # A same-level neighbour may be split once, never twice along our edge.
+                if quadtree.children[nb]:
+                    for a in (0, 1):
+                        for b in (0, 1):
+                            kid = (level + 1, 2 * ni + a, 2 * nj + b)
+                            assert not quadtree.children[kid] or not _touches(kid, (level, i, j))
+            else:
+                # A coarser neighbour is at most one level up.
+                assert (level - 1, ni // 2, nj // 2) in leaves
+
+
+def _touches(a, b) -> bool:
+    """True when squares a and b (level, i, j) share part of an edge."""
+    (la, ia, ja), (lb, ib, jb) = a, b
+    s = 1 << MAX_DEPTH
+    ax0, ay0, aw = ia * (s >> la), ja * (s >> la), s >> la
+    bx0, by0, bw = ib * (s >> lb), jb * (s >> lb), s >> lb
+    ox = min(ax0 + aw, bx0 + bw) - max(ax0, bx0)
+    oy = min(ay0 + aw, by0 + bw) - max(ay0, by0)
+    return (ox == 0 and oy > 0) or (oy == 0 and ox > 0)
+
+
+def test_replay_reproduces_coarse_fan_and_full_resolution(quadtree):
+    """Replaying 0 insertions gives the initial fan; all of them interpolate every data point;
+    the recorded error after every step equals the replayed mesh's measured error."""
+    for leaf in quadtree.leaves[:: max(1, len(quadtree.leaves) // 25)]:
+        lo, hi = quadtree.point_range(leaf)
+        pts = quadtree.points[lo:hi]
+        order, errors = quadtree.orders[leaf]
+        assert sorted(order.tolist()) == list(range(hi - lo))
+        v0, t0 = quadtree.leaf_mesh(leaf, 0)
+        base = len(v0) - len(pts)
+        assert len(t0) == base - 1 and (t0 == 0).any(axis=1).all()
+        assert errors[0] == pytest.approx(mesh_error(v0, t0, pts), abs=1e-9)
+        for k in range(1, hi - lo + 1):
+            v, t = quadtree.leaf_mesh(leaf, k)
+            assert errors[k] == pytest.approx(mesh_error(v, t, pts), abs=1e-9)
+        assert errors[-1] == 0.0
+        used = np.unique(t)
+        assert set(range(base, base + len(pts))) <= set(used.tolist())
+
+
+def test_lod_mesh_covers_the_square_and_follows_the_tolerance(quadtree):
+    """The LOD mesh tiles the root square; a huge C draws the root fan, C = 0 every point."""
+    s = quadtree.size
+    eye = (quadtree.x0 - 10, quadtree.y0 - 10, 30.0)
+    for c in (1e9, 10.0, 1.0, 0.0):
+        m = quadtree.lod_mesh(eye, 60.0, 640, c)
+        v, t = m.vertices, m.triangles
+        area = areas(v, t)
+        assert (area >= -1e-9).all() and area.sum() == pytest.approx(s * s, rel=1e-9)
+        assert max_crack(v, t) < 1e-9
+        if c == 1e9:
+            assert m.nodes == 1 and len(t) == 4
+        if c == 0.0:
+            assert m.points_inserted == len(quadtree.points)
+            assert mesh_error(v, t, quadtree.points) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_bad_delta():
+    """δ < 1 is a clear error."""
+    pts = at.TINPointSet(np.random.default_rng(0).uniform(0, 9, (30, 3)))
+    with pytest.raises(InvalidParameterError, match="δ"):
+        PointQuadtree(pts, max_points=0)
+
+
+def test_autzen_ground_figures(data_dir):
+    """Autzen ground points (26,107): table 1 figures are consistent and the LOD mesh is small."""
+    terrain = at.open_terrain(data_file(data_dir, "lidar/autzen_trim.laz"), ground_only=True)
+    q = PointQuadtree(terrain, max_points=50)
+    n_p = len(terrain.vertices)
+    assert n_p == 26_107 - terrain.duplicates_merged
+    n_c = q.interpolation_point_count()
+    assert 0 < n_c < 0.2 * n_p
+    d = terrain.domain
+    eye = (d.center[0], d.ymin - 0.1 * d.height, terrain.z_range[1] + 100.0)
+    m = q.lod_mesh(eye, 60.0, 640, 10.0)
+    assert 0 < len(m.triangles) < 0.1 * len(terrain.triangles)
+
+
+def test_kd_tree_a25_2_over_scattered_points(quadtree):
+    """A(25, 2) over a point set (core paper, figure 3): two children per inner node, at most
+    25 points per patch, exact errors, leaves within ε."""
+    from helpers import brute_force_error
+
+    terrain = quadtree.terrain
+    tree = at.ApproximationTree.build(terrain, 0.5, 25, fanout=2, policy="tin", progress=False)
+    inner = tree.child_count > 0
+    assert (tree.child_count[inner] == 2).all() and inner.sum() >= 10
+    assert tree.errors[tree.leaves].max() <= 0.5
+    for i in range(0, len(tree), max(1, len(tree) // 20)):
+        node = tree.node(i)
+        assert node.patch.point_count <= 25
+        expected = brute_force_error(terrain, node.rect, node.patch.vertices, node.patch.triangles)
+        assert node.error == pytest.approx(expected, abs=1e-9)
+
+
+def test_save_load_round_trip(quadtree, tmp_path):
+    """save → load gives the same nodes, orders and LOD mesh; a foreign file is a StoreError."""
+    path = tmp_path / "q.npz"
+    assert quadtree.save(path) == path.stat().st_size
+    back = PointQuadtree.load(path)
+    assert back.children == quadtree.children and back.errors == quadtree.errors
+    for leaf in quadtree.leaves:
+        np.testing.assert_array_equal(back.orders[leaf][0], quadtree.orders[leaf][0])
+        np.testing.assert_array_equal(back.orders[leaf][1], quadtree.orders[leaf][1])
+    eye = (quadtree.x0 - 10, quadtree.y0 - 10, 30.0)
+    a, b = quadtree.lod_mesh(eye, 60.0, 640, 2.0), back.lod_mesh(eye, 60.0, 640, 2.0)
+    np.testing.assert_array_equal(a.triangles, b.triangles)
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, x=np.zeros(3))
+    with pytest.raises(at.StoreError, match="point quadtree"):
+        PointQuadtree.load(bad)
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    with pytest.raises(at.StoreError, match="Cannot read"):
+        PointQuadtree.load(tmp_path / "junk.npz")
