@@ -5,17 +5,25 @@ GL tests share one EGL context; where EGL is missing they fail with the install 
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
+import rasterio
+from click.testing import CliRunner
+from conftest import data_file
+from scipy.ndimage import maximum_filter, minimum_filter
 
 import approxtree as at
 from approxtree import ApproximationTree, InvalidParameterError
+from approxtree.cli import main as cli_main
 from approxtree.datasets import fractal_terrain
 from approxtree.render import Camera, Engine, overview_camera, select
 from approxtree.render.engine import STAT_KEYS, create_context
 from approxtree.render.selector import SelectionResult
 from approxtree.render.texture_sharing import texture_nodes
 from approxtree.textures import TexturePatch, TexturePyramid, TopographicShading
+from approxtree.textures.bake import bake
 from approxtree.textures.patch import patch_levels, patch_texel_sizes
 
 
@@ -201,3 +209,107 @@ def test_bad_textures_are_rejected(gl_context, tree, tmp_path):
     )
     with pytest.raises(InvalidParameterError, match="overlap"):
         Engine(tree, textures=far, context=gl_context)
+
+
+@pytest.fixture(scope="module")
+def nc_tree(data_dir) -> ApproximationTree:
+    dem = at.open_terrain(data_file(data_dir, "nc/elev_ned_30m.tif"))
+    return ApproximationTree.build(dem, epsilon=1.0, progress=False)
+
+
+def test_nc_land_use_lands_at_its_map_positions(gl_context, nc_tree, data_dir, tmp_path):
+    """A decal render of the baked NC land use (no shading) shows, at the pixels away from
+    class borders (by the pixel's texel footprint), the colour of the land-use class at that
+    pixel's map x, y — seen from above and obliquely."""
+    landuse = data_file(data_dir, "nc/landuse_r.tif")
+    result = bake(nc_tree.terrain, tmp_path, shading=None, thematic=landuse, max_texture_size=1024)
+    with rasterio.open(landuse) as ds:
+        classes = ds.read(1)
+        table = ds.colormap(1)
+        inv = ~ds.transform
+    # Per window size w: texels whose w × w land-use neighbourhood holds one class.
+    windows = (5, 9, 17, 33)
+    uniform = {w: maximum_filter(classes, w) == minimum_filter(classes, w) for w in windows}
+    lut = np.zeros((256, 3), dtype=np.int64)
+    for k, c in table.items():
+        lut[k] = c[:3]
+    c = nc_tree.terrain.domain.center
+    cams = [
+        Camera.look_at((c[0] + 1000, c[1] - 500, 4000), (c[0] + 1000, c[1] - 499, 0), fov=45),
+        Camera.look_at((c[0] - 3000, c[1] - 9000, 5000), (c[0] - 2000, c[1], 0), fov=45),
+    ]
+    with Engine(nc_tree, textures=result.pyramid, context=gl_context, offscreen=True) as eng:
+        for cam in cams:
+            frame = eng.render(
+                cam, (500, 400), alpha=1.0, gamma=1.0, lighting=False, world_positions=True
+            )
+            # A pixel's footprint in texels: trilinear filtering mixes texels that far apart.
+            pos = frame.positions[..., :2] / 10.0
+            steps = [np.abs(np.gradient(pos[..., j], axis=a)) for j in (0, 1) for a in (0, 1)]
+            footprint = np.max(steps, axis=0)
+            surface = (frame.positions[..., 3] == 1) & np.isfinite(footprint)
+            xy = frame.positions[surface][:, :2]
+            cols = np.floor(inv.a * xy[:, 0] + inv.b * xy[:, 1] + inv.c).astype(int)
+            rows = np.floor(inv.d * xy[:, 0] + inv.e * xy[:, 1] + inv.f).astype(int)
+            inside = (rows >= 0) & (rows < classes.shape[0]) & (cols >= 0)
+            inside &= cols < classes.shape[1]
+            rows, cols = rows[inside], cols[inside]
+            fp = footprint[surface][inside]
+            k = classes[rows, cols]
+            keep = np.zeros(len(k), dtype=bool)
+            for w in windows:
+                near = (2 * fp + 3 <= w) & ~keep
+                keep[near] = uniform[w][rows[near], cols[near]]
+            keep &= k != 255
+            assert keep.sum() > 20_000
+            drawn = frame.image[surface][inside][keep, :3].astype(np.int64)
+            want = lut[k[keep]]
+            close = np.abs(drawn - want).max(axis=1) <= 3
+            assert close.mean() > 0.98, close.mean()
+            # Several classes are seen, so the test can tell them apart.
+            assert len(np.unique(k[keep])) >= 4
+
+
+def test_cli_bake_and_render_with_textures(data_dir, tmp_path):
+    """bake --json reports levels, sizes, bytes, seconds and writes pyramid.json and
+    georeferenced RGBA levels (R = G = B for pure shading); render --textures reports the
+    texture figures."""
+    dem = data_file(data_dir, "nc/elev_ned_30m.tif")
+    runner = CliRunner()
+    tree_file = tmp_path / "nc.atree"
+    res = runner.invoke(cli_main, ["build", str(dem), "--out", str(tree_file)])
+    assert res.exit_code == 0, res.output
+    out = tmp_path / "tex"
+    args = ["bake", str(tree_file), "--alg", "ZevenbergenThorne", "--max-texture-size", "256"]
+    res = runner.invoke(cli_main, [*args, "--out", str(out), "--json"])
+    assert res.exit_code == 0, res.output
+    figures = json.loads(res.output)
+    assert figures["levels"] == 2 and figures["sizes"] == [[500, 450], [250, 225]]
+    assert figures["bytes"] == sum(f.stat().st_size for f in out.glob("level*.tif"))
+    assert figures["seconds"] > 0
+    assert (out / "pyramid.json").is_file()
+    with rasterio.open(out / "level0.tif") as ds, rasterio.open(dem) as src:
+        assert ds.count == 4 and ds.transform.almost_equals(src.transform)
+        assert ds.crs == src.crs
+        r, g, b, _ = ds.read()
+    assert np.array_equal(r, g) and np.array_equal(r, b) and r.std() > 5
+    shade = TopographicShading(at.open_terrain(dem), algorithm="zevenbergen-thorne").shade()
+    assert np.abs(r.astype(int) - shade).max() <= 1
+    png = tmp_path / "nc.png"
+    res = runner.invoke(
+        cli_main,
+        [
+            *("render", str(tree_file), "--textures", str(out), "--no-lighting"),
+            *("--size", "320x240", "--out", str(png), "--json"),
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    stats = json.loads(res.output)
+    assert set(stats) == {*STAT_KEYS, "image"}
+    assert stats["texture_patches"] >= 1 and stats["texture_switches"] >= 1
+    assert stats["max_gamma"] > 0
+    res = runner.invoke(
+        cli_main,
+        ["bake", str(dem), "--shading", "phong", "--combined", "--out", str(tmp_path / "x")],
+    )
+    assert res.exit_code == 2 and "topographic" in res.output

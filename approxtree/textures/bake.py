@@ -155,6 +155,10 @@ def bake(
         )
     if shading is None and thematic is None:
         raise InvalidParameterError("Nothing to bake: give a shading, a thematic raster or both.")
+    if texel_size is not None and not (np.isfinite(texel_size) and texel_size > 0):
+        raise InvalidParameterError(
+            f"texel_size must be a positive number of world units, got {texel_size!r}."
+        )
     thematic_path = Path(thematic) if thematic is not None else None
     if thematic_path is not None and not thematic_path.is_file():
         raise TerrainFormatError(f"Thematic raster {thematic_path} does not exist.")
