@@ -165,6 +165,25 @@ def test_textured_frames_report_patches_and_switches(gl_context, tree, pyramid):
         assert np.array_equal(again.image, textured)
 
 
+def test_textured_frames_under_a_small_cache_and_at_full_resolution(gl_context, tree, pyramid):
+    """A cache budget far below one frame's meshes and textures still draws the same picture
+    (textures stay pinned while their meshes are drawn); full resolution is textured too."""
+    cam = views(tree)[1]
+    with Engine(tree, textures=pyramid, context=gl_context, offscreen=True) as big:
+        expected = big.render(cam, (320, 240), alpha=0.5, gamma=2.0)
+        full = big.render(cam, (320, 240), full_resolution=True)
+    with Engine(
+        tree, textures=pyramid, context=gl_context, offscreen=True, cache_bytes=300_000
+    ) as small:
+        frame = small.render(cam, (320, 240), alpha=0.5, gamma=2.0)
+        assert small.cache.evictions > 0
+    assert expected.stats["gpu_bytes"] > 1_000_000
+    assert np.array_equal(frame.image, expected.image)
+    assert frame.stats["texture_switches"] == expected.stats["texture_switches"]
+    assert full.stats["texture_patches"] >= 1
+    assert (full.image[..., 3] > 0).mean() > 0.3
+
+
 def test_decal_mode_draws_the_texture_unlit(gl_context, tree, pyramid):
     """Seen straight from above, the unlit picture shows the baked hillshade's grey levels:
     R = G = B and equal, up to filtering, to the texel under each pixel."""
