@@ -284,6 +284,7 @@ def test_nc_land_use_lands_at_its_map_positions(gl_context, nc_tree, data_dir, t
             drawn = frame.image[surface][inside][keep, :3].astype(np.int64)
             want = lut[k[keep]]
             close = np.abs(drawn - want).max(axis=1) <= 3
+            print(f"land use: {close.mean():.4f} of {keep.sum()} pixels within ±3")
             assert close.mean() > 0.98, close.mean()
             # Several classes are seen, so the test can tell them apart.
             assert len(np.unique(k[keep])) >= 4
