@@ -32,17 +32,22 @@ const float PI = 3.14159265358979;
 void main() {
     ivec2 p = ivec2(gl_FragCoord.xy) + ivec2(1);
     // Window w[3 j + i] = row r − 1 + j, column c − 1 + i; any nodata leaves the texel nodata.
-    float w[9];
-    for (int j = 0; j < 3; j++) {
-        for (int i = 0; i < 3; i++) {
-            vec2 t = texelFetch(u_heights, p + ivec2(i - 1, j - 1), 0).rg;
-            if (t.g < 0.5) {
-                f_shade = 0.0;
-                return;
-            }
-            w[3 * j + i] = t.r;
-        }
+    vec2 t0 = texelFetchOffset(u_heights, p, 0, ivec2(-1, -1)).rg;
+    vec2 t1 = texelFetchOffset(u_heights, p, 0, ivec2(0, -1)).rg;
+    vec2 t2 = texelFetchOffset(u_heights, p, 0, ivec2(1, -1)).rg;
+    vec2 t3 = texelFetchOffset(u_heights, p, 0, ivec2(-1, 0)).rg;
+    vec2 t4 = texelFetch(u_heights, p, 0).rg;
+    vec2 t5 = texelFetchOffset(u_heights, p, 0, ivec2(1, 0)).rg;
+    vec2 t6 = texelFetchOffset(u_heights, p, 0, ivec2(-1, 1)).rg;
+    vec2 t7 = texelFetchOffset(u_heights, p, 0, ivec2(0, 1)).rg;
+    vec2 t8 = texelFetchOffset(u_heights, p, 0, ivec2(1, 1)).rg;
+    float valid = min(min(min(t0.g, t1.g), min(t2.g, t3.g)),
+                      min(min(t4.g, t5.g), min(min(t6.g, t7.g), t8.g)));
+    if (valid < 0.5) {
+        f_shade = 0.0;
+        return;
     }
+    float w[9] = float[9](t0.r, t1.r, t2.r, t3.r, t4.r, t5.r, t6.r, t7.r, t8.r);
     float x;
     float y;
     if (u_algorithm == 0) {
