@@ -180,7 +180,8 @@ class Engine:
         self.set_textures(textures)
         # Load the compiled selection kernels now, so select_ms of the first frame is honest.
         warm = overview_camera(tree.bboxes[0], self.scale)
-        select(tree, self.frame_state(warm, (2, 2)), 1.0, 2.0, self.texels)
+        warm_selection = select(tree, self.frame_state(warm, (2, 2)), 1.0, 2.0, self.texels)
+        texture_nodes(tree.parents, warm_selection, 2.0)
 
     # -- public -----------------------------------------------------------------------------
 
