@@ -307,7 +307,8 @@ def build(
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
 @_reports_errors
 def demo(out: str, epsilon: float, png: str | None, as_json: bool) -> None:
-    """Build the tree of the sample terrain (matplotlib's Jacksboro fault DEM) and render it."""
+    """Build the tree of the sample terrain (matplotlib's Jacksboro fault DEM), bake its
+    hillshade pyramid (next to the tree, <out>_textures/) and render it textured."""
     from approxtree.datasets import sample_terrain
     from approxtree.tree import ApproximationTree
 
@@ -320,9 +321,28 @@ def demo(out: str, epsilon: float, png: str | None, as_json: bool) -> None:
     figures.update(terrain_figures(terrain))
     figures.update(tree_figures(tree, seconds, nbytes))
     figures["tree_file"] = str(Path(out))
-    # Render the oblique overview of the whole terrain and add the frame's figures.
+    # Bake the hillshade pyramid next to the tree, then render the oblique overview with it,
+    # unlit: the baked hillshade is the shading (decal mode, core paper 5.1).
+    from approxtree.textures.bake import bake as bake_textures
+
+    folder = Path(out).with_name(Path(out).stem + "_textures")
+    baked = bake_textures(terrain, folder)
+    figures.update(textures=str(folder), bake_seconds=round(baked.seconds, 4), bake_gl=baked.gl)
     png_path = Path(png) if png else Path(out).with_suffix(".png")
-    figures.update(_render_to_png(tree, png_path, None, None, 45.0, (1280, 720), 1.0, 2.0))
+    figures.update(
+        _render_to_png(
+            tree,
+            png_path,
+            None,
+            None,
+            45.0,
+            (1280, 720),
+            1.0,
+            2.0,
+            textures=str(folder),
+            lighting=False,
+        )
+    )
     _emit(figures, as_json)
 
 
@@ -360,18 +380,21 @@ def _render_to_png(
     gamma: float,
     wireframe: bool = False,
     full_resolution: bool = False,
+    textures: str | None = None,
+    lighting: bool = True,
 ) -> dict[str, Any]:
     """Render one frame of ``tree`` to an RGBA PNG at ``path``; returns the frame's stats.
 
     Without ``eye``: the oblique overview of the whole terrain. Without ``target``: the centre
-    of the tree's root box.
+    of the tree's root box. textures: folder of a texture pyramid; lighting: False draws the
+    texture unlit (decal).
     """
     from PIL import Image
 
     from approxtree.io.atomic import atomic_write
     from approxtree.render import Camera, Engine, overview_camera
 
-    with Engine(tree) as engine:
+    with Engine(tree, textures=textures) as engine:
         box = tree.bboxes[0]
         if eye is None:
             camera = overview_camera(box, engine.scale, fov=fov)
@@ -381,7 +404,13 @@ def _render_to_png(
             centre = tuple(0.5 * (box[:3] + box[3:]))
             camera = Camera.look_at(eye, target if target is not None else centre, fov=fov)
         frame = engine.render(
-            camera, size, alpha, gamma, wireframe=wireframe, full_resolution=full_resolution
+            camera,
+            size,
+            alpha,
+            gamma,
+            wireframe=wireframe,
+            full_resolution=full_resolution,
+            lighting=lighting,
         )
     with atomic_write(path) as f:
         Image.fromarray(frame.image, mode="RGBA").save(f, format="PNG")
@@ -407,6 +436,13 @@ def _render_to_png(
 @click.option("--wireframe", is_flag=True, help="Draw triangle edges.")
 @click.option("--full-resolution", is_flag=True, help="Draw the unsimplified terrain (reference).")
 @click.option("--out", required=True, type=click.Path(dir_okay=False), help="PNG to write (RGBA).")
+@click.option(
+    "--textures",
+    type=click.Path(file_okay=False),
+    default=None,
+    help="Folder of a texture pyramid (approxtree bake) to texture the terrain with.",
+)
+@click.option("--no-lighting", is_flag=True, help="Draw the texture unlit (decal mode).")
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
 @_reports_errors
 def render(
@@ -420,6 +456,8 @@ def render(
     wireframe: bool,
     full_resolution: bool,
     out: str,
+    textures: str | None,
+    no_lighting: bool,
     as_json: bool,
 ) -> None:
     """Render a tree file to a PNG (alpha 0 where no terrain is drawn) and print the stats."""
@@ -427,7 +465,18 @@ def render(
 
     tree = ApproximationTree.load(tree_file)
     stats = _render_to_png(
-        tree, Path(out), eye, target, fov, size, alpha, gamma, wireframe, full_resolution
+        tree,
+        Path(out),
+        eye,
+        target,
+        fov,
+        size,
+        alpha,
+        gamma,
+        wireframe,
+        full_resolution,
+        textures=textures,
+        lighting=not no_lighting,
     )
     _emit(stats, as_json)
 
@@ -492,3 +541,121 @@ def mesh(
         meta = {"strategy": strategy, "crs": terrain.crs, "max_error": figures["max_error"]}
         figures.update(write_mesh(out, result.vertices, result.triangles, meta))
     _emit(figures, as_json)
+
+
+@main.command("bake")
+@click.argument("source", type=click.Path(exists=True, dir_okay=False))
+@click.option(
+    "--shading",
+    type=click.Choice(["topographic", "phong", "gouraud", "none"]),
+    default="topographic",
+    show_default=True,
+    help="Shading layer (none: thematic and overlays only).",
+)
+@click.option("--azimuth", type=float, default=315.0, show_default=True, help="Light, degrees.")
+@click.option("--altitude", type=float, default=45.0, show_default=True, help="Light, degrees.")
+@click.option("--z-factor", type=float, default=1.0, show_default=True, help="Exaggeration.")
+@click.option(
+    "--alg",
+    type=click.Choice(["Horn", "ZevenbergenThorne"]),
+    default=None,
+    help="Topographic gradient (gdaldem -alg) [default: Horn].",
+)
+@click.option("--combined", is_flag=True, help="Topographic: gdaldem -combined.")
+@click.option("--multidirectional", is_flag=True, help="Topographic: gdaldem -multidirectional.")
+@click.option("--thematic", type=click.Path(exists=True, dir_okay=False), help="Thematic raster.")
+@click.option(
+    "--palette",
+    default=None,
+    help="gdaldem colour file or matplotlib colormap for --thematic [default: its colour table].",
+)
+@click.option(
+    "--roads",
+    multiple=True,
+    type=click.Path(exists=True, dir_okay=False),
+    help="Vector layer drawn on top (repeatable).",
+)
+@click.option(
+    "--blend",
+    type=click.Choice(["multiply", "overlay", "soft-light", "over"]),
+    default="multiply",
+    show_default=True,
+    help="How shading combines with the thematic layer.",
+)
+@click.option("--texel", type=float, default=None, help="Texel size in world units.")
+@click.option(
+    "--max-texture-size",
+    type=int,
+    default=4096,
+    show_default=True,
+    help="Texture size limit (power of two): the pyramid halves until a level fits.",
+)
+@click.option("--no-gl", is_flag=True, help="Bake with numpy even when OpenGL is available.")
+@click.option(
+    "--out", required=True, type=click.Path(file_okay=False), help="Folder of the pyramid."
+)
+@reader_options
+@click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
+@_reports_errors
+def bake_command(
+    source: str,
+    shading: str,
+    azimuth: float,
+    altitude: float,
+    z_factor: float,
+    alg: str | None,
+    combined: bool,
+    multidirectional: bool,
+    thematic: str | None,
+    palette: str | None,
+    roads: tuple[str, ...],
+    blend: str,
+    texel: float | None,
+    max_texture_size: int,
+    no_gl: bool,
+    out: str,
+    encoding,
+    nodata_policy,
+    ground_only,
+    height_scale,
+    as_json: bool,
+) -> None:
+    """Bake a terrain's textures (DEM file or .atree tree) into a pyramid folder.
+
+    The folder holds pyramid.json and one georeferenced RGBA GeoTIFF per level, level0.tif
+    the finest (pure shading: R = G = B = shade).
+    """
+    from approxtree.errors import InvalidParameterError
+    from approxtree.textures.bake import bake
+
+    if source.endswith(".atree"):
+        from approxtree.tree import ApproximationTree
+
+        terrain = ApproximationTree.load(source).terrain
+    else:
+        terrain = _open(source, encoding, nodata_policy, ground_only, height_scale)
+    options: dict[str, Any] = {"azimuth": azimuth, "altitude": altitude, "z_factor": z_factor}
+    if shading == "topographic":
+        if alg is not None:
+            options["algorithm"] = {"Horn": "horn", "ZevenbergenThorne": "zevenbergen-thorne"}[alg]
+        options.update(combined=combined, multidirectional=multidirectional)
+    elif alg is not None or combined or multidirectional:
+        raise InvalidParameterError(
+            "--alg, --combined and --multidirectional apply to --shading topographic only."
+        )
+    if palette is not None and thematic is None:
+        raise InvalidParameterError("--palette colours a --thematic raster; give one.")
+    result = bake(
+        terrain,
+        out,
+        shading=None if shading == "none" else shading,
+        shading_options=options if shading != "none" else None,
+        thematic=thematic,
+        palette=palette,
+        overlays=list(roads),
+        blend=blend,
+        texel_size=texel,
+        max_texture_size=max_texture_size,
+        gl=not no_gl,
+    )
+    _emit(result.figures(), as_json)

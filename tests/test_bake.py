@@ -58,7 +58,7 @@ def test_overlays_are_drawn_on_top(data_dir, tmp_path):
 def test_shading_only_bake_is_the_hillshade(tmp_path):
     """A pure topographic bake at DEM resolution has R = G = B = the hillshade value."""
     g = fractal_terrain(100, 120, seed=4, relief=200.0)
-    result = bake(g, tmp_path, max_texture_size=128)
+    result = bake(g, tmp_path, max_texture_size=128, gl=False)
     level0 = np.asarray(result.pyramid.level(0))
     shade = TopographicShading(g).shade()
     np.testing.assert_array_equal(level0[..., 0], shade)
@@ -98,3 +98,88 @@ def test_bad_bake_requests(tmp_path):
         bake(g, tmp_path, shading=None)
     with pytest.raises(at.TerrainFormatError, match="does not exist"):
         bake(g, tmp_path, thematic=tmp_path / "none.tif")
+
+
+# (data file, TopographicShading options) for the GL bake against numpy.
+GL_CASES = [
+    ("edge/SainteHelens.dem", {}),
+    ("edge/SainteHelens.dem", {"algorithm": "zevenbergen-thorne"}),
+    ("edge/SainteHelens.dem", {"combined": True}),
+    ("edge/SainteHelens.dem", {"multidirectional": True}),
+    ("edge/dtm.tif", {"multidirectional": True, "algorithm": "zevenbergen-thorne"}),
+    ("nc/elev_ned_30m.tif", {"z_factor": 3.0, "azimuth": 100.0, "altitude": 30.0}),
+]
+
+
+@pytest.fixture(scope="module")
+def gl_context():
+    """One headless EGL context for the GL bake tests."""
+    from approxtree.render.engine import create_context
+
+    ctx = create_context()
+    yield ctx
+    ctx.release()
+
+
+@pytest.mark.parametrize(("relative", "options"), GL_CASES)
+def test_gl_bake_equals_numpy_and_tiles_join_exactly(data_dir, gl_context, relative, options):
+    """GL hillshade of a real DEM (with nodata) equals the numpy kernel within ±1, nodata
+    alike; drawn in forced 37 × 37 tiles it equals the one-pass result exactly."""
+    from approxtree.textures.gl_bake import GLTopographicShading
+
+    grid = at.open_terrain(data_file(data_dir, relative))
+    # A crop keeps the test quick and puts the crop edge inside valid data.
+    rows, cols = grid.shape
+    crop = at.Grid(
+        grid.heights[: min(rows, 300), : min(cols, 300)], transform=grid.transform, crs=grid.crs
+    )
+    numpy_shade = TopographicShading(crop, **options).shade().astype(np.int64)
+    one_pass = GLTopographicShading(crop, context=gl_context, **options).shade()
+    tiled = GLTopographicShading(crop, context=gl_context, tile_size=37, **options).shade()
+    np.testing.assert_array_equal(one_pass == 0, numpy_shade == 0)
+    assert np.abs(one_pass.astype(np.int64) - numpy_shade).max() <= 1
+    np.testing.assert_array_equal(tiled, one_pass)
+    if relative.startswith("edge/"):
+        assert (numpy_shade == 0).sum() > 2 * (crop.shape[0] + crop.shape[1])
+
+
+def test_gl_bake_equals_gdaldem(data_dir, tmp_path, gl_context):
+    """The GL bake of SainteHelens (nodata inside) equals gdaldem hillshade within ±1."""
+    import shutil
+    import subprocess
+
+    from approxtree.textures.gl_bake import GLTopographicShading
+
+    if shutil.which("gdaldem") is None:
+        pytest.fail("gdaldem is missing: install the Debian package gdal-bin")
+    path = data_file(data_dir, "edge/SainteHelens.dem")
+    out = tmp_path / "hs.tif"
+    subprocess.run(["gdaldem", "hillshade", "-q", str(path), str(out)], check=True)
+    with rasterio.open(out) as ds:
+        ref = ds.read(1).astype(np.int64)
+    mine = GLTopographicShading(at.open_terrain(path), context=gl_context).shade()
+    np.testing.assert_array_equal(mine == 0, ref == 0)
+    assert np.abs(mine.astype(np.int64) - ref).max() <= 1
+
+
+def test_bake_uses_gl_and_falls_back_to_numpy(tmp_path, gl_context, monkeypatch):
+    """bake() shades with GL (tiled here) when a context exists; without one it falls back to
+    numpy and the pyramids agree within ±1."""
+    import approxtree.render.engine as engine_module
+    from approxtree.errors import ContextUnavailableError
+
+    g = fractal_terrain(130, 150, seed=8, relief=250.0)
+    on_gpu = bake(g, tmp_path / "gl", context=gl_context, tile_size=50, max_texture_size=64)
+    assert on_gpu.gl and on_gpu.figures()["gl"] is True
+
+    def no_context():
+        raise ContextUnavailableError("no EGL here")
+
+    monkeypatch.setattr(engine_module, "create_context", no_context)
+    fallback = bake(g, tmp_path / "np", max_texture_size=64)
+    assert fallback.gl is False
+    a = np.asarray(on_gpu.pyramid.level(0)).astype(np.int64)
+    b = np.asarray(fallback.pyramid.level(0)).astype(np.int64)
+    assert np.abs(a - b).max() <= 1
+    np.testing.assert_array_equal(b[..., 0], TopographicShading(g).shade())
+    assert len(on_gpu.pyramid) == len(fallback.pyramid) == 3

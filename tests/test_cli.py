@@ -71,6 +71,9 @@ def test_demo_builds_the_sample_terrain(tmp_path):
     assert (figures["width"], figures["height"]) == (403, 344)
     assert figures["max_leaf_error"] <= 1.0
     assert ApproximationTree.load(out).stats()["nodes"] == figures["nodes"]
+    # The hillshade pyramid is baked next to the tree and textures the rendered overview.
+    assert (tmp_path / "demo_textures" / "pyramid.json").is_file()
+    assert figures["texture_patches"] >= 1 and figures["texture_switches"] >= 1
 
 
 @pytest.mark.parametrize(

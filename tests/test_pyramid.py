@@ -102,3 +102,19 @@ def test_bad_pyramids_are_reported(tmp_path):
         TexturePyramid(tmp_path)
     with pytest.raises(InvalidParameterError, match="power of two"):
         TexturePyramid.build(np.zeros((4, 4, 4), np.uint8), tmp_path, max_texture_size=100)
+
+
+def test_levels_with_empty_strips_stay_memory_mappable(tmp_path):
+    """A level taller than one write chunk with all-zero rows (nodata borders) keeps its
+    strips in order, so it memory-maps and reads back exactly."""
+    from affine import Affine
+
+    rgba = np.random.default_rng(1).integers(1, 255, (2100, 2049, 4), dtype=np.uint8)
+    rgba[0] = 0
+    rgba[-1] = 0
+    rgba[1000:1010] = 0
+    pyramid = TexturePyramid.build(
+        rgba, tmp_path, max_texture_size=1024, transform=Affine(10, 0, 0, 0, -10, 21000)
+    )
+    np.testing.assert_array_equal(pyramid.level(0), rgba)
+    assert len(pyramid) == 3

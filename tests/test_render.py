@@ -243,7 +243,7 @@ def test_bad_inputs_raise_clear_errors(engine, fractal_tree):
             engine.render(cam, (32, 32), alpha=alpha)
     with pytest.raises(InvalidParameterError, match="finite"):
         Camera.look_at((math.inf, 0, 0), (0, 0, 0))
-    with pytest.raises(InvalidParameterError, match="Texture pyramids"):
+    with pytest.raises(InvalidParameterError, match="TexturePyramid"):
         Engine(fractal_tree, textures=object(), context=engine.ctx)
 
 

@@ -10,20 +10,29 @@ A frame:
 1. FrameState from the camera and viewport (display scale of the terrain, near/far fitted).
 2. Selection (pure, no GL): the cut of the tree for alpha and gamma; ``full_resolution`` draws
    the unsimplified terrain instead (the grid in chunks of CHUNK lines, frustum-culled).
-3. Upload: missing meshes (patch + skirt, float32 relative to ``tree.origin``) into the LRU
-   GpuCache.
-4. Draw: clear to transparent black, one draw call per mesh, ``ctx.finish()`` (draw_ms).
-5. Read back the RGBA image (offscreen) and, on request, a world-position buffer.
+3. Textures (with a texture pyramid): each selected node is textured by the texture patch of
+   itself or of the ancestor closest to the root whose γ is within the threshold (core paper,
+   4.2); meshes are grouped by texture patch so each patch is bound once.
+4. Upload: missing meshes (patch + skirt, float32 relative to ``tree.origin``) and texture
+   patches (RGBA8 with hardware mipmaps) into the LRU GpuCache.
+5. Draw: clear to transparent black, per texture group one bind, one draw call per mesh,
+   ``ctx.finish()`` (draw_ms).
+6. Read back the RGBA image (offscreen) and, on request, a world-position buffer.
 
-Shading until texture pyramids land: per-pixel normals from a normal map computed once from
-the height field (central differences in display units, at most NORMAL_MAP_MAX texels per
-side) and a hypsometric colour ramp by height.
+Lighting: per-pixel normals from a normal map computed once from the height field (central
+differences in display units, at most NORMAL_MAP_MAX texels per side). The base colour is the
+texture patch's texel (trilinear), or a hypsometric colour ramp by height without a pyramid.
+``lighting=True`` modulates the base colour by the Lambert light (GL_MODULATE with a white
+surface); ``lighting=False`` draws it as it is (decal mode, what baked shading textures want).
+With a pyramid the node's texel size is its texture patch's (γ_N); without one, its data
+spacing.
 """
 
 from __future__ import annotations
 
 import itertools
 import math
+import os
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -44,6 +53,7 @@ from approxtree.render.gpu_cache import GpuCache
 from approxtree.render.selector import Selection, check_thresholds, eye_below_ground, select
 from approxtree.render.shaders import create_program
 from approxtree.render.skirts import add_skirts, skirt_base, skirt_depths
+from approxtree.render.texture_sharing import texture_nodes
 from approxtree.render.visual_error import texel_sizes
 
 #: Default GPU cache budget (bytes).
@@ -64,6 +74,8 @@ STAT_KEYS = (
     "upload_ms",
     "draw_ms",
     "gpu_bytes",
+    "texture_patches",
+    "texture_switches",
 )
 
 _INSTALL_HINT = (
@@ -100,6 +112,9 @@ class Frame:
     when drawn into a host's framebuffer without read-back). stats: dict of STAT_KEYS.
     positions: (h, w, 4) float64 world x, y, z and a flag (1 surface, 0 skirt, −1 nothing,
     x, y, z NaN there), row 0 at the top, when asked for.
+    texture_nodes: (k,) int64, per selected node the node whose texture patch textured it
+    (itself or a shared ancestor), and texture_gammas: (k,) that node's γ; None without a
+    texture pyramid.
     """
 
     image: np.ndarray | None
@@ -107,12 +122,15 @@ class Frame:
     selection: Selection
     frame_state: FrameState
     positions: np.ndarray | None = None
+    texture_nodes: np.ndarray | None = None
+    texture_gammas: np.ndarray | None = None
 
 
 class Engine:
     """Renderer of one ApproximationTree.
 
-    tree: the ApproximationTree. textures: texture pyramid (not supported yet: None).
+    tree: the ApproximationTree. textures: a TexturePyramid (or its folder), or None to draw
+    with the hypsometric colour ramp; ``set_textures`` changes it later.
     context: a moderngl Context to draw into (embedding); None creates a standalone EGL one.
     cache_bytes: GPU cache budget.
     offscreen: draw into the engine's own framebuffer and read the image back; None means
@@ -130,10 +148,8 @@ class Engine:
         offscreen: bool | None = None,
         skirts: bool = True,
     ) -> None:
-        if textures is not None:
-            raise InvalidParameterError(
-                "Texture pyramids are not supported by this version yet; pass textures=None."
-            )
+        # Bad textures fail before any GPU object exists.
+        textures = _as_pyramid(textures, tree.terrain)
         if not (isinstance(cache_bytes, int) and cache_bytes > 0):
             raise InvalidParameterError(f"cache_bytes must be an int > 0, got {cache_bytes!r}.")
         self.tree = tree
@@ -143,7 +159,8 @@ class Engine:
         self.ctx = create_context() if context is None else context
         self.scale = display_scale(tree.terrain)
         # Per-node figures used every frame, computed once.
-        self.texels = texel_sizes(tree)
+        self._data_texels = texel_sizes(tree)
+        self.texels = self._data_texels
         self.skirt_depths = skirt_depths(tree.errors, tree.terrain.z_range)
         self.skirt_base = skirt_base(tree.errors, tree.terrain.z_range)
         d = tree.terrain.domain
@@ -154,14 +171,49 @@ class Engine:
         self.programs = {
             "terrain": create_program(self.ctx, "terrain"),
             "position": create_program(self.ctx, "position"),
+            "textured": create_program(self.ctx, "textured"),
         }
         self.cache = GpuCache(self.ctx, cache_bytes)
         self.normal_map, self._normal_uv = self._make_normal_map()
+        self.pyramid = None
+        self._texture_patches: dict[tuple[str, int], Any] = {}
+        self.set_textures(textures)
         # Load the compiled selection kernels now, so select_ms of the first frame is honest.
         warm = overview_camera(tree.bboxes[0], self.scale)
-        select(tree, self.frame_state(warm, (2, 2)), 1.0, 2.0, self.texels)
+        warm_selection = select(tree, self.frame_state(warm, (2, 2)), 1.0, 2.0, self.texels)
+        texture_nodes(tree.parents, warm_selection, 2.0)
 
     # -- public -----------------------------------------------------------------------------
+
+    def set_textures(self, textures: Any) -> None:
+        """Texture the terrain with a TexturePyramid (or the folder holding one), or None.
+
+        γ_N then follows each node's texture patch; the texture patches of a previous pyramid
+        leave the GPU cache.
+        """
+        self._check_alive()
+        from approxtree.textures.patch import patch_texel_sizes
+
+        textures = _as_pyramid(textures, self.tree.terrain)
+        self.cache.drop(lambda key: key[0] == "tex")
+        self._texture_patches.clear()
+        self.pyramid = textures
+        self.texels = (
+            self._data_texels
+            if textures is None
+            else patch_texel_sizes(textures, np.asarray(self.tree.rects, dtype=np.float64))
+        )
+
+    def texture_patch(self, node: int) -> Any:
+        """The TexturePatch of ``node`` (made on first use; references the pyramid's data)."""
+        from approxtree.textures.patch import TexturePatch
+
+        key = ("node", int(node))
+        patch = self._texture_patches.get(key)
+        if patch is None:
+            patch = TexturePatch.for_rect(self.pyramid, self.tree.node(int(node)).rect)
+            self._texture_patches[key] = patch
+        return patch
 
     def frame_state(self, camera: Camera, size: tuple[int, int]) -> FrameState:
         """The FrameState of ``camera`` over ``size`` for this tree (validated)."""
@@ -186,6 +238,8 @@ class Engine:
         target: Any = None,
         read_image: bool | None = None,
         world_positions: bool = False,
+        lighting: bool = True,
+        share_textures: bool = True,
     ) -> Frame:
         """Draw one frame; see the module docstring for the steps.
 
@@ -196,6 +250,9 @@ class Engine:
         framebuffer, or, for an engine made with context=, into the framebuffer bound there.
         read_image: read the image back (default: only from the engine's own framebuffer).
         world_positions: also fill Frame.positions (an extra pass into a float buffer).
+        lighting: modulate the colour by the light (True) or draw it unlit (decal mode).
+        share_textures: let nodes use an ancestor's texture patch (section 4.2); off only to
+        measure what sharing saves.
         """
         self._check_alive()
         alpha, gamma = check_thresholds(alpha, gamma)
@@ -208,10 +265,25 @@ class Engine:
         else:
             selection = select(self.tree, fs, alpha, gamma, self.texels)
         select_ms = (time.perf_counter() - t0) * 1e3
-        # 3. Upload what the cache lacks; a frame larger than the budget is drawn in parts.
-        t0 = time.perf_counter()
         keys = [("full", int(i)) if full_resolution else ("node", int(i)) for i in selection.nodes]
-        batches = self._batches(keys)
+        # 3. Texture patch of each mesh, and the meshes grouped by texture patch.
+        tex_nodes = tex_gammas = None
+        if self.pyramid is not None:
+            if full_resolution:
+                tex_nodes = selection.nodes.copy()
+                tex_gammas = np.zeros(len(tex_nodes))
+                owners = [("full", int(i)) for i in tex_nodes]
+            else:
+                tex_nodes, tex_gammas = texture_nodes(
+                    self.tree.parents, selection, gamma, share_textures
+                )
+                owners = [("node", int(i)) for i in tex_nodes]
+            groups = self._group_by_texture(keys, owners)
+        else:
+            groups = [(None, keys)]
+        # 4. Upload what the cache lacks; a frame larger than the budget is drawn in parts.
+        t0 = time.perf_counter()
+        resident = self._upload(groups)
         upload_ms = (time.perf_counter() - t0) * 1e3
         # 4. Draw.
         own = target is None and self.offscreen
@@ -219,14 +291,17 @@ class Engine:
             target = self._target("color", w, h) if self.offscreen else self.ctx.fbo
         if read_image is None:
             read_image = own
-        draw_ms, triangles = self._draw(target, fs, batches, keys, wireframe, "terrain")
+        program = "terrain" if self.pyramid is None else "textured"
+        draw_ms, triangles, switches = self._draw(
+            target, fs, groups, resident, wireframe, program, lighting
+        )
         image = None
         if read_image:
             raw = target.read(viewport=(0, 0, w, h), components=4, alignment=1)
             image = np.frombuffer(raw, dtype=np.uint8).reshape(h, w, 4)[::-1].copy()
         positions = None
         if world_positions:
-            positions = self._positions(fs, batches, keys)
+            positions = self._positions(fs, [(None, keys)])
         stats = {
             "nodes_visited": selection.stats["nodes_visited"],
             "culled": selection.stats["culled"],
@@ -238,8 +313,10 @@ class Engine:
             "upload_ms": round(upload_ms, 3),
             "draw_ms": round(draw_ms, 3),
             "gpu_bytes": int(self.cache.nbytes),
+            "texture_patches": sum(1 for tex, _ in groups if tex is not None),
+            "texture_switches": int(switches),
         }
-        return Frame(image, stats, selection, fs, positions)
+        return Frame(image, stats, selection, fs, positions, tex_nodes, tex_gammas)
 
     def release(self) -> None:
         """Free every GPU object of the engine (and its context, if it created it)."""
@@ -280,45 +357,98 @@ class Engine:
         rb = int(self.ctx.info.get("GL_MAX_RENDERBUFFER_SIZE", 16384))
         return min(int(dims[0]), rb), min(int(dims[1]), rb)
 
-    def _batches(self, keys: list[tuple[str, int]]) -> list[list[Any]]:
-        """Meshes of ``keys`` grouped so each group fits the cache budget (normally one)."""
-        batches: list[list[Any]] = [[]]
-        used = 0
-        for key in keys:
-            mesh = self.cache.get(key, lambda key=key: self._mesh_data(key))
-            if batches[-1] and used + mesh.nbytes > self.cache.budget_bytes:
-                batches.append([])
-                used = 0
-            batches[-1].append(mesh)
-            used += mesh.nbytes
-        return batches
+    def _group_by_texture(self, keys: list[tuple[str, int]], owners: list[tuple[str, int]]):
+        """[(texture key, mesh keys)] with meshes grouped by their texture patch.
 
-    def _meshes(self, batches: list[list[Any]], keys: list[tuple[str, int]]):
-        """Yield the meshes to draw: the first batch as uploaded, later ones re-fetched."""
-        if len(batches) == 1:
-            yield from batches[0]
-            return
-        # Over budget: entries of earlier batches may have been evicted meanwhile.
-        for key in keys:
-            yield self.cache.get(key, lambda key=key: self._mesh_data(key))
+        owners: per mesh key, the ("node", id) or ("full", chunk) whose texture patch it uses.
+        Two owners with the same window of the same level share one texture.
+        """
+        groups: dict[tuple, list[tuple[str, int]]] = {}
+        for key, owner in zip(keys, owners, strict=True):
+            p = self._owner_patch(owner)
+            groups.setdefault(("tex", p.level, p.col0, p.row0, p.width, p.height), []).append(key)
+        return list(groups.items())
 
-    def _draw(self, target, fs: FrameState, batches, keys, wireframe: bool, program: str):
-        """Clear ``target`` and draw the meshes; returns (ms incl. ctx.finish(), triangles)."""
+    def _owner_patch(self, owner: tuple[str, int]) -> Any:
+        if owner[0] == "node":
+            return self.texture_patch(owner[1])
+        from approxtree.geometry.rect import Rect
+        from approxtree.textures.patch import TexturePatch
+
+        patch = self._texture_patches.get(owner)
+        if patch is None:
+            b = self._full_resolution_chunks()[owner[1]][1]
+            patch = TexturePatch.for_rect(self.pyramid, Rect(b[0], b[1], b[3], b[4]))
+            self._texture_patches[owner] = patch
+        return patch
+
+    def _texture_data(self, tex_key: tuple) -> np.ndarray:
+        from approxtree.textures.patch import TexturePatch
+
+        _, level, c0, r0, w, h = tex_key
+        return TexturePatch(self.pyramid, level, c0, r0, w, h).texels()
+
+    def _texture_uv(self, tex_key: tuple) -> tuple[float, float, float, float]:
+        """uv = local.xy * t[:2] + t[2:] of a texture window (u along columns, v along rows,
+        texel row 0 at v = 0)."""
+        _, level, c0, r0, w, h = tex_key
+        t = self.pyramid.levels[level].transform
+        ox, oy, _ = self.tree.origin
+        # col = (x − c) / a and row = (y − f) / e for a north-up level, x = local x + ox.
+        return (
+            1.0 / (t.a * w),
+            1.0 / (t.e * h),
+            (ox - t.c) / (t.a * w) - c0 / w,
+            (oy - t.f) / (t.e * h) - r0 / h,
+        )
+
+    def _get_mesh(self, key: tuple[str, int]) -> Any:
+        return self.cache.get(key, lambda: self._mesh_data(key))
+
+    def _get_texture(self, tex_key: tuple) -> Any:
+        return self.cache.get_texture(tex_key, lambda: self._texture_data(tex_key))
+
+    def _upload(self, groups) -> list[tuple[Any, list[Any]]] | None:
+        """Upload what the frame needs; returns the resident entries per group, or None when
+        the frame exceeded the cache budget (entries were evicted: the draw fetches again)."""
+        evictions = self.cache.evictions
+        resident = []
+        for tex_key, keys in groups:
+            tex = self._get_texture(tex_key) if tex_key is not None else None
+            resident.append((tex, [self._get_mesh(k) for k in keys]))
+        return resident if self.cache.evictions == evictions else None
+
+    def _draw(
+        self,
+        target,
+        fs: FrameState,
+        groups,
+        resident,
+        wireframe: bool,
+        program: str,
+        lighting: bool = True,
+    ):
+        """Clear ``target`` and draw the groups; returns (ms incl. ctx.finish(), triangles,
+        texture binds)."""
         import moderngl
 
         ctx = self.ctx
         prog = self.programs[program]
         w, h = fs.viewport
         prog["u_mvp"].write(fs.local_to_clip.T.astype("f4").tobytes())
-        if program == "terrain":
+        if program in ("terrain", "textured"):
             z0, z1 = self.tree.terrain.z_range
             oz = self.tree.origin[2]
             prog["u_z_range"].value = (z0 - oz, z1 - oz)
             prog["u_normal_uv"].value = tuple(self._normal_uv)
             prog["u_line"].value = 1.0 if wireframe else 0.0
+            prog["u_lighting"].value = 1.0 if lighting else 0.0
             prog["u_normals"].value = 0
             self.normal_map.use(location=0)
+        if program == "textured":
+            prog["u_texture"].value = 1
         triangles = 0
+        switches = 0
         t0 = time.perf_counter()
         with ctx.scope(framebuffer=target, enable_only=moderngl.DEPTH_TEST):
             ctx.viewport = (0, 0, w, h)
@@ -327,19 +457,29 @@ class Engine:
             target.clear(*clear, depth=1.0, viewport=(0, 0, w, h))
             ctx.wireframe = wireframe
             try:
-                for mesh in self._meshes(batches, keys):
-                    mesh.vao(ctx, prog).render(moderngl.TRIANGLES)
-                    triangles += mesh.triangles
+                for g, (tex_key, keys) in enumerate(groups):
+                    if tex_key is not None and program == "textured":
+                        # Pinned while its meshes are fetched, so it outlives their uploads.
+                        self.cache.pinned = {tex_key}
+                        tex = resident[g][0] if resident else self._get_texture(tex_key)
+                        tex.texture.use(location=1)
+                        prog["u_tex_uv"].value = self._texture_uv(tex_key)
+                        switches += 1
+                    meshes = resident[g][1] if resident else (self._get_mesh(k) for k in keys)
+                    for mesh in meshes:
+                        mesh.vao(ctx, prog).render(moderngl.TRIANGLES)
+                        triangles += mesh.triangles
             finally:
                 ctx.wireframe = False
+                self.cache.pinned = set()
             ctx.finish()
-        return (time.perf_counter() - t0) * 1e3, triangles
+        return (time.perf_counter() - t0) * 1e3, triangles, switches
 
-    def _positions(self, fs: FrameState, batches, keys) -> np.ndarray:
+    def _positions(self, fs: FrameState, groups) -> np.ndarray:
         """(h, w, 4) world positions of the drawn surface (see Frame.positions)."""
         w, h = fs.viewport
         fbo = self._target("position", w, h)
-        self._draw(fbo, fs, batches, keys, False, "position")
+        self._draw(fbo, fs, groups, self._upload(groups), False, "position")
         raw = fbo.read(viewport=(0, 0, w, h), components=4, dtype="f4", alignment=1)
         local = np.frombuffer(raw, dtype=np.float32).reshape(h, w, 4)[::-1].astype(np.float64)
         out = local.copy()
@@ -515,3 +655,46 @@ def _normals(z: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
     bad = ~np.isfinite(n).all(axis=-1)
     n[bad] = (0.0, 0.0, 1.0)
     return n
+
+
+def _as_pyramid(textures: Any, terrain) -> Any:
+    """``textures`` as a TexturePyramid matching ``terrain`` (opened from a folder), or None."""
+    from approxtree.textures.pyramid import TexturePyramid
+
+    if textures is None or isinstance(textures, TexturePyramid):
+        pyramid = textures
+    elif isinstance(textures, str | os.PathLike):
+        pyramid = TexturePyramid(textures)
+    else:
+        raise InvalidParameterError(
+            "textures must be a TexturePyramid, the folder of one, or None; got a "
+            f"{type(textures).__name__}."
+        )
+    if pyramid is not None:
+        _check_pyramid_matches(pyramid, terrain)
+    return pyramid
+
+
+def _check_pyramid_matches(pyramid, terrain) -> None:
+    """A pyramid must share the terrain's CRS and overlap its domain."""
+    if pyramid.crs and terrain.crs:
+        from rasterio.crs import CRS
+
+        try:
+            same = CRS.from_user_input(pyramid.crs) == CRS.from_user_input(terrain.crs)
+        except Exception:
+            same = True
+        if not same:
+            raise InvalidParameterError(
+                f"The texture pyramid in {pyramid.folder} is in {pyramid.crs}, the terrain in "
+                f"{terrain.crs}; bake the textures from this terrain (approxtree bake)."
+            )
+    lv = pyramid.levels[0]
+    x0, y0 = lv.transform @ (0, 0)
+    x1, y1 = lv.transform @ (lv.width, lv.height)
+    d = terrain.domain
+    if min(x0, x1) > d.xmax or max(x0, x1) < d.xmin or min(y0, y1) > d.ymax or max(y0, y1) < d.ymin:
+        raise InvalidParameterError(
+            f"The texture pyramid in {pyramid.folder} does not overlap the terrain's domain; "
+            "bake the textures from this terrain (approxtree bake)."
+        )

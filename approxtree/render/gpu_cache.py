@@ -1,10 +1,12 @@
-"""GpuCache: patch meshes on the GPU, bounded in bytes, least recently used out.
+"""GpuCache: patch meshes and texture patches on the GPU, bounded in bytes, least recently used out.
 
-Each entry owns a vertex buffer, an index buffer and one vertex array per program it was drawn
-with. ``get`` returns the entry of a key, building and uploading it on a miss; when the total
+A mesh entry owns a vertex buffer, an index buffer and one vertex array per program it was
+drawn with; a texture entry owns one RGBA8 texture with its hardware mipmaps. ``get`` and
+``get_texture`` return the entry of a key, building and uploading it on a miss; when the total
 exceeds the budget, the least recently used entries are released — except the one just
-requested, so a single patch larger than the budget can still be drawn. Nothing relies on the
-garbage collector: ``release()`` frees every buffer now.
+requested and the ``pinned`` keys (the texture bound while its meshes are drawn), so a single
+patch larger than the budget can still be drawn. Nothing relies on the garbage collector:
+``release()`` frees every buffer now.
 """
 
 from __future__ import annotations
@@ -51,6 +53,28 @@ class GpuMesh:
         self.ibo.release()
 
 
+def mipmap_bytes(width: int, height: int, components: int = 4) -> int:
+    """Bytes of a texture of width × height texels with its full mipmap chain."""
+    total = 0
+    w, h = width, height
+    while True:
+        total += w * h * components
+        if w == 1 and h == 1:
+            return total
+        w, h = max(1, w // 2), max(1, h // 2)
+
+
+@dataclass
+class GpuTexture:
+    """One uploaded texture patch: RGBA8 with mipmaps, trilinear. nbytes: all mip levels."""
+
+    texture: Any
+    nbytes: int
+
+    def release(self) -> None:
+        self.texture.release()
+
+
 class GpuCache:
     """LRU cache of GpuMesh entries on ``ctx``, at most ``budget_bytes`` (soft, see above).
 
@@ -62,7 +86,9 @@ class GpuCache:
             raise ValueError(f"budget_bytes must be > 0, got {budget_bytes}")
         self.ctx = ctx
         self.budget_bytes = int(budget_bytes)
-        self._entries: OrderedDict[Hashable, GpuMesh] = OrderedDict()
+        self._entries: OrderedDict[Hashable, GpuMesh | GpuTexture] = OrderedDict()
+        #: Keys never evicted (set by the caller around a draw).
+        self.pinned: set[Hashable] = set()
         self.nbytes = 0
         self.uploads = 0
         self.evictions = 0
@@ -83,11 +109,41 @@ class GpuCache:
         entry = self._entries.get(key)
         if entry is not None:
             self._entries.move_to_end(key)
-            return entry
+            return entry  # type: ignore[return-value]
         vertex_data, triangles = build()
         vbo = self.ctx.buffer(np.ascontiguousarray(vertex_data, dtype="f4").tobytes())
         ibo = self.ctx.buffer(np.ascontiguousarray(triangles, dtype="u4").tobytes())
-        entry = GpuMesh(vbo, ibo, vbo.size + ibo.size, len(triangles))
+        return self._add(key, GpuMesh(vbo, ibo, vbo.size + ibo.size, len(triangles)))
+
+    def get_texture(self, key: Hashable, build: Callable[[], np.ndarray]) -> GpuTexture:
+        """The texture of ``key``; on a miss ``build()`` gives (h, w, 4) uint8 texels, row 0 at
+        texture coordinate v = 0, uploaded with mipmaps and trilinear filtering."""
+        import moderngl
+
+        entry = self._entries.get(key)
+        if entry is not None:
+            self._entries.move_to_end(key)
+            return entry  # type: ignore[return-value]
+        texels = np.ascontiguousarray(build(), dtype=np.uint8)
+        h, w = texels.shape[:2]
+        tex = self.ctx.texture((w, h), 4, texels.tobytes(), dtype="f1")
+        tex.repeat_x = False
+        tex.repeat_y = False
+        # Hardware mipmaps per texture patch (core paper, 3.3), sampled trilinearly.
+        tex.build_mipmaps()
+        tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+        return self._add(key, GpuTexture(tex, mipmap_bytes(w, h)))
+
+    def drop(self, predicate: Callable[[Hashable], bool]) -> int:
+        """Release the entries whose key satisfies ``predicate``; returns how many."""
+        keys = [k for k in self._entries if predicate(k)]
+        for k in keys:
+            entry = self._entries.pop(k)
+            self.nbytes -= entry.nbytes
+            entry.release()
+        return len(keys)
+
+    def _add(self, key: Hashable, entry):
         self._entries[key] = entry
         self.nbytes += entry.nbytes
         self.uploads += 1
@@ -95,12 +151,14 @@ class GpuCache:
         return entry
 
     def _evict(self, keep: Hashable) -> None:
-        """Release least recently used entries until the budget holds (``keep`` stays)."""
-        while self.nbytes > self.budget_bytes and len(self._entries) > 1:
-            old_key, old = next(iter(self._entries.items()))
-            if old_key == keep:
+        """Release least recently used entries until the budget holds (``keep`` and the
+        pinned keys stay)."""
+        for old_key in list(self._entries):
+            if self.nbytes <= self.budget_bytes:
                 break
-            del self._entries[old_key]
+            if old_key == keep or old_key in self.pinned:
+                continue
+            old = self._entries.pop(old_key)
             self.nbytes -= old.nbytes
             old.release()
             self.evictions += 1
@@ -110,4 +168,5 @@ class GpuCache:
         for entry in self._entries.values():
             entry.release()
         self._entries.clear()
+        self.pinned.clear()
         self.nbytes = 0

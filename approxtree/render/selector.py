@@ -49,6 +49,8 @@ class Selection:
     nodes: (k,) int64 selected node ids, in traversal order. alphas, gammas: (k,) their α_N,
     γ_N. visited: (v,) int64 every node the traversal tested; results: (v,) uint8
     SelectionResult of each. below_ground: the eye was under the terrain (empty selection).
+    visited_gammas: (v,) γ of every visited node (0 when culled), used to let a node share
+    the texture patch of an ancestor.
     """
 
     nodes: np.ndarray
@@ -58,6 +60,7 @@ class Selection:
     results: np.ndarray
     below_ground: bool = False
     stats: dict[str, Any] = field(default_factory=dict)
+    visited_gammas: np.ndarray | None = None
 
     def result_of(self, node: int) -> SelectionResult | None:
         """The decision for ``node``, None when the traversal never reached it."""
@@ -129,7 +132,7 @@ def select(
     chosen = results == SelectionResult.SELECTED
     nodes, alphas, gammas = visited[chosen], a[chosen], g[chosen]
     stats = _stats(len(visited), int(np.count_nonzero(results == 0)), alphas, gammas)
-    return Selection(nodes, alphas, gammas, visited, results, False, stats)
+    return Selection(nodes, alphas, gammas, visited, results, False, stats, g)
 
 
 @njit(cache=True)

@@ -11,8 +11,8 @@ For a node N with box B_N, geometric error ε_T(N) and texel size w × h:
 When the segment or the rectangle reaches behind the eye (clip w <= 0, e.g. the eye inside
 B_N) the projection is unbounded and the error is +inf, which always asks for refinement.
 
-Until texture pyramids exist the texel of a node is its data spacing (``texel_sizes``); this
-is the one place textures will replace.
+The texel of a node is its texture patch's texel (``textures.patch.patch_texel_sizes``) when
+the Engine has a texture pyramid, else its data spacing (``texel_sizes``).
 """
 
 from __future__ import annotations
@@ -112,7 +112,7 @@ def visual_errors(
 def texel_sizes(tree) -> np.ndarray:
     """(n, 2) float64 texel width and height of every node, in world x, y units.
 
-    No texture pyramid yet, so the "texel" is the node's data spacing:
+    Without a texture pyramid the "texel" is the node's data spacing:
     grid-strategy nodes on a Grid: the rectangle's extent over the number of sampled
     intervals (computed from the rectangles alone, so no patch is loaded);
     other nodes: sqrt(area / points) of their patch, in both directions.

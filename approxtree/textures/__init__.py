@@ -2,6 +2,7 @@
 
 from approxtree.textures.base import TextureData
 from approxtree.textures.blend import BLEND_MODES, MultiTexture, blend
+from approxtree.textures.gl_bake import GLTopographicShading
 from approxtree.textures.patch import TexturePatch
 from approxtree.textures.pyramid import PyramidLevel, TexturePyramid
 from approxtree.textures.shading import (
@@ -23,6 +24,7 @@ __all__ = [
     "ClassTable",
     "ColourRamp",
     "ColourReliefFile",
+    "GLTopographicShading",
     "GouraudShading",
     "MultiTexture",
     "PhongShading",

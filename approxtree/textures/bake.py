@@ -6,6 +6,10 @@ is computed from h_T resampled onto the texture lattice, so the shading has the 
 resolution the texture needs (core paper, 5.3). Thematic rasters are resampled onto the
 lattice (nearest for class tables, bilinear for continuous fields), vector layers rasterized,
 and the layers blended in the order thematic · shading, then overlays on top.
+
+Topographic shading is baked offscreen with OpenGL (``gl_bake``, tiled, section 5.3) when a
+context can be made, and with the numpy kernel otherwise (ContextUnavailableError): both give
+gdaldem's values within ±1 grey level. Phong and Gouraud shading use numpy.
 """
 
 from __future__ import annotations
@@ -43,6 +47,8 @@ class BakeResult:
     pyramid: TexturePyramid
     seconds: float
     layers: list[str] = field(default_factory=list)
+    #: True when the shading was baked with OpenGL, False for numpy (or no shading).
+    gl: bool = False
 
     def figures(self) -> dict[str, Any]:
         """levels, sizes, bytes, seconds (the figures of ``approxtree bake --json``)."""
@@ -52,6 +58,7 @@ class BakeResult:
             "bytes": self.pyramid.nbytes,
             "seconds": round(self.seconds, 4),
             "layers": self.layers,
+            "gl": self.gl,
             "folder": str(self.pyramid.folder),
         }
 
@@ -121,6 +128,9 @@ def bake(
     blend: str = "multiply",
     texel_size: float | None = None,
     max_texture_size: int = 4096,
+    gl: bool = True,
+    context: Any = None,
+    tile_size: int | None = None,
 ) -> BakeResult:
     """Bake the terrain's textures into a pyramid in ``folder`` and return what was written.
 
@@ -128,6 +138,9 @@ def bake(
     that shading class. thematic: a raster of classes or values; palette: a gdaldem colour file
     or a matplotlib colormap name (None: the raster's embedded colour table). overlays: vector
     layers (roads, rivers) drawn on top. blend: how shading combines with the thematic layer.
+    gl: bake topographic shading with OpenGL when possible (context: a moderngl Context, or
+    None for a standalone EGL one; tile_size: forced tile side, see ``gl_hillshade``);
+    False always uses numpy.
     """
     t0 = time.perf_counter()
     if not isinstance(terrain, Grid):
@@ -142,6 +155,10 @@ def bake(
         )
     if shading is None and thematic is None:
         raise InvalidParameterError("Nothing to bake: give a shading, a thematic raster or both.")
+    if texel_size is not None and not (np.isfinite(texel_size) and texel_size > 0):
+        raise InvalidParameterError(
+            f"texel_size must be a positive number of world units, got {texel_size!r}."
+        )
     thematic_path = Path(thematic) if thematic is not None else None
     if thematic_path is not None and not thematic_path.is_file():
         raise TerrainFormatError(f"Thematic raster {thematic_path} does not exist.")
@@ -153,6 +170,7 @@ def bake(
         with rasterio.open(thematic_path) as ds:
             texel = min(texel, *ds.res)
     transform, shape = texture_lattice(terrain, texel)
+    used_gl = False
     layers: list[TextureData] = []
     names: list[str] = []
     if thematic_path is not None:
@@ -164,7 +182,11 @@ def bake(
             if shape == terrain.shape and transform.almost_equals(terrain.transform)
             else _resample_heights(terrain, transform, shape)
         )
-        layers.append(SHADINGS[shading](on_lattice, **(shading_options or {})))
+        options = shading_options or {}
+        texture = SHADINGS[shading](on_lattice, **options)
+        if gl and shading == "topographic":
+            used_gl, texture = _gl_shading(texture, options, context, tile_size)
+        layers.append(texture)
         names.append(f"shading:{shading}")
     for path in overlays or []:
         layers.append(rasterize_lines(path, transform, shape, terrain.crs))
@@ -173,4 +195,33 @@ def bake(
     modes += ["over"] * (len(layers) - 1 - len(modes))
     texture = layers[0] if len(layers) == 1 else MultiTexture(layers, modes)
     pyramid = TexturePyramid.build(texture, folder, max_texture_size=max_texture_size)
-    return BakeResult(pyramid, time.perf_counter() - t0, names)
+    return BakeResult(pyramid, time.perf_counter() - t0, names, used_gl)
+
+
+def _gl_shading(
+    shading: TopographicShading, options: dict[str, Any], context: Any, tile_size: int | None
+) -> tuple[bool, TextureData]:
+    """(True, the shading computed with OpenGL) or, without a context, (False, ``shading``)."""
+    from approxtree.errors import ContextUnavailableError
+    from approxtree.textures.gl_bake import GLTopographicShading
+
+    on_gpu = GLTopographicShading(shading.terrain, context=context, tile_size=tile_size, **options)
+    try:
+        # Computed now, so a missing context falls back before the pyramid is written.
+        shade = on_gpu.shade()
+    except ContextUnavailableError:
+        return False, shading
+    return True, _Precomputed(shading, shade)
+
+
+class _Precomputed(TextureData):
+    """A shading texture whose grey levels were already computed."""
+
+    def __init__(self, like: TextureData, shade: np.ndarray) -> None:
+        self.transform, self.shape, self.crs = like.transform, like.shape, like.crs
+        self._shade = shade
+
+    def rgba(self) -> np.ndarray:
+        from approxtree.textures.base import grey_to_rgba
+
+        return grey_to_rgba(self._shade)

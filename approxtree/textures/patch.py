@@ -68,6 +68,45 @@ class TexturePatch:
         return out
 
 
+def patch_levels(pyramid: TexturePyramid, rects: np.ndarray) -> np.ndarray:
+    """(n,) int64 pyramid level of ``TexturePatch.for_rect`` for n rectangles at once.
+
+    rects: (n, 4) float64 (xmin, ymin, xmax, ymax). Same arithmetic as ``_texel_span`` (the
+    affine product in affine's order), so the level equals the one ``for_rect`` picks.
+    """
+    rects = np.asarray(rects, dtype=np.float64).reshape(-1, 4)
+    n = len(rects)
+    out = np.full(n, len(pyramid) - 1, dtype=np.int64)
+    todo = np.ones(n, dtype=bool)
+    limit = pyramid.max_texture_size
+    eps = 1e-9
+    for k, lv in enumerate(pyramid.levels):
+        inv = ~lv.transform
+        # Corners (xmin, ymax) and (xmax, ymin) into texel space, as inv @ (x, y) does.
+        ca = rects[:, 0] * inv.a + rects[:, 3] * inv.b + inv.c
+        ra = rects[:, 0] * inv.d + rects[:, 3] * inv.e + inv.f
+        cb = rects[:, 2] * inv.a + rects[:, 1] * inv.b + inv.c
+        rb = rects[:, 2] * inv.d + rects[:, 1] * inv.e + inv.f
+        c0 = np.maximum(0, np.floor(np.minimum(ca, cb) + eps))
+        r0 = np.maximum(0, np.floor(np.minimum(ra, rb) + eps))
+        c1 = np.minimum(lv.width, np.maximum(c0 + 1, np.ceil(np.maximum(ca, cb) - eps)))
+        r1 = np.minimum(lv.height, np.maximum(r0 + 1, np.ceil(np.maximum(ra, rb) - eps)))
+        span = np.maximum(c1 - c0, r1 - r0)
+        # The power of two above a span fits the limit exactly when the span does.
+        fits = todo & (span <= limit)
+        out[fits] = k
+        todo &= ~fits
+        if not todo.any():
+            break
+    return out
+
+
+def patch_texel_sizes(pyramid: TexturePyramid, rects: np.ndarray) -> np.ndarray:
+    """(n, 2) float64 texel width and height of the texture patch of each of n rectangles."""
+    sizes = np.array([lv.texel_size for lv in pyramid.levels], dtype=np.float64)
+    return sizes[patch_levels(pyramid, rects)]
+
+
 def _texel_span(transform, rect: Rect, width: int, height: int) -> tuple[int, int, int, int]:
     """(c0, r0, c1, r1): texels whose union covers rect, clipped to the level."""
     inv = ~transform

@@ -57,6 +57,9 @@ def _write_level(path: Path, rgba: np.ndarray, transform: Affine, crs: str | Non
         "photometric": "RGB",
         "alpha": "unassociated",
         "tiled": False,
+        # Streamed output writes every strip in order, all-zero strips included (GDAL
+        # otherwise defers empty strips to the end of the file and breaks the memory map).
+        "streamable_output": "YES",
     }
     tmp = path.with_name(f".{path.name}.tmp")
     try:

@@ -1,0 +1,45 @@
+#version 330 core
+// Terrain surface and skirts textured by a texture patch: uv from world x, y through the
+// patch's extent; the texel is drawn as it is (decal) or modulated by the light.
+
+#if defined VERTEX_SHADER
+
+uniform mat4 u_mvp;          // local (world − origin) → clip
+in vec3 in_position;         // world − origin, float32
+in float in_skirt;           // 0 on the surface, 1 on skirt walls
+out vec3 v_local;
+out float v_skirt;
+
+void main() {
+    v_local = in_position;
+    v_skirt = in_skirt;
+    gl_Position = u_mvp * vec4(in_position, 1.0);
+}
+
+#elif defined FRAGMENT_SHADER
+
+#include "include/terrain_shading.glsl"
+
+uniform sampler2D u_texture; // RGBA8 texture patch with mipmaps, row 0 at v = 0
+uniform vec4 u_tex_uv;       // uv = local.xy * u_tex_uv.xy + u_tex_uv.zw
+uniform sampler2D u_normals; // RG8: normal x, y in display units, encoded as n * 0.5 + 0.5
+uniform vec4 u_normal_uv;    // uv = local.xy * u_normal_uv.xy + u_normal_uv.zw
+uniform vec2 u_z_range;      // local z of the lowest and highest data point
+uniform float u_line;        // 1 when drawing wireframe lines
+uniform float u_lighting;    // 1: GL_MODULATE with the light, 0: decal
+in vec3 v_local;
+in float v_skirt;
+out vec4 f_color;
+
+void main() {
+    vec4 texel = texture(u_texture, v_local.xy * u_tex_uv.xy + u_tex_uv.zw);
+    // Transparent texels (no texture data) show the hypsometric ramp instead.
+    float t = (v_local.z - u_z_range.x) / max(u_z_range.y - u_z_range.x, 1e-6);
+    vec3 base = mix(hypsometric(t), texel.rgb, texel.a);
+    vec2 nxy = texture(u_normals, v_local.xy * u_normal_uv.xy + u_normal_uv.zw).rg * 2.0 - 1.0;
+    vec3 normal = vec3(nxy, sqrt(max(1.0 - dot(nxy, nxy), 0.0)));
+    vec3 colour = mix(base, lit(base, normal), u_lighting);
+    f_color = vec4(mix(colour, colour * 0.35, u_line), 1.0);
+}
+
+#endif
