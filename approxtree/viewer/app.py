@@ -9,7 +9,7 @@ A frame:
 
 1. poll events; apply the scripted key presses of this frame; in a replay, take the pose of
    the script frame;
-2. move the fly camera by the held keys (scripted replays use a fixed 1/30 s step);
+2. move the fly camera by the held keys (scripted runs use a fixed 1/30 s step);
 3. ``engine.render`` into the window; the UploadQueue, installed as the Engine's selection
    filter, bounds the uploads of the frame (and the frozen frustum, when on, replaces the
    selection's view);
@@ -456,6 +456,8 @@ class Viewer:
         if shots is not None:
             shots.mkdir(parents=True, exist_ok=True)
         lines: list[bytes] = []
+        # Scripted runs (a replay or key presses) step time by SCRIPT_DT: same motion anywhere.
+        scripted = script is not None or bool(by_frame)
         frames = 0
         last = time.perf_counter()
         while not glfw.window_should_close(self.window):
@@ -477,7 +479,7 @@ class Viewer:
             if step is not None:
                 self.set_pose_world(step.eye, step.target)
             # 2. Fly by held keys.
-            dt = SCRIPT_DT if script is not None else min(t0 - last, 0.25)
+            dt = SCRIPT_DT if scripted else min(t0 - last, 0.25)
             last = t0
             self._fly_step(dt)
             for key, mods in pressed:
@@ -506,7 +508,15 @@ class Viewer:
             stats.update(frame=frames, frame_ms=round(frame_ms, 3), size=list(size))
             if step is not None:
                 stats["keyframe"] = step.keyframe
-            stats.update(alpha=self.settings.alpha, gamma=self.settings.gamma)
+            eye, target = self.pose_world()
+            stats.update(
+                alpha=self.settings.alpha,
+                gamma=self.settings.gamma,
+                eye=eye.tolist(),
+                target=target.tolist(),
+                mode="fly" if self.settings.fly else "orbit",
+                frozen=self.settings.frozen,
+            )
             self.last_stats = stats
             if stats_path is not None:
                 lines.append((json.dumps(_json_safe(stats)) + "\n").encode())
