@@ -18,6 +18,7 @@ from PIL import Image
 from approxtree import ApproximationTree
 from approxtree.datasets import sample_terrain
 from approxtree.render.frame_state import display_scale, overview_camera
+from approxtree.viewer.xvfb import virtual_display
 
 SIZE = (480, 270)
 
@@ -25,26 +26,10 @@ SIZE = (480, 270)
 @pytest.fixture(scope="module")
 def display():
     """A private Xvfb display (":N"), stopped after the module's tests."""
-    xvfb = shutil.which("Xvfb")
-    if xvfb is None:
+    if shutil.which("Xvfb") is None:
         pytest.skip("Xvfb is not installed (Debian/Ubuntu: apt-get install -y xvfb)")
-    read, write = os.pipe()
-    proc = subprocess.Popen(
-        [xvfb, "-displayfd", str(write), "-screen", "0", "1280x1024x24", "-nolisten", "tcp"],
-        pass_fds=(write,),
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    os.close(write)
-    # Xvfb writes its display number to the fd once it accepts connections.
-    with os.fdopen(read) as f:
-        number = f.readline().strip()
-    if not number:
-        proc.kill()
-        pytest.fail("Xvfb started but did not report a display number")
-    yield f":{number}"
-    proc.terminate()
-    proc.wait(timeout=30)
+    with virtual_display("1280x1024x24") as name:
+        yield name
 
 
 def run_viewer(display: str, cwd: Path, *args: str) -> subprocess.CompletedProcess:
