@@ -426,6 +426,12 @@ def _open_tree(path: str, epsilon: float):
     show_default=True,
     help="Patch meshes uploaded per frame at most (0: no limit).",
 )
+@click.option(
+    "--upload-ms",
+    type=float,
+    default=None,
+    help="Stop uploading meshes after this many milliseconds in a frame (after one).",
+)
 @_reports_errors
 def view(
     source: str,
@@ -441,6 +447,7 @@ def view(
     keys_text: str,
     frames: int | None,
     max_uploads: int,
+    upload_ms: float | None,
 ) -> None:
     """Open an interactive window over a tree file or a DEM (F1 in the window: keys)."""
     from approxtree.render.selector import check_thresholds
@@ -459,6 +466,7 @@ def view(
         gamma=gamma,
         fov=fov,
         max_uploads=max_uploads,
+        budget_ms=upload_ms,
     ) as viewer:
         drawn = viewer.run(script, presses, stats_path, screenshots, max_frames=frames)
     if script is not None:

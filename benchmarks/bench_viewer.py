@@ -4,14 +4,17 @@ Two terrains: the NC case study DEM (../shared/data/nc/elev_ned_30m.tif, 500 × 
 and a 4097² fractal DEM (10 m cells, 1000 m relief), each built at ε = 1 m. For each, a
 fly-over is recorded into benchmarks/results/viewer_path_<case>.json: a flight along the
 domain's southern edge, just outside it, at 1/15 of the diagonal above the highest point,
-looking over the terrain (SEGMENTS keyframes of FRAMES frames each). The viewer replays it in a
+looking over the terrain (SEGMENTS keyframes of FRAMES frames each), and a path of JUMPS
+abrupt camera cuts to oblique views from all around, each held HOLD frames (the worst case
+for uploads: a whole new cut wanted at once). The viewer replays it in a
 real 1280 × 720 window under Xvfb (Mesa llvmpipe on this CPU-only machine), one fresh process
 per run, at alpha = 1 and 4 px (γ off: no texture pyramid), with the upload queue's budget of
 32 meshes per frame and, side by side, without a budget (every wanted mesh uploaded in the
 frame that wants it). Frame time is the wall time of the whole frame (events, selection,
 uploads, draw, overlay, swap).
 
-    python benchmarks/bench_viewer.py [--frames 20] [--segments 4] [--cases nc,fractal]
+    python benchmarks/bench_viewer.py [--frames 20] [--segments 4] [--jumps 8] [--hold 6]
+        [--cases nc,fractal]
 """
 
 from __future__ import annotations
@@ -68,6 +71,29 @@ def flyover(tree, segments: int, frames: int) -> list[dict]:
     return path
 
 
+def jumps(tree, count: int, hold: int) -> list[dict]:
+    """Keyframes of abrupt cuts: every ``hold`` frames the camera jumps to another oblique
+    view from outside the domain (around it, nearer each time), the worst case for uploads."""
+    b = np.asarray(tree.bboxes[0], dtype=np.float64)
+    lo, hi = b[:3], b[3:]
+    centre = 0.5 * (lo + hi)
+    diag = float(np.linalg.norm(hi[:2] - lo[:2]))
+    path = []
+    for k in range(count):
+        angle = 2.0 * math.pi * (0.37 * k) - math.pi / 2
+        reach = 0.75 - 0.2 * (k % 3)
+        eye = centre[:2] + reach * diag * np.array([math.cos(angle), math.sin(angle)])
+        look = centre[:2] + 0.2 * diag * np.array([math.cos(angle), math.sin(angle)])
+        view = {
+            "eye": [float(eye[0]), float(eye[1]), float(hi[2] + diag / 12.0)],
+            "target": [float(look[0]), float(look[1]), float(lo[2])],
+        }
+        # Each jump: one frame to cut there, then held.
+        path.append({**view, "frames": 1})
+        path.append({**view, "frames": hold - 1})
+    return path
+
+
 def run(display: str, tree_path: Path, script: Path, alpha: float, uploads: int) -> dict:
     """Replay ``script`` in a fresh viewer process; figures of its stats lines."""
     stats_path = script.with_suffix(f".a{alpha:g}.u{uploads}.jsonl")
@@ -95,6 +121,7 @@ def run(display: str, tree_path: Path, script: Path, alpha: float, uploads: int)
         "triangles_median": int(statistics.median(s["triangles"] for s in lines)),
         "patches_median": int(statistics.median(s["patches"] for s in lines)),
         "uploads_max": max(s["uploads"] for s in lines),
+        "upload_queue_ms_max": max(s["upload_queue_ms"] for s in lines),
         "frames_with_stand_ins": sum(1 for s in lines if s["pending"] > 0),
         "max_alpha_max": max(s["max_alpha"] for s in lines),
         "process_seconds": round(wall, 2),
@@ -105,6 +132,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=20, help="frames per fly-over segment")
     ap.add_argument("--segments", type=int, default=4)
+    ap.add_argument("--jumps", type=int, default=8, help="camera cuts of the jump path")
+    ap.add_argument("--hold", type=int, default=6, help="frames held after each cut")
     ap.add_argument("--cases", default="nc,fractal")
     args = ap.parse_args()
     RESULTS.mkdir(exist_ok=True)
@@ -125,9 +154,14 @@ def main() -> None:
         build_s = time.perf_counter() - t0
         tree_path = RESULTS / f"viewer_{name}.atree"
         tree.save(tree_path)
-        script = RESULTS / f"viewer_path_{name}.json"
-        script.write_text(json.dumps(flyover(tree, args.segments, args.frames), indent=1))
-        cases.append((name, label, tree, tree_path, script, build_s))
+        for kind in ("flyover", "jumps"):
+            if kind == "flyover":
+                path = flyover(tree, args.segments, args.frames)
+            else:
+                path = jumps(tree, args.jumps, args.hold)
+            script = RESULTS / f"viewer_{kind}_{name}.json"
+            script.write_text(json.dumps(path, indent=1))
+            cases.append((name, kind, label, tree, tree_path, script, build_s))
     out = {
         "machine": platform.platform(),
         "size": SIZE,
@@ -135,16 +169,17 @@ def main() -> None:
         "cases": [],
     }
     with virtual_display() as display:
-        for name, label, tree, tree_path, script, build_s in cases:
+        for name, kind, label, tree, tree_path, script, build_s in cases:
             runs = []
             for alpha in (1.0, 4.0):
                 for uploads in (32, 0):
                     r = run(display, tree_path, script, alpha, uploads)
                     runs.append(r)
-                    print(name, json.dumps(r))
+                    print(name, kind, json.dumps(r))
             out["cases"].append(
                 {
                     "case": name,
+                    "path_kind": kind,
                     "terrain": label,
                     "nodes": len(tree),
                     "build_seconds": round(build_s, 2),

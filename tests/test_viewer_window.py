@@ -214,8 +214,10 @@ def test_thematic_toggle_changes_colours_by_land_use(display, data_dir, tmp_path
         cls = classes[rows.ravel(), cols.ravel()]
     zs = terrain.height_at(np.asarray(xs), np.asarray(ys))
     px, _ = fs.world_to_pixels(np.column_stack([xs, ys, zs]))
+    seen = np.isfinite(px).all(axis=1)
+    px = np.where(seen[:, None], px, -1.0)
     c, r = px[:, 0].astype(int), SIZE[1] - 1 - px[:, 1].astype(int)
-    inside = (c >= 0) & (c < SIZE[0]) & (r >= 0) & (r < SIZE[1])
+    inside = seen & (c >= 0) & (c < SIZE[0]) & (r >= 0) & (r < SIZE[1])
 
     def mean_colour(image, k):
         m = inside & (cls == k)

@@ -145,6 +145,8 @@ class Viewer:
         self.features = EngineFeatures(self.engine)
         self.queue = UploadQueue(self.engine, max_uploads, budget_ms)
         self.engine.set_selection_filter(self._filter)
+        # The root's mesh now: it also loads the compiled skirt kernels before frame 0.
+        self.engine.upload(0)
         self._frozen_frame: Any = None
         from approxtree.viewer.overlay import Overlay
 
