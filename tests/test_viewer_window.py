@@ -227,3 +227,29 @@ def test_thematic_toggle_changes_colours_by_land_use(display, data_dir, tmp_path
     forest_water_off = np.abs(mean_colour(off, 5) - mean_colour(off, 6)).sum()
     assert np.abs(on.astype(int) - off.astype(int)).max(axis=2).mean() > 5
     assert forest_water_on > forest_water_off + 30
+
+
+def test_clear_errors_without_display_and_for_bad_scripts(sample_tree, tmp_path):
+    """No display and a malformed script each end with one Error line and exit code 2."""
+    _, path = sample_tree
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    result = subprocess.run(
+        [sys.executable, "-m", "approxtree", "view", str(path), "--frames", "1"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 2
+    assert "Error: glfw could not initialise" in result.stderr and "xvfb" in result.stderr
+    (tmp_path / "bad.json").write_text('[{"eye": [0, 0, 1], "target": [0, 0, 1]}]')
+    result = subprocess.run(
+        [sys.executable, "-m", "approxtree", "view", str(path), "--script", "bad.json"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 2
+    assert "eye and target must differ" in result.stderr
