@@ -659,3 +659,113 @@ def bake_command(
         gl=not no_gl,
     )
     _emit(result.figures(), as_json)
+
+
+def _open_tree(path: str, epsilon: float):
+    """A tree file (.atree) as saved, or any terrain file built into a tree now."""
+    from approxtree.tree import ApproximationTree
+
+    if Path(path).suffix.lower() == ".atree":
+        return ApproximationTree.load(path)
+    from approxtree.io import open_terrain
+
+    return ApproximationTree.build(open_terrain(path), epsilon=epsilon, progress=False)
+
+
+@main.command()
+@click.argument("source", type=click.Path(exists=True, dir_okay=False))
+@click.option(
+    "--textures",
+    "textures",
+    multiple=True,
+    type=click.Path(exists=True, file_okay=False),
+    help="Baked texture pyramid folder (repeat for several; TAB cycles, T toggles).",
+)
+@click.option(
+    "--epsilon", type=float, default=1.0, show_default=True, help="ε when SOURCE is a DEM."
+)
+@click.option(
+    "--size", callback=_size, default="1280x720", show_default=True, help="Window size WxH."
+)
+@click.option("--alpha", type=float, default=1.0, show_default=True, help="Threshold α, pixels.")
+@click.option(
+    "--gamma", type=float, default=2.0, show_default=True, help="Threshold γ, pixels² (inf: off)."
+)
+@click.option(
+    "--fov", type=float, default=45.0, show_default=True, help="Vertical field of view, degrees."
+)
+@click.option(
+    "--script",
+    "script_path",
+    type=click.Path(dir_okay=False),
+    help='Replay a camera path: JSON list of {"eye", "target", "frames", "keys"}; exit at the end.',
+)
+@click.option(
+    "--stats", "stats_path", type=click.Path(dir_okay=False), help="JSON line of stats per frame."
+)
+@click.option(
+    "--screenshots",
+    type=click.Path(file_okay=False),
+    help="Folder for one PNG per keyframe of --script.",
+)
+@click.option(
+    "--keys",
+    "keys_text",
+    default="",
+    help='Scripted key presses "FRAME:KEY,...", e.g. "0:L,5:shift+PAGE_UP".',
+)
+@click.option(
+    "--frames", type=int, default=None, help="Stop after this many frames (without --script)."
+)
+@click.option(
+    "--max-uploads",
+    type=int,
+    default=32,
+    show_default=True,
+    help="Patch meshes uploaded per frame at most (0: no limit).",
+)
+@click.option(
+    "--upload-ms",
+    type=float,
+    default=None,
+    help="Stop uploading meshes after this many milliseconds in a frame (after one).",
+)
+@_reports_errors
+def view(
+    source: str,
+    textures: tuple[str, ...],
+    epsilon: float,
+    size: tuple[int, int],
+    alpha: float,
+    gamma: float,
+    fov: float,
+    script_path: str | None,
+    stats_path: str | None,
+    screenshots: str | None,
+    keys_text: str,
+    frames: int | None,
+    max_uploads: int,
+    upload_ms: float | None,
+) -> None:
+    """Open an interactive window over a tree file or a DEM (F1 in the window: keys)."""
+    from approxtree.render.selector import check_thresholds
+    from approxtree.viewer import load_script, parse_key_presses, script_frames
+    from approxtree.viewer.app import Viewer
+
+    check_thresholds(alpha, gamma)
+    presses = parse_key_presses(keys_text)
+    script = script_frames(load_script(script_path)) if script_path else None
+    tree = _open_tree(source, epsilon)
+    with Viewer(
+        tree,
+        textures=list(textures),
+        size=size,
+        alpha=alpha,
+        gamma=gamma,
+        fov=fov,
+        max_uploads=max_uploads,
+        budget_ms=upload_ms,
+    ) as viewer:
+        drawn = viewer.run(script, presses, stats_path, screenshots, max_frames=frames)
+    if script is not None:
+        click.echo(json.dumps({"frames": drawn, "stats": stats_path, "screenshots": screenshots}))

@@ -264,6 +264,8 @@ class Engine:
             selection = self._full_resolution_selection(fs)
         else:
             selection = select(self.tree, fs, alpha, gamma, self.texels)
+            if self.selection_filter is not None:
+                selection = self.selection_filter(selection, fs)
         select_ms = (time.perf_counter() - t0) * 1e3
         keys = [("full", int(i)) if full_resolution else ("node", int(i)) for i in selection.nodes]
         # 3. Texture patch of each mesh, and the meshes grouped by texture patch.
@@ -638,6 +640,49 @@ class Engine:
             ]
         )
         return tex, uv
+
+    # -- host hooks (interactive viewers) ---------------------------------------------------
+    # A host that draws many frames per second bounds the work of each frame: it filters the
+    # selection (draw resident ancestors while children upload, or freeze the cut), uploads
+    # a few meshes per frame itself, and changes display settings without a new Engine.
+
+    #: fn(selection, frame_state) -> Selection applied to every frame's selection, or None.
+    selection_filter: Any = None
+
+    def set_selection_filter(self, fn: Any) -> None:
+        """Replace each frame's selection by ``fn(selection, frame_state)`` (None: as selected)."""
+        self.selection_filter = fn
+
+    def resident(self, nodes: np.ndarray) -> np.ndarray:
+        """(k,) bool: whether the mesh of each node id of ``nodes`` (k,) is in the GPU cache."""
+        return np.array([("node", int(i)) in self.cache for i in np.asarray(nodes)], dtype=bool)
+
+    def upload(self, node: int) -> bool:
+        """Upload the mesh of ``node`` now unless resident; True when it was uploaded."""
+        self._check_alive()
+        key = ("node", int(node))
+        if key in self.cache:
+            return False
+        self.cache.get(key, lambda: self._mesh_data(key))
+        return True
+
+    def set_skirts(self, skirts: bool) -> None:
+        """Turn skirts on or off; cached meshes are dropped when this changes them."""
+        skirts = bool(skirts)
+        if skirts != self.skirts:
+            self.skirts = skirts
+            self.cache.release()
+
+    def set_vertical_exaggeration(self, factor: float) -> None:
+        """Draw z times ``factor`` (> 0): α, the normals and near/far follow the new scale."""
+        if not (isinstance(factor, int | float) and math.isfinite(factor) and factor > 0):
+            raise InvalidParameterError(
+                f"vertical exaggeration must be a finite number > 0, got {factor!r}."
+            )
+        self._check_alive()
+        self.scale = display_scale(self.tree.terrain) * np.array([1.0, 1.0, float(factor)])
+        self.normal_map.release()
+        self.normal_map, self._normal_uv = self._make_normal_map()
 
 
 def _normals(z: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:

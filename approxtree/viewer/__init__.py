@@ -1,0 +1,40 @@
+"""Interactive viewer (core paper, section 7): a glfw window over the public Engine API.
+
+Pure parts, usable and tested without a window: camera controllers (controllers.py), key
+bindings and scripted presses (keys.py), camera scripts (script.py), the upload queue that
+bounds uploads per frame (upload_queue.py) and feature detection of the Engine
+(features.py). The window itself (app.py) and the text overlay (overlay.py) need glfw and GL,
+and are imported on first use.
+"""
+
+from approxtree.viewer.controllers import FlyController, OrbitController, cursor_ray, pick_terrain
+from approxtree.viewer.keys import BINDINGS, KeyPress, parse_key_presses
+from approxtree.viewer.script import Keyframe, ScriptFrame, load_script, script_frames
+from approxtree.viewer.upload_queue import UploadQueue
+
+
+def __getattr__(name: str):
+    # The window needs glfw and moderngl: load it on first use.
+    if name in ("Viewer", "ViewSettings"):
+        from approxtree.viewer import app
+
+        return getattr(app, name)
+    raise AttributeError(f"module 'approxtree.viewer' has no attribute {name!r}")
+
+
+__all__ = [
+    "BINDINGS",
+    "FlyController",
+    "KeyPress",
+    "Keyframe",
+    "OrbitController",
+    "ScriptFrame",
+    "UploadQueue",
+    "ViewSettings",
+    "Viewer",
+    "cursor_ray",
+    "load_script",
+    "parse_key_presses",
+    "pick_terrain",
+    "script_frames",
+]

@@ -1,0 +1,554 @@
+"""Viewer: a glfw window showing an approximation tree through the public Engine API.
+
+The window owns an OpenGL 3.3 core context (glfw), wrapped by moderngl; the Engine is
+embedded in it (``Engine(tree, context=ctx)``) and draws into the window's framebuffer.
+Input goes through one handler per glfw callback; scripted key presses (``--keys``, keyframe
+``keys``) call the same key handler glfw calls, so a replay exercises the real input path.
+
+A frame:
+
+1. poll events; apply the scripted key presses of this frame; in a replay, take the pose of
+   the script frame;
+2. move the fly camera by the held keys (scripted runs use a fixed 1/30 s step);
+3. ``engine.render`` into the window; the UploadQueue, installed as the Engine's selection
+   filter, bounds the uploads of the frame (and the frozen frustum, when on, replaces the
+   selection's view);
+4. screenshots read the window's back buffer (terrain only, before the overlay);
+5. overlay text and window title; swap buffers; one JSON line of stats when asked.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from approxtree.errors import ContextUnavailableError, InvalidParameterError
+from approxtree.io.atomic import atomic_write
+from approxtree.render.frame_state import overview_camera
+from approxtree.render.selector import select
+from approxtree.viewer.controllers import (
+    FlyController,
+    OrbitController,
+    cursor_ray,
+    pick_terrain,
+    to_display,
+    to_world,
+)
+from approxtree.viewer.features import EngineFeatures
+from approxtree.viewer.keys import FLY_KEYS, MOD_SHIFT, KeyPress, action_for, help_lines
+from approxtree.viewer.script import ScriptFrame
+from approxtree.viewer.upload_queue import UploadQueue
+
+#: Threshold and exaggeration steps of one key press.
+THRESHOLD_STEP, EXAGGERATION_STEP = 1.5, 1.25
+#: Zoom factor per wheel notch, fly speed (root box diagonals per second), shift multiplier.
+ZOOM_STEP, FLY_SPEED, FAST = 0.85, 0.1, 4.0
+#: Time step of scripted frames (seconds), so replays move the same on any machine.
+SCRIPT_DT = 1.0 / 30.0
+
+_INSTALL_HINT = (
+    "The viewer needs a display: run it on a desktop, or under a virtual X server "
+    "(Debian/Ubuntu: apt-get install -y xvfb; then xvfb-run -a approxtree view ...)."
+)
+
+
+@dataclass
+class ViewSettings:
+    """What the keys change. alpha: px; gamma: px²; exaggeration: z factor."""
+
+    alpha: float = 1.0
+    gamma: float = 2.0
+    wireframe: bool = False
+    skirts: bool = True
+    exaggeration: float = 1.0
+    thematic: bool = True
+    texture_index: int = 0
+    lighting: bool = True
+    frozen: bool = False
+    help: bool = False
+    fly: bool = False
+
+
+def _glfw():
+    try:
+        import glfw
+    except ImportError as exc:  # pragma: no cover - glfw is a dependency
+        raise ContextUnavailableError(f"The glfw package is missing ({exc}).") from exc
+    return glfw
+
+
+class Viewer:
+    """An interactive window over ``tree``.
+
+    textures: texture pyramid folders (thematic layers, cycled with TAB); size: window
+    (w, h); alpha, gamma: initial thresholds; fov: degrees; max_uploads, budget_ms: the
+    UploadQueue's per-frame budget; screenshot_dir: where P writes its PNGs; visible: show
+    the window (False for benchmarks that only need the context).
+    """
+
+    def __init__(
+        self,
+        tree,
+        textures: list[str] | tuple[str, ...] = (),
+        size: tuple[int, int] = (1280, 720),
+        alpha: float = 1.0,
+        gamma: float = 2.0,
+        fov: float = 45.0,
+        max_uploads: int = 32,
+        budget_ms: float | None = None,
+        screenshot_dir: str | Path = ".",
+        title: str = "approxtree viewer",
+        visible: bool = True,
+    ) -> None:
+        import moderngl
+
+        from approxtree.render.engine import Engine
+        from approxtree.textures.pyramid import TexturePyramid
+
+        self.tree = tree
+        self.settings = ViewSettings(alpha=float(alpha), gamma=float(gamma))
+        self.fov = float(fov)
+        self.title = title
+        self.screenshot_dir = Path(screenshot_dir)
+        self.pyramids = [TexturePyramid(d) for d in textures]
+        glfw = self.glfw = _glfw()
+        self._keycodes = {getattr(glfw, n): n[4:] for n in dir(glfw) if n.startswith("KEY_")}
+        self._keynames = {v: k for k, v in self._keycodes.items()}
+        # 1. Window and context: OpenGL 3.3 core, forward compatible (macOS needs it).
+        if not glfw.init():
+            raise ContextUnavailableError(f"glfw could not initialise. {_INSTALL_HINT}")
+        for hint, value in (
+            (glfw.CONTEXT_VERSION_MAJOR, 3),
+            (glfw.CONTEXT_VERSION_MINOR, 3),
+            (glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE),
+            (glfw.OPENGL_FORWARD_COMPAT, True),
+            (glfw.VISIBLE, bool(visible)),
+        ):
+            glfw.window_hint(hint, value)
+        self.window = glfw.create_window(int(size[0]), int(size[1]), title, None, None)
+        if not self.window:
+            glfw.terminate()
+            raise ContextUnavailableError(
+                f"glfw could not open an OpenGL 3.3 core window. {_INSTALL_HINT}"
+            )
+        glfw.make_context_current(self.window)
+        glfw.swap_interval(0)
+        self.ctx = moderngl.create_context()
+        # 2. The embedded engine, its upload queue and what it supports.
+        self.engine = Engine(tree, context=self.ctx)
+        self.features = EngineFeatures(self.engine)
+        self.queue = UploadQueue(self.engine, max_uploads, budget_ms)
+        self.engine.set_selection_filter(self._filter)
+        # The root's mesh now: it also loads the compiled skirt kernels before frame 0.
+        self.engine.upload(0)
+        self._frozen_frame: Any = None
+        from approxtree.viewer.overlay import Overlay
+
+        self.overlay = Overlay(self.ctx)
+        if self.pyramids:
+            self._apply_textures()
+        # 3. Cameras: the overview pose is "home".
+        home = overview_camera(tree.bboxes[0], self.engine.scale, fov=self.fov)
+        self._home_world = (home.eye.copy(), home.target.copy())
+        eye, target = self._to_display(*self._home_world)
+        self.orbit = OrbitController(eye, target)
+        self.fly = FlyController(eye, target)
+        self.held: set[str] = set()
+        self._drag: str | None = None
+        self._cursor: tuple[float, float] | None = None
+        self._pending_screenshot = False
+        self.last_stats: dict[str, Any] = {}
+        self.messages: list[str] = []
+        self._fly_speed = FLY_SPEED * self._diagonal()
+        self._install_callbacks()
+
+    # -- coordinates ------------------------------------------------------------------------
+
+    def _to_display(self, eye, target) -> tuple[np.ndarray, np.ndarray]:
+        o, s = self.tree.origin, self.engine.scale
+        return to_display(eye, o, s), to_display(target, o, s)
+
+    def _diagonal(self) -> float:
+        """Root box diagonal in display units."""
+        b = np.asarray(self.tree.bboxes[0], dtype=np.float64).reshape(2, 3)
+        return float(np.linalg.norm((b[1] - b[0]) * self.engine.scale))
+
+    @property
+    def controller(self) -> OrbitController | FlyController:
+        return self.fly if self.settings.fly else self.orbit
+
+    def pose_world(self) -> tuple[np.ndarray, np.ndarray]:
+        """(eye, target) of the current camera, world coordinates."""
+        c = self.controller
+        o, s = self.tree.origin, self.engine.scale
+        return to_world(c.eye, o, s), to_world(c.target, o, s)
+
+    def set_pose_world(self, eye, target) -> None:
+        """Put the current camera at world ``eye`` looking at ``target``."""
+        self.controller.set_pose(*self._to_display(eye, target))
+
+    # -- input ------------------------------------------------------------------------------
+
+    def _install_callbacks(self) -> None:
+        glfw, w = self.glfw, self.window
+        glfw.set_key_callback(w, self.on_key)
+        glfw.set_mouse_button_callback(w, self.on_mouse_button)
+        glfw.set_cursor_pos_callback(w, self.on_cursor)
+        glfw.set_scroll_callback(w, self.on_scroll)
+
+    def press(self, key: str, mods: int = 0, action: int | None = None) -> None:
+        """Send a key event for the key named ``key`` through the glfw key handler."""
+        glfw = self.glfw
+        code = self._keynames.get(key.upper())
+        if code is None:
+            raise InvalidParameterError(f"Unknown key {key!r}; use glfw key names (W, F1, TAB).")
+        self.on_key(self.window, code, 0, glfw.PRESS if action is None else action, mods)
+
+    def on_key(self, window, key: int, scancode: int, action: int, mods: int) -> None:
+        """glfw key callback: held keys as state, bindings fire on press."""
+        glfw = self.glfw
+        name = self._keycodes.get(key)
+        if name is None:
+            return
+        if action == glfw.RELEASE:
+            self.held.discard(name)
+            return
+        if action == glfw.PRESS:
+            self.held.add(name)
+            if mods & MOD_SHIFT:
+                self.held.add("LEFT_SHIFT")
+        if action != glfw.PRESS or (self.settings.fly and name in FLY_KEYS):
+            return
+        act = action_for(name, mods)
+        if act is not None:
+            self.do(act)
+
+    def do(self, action: str) -> None:
+        """Carry out a bound action (see keys.BINDINGS)."""
+        s = self.settings
+        engine = self.engine
+        if action == "help":
+            s.help = not s.help
+        elif action in ("alpha_down", "alpha_up"):
+            s.alpha = s.alpha * (THRESHOLD_STEP if action == "alpha_up" else 1 / THRESHOLD_STEP)
+        elif action in ("gamma_down", "gamma_up"):
+            s.gamma = s.gamma * (THRESHOLD_STEP if action == "gamma_up" else 1 / THRESHOLD_STEP)
+        elif action == "wireframe":
+            s.wireframe = not s.wireframe
+        elif action == "skirts":
+            s.skirts = not s.skirts
+            engine.set_skirts(s.skirts)
+        elif action in ("exaggerate_up", "exaggerate_down"):
+            step = EXAGGERATION_STEP if action == "exaggerate_up" else 1 / EXAGGERATION_STEP
+            self._set_exaggeration(s.exaggeration * step)
+        elif action == "thematic":
+            s.thematic = not s.thematic
+            self._apply_textures()
+        elif action == "next_texture":
+            if self.pyramids:
+                s.texture_index = (s.texture_index + 1) % len(self.pyramids)
+                s.thematic = True
+            self._apply_textures()
+        elif action == "shading":
+            s.lighting = not s.lighting
+            if not self.features.lighting:
+                self.messages.append("shading toggle: this Engine has no lighting option")
+        elif action == "freeze":
+            s.frozen = not s.frozen
+            self._frozen_frame = None
+            if s.frozen:
+                size = self.framebuffer_size()
+                self._frozen_frame = engine.frame_state(self._camera(), size)
+        elif action == "screenshot":
+            self._pending_screenshot = True
+        elif action == "fly":
+            eye, target = self.controller.eye, self.controller.target
+            s.fly = not s.fly
+            self.controller.set_pose(eye, target)
+        elif action == "reset":
+            s.fly = False
+            self.orbit.set_pose(*self._to_display(*self._home_world))
+        elif action == "quit":
+            self.glfw.set_window_should_close(self.window, True)
+
+    def _apply_textures(self) -> None:
+        s = self.settings
+        pyramid = self.pyramids[s.texture_index] if (self.pyramids and s.thematic) else None
+        if not self.features.set_textures(pyramid) and self.pyramids:
+            self.messages.append("textures: this Engine cannot draw texture pyramids yet")
+
+    def _set_exaggeration(self, factor: float) -> None:
+        # Keep the camera where it is in the world while the display scale changes.
+        eye, target = self.pose_world()
+        home = self._home_world
+        self.engine.set_vertical_exaggeration(factor)
+        self.settings.exaggeration = factor
+        self._frozen_frame = None
+        self.settings.frozen = False
+        self.set_pose_world(eye, target)
+        other = self.orbit if self.settings.fly else self.fly
+        other.set_pose(*self._to_display(*home))
+
+    def on_mouse_button(self, window, button: int, action: int, mods: int) -> None:
+        glfw = self.glfw
+        if action == glfw.RELEASE:
+            self._drag = None
+            return
+        if button == glfw.MOUSE_BUTTON_LEFT and not mods & MOD_SHIFT:
+            self._drag = "rotate"
+        else:
+            self._drag = "pan"
+        self._cursor = glfw.get_cursor_pos(window)
+
+    def on_cursor(self, window, x: float, y: float) -> None:
+        if self._drag is None or self._cursor is None:
+            self._cursor = (x, y)
+            return
+        dx, dy = x - self._cursor[0], y - self._cursor[1]
+        self._cursor = (x, y)
+        self.drag(self._drag, dx, dy)
+
+    def drag(self, kind: str, dx: float, dy: float) -> None:
+        """A mouse drag of (dx, dy) window pixels: "rotate" (orbit, or look when flying) or
+        "pan"."""
+        if self.settings.fly:
+            self.fly.look(dx, dy)
+        elif kind == "rotate":
+            self.orbit.orbit(dx, dy)
+        else:
+            self.orbit.pan(dx, dy, self.framebuffer_size()[1], self.fov)
+
+    def on_scroll(self, window, xoff: float, yoff: float) -> None:
+        x, y = self.glfw.get_cursor_pos(window)
+        self.wheel(yoff, self._window_to_pixel(x, y))
+
+    def wheel(self, notches: float, pixel: tuple[float, float]) -> None:
+        """Zoom towards the terrain under ``pixel`` (GL window coordinates); when flying,
+        change the fly speed instead."""
+        if self.settings.fly:
+            self._fly_speed *= 1.25**notches
+            return
+        o = self.orbit
+        size = self.framebuffer_size()
+        ray = cursor_ray(o.eye, o.target, self.fov, size, pixel)
+        far = np.linalg.norm(o.eye - o.target) + self._diagonal()
+        point = pick_terrain(
+            self.tree.terrain, self.tree.origin, self.engine.scale, o.eye, ray, far
+        )
+        o.zoom_to(o.target if point is None else point, ZOOM_STEP**notches)
+
+    def _window_to_pixel(self, x: float, y: float) -> tuple[float, float]:
+        """Window coordinates (y down, screen units) → framebuffer pixels (y up)."""
+        ww, wh = self.glfw.get_window_size(self.window)
+        fw, fh = self.framebuffer_size()
+        sx, sy = fw / max(ww, 1), fh / max(wh, 1)
+        return x * sx, fh - y * sy
+
+    def framebuffer_size(self) -> tuple[int, int]:
+        w, h = self.glfw.get_framebuffer_size(self.window)
+        return int(w), int(h)
+
+    # -- frames -----------------------------------------------------------------------------
+
+    def _filter(self, selection, frame):
+        """The Engine's selection filter: frozen frustum, then the upload budget."""
+        if self._frozen_frame is not None:
+            s = self.settings
+            selection = select(self.tree, self._frozen_frame, s.alpha, s.gamma, self.engine.texels)
+        return self.queue(selection, frame)
+
+    def _camera(self):
+        return self.controller.camera(self.tree.origin, self.engine.scale, self.fov)
+
+    def _fly_step(self, dt: float) -> None:
+        if not self.settings.fly:
+            return
+        move = np.zeros(3)
+        for key in self.held & FLY_KEYS.keys():
+            move += FLY_KEYS[key]
+        fast = FAST if self.held & {"LEFT_SHIFT", "RIGHT_SHIFT"} else 1.0
+        self.fly.move(*move, self._fly_speed * fast * dt)
+
+    def render_frame(self) -> dict[str, Any]:
+        """Draw one frame into the window's back buffer; returns its stats."""
+        s = self.settings
+        size = self.framebuffer_size()
+        self.ctx.fbo.use()
+        frame = self.engine.render(
+            self._camera(),
+            size,
+            s.alpha,
+            s.gamma,
+            wireframe=s.wireframe,
+            **self.features.render_options(s.lighting),
+        )
+        stats = dict(frame.stats)
+        stats.update(self.queue.figures())
+        stats.setdefault("texture_switches", 0)
+        return stats
+
+    def screenshot(self, path: str | Path) -> Path:
+        """Write the window's current back buffer to ``path`` as an RGB PNG (atomically)."""
+        from PIL import Image
+
+        w, h = self.framebuffer_size()
+        raw = self.ctx.fbo.read(viewport=(0, 0, w, h), components=3, alignment=1)
+        image = np.frombuffer(raw, dtype=np.uint8).reshape(h, w, 3)[::-1]
+        path = Path(path)
+        with atomic_write(path) as f:
+            Image.fromarray(np.ascontiguousarray(image), mode="RGB").save(f, format="PNG")
+        return path
+
+    def _overlay_lines(self, stats: dict[str, Any], frame_ms: float) -> list[str]:
+        s = self.settings
+        tex = "none"
+        if self.pyramids:
+            name = Path(self.pyramids[s.texture_index].folder).name
+            tex = f"{name} ({'on' if s.thematic else 'off'})"
+            if not self.features.textures:
+                tex += " [engine lacks textures]"
+        lines = [
+            f"frame {frame_ms:7.1f} ms   triangles {stats['triangles']:,}   "
+            f"patches {stats['patches']:,}   texture switches {stats['texture_switches']}",
+            f"max alpha {stats['max_alpha']:.2f} px (<= {s.alpha:.2f})   "
+            f"max gamma {stats['max_gamma']:.2f} px2 (<= {s.gamma:.2f})",
+            f"uploads {stats['uploads']}  pending {stats['pending']}  "
+            f"stand-ins {stats['fallbacks']}   texture {tex}",
+            f"{'fly' if s.fly else 'orbit'}  wireframe {_on(s.wireframe)}  "
+            f"skirts {_on(s.skirts)}  shading {_on(s.lighting)}  "
+            f"frozen {_on(s.frozen)}  exaggeration x{s.exaggeration:.2f}   F1: help",
+        ]
+        if s.help:
+            lines += ["", *help_lines()]
+        return lines + self.messages[-3:]
+
+    def _title(self, stats: dict[str, Any], frame_ms: float) -> str:
+        return (
+            f"{self.title} — {frame_ms:.1f} ms, {stats['triangles']:,} triangles, "
+            f"{stats['patches']} patches, {stats['texture_switches']} texture switches, "
+            f"max α {stats['max_alpha']:.2f} px, max γ {stats['max_gamma']:.2f} px²"
+        )
+
+    def run(
+        self,
+        script: list[ScriptFrame] | None = None,
+        key_presses: list[KeyPress] = (),
+        stats_path: str | Path | None = None,
+        screenshots: str | Path | None = None,
+        max_frames: int | None = None,
+    ) -> int:
+        """Run the frame loop until the window closes, the script ends or ``max_frames``
+        frames were drawn; returns the number of frames drawn.
+
+        script: frames of a camera replay (see script.py); key_presses: scripted presses by
+        frame; stats_path: one JSON line of stats per frame; screenshots: folder of one PNG
+        per completed keyframe (``keyframe_000.png`` ...).
+        """
+        glfw = self.glfw
+        by_frame: dict[int, list[KeyPress]] = {}
+        for p in key_presses:
+            by_frame.setdefault(p.frame, []).append(p)
+        shots = Path(screenshots) if screenshots is not None else None
+        if shots is not None:
+            shots.mkdir(parents=True, exist_ok=True)
+        lines: list[bytes] = []
+        # Scripted runs (a replay or key presses) step time by SCRIPT_DT: same motion anywhere.
+        scripted = script is not None or bool(by_frame)
+        frames = 0
+        last = time.perf_counter()
+        while not glfw.window_should_close(self.window):
+            if script is not None and frames >= len(script):
+                break
+            if max_frames is not None and frames >= max_frames:
+                break
+            t0 = time.perf_counter()
+            glfw.poll_events()
+            # 1. Scripted input through the key handler, then the script's pose.
+            pressed = [(p.key, p.mods) for p in by_frame.get(frames, [])]
+            step = script[frames] if script is not None else None
+            if step is not None:
+                from approxtree.viewer.keys import parse_key
+
+                pressed += [parse_key(k) for k in step.keys]
+            for key, mods in pressed:
+                self.press(key, mods)
+            if step is not None:
+                self.set_pose_world(step.eye, step.target)
+            # 2. Fly by held keys.
+            dt = SCRIPT_DT if scripted else min(t0 - last, 0.25)
+            last = t0
+            self._fly_step(dt)
+            for key, mods in pressed:
+                self.press(key, mods, action=glfw.RELEASE)
+            size = self.framebuffer_size()
+            if size[0] == 0 or size[1] == 0:
+                # Minimised: nothing to draw.
+                glfw.wait_events_timeout(0.1)
+                continue
+            # 3-4. Terrain, screenshots.
+            stats = self.render_frame()
+            if step is not None and step.keyframe is not None and shots is not None:
+                self.screenshot(shots / f"keyframe_{step.keyframe:03d}.png")
+            if self._pending_screenshot:
+                self._pending_screenshot = False
+                stamp = time.strftime("%Y%m%d-%H%M%S") + f"-{int(time.time() * 1e3) % 1000:03d}"
+                path = self.screenshot(self.screenshot_dir / f"approxtree-{stamp}.png")
+                self.messages.append(f"screenshot {path}")
+            # 5. Overlay, title, swap, stats line.
+            frame_ms = (time.perf_counter() - t0) * 1e3
+            self.overlay.set_lines(self._overlay_lines(stats, frame_ms))
+            self.overlay.draw(size)
+            glfw.set_window_title(self.window, self._title(stats, frame_ms))
+            glfw.swap_buffers(self.window)
+            frame_ms = (time.perf_counter() - t0) * 1e3
+            stats.update(frame=frames, frame_ms=round(frame_ms, 3), size=list(size))
+            if step is not None:
+                stats["keyframe"] = step.keyframe
+            eye, target = self.pose_world()
+            stats.update(
+                alpha=self.settings.alpha,
+                gamma=self.settings.gamma,
+                eye=eye.tolist(),
+                target=target.tolist(),
+                mode="fly" if self.settings.fly else "orbit",
+                frozen=self.settings.frozen,
+            )
+            self.last_stats = stats
+            if stats_path is not None:
+                lines.append((json.dumps(_json_safe(stats)) + "\n").encode())
+            frames += 1
+        if stats_path is not None:
+            with atomic_write(stats_path) as f:
+                f.writelines(lines)
+        return frames
+
+    def close(self) -> None:
+        """Free the overlay and the engine, close the window and end glfw."""
+        self.overlay.release()
+        self.engine.release()
+        self.ctx.release()
+        self.glfw.destroy_window(self.window)
+        self.glfw.terminate()
+
+    def __enter__(self) -> Viewer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _on(flag: bool) -> str:
+    return "on" if flag else "off"
+
+
+def _json_safe(stats: dict[str, Any]) -> dict[str, Any]:
+    """JSON has no inf or NaN: report them as null."""
+    return {
+        k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in stats.items()
+    }
