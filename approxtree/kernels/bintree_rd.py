@@ -235,10 +235,40 @@ def _split_domain(t, mate, birth, step, gain, out):
     return n, g
 
 
+#: Levels below a leaf that its refinement priority looks ahead.
+LOOKAHEAD = 3
+
+
+@njit(cache=True)
+def _priority(t, n, g, gain, nsplit) -> float:
+    """λ of leaf t, looking ahead: the best slope of splitting its domain and then the
+    complete subtree of t down to LOOKAHEAD levels (forced splits below t not counted).
+
+    The distortion is not monotonic: splitting a large triangle may raise it while splitting
+    its children lowers it a lot; the plain λ = g / n would never choose such a triangle.
+    """
+    best = g / n
+    gg = g
+    nn = n
+    first = t
+    cnt = 1
+    for _ in range(LOOKAHEAD - 1):
+        first *= 2
+        cnt *= 2
+        if first >= nsplit:
+            break
+        for u in range(first, first + cnt):
+            gg += gain[u]
+        nn += cnt
+        best = max(best, gg / nn)
+    return best
+
+
 @njit(cache=True)
 def refine_kernel(gain: np.ndarray, mate: np.ndarray, d_root: float, k: int, max_rate: int):
     """Greedy growing from the two root triangles: split the leaf (with its splitting domain)
-    of largest λ = gain / triangles added, until ``max_rate`` triangles or the full grid.
+    of largest λ (distortion removed per triangle added, see ``_priority``), until
+    ``max_rate`` triangles or the full grid.
 
     Returns (birth (2^(2k+2),) int32 step at which each node splits (NEVER if not),
     rates (S+1,) int64, distortions (S+1,) float64) for meshes 0..S.
@@ -261,7 +291,7 @@ def refine_kernel(gain: np.ndarray, mate: np.ndarray, d_root: float, k: int, max
     for t in (2, 3):
         if t < nsplit:
             n, g = _split_domain(t, mate, birth, 0, gain, buf)
-            size = heap_push(heap, hkey, pos, size, t, g / n)
+            size = heap_push(heap, hkey, pos, size, t, _priority(t, n, g, gain, nsplit))
     rate = 2
     cur = d_root
     while size > 0 and (max_rate <= 0 or rate < max_rate):
@@ -296,7 +326,7 @@ def refine_kernel(gain: np.ndarray, mate: np.ndarray, d_root: float, k: int, max
             y = stack[sp]
             nn2, g2 = _split_domain(y, mate, birth, step, gain, buf[n:])
             size = heap_remove(heap, hkey, pos, size, y)
-            size = heap_push(heap, hkey, pos, size, y, g2 / nn2)
+            size = heap_push(heap, hkey, pos, size, y, _priority(y, nn2, g2, gain, nsplit))
             # Leaves across the hypotenuses of y's (absent) children pass through y.
             if 2 * y < nsplit:
                 for c in (2 * y, 2 * y + 1):
