@@ -235,37 +235,43 @@ def _split_domain(t, mate, birth, step, gain, out):
     return n, g
 
 
-#: Levels below a leaf that its refinement priority looks ahead.
-LOOKAHEAD = 3
-
-
 @njit(cache=True)
-def _priority(t, n, g, gain, nsplit) -> float:
-    """λ of leaf t, looking ahead: the best slope of splitting its domain and then the
-    complete subtree of t down to LOOKAHEAD levels (forced splits below t not counted).
-
-    The distortion is not monotonic: splitting a large triangle may raise it while splitting
-    its children lowers it a lot; the plain λ = g / n would never choose such a triangle.
+def subtree_slopes(d: np.ndarray, k: int) -> np.ndarray:
+    """best (2^(2k+1),) float64: for every node t, the largest distortion removed per added
+    triangle when t's subtree is split completely down to some depth δ >= 1,
+    max over δ of (d(t) − Σ d(descendants at depth δ)) / (2^δ − 1). O(n) in place.
     """
-    best = g / n
-    gg = g
-    nn = n
-    first = t
-    cnt = 1
-    for _ in range(LOOKAHEAD - 1):
-        first *= 2
-        cnt *= 2
-        if first >= nsplit:
-            break
-        for u in range(first, first + cnt):
-            gg += gain[u]
-        nn += cnt
-        best = max(best, gg / nn)
+    nsplit = 1 << (2 * k + 1)
+    s = d.copy()
+    best = np.full(nsplit, -np.inf)
+    limit = s.shape[0]
+    cnt = 1.0
+    while limit > 2:
+        half = limit // 2
+        # Ascending t: s[2t], s[2t + 1] still hold depth δ − 1 when s[t] becomes depth δ.
+        for t in range(1, half):
+            s[t] = s[2 * t] + s[2 * t + 1]
+            if t >= 2:
+                best[t] = max(best[t], (d[t] - s[t]) / cnt)
+        cnt = 2.0 * cnt + 1.0
+        limit = half
     return best
 
 
+@njit(cache=True, inline="always")
+def _priority(t, n, g, best) -> float:
+    """Refinement priority of leaf t: max(λ of its splitting domain, best subtree slope).
+
+    The distortion is not monotonic: splitting a large triangle may raise it while splitting
+    its descendants lowers it a lot, so the plain λ = g / n would never choose it.
+    """
+    return max(g / n, best[t])
+
+
 @njit(cache=True)
-def refine_kernel(gain: np.ndarray, mate: np.ndarray, d_root: float, k: int, max_rate: int):
+def refine_kernel(
+    gain: np.ndarray, mate: np.ndarray, best: np.ndarray, d_root: float, k: int, max_rate: int
+):
     """Greedy growing from the two root triangles: split the leaf (with its splitting domain)
     of largest λ (distortion removed per triangle added, see ``_priority``), until
     ``max_rate`` triangles or the full grid.
@@ -291,7 +297,7 @@ def refine_kernel(gain: np.ndarray, mate: np.ndarray, d_root: float, k: int, max
     for t in (2, 3):
         if t < nsplit:
             n, g = _split_domain(t, mate, birth, 0, gain, buf)
-            size = heap_push(heap, hkey, pos, size, t, _priority(t, n, g, gain, nsplit))
+            size = heap_push(heap, hkey, pos, size, t, _priority(t, n, g, best))
     rate = 2
     cur = d_root
     while size > 0 and (max_rate <= 0 or rate < max_rate):
@@ -326,7 +332,7 @@ def refine_kernel(gain: np.ndarray, mate: np.ndarray, d_root: float, k: int, max
             y = stack[sp]
             nn2, g2 = _split_domain(y, mate, birth, step, gain, buf[n:])
             size = heap_remove(heap, hkey, pos, size, y)
-            size = heap_push(heap, hkey, pos, size, y, _priority(y, nn2, g2, gain, nsplit))
+            size = heap_push(heap, hkey, pos, size, y, _priority(y, nn2, g2, best))
             # Leaves across the hypotenuses of y's (absent) children pass through y.
             if 2 * y < nsplit:
                 for c in (2 * y, 2 * y + 1):

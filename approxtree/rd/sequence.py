@@ -70,8 +70,9 @@ def refine(terrain, max_triangles: int | None = None) -> EmbeddedSequence:
     """
     tree = _tree(terrain)
     t0 = time.perf_counter()
+    best = kr.subtree_slopes(tree.d, tree.k)
     birth, rates, dist = kr.refine_kernel(
-        tree.gain, tree.mate, tree.root_distortion, tree.k, int(max_triangles or 0)
+        tree.gain, tree.mate, best, tree.root_distortion, tree.k, int(max_triangles or 0)
     )
     return EmbeddedSequence("refinement", tree, birth, rates, dist, time.perf_counter() - t0)
 
