@@ -291,6 +291,7 @@ def _render_to_png(
     gamma: float,
     wireframe: bool = False,
     full_resolution: bool = False,
+    max_triangles: int | None = None,
 ) -> dict[str, Any]:
     """Render one frame of ``tree`` to an RGBA PNG at ``path``; returns the frame's stats.
 
@@ -312,7 +313,13 @@ def _render_to_png(
             centre = tuple(0.5 * (box[:3] + box[3:]))
             camera = Camera.look_at(eye, target if target is not None else centre, fov=fov)
         frame = engine.render(
-            camera, size, alpha, gamma, wireframe=wireframe, full_resolution=full_resolution
+            camera,
+            size,
+            alpha,
+            gamma,
+            wireframe=wireframe,
+            full_resolution=full_resolution,
+            max_triangles=max_triangles,
         )
     with atomic_write(path) as f:
         Image.fromarray(frame.image, mode="RGBA").save(f, format="PNG")
@@ -337,6 +344,12 @@ def _render_to_png(
 )
 @click.option("--wireframe", is_flag=True, help="Draw triangle edges.")
 @click.option("--full-resolution", is_flag=True, help="Draw the unsimplified terrain (reference).")
+@click.option(
+    "--max-triangles",
+    type=int,
+    default=None,
+    help="Triangle budget (skirts included) instead of --alpha: smallest α that fits.",
+)
 @click.option("--out", required=True, type=click.Path(dir_okay=False), help="PNG to write (RGBA).")
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
 @_reports_errors
@@ -350,6 +363,7 @@ def render(
     gamma: float,
     wireframe: bool,
     full_resolution: bool,
+    max_triangles: int | None,
     out: str,
     as_json: bool,
 ) -> None:
@@ -358,7 +372,17 @@ def render(
 
     tree = ApproximationTree.load(tree_file)
     stats = _render_to_png(
-        tree, Path(out), eye, target, fov, size, alpha, gamma, wireframe, full_resolution
+        tree,
+        Path(out),
+        eye,
+        target,
+        fov,
+        size,
+        alpha,
+        gamma,
+        wireframe,
+        full_resolution,
+        max_triangles,
     )
     _emit(stats, as_json)
 

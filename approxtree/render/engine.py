@@ -186,6 +186,7 @@ class Engine:
         target: Any = None,
         read_image: bool | None = None,
         world_positions: bool = False,
+        max_triangles: int | None = None,
     ) -> Frame:
         """Draw one frame; see the module docstring for the steps.
 
@@ -196,6 +197,9 @@ class Engine:
         framebuffer, or, for an engine made with context=, into the framebuffer bound there.
         read_image: read the image back (default: only from the engine's own framebuffer).
         world_positions: also fill Frame.positions (an extra pass into a float buffer).
+        max_triangles: triangle budget instead of the alpha threshold: draw the cut of
+        smallest largest α with at most this many triangles, skirts included (``budget``);
+        stats["max_alpha"] is the α reached.
         """
         self._check_alive()
         alpha, gamma = check_thresholds(alpha, gamma)
@@ -205,6 +209,8 @@ class Engine:
         t0 = time.perf_counter()
         if full_resolution:
             selection = self._full_resolution_selection(fs)
+        elif max_triangles is not None:
+            selection = self._budget_selection(fs, max_triangles)
         else:
             selection = select(self.tree, fs, alpha, gamma, self.texels)
         select_ms = (time.perf_counter() - t0) * 1e3
@@ -240,6 +246,14 @@ class Engine:
             "gpu_bytes": int(self.cache.nbytes),
         }
         return Frame(image, stats, selection, fs, positions)
+
+    def _budget_selection(self, fs: FrameState, max_triangles: int) -> Selection:
+        """Selection under a triangle budget (per-node counts computed on first use)."""
+        from approxtree.render.budget import node_triangles, select_budget
+
+        if getattr(self, "_node_triangles", None) is None:
+            self._node_triangles = node_triangles(self.tree, self.skirts)
+        return select_budget(self.tree, fs, max_triangles, self._node_triangles, self.texels)
 
     def release(self) -> None:
         """Free every GPU object of the engine (and its context, if it created it)."""
