@@ -41,7 +41,7 @@ from numba import njit
 
 from approxtree.kernels.tin_mesh import orient
 from approxtree.kernels.tin_scan import row_span
-from approxtree.kernels.tri_heap import heap_push, heap_remove
+from approxtree.kernels.tri_heap import heap_push, heap_remove, heap_update
 
 #: Step of a node that never splits in a sequence.
 NEVER = np.int32(2**31 - 1)
@@ -331,8 +331,10 @@ def refine_kernel(
             sp -= 1
             y = stack[sp]
             nn2, g2 = _split_domain(y, mate, birth, step, gain, buf[n:])
-            size = heap_remove(heap, hkey, pos, size, y)
-            size = heap_push(heap, hkey, pos, size, y, _priority(y, nn2, g2, best))
+            if pos[y] >= 0:
+                size = heap_update(heap, hkey, pos, size, y, _priority(y, nn2, g2, best))
+            else:
+                size = heap_push(heap, hkey, pos, size, y, _priority(y, nn2, g2, best))
             # Leaves across the hypotenuses of y's (absent) children pass through y.
             if 2 * y < nsplit:
                 for c in (2 * y, 2 * y + 1):
@@ -464,7 +466,13 @@ def decimate_kernel(gain: np.ndarray, mate: np.ndarray, d_root: float, k: int, m
     heap = np.empty(nsplit, dtype=np.int32)
     hkey = np.empty(nsplit, dtype=np.float64)
     size = 0
+    # A node and its mate share P, so one of them (the smaller id) stands for both.
     for u in range(2, nsplit):
+        m = mate[u]
+        if m != 0 and m < u:
+            pd[u] = pd[m]
+            pn[u] = pn[m]
+            continue
         qid += 1
         roots, n = merge_roots(u, mate, alive, mark, qid, roots)
         for i in range(n):
@@ -573,8 +581,8 @@ def decimate_kernel(gain: np.ndarray, mate: np.ndarray, d_root: float, k: int, m
         dist.append(cur)
         for q in range(tn):
             x = tlist[q]
-            size = heap_remove(heap, hkey, pos, size, x)
-            size = heap_push(heap, hkey, pos, size, x, -pd[x] / pn[x])
+            if pos[x] >= 0:
+                size = heap_update(heap, hkey, pos, size, x, -pd[x] / pn[x])
         step += 1
     # Coarse-to-fine birth: mesh j (j = S − prunes done) splits nodes with birth < j.
     total = step

@@ -71,3 +71,14 @@ def heap_remove(heap: np.ndarray, hkey: np.ndarray, pos: np.ndarray, size: int, 
         else:
             _sift_down(heap, hkey, pos, i, mt, mk, last)
     return last
+
+
+@njit(cache=True)
+def heap_update(heap: np.ndarray, hkey: np.ndarray, pos: np.ndarray, size: int, t: int, k: float):
+    """Give triangle t (in the heap) the key k, moving it up or down in place."""
+    i = pos[t]
+    if k > hkey[i]:
+        _sift_up(heap, hkey, pos, i, t, k)
+    else:
+        _sift_down(heap, hkey, pos, i, t, k, size)
+    return size
