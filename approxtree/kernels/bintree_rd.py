@@ -525,10 +525,16 @@ def decimate_kernel(gain: np.ndarray, mate: np.ndarray, d_root: float, k: int, m
                 sub[sp] = 2 * u
                 sub[sp + 1] = 2 * u + 1
                 sp += 2
-        # 2. Every surviving x with u in P(x), i.e. x in the split closure of u, loses u.
+        # 2. Every surviving x with u in P(x), i.e. x in the split closure of u, loses u. A
+        #    node and its mate have the same closure (and are pruned together): walk it once.
         tn = 0
         for q in range(pn_t):
             u = plist[q]
+            mu = mate[u]
+            if mu != 0 and mu < u:
+                continue
+            gu = gain[u] + (gain[mu] if mu != 0 else 0.0)
+            nu = 2 if mu != 0 else 1
             qid += 1
             queue[0] = u
             mark[u] = qid
@@ -545,8 +551,8 @@ def decimate_kernel(gain: np.ndarray, mate: np.ndarray, d_root: float, k: int, m
                         queue[qn] = y
                         qn += 1
                         if inp[y] != step + 1:
-                            pd[y] -= gain[u]
-                            pn[y] -= 1
+                            pd[y] -= gu
+                            pn[y] -= nu
                             if touched[y] != step + 1:
                                 touched[y] = step + 1
                                 if tn == tlist.shape[0]:
