@@ -382,6 +382,7 @@ def _render_to_png(
     full_resolution: bool = False,
     textures: str | None = None,
     lighting: bool = True,
+    max_triangles: int | None = None,
 ) -> dict[str, Any]:
     """Render one frame of ``tree`` to an RGBA PNG at ``path``; returns the frame's stats.
 
@@ -411,6 +412,7 @@ def _render_to_png(
             wireframe=wireframe,
             full_resolution=full_resolution,
             lighting=lighting,
+            max_triangles=max_triangles,
         )
     with atomic_write(path) as f:
         Image.fromarray(frame.image, mode="RGBA").save(f, format="PNG")
@@ -435,6 +437,12 @@ def _render_to_png(
 )
 @click.option("--wireframe", is_flag=True, help="Draw triangle edges.")
 @click.option("--full-resolution", is_flag=True, help="Draw the unsimplified terrain (reference).")
+@click.option(
+    "--max-triangles",
+    type=int,
+    default=None,
+    help="Triangle budget (skirts included) instead of --alpha: smallest α that fits.",
+)
 @click.option("--out", required=True, type=click.Path(dir_okay=False), help="PNG to write (RGBA).")
 @click.option(
     "--textures",
@@ -455,6 +463,7 @@ def render(
     gamma: float,
     wireframe: bool,
     full_resolution: bool,
+    max_triangles: int | None,
     out: str,
     textures: str | None,
     no_lighting: bool,
@@ -477,6 +486,7 @@ def render(
         full_resolution,
         textures=textures,
         lighting=not no_lighting,
+        max_triangles=max_triangles,
     )
     _emit(stats, as_json)
 
@@ -769,3 +779,83 @@ def view(
         drawn = viewer.run(script, presses, stats_path, screenshots, max_frames=frames)
     if script is not None:
         click.echo(json.dumps({"frames": drawn, "stats": stats_path, "screenshots": screenshots}))
+
+
+def _rates(ctx: click.Context, param: click.Parameter, value: str) -> list[int]:
+    """Parse "512,1024" into triangle counts."""
+    try:
+        rates = [int(v) for v in value.split(",") if v.strip()]
+    except ValueError:
+        rates = []
+    if not rates or min(rates) < 2:
+        raise click.BadParameter(f"expected triangle counts >= 2 like 512,1024, got {value!r}")
+    return rates
+
+
+@main.command()
+@click.argument("dem", type=click.Path(dir_okay=False))
+@click.option(
+    "--rates",
+    callback=_rates,
+    default="512,1024,2048,4096",
+    show_default=True,
+    help="Triangle counts at which every method is measured.",
+)
+@click.option(
+    "--size",
+    type=int,
+    default=None,
+    help="Side 2^k + 1 of the centred window used [default: the largest that fits].",
+)
+@click.option(
+    "--methods",
+    default="decimation,refinement,uniform,tin,rtin",
+    show_default=True,
+    help="Methods to compare (comma-separated).",
+)
+@click.option("--plot", type=click.Path(dir_okay=False), help="PNG of the L2 and L∞ curves.")
+@reader_options
+@click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
+@_reports_errors
+def rd(
+    dem: str,
+    rates: list[int],
+    size: int | None,
+    methods: str,
+    plot: str | None,
+    encoding,
+    nodata_policy,
+    ground_only,
+    height_scale,
+    as_json: bool,
+) -> None:
+    """Rate–distortion comparison: binary-tree decimation and refinement, uniform grid, TIN
+    and RTIN at the same triangle counts (L2, max error, SNR in dB, seconds)."""
+    from approxtree.geometry import Grid
+    from approxtree.rd import lattice_heights, rd_curves
+    from approxtree.rd.curves import json_ready, plot_rd
+
+    terrain = _open(dem, encoding, nodata_policy, ground_only, height_scale)
+    if not isinstance(terrain, Grid):
+        from approxtree.errors import InvalidParameterError
+
+        raise InvalidParameterError(
+            f"The rd command needs a raster grid, {dem} reads as a {terrain.kind}."
+        )
+    heights = lattice_heights(terrain, size)
+    result = rd_curves(heights, rates, [m.strip() for m in methods.split(",") if m.strip()])
+    if plot:
+        plot_rd(result, plot, title=f"{Path(dem).name} ({heights.shape[0]}²)")
+    figures = json_ready(result)
+    figures["dem"] = str(dem)
+    if as_json:
+        click.echo(json.dumps(figures))
+        return
+    click.echo(f"{Path(dem).name}: {heights.shape[0]}² grid, SNR (dB) / max error")
+    click.echo("method       " + "".join(f"{r:>16}" for r in figures["rates"]) + "   seconds")
+    for name, data in figures["methods"].items():
+        cells = "".join(
+            f"{(row['snr_db'] or float('inf')):>8.2f} /{row['max_error']:>6.1f}"
+            for row in data["rows"]
+        )
+        click.echo(f"{name:<13}{cells}   {data['seconds']}")

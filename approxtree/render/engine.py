@@ -240,6 +240,7 @@ class Engine:
         world_positions: bool = False,
         lighting: bool = True,
         share_textures: bool = True,
+        max_triangles: int | None = None,
     ) -> Frame:
         """Draw one frame; see the module docstring for the steps.
 
@@ -253,6 +254,9 @@ class Engine:
         lighting: modulate the colour by the light (True) or draw it unlit (decal mode).
         share_textures: let nodes use an ancestor's texture patch (section 4.2); off only to
         measure what sharing saves.
+        max_triangles: triangle budget instead of the alpha threshold: draw the cut of
+        smallest largest α with at most this many triangles, skirts included (``budget``);
+        stats["max_alpha"] is the α reached.
         """
         self._check_alive()
         alpha, gamma = check_thresholds(alpha, gamma)
@@ -262,6 +266,8 @@ class Engine:
         t0 = time.perf_counter()
         if full_resolution:
             selection = self._full_resolution_selection(fs)
+        elif max_triangles is not None:
+            selection = self._budget_selection(fs, max_triangles)
         else:
             selection = select(self.tree, fs, alpha, gamma, self.texels)
             if self.selection_filter is not None:
@@ -319,6 +325,14 @@ class Engine:
             "texture_switches": int(switches),
         }
         return Frame(image, stats, selection, fs, positions, tex_nodes, tex_gammas)
+
+    def _budget_selection(self, fs: FrameState, max_triangles: int) -> Selection:
+        """Selection under a triangle budget (per-node counts computed on first use)."""
+        from approxtree.render.budget import node_triangles, select_budget
+
+        if getattr(self, "_node_triangles", None) is None:
+            self._node_triangles = node_triangles(self.tree, self.skirts)
+        return select_budget(self.tree, fs, max_triangles, self._node_triangles, self.texels)
 
     def release(self) -> None:
         """Free every GPU object of the engine (and its context, if it created it)."""
