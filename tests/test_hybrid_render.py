@@ -53,7 +53,7 @@ def test_no_cracks_in_a_grid_refinement_tree(gl_context, alpha):  # noqa: F811
     d = tree.terrain.domain
     (cx, cy), z0 = d.center, tree.terrain.z_range[1]
     cam = Camera.look_at(
-        (cx - 0.1 * d.width, cy - 0.9 * d.height, z0 + 0.6 * d.width), (cx, cy, z0 - 300), fov=60
+        (cx - 0.1 * d.width, cy - 1.2 * d.height, z0 + 0.3 * d.width), (cx, cy, z0 - 300), fov=60
     )
     holes = {}
     for skirts in (True, False):

@@ -83,6 +83,7 @@ def select_budget(
         np.ascontiguousarray(frame.world_to_clip),
         float(vw),
         float(vh),
+        frame.lens,
     )
     counts = np.asarray(triangles, dtype=np.int64)[ids]
     nchild = np.asarray(tree.child_count, dtype=np.int64)[ids]
@@ -120,7 +121,7 @@ def select_budget(
 
 
 @njit(cache=True)
-def _visible_tree(bboxes, errors, texels, child_start, child_count, planes, eye, m, vw, vh):
+def _visible_tree(bboxes, errors, texels, child_start, child_count, planes, eye, m, vw, vh, lens):
     """Breadth-first over every node whose parent is visible.
 
     Returns (ids (v,), first (v,) position of the first child in ids (−1: none traversed),
@@ -139,7 +140,7 @@ def _visible_tree(bboxes, errors, texels, child_start, child_count, planes, eye,
         if box_in_frustum(bboxes[i], planes):
             vis[head] = True
             a, g = node_visual_errors(
-                bboxes[i], errors[i], texels[i, 0], texels[i, 1], eye, m, vw, vh
+                bboxes[i], errors[i], texels[i, 0], texels[i, 1], eye, m, vw, vh, lens
             )
             a_out[head] = a
             g_out[head] = g

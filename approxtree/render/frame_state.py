@@ -197,6 +197,11 @@ class FrameState:
 
     # -- projections ------------------------------------------------------------------------
 
+    @property
+    def lens(self) -> np.ndarray:
+        """(4,) float64: focal length in pixels and the display scale, for the α kernels."""
+        return np.array([self.focal_px, *self.scale], dtype=np.float64)
+
     def world_to_pixels(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Project world points: (..., 3) → ((..., 2) pixel coordinates, (...,) clip w).
 

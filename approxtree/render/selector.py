@@ -126,6 +126,7 @@ def select(
         np.ascontiguousarray(frame.world_to_clip),
         float(vw),
         float(vh),
+        frame.lens,
         alpha,
         gamma,
     )
@@ -137,7 +138,7 @@ def select(
 
 @njit(cache=True)
 def _traverse(
-    bboxes, errors, texels, child_start, child_count, planes, eye, m, vw, vh, alpha, gamma
+    bboxes, errors, texels, child_start, child_count, planes, eye, m, vw, vh, lens, alpha, gamma
 ):
     """Breadth-first traversal; returns (visited ids, results, α, γ) in visiting order.
 
@@ -160,7 +161,7 @@ def _traverse(
         # 1. Frustum test of B_N.
         if box_in_frustum(bboxes[i], planes):
             a, g = node_visual_errors(
-                bboxes[i], errors[i], texels[i, 0], texels[i, 1], eye, m, vw, vh
+                bboxes[i], errors[i], texels[i, 0], texels[i, 1], eye, m, vw, vh, lens
             )
             a_out[head] = a
             g_out[head] = g

@@ -8,6 +8,12 @@ For a node N with box B_N, geometric error ε_T(N) and texel size w × h:
 3. γ_N = area in pixels of the projection of the w × h rectangle, parallel to the xy-plane,
    centred at p.
 
+Step 2 alone reads 0 when the eye is straight above (or below) B_N: the segment at p is then
+seen end-on, although other points of B_N show the error. So α_N is also at least the angle
+that a vertical segment of length ε anywhere in B_N can subtend, times the focal length in
+pixels: at horizontal distance d and height gap z that angle is at most ε·d / (d² + z²),
+maximised over the d and z the box allows (the nadir bound).
+
 When the segment or the rectangle reaches behind the eye (clip w <= 0, e.g. the eye inside
 B_N) the projection is unbounded and the error is +inf, which always asks for refinement.
 
@@ -36,6 +42,25 @@ def _project(m: np.ndarray, x: float, y: float, z: float, vw: float, vh: float):
     return (cx / cw * 0.5 + 0.5) * vw, (cy / cw * 0.5 + 0.5) * vh, cw
 
 
+@njit(cache=True, inline="always")
+def _nadir_gain(box: np.ndarray, eye: np.ndarray, lens: np.ndarray) -> float:
+    """max over B_N of d / (d² + z²), display units: d horizontal distance, z height gap."""
+    sx, sy, sz = lens[1], lens[2], lens[3]
+    # Nearest and farthest horizontal distances from the eye to the box's footprint.
+    nx = max(box[0] - eye[0], 0.0, eye[0] - box[3]) * sx
+    ny = max(box[1] - eye[1], 0.0, eye[1] - box[4]) * sy
+    fx = max(abs(eye[0] - box[0]), abs(eye[0] - box[3])) * sx
+    fy = max(abs(eye[1] - box[1]), abs(eye[1] - box[4])) * sy
+    dmin = math.hypot(nx, ny)
+    dmax = math.hypot(fx, fy)
+    gap = max(box[2] - eye[2], 0.0, eye[2] - box[5]) * sz
+    if gap == 0.0:
+        return np.inf if dmin == 0.0 else 1.0 / dmin
+    # d / (d² + z²) rises up to d = z and falls after it.
+    d = min(max(gap, dmin), dmax)
+    return d / (d * d + gap * gap)
+
+
 @njit(cache=True)
 def node_visual_errors(
     box: np.ndarray,
@@ -46,9 +71,11 @@ def node_visual_errors(
     m: np.ndarray,
     vw: float,
     vh: float,
+    lens: np.ndarray,
 ) -> tuple[float, float]:
     """(α_N, γ_N) of one node: box (6,) world B_N, error ε_T(N), texel tw × th (world units),
-    eye (3,) world, m (4, 4) world → clip, viewport vw × vh pixels."""
+    eye (3,) world, m (4, 4) world → clip, viewport vw × vh pixels, lens (4,) focal length
+    in pixels and the display scale (FrameState.lens)."""
     # 1. The nearest point: clamping per axis is the same in world and display units because
     #    the display scale is diagonal and positive.
     px = min(max(eye[0], box[0]), box[3])
@@ -63,6 +90,7 @@ def node_visual_errors(
         ax, ay, aw = _project(m, px, py, pz - 0.5 * error, vw, vh)
         bx, by, bw = _project(m, px, py, pz + 0.5 * error, vw, vh)
         alpha = np.inf if (aw <= 0.0 or bw <= 0.0) else np.hypot(bx - ax, by - ay)
+        alpha = max(alpha, error * lens[3] * lens[0] * _nadir_gain(box, eye, lens))
     # 3. γ: the tw × th rectangle centred at p, parallel to the xy-plane; shoelace area.
     x0, y0, w0 = _project(m, px - 0.5 * tw, py - 0.5 * th, pz, vw, vh)
     x1, y1, w1 = _project(m, px + 0.5 * tw, py - 0.5 * th, pz, vw, vh)
@@ -78,13 +106,13 @@ def node_visual_errors(
 
 
 @njit(cache=True)
-def _visual_errors_many(bboxes, errors, texels, eye, m, vw, vh):
+def _visual_errors_many(bboxes, errors, texels, eye, m, vw, vh, lens):
     n = bboxes.shape[0]
     alpha = np.empty(n)
     gamma = np.empty(n)
     for i in range(n):
         alpha[i], gamma[i] = node_visual_errors(
-            bboxes[i], errors[i], texels[i, 0], texels[i, 1], eye, m, vw, vh
+            bboxes[i], errors[i], texels[i, 0], texels[i, 1], eye, m, vw, vh, lens
         )
     return alpha, gamma
 
@@ -106,6 +134,7 @@ def visual_errors(
         np.ascontiguousarray(frame.world_to_clip),
         float(vw),
         float(vh),
+        frame.lens,
     )
 
 
