@@ -18,6 +18,21 @@ from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
 
 
+def ccw_triangles(vertices: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """(m, 3) int64 copy of ``tris`` with every triangle counter-clockwise seen from above.
+
+    vertices: (n, 3) world coordinates; tris: (m, 3) vertex indices of any orientation.
+    """
+    t = np.asarray(tris).astype(np.int64)
+    if len(t) == 0:
+        return t.reshape(0, 3)
+    e1 = vertices[t[:, 1], :2] - vertices[t[:, 0], :2]
+    e2 = vertices[t[:, 2], :2] - vertices[t[:, 0], :2]
+    cw = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] < 0
+    t[cw] = t[cw][:, [0, 2, 1]]
+    return t
+
+
 class GeometryPatch(ABC):
     """T_N: up to s data points approximating the terrain on a rectangle D_N."""
 

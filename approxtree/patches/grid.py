@@ -27,6 +27,31 @@ def grid_steps(n_lines: int, max_lines: int) -> int:
     return max(1, math.ceil((n_lines - 1) / (max_lines - 1)))
 
 
+def lattice_world_mesh(
+    grid: Grid, rows: np.ndarray, cols: np.ndarray, tris: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """World vertices (n, 3) float64 and CCW triangles (m, 3) of the rows × cols sub-lattice.
+
+    rows, cols: grid row and column indices kept; tris: (m, 3) indices into the row-major
+    rows × cols vertices, orient > 0 in (column, row) index space. Nodata vertices are left
+    out together with the triangles touching them.
+    """
+    rr, cc = np.meshgrid(rows, cols, indexing="ij")
+    verts = np.column_stack(
+        [grid.x_coords[cc.ravel()], grid.y_coords[rr.ravel()], grid.heights[rr, cc].ravel()]
+    ).astype(np.float64)
+    # Index space is (col, row); a north-up transform mirrors it, so flip to stay CCW.
+    if grid.transform.a * grid.transform.e < 0:
+        tris = tris[:, [0, 2, 1]]
+    # Drop nodata vertices and renumber the triangles over the remaining ones.
+    keep = np.isfinite(verts[:, 2])
+    if not keep.all():
+        new_index = np.cumsum(keep) - 1
+        verts = verts[keep]
+        tris = new_index[tris]
+    return verts, np.ascontiguousarray(tris)
+
+
 class GridPatch(GeometryPatch):
     """Regular rows and columns of a Grid: stores (r0, r1, c0, c1) and the steps (sr, sc)."""
 
@@ -117,20 +142,7 @@ class GridPatch(GeometryPatch):
         g = self.grid
         r0, r1, c0, c1, sr, sc = self.index
         rows, cols, tris = grid_patch_mesh(g.heights, r0, r1, c0, c1, sr, sc)
-        rr, cc = np.meshgrid(rows, cols, indexing="ij")
-        verts = np.column_stack(
-            [g.x_coords[cc.ravel()], g.y_coords[rr.ravel()], g.heights[rr, cc].ravel()]
-        ).astype(np.float64)
-        # Index space is (col, row); a north-up transform mirrors it, so flip to stay CCW.
-        if g.transform.a * g.transform.e < 0:
-            tris = tris[:, [0, 2, 1]]
-        # Drop nodata vertices and renumber the triangles over the remaining ones.
-        keep = np.isfinite(verts[:, 2])
-        if not keep.all():
-            new_index = np.cumsum(keep) - 1
-            verts = verts[keep]
-            tris = new_index[tris]
-        return verts, np.ascontiguousarray(tris)
+        return lattice_world_mesh(g, rows, cols, tris)
 
     @property
     def vertices(self) -> np.ndarray:

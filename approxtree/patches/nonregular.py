@@ -21,6 +21,7 @@ from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
 from approxtree.kernels.row_column import lattice_errors, lattice_triangles, refine_lattices
 from approxtree.patches.base import GeometryPatch
+from approxtree.patches.grid import lattice_world_mesh
 from approxtree.patches.lattice import require_grid
 
 
@@ -29,20 +30,7 @@ def lattice_mesh(grid: Grid, rows: np.ndarray, cols: np.ndarray) -> tuple[np.nda
 
     Nodata vertices are left out (with the triangles touching them).
     """
-    tris = lattice_triangles(grid.heights, rows, cols)
-    rr, cc = np.meshgrid(rows, cols, indexing="ij")
-    verts = np.column_stack(
-        [grid.x_coords[cc.ravel()], grid.y_coords[rr.ravel()], grid.heights[rr, cc].ravel()]
-    ).astype(np.float64)
-    # Index space is (col, row); a north-up transform mirrors it, so flip to stay CCW.
-    if grid.transform.a * grid.transform.e < 0:
-        tris = tris[:, [0, 2, 1]]
-    keep = np.isfinite(verts[:, 2])
-    if not keep.all():
-        new_index = np.cumsum(keep) - 1
-        verts = verts[keep]
-        tris = new_index[tris]
-    return verts, np.ascontiguousarray(tris)
+    return lattice_world_mesh(grid, rows, cols, lattice_triangles(grid.heights, rows, cols))
 
 
 def refine_windows(

@@ -25,7 +25,7 @@ import numpy as np
 from approxtree.geometry.rect import Rect
 from approxtree.geometry.refinement import GridRefinement
 from approxtree.kernels.mesh_errors import mesh_point_errors
-from approxtree.patches.base import GeometryPatch
+from approxtree.patches.base import GeometryPatch, ccw_triangles
 
 
 def locate_errors(
@@ -178,15 +178,7 @@ class RefinedTINPatch(GeometryPatch):
 
     @property
     def triangles(self) -> np.ndarray:
-        v = self._vertices
-        t = self.tris.astype(np.int64)
-        if len(t) == 0:
-            return t.reshape(0, 3)
-        e1 = v[t[:, 1], :2] - v[t[:, 0], :2]
-        e2 = v[t[:, 2], :2] - v[t[:, 0], :2]
-        cw = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] < 0
-        t[cw] = t[cw][:, [0, 2, 1]]
-        return t
+        return ccw_triangles(self._vertices, self.tris)
 
     @property
     def point_count(self) -> int:

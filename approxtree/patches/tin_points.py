@@ -16,7 +16,7 @@ import numpy as np
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
 from approxtree.geometry.tin import TIN
-from approxtree.patches.base import GeometryPatch
+from approxtree.patches.base import GeometryPatch, ccw_triangles
 
 
 def _errors(xy: np.ndarray, z: np.ndarray, chosen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -126,15 +126,7 @@ class PointTINPatch(GeometryPatch):
 
     @property
     def triangles(self) -> np.ndarray:
-        v = self.vertices
-        t = self.tris.astype(np.int64)
-        if len(t) == 0:
-            return t.reshape(0, 3)
-        e1 = v[t[:, 1], :2] - v[t[:, 0], :2]
-        e2 = v[t[:, 2], :2] - v[t[:, 0], :2]
-        cw = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] < 0
-        t[cw] = t[cw][:, [0, 2, 1]]
-        return t
+        return ccw_triangles(self.vertices, self.tris)
 
     @property
     def point_count(self) -> int:
