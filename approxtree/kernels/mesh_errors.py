@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from approxtree.kernels.tin_locate import build_buckets
+from approxtree.kernels.tin_locate import build_buckets, linear_z
 
 
 @njit(cache=True)
@@ -51,15 +51,9 @@ def mesh_point_errors(
         b = j * nbx + i
         for s in range(start[b], start[b + 1]):
             t = items[s]
-            a, b_, c = tris[t, 0], tris[t, 1], tris[t, 2]
-            det = (vy[b_] - vy[c]) * (vx[a] - vx[c]) + (vx[c] - vx[b_]) * (vy[a] - vy[c])
-            if det == 0.0:
-                continue
-            l1 = ((vy[b_] - vy[c]) * (x - vx[c]) + (vx[c] - vx[b_]) * (y - vy[c])) / det
-            l2 = ((vy[c] - vy[a]) * (x - vx[c]) + (vx[a] - vx[c]) * (y - vy[c])) / det
-            l3 = 1.0 - l1 - l2
-            if l1 >= -tol and l2 >= -tol and l3 >= -tol:
+            inside, z = linear_z(vx, vy, vz, tris[t, 0], tris[t, 1], tris[t, 2], x, y, tol)
+            if inside:
                 tri_out[k] = t
-                err_out[k] = abs(qz[k] - (l1 * vz[a] + l2 * vz[b_] + l3 * vz[c]))
+                err_out[k] = abs(qz[k] - z)
                 break
     return tri_out, err_out

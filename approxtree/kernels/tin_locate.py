@@ -11,6 +11,21 @@ import numpy as np
 from numba import njit, prange
 
 
+@njit(cache=True, inline="always")
+def linear_z(vx, vy, vz, a, b, c, x, y, tol):
+    """(inside, z): whether (x, y) lies in triangle a, b, c (barycentric coordinates >= −tol)
+    and the triangle's linear height there. Degenerate triangles contain nothing."""
+    det = (vy[b] - vy[c]) * (vx[a] - vx[c]) + (vx[c] - vx[b]) * (vy[a] - vy[c])
+    if det == 0.0:
+        return False, 0.0
+    l1 = ((vy[b] - vy[c]) * (x - vx[c]) + (vx[c] - vx[b]) * (y - vy[c])) / det
+    l2 = ((vy[c] - vy[a]) * (x - vx[c]) + (vx[a] - vx[c]) * (y - vy[c])) / det
+    l3 = 1.0 - l1 - l2
+    if l1 >= -tol and l2 >= -tol and l3 >= -tol:
+        return True, l1 * vz[a] + l2 * vz[b] + l3 * vz[c]
+    return False, 0.0
+
+
 @njit(cache=True)
 def build_buckets(
     vx: np.ndarray,
@@ -100,15 +115,9 @@ def locate_and_interpolate(
         b = j * nbx + i
         for s in range(start[b], start[b + 1]):
             t = items[s]
-            a, b_, c = tris[t, 0], tris[t, 1], tris[t, 2]
-            det = (vy[b_] - vy[c]) * (vx[a] - vx[c]) + (vx[c] - vx[b_]) * (vy[a] - vy[c])
-            if det == 0.0:
-                continue
-            l1 = ((vy[b_] - vy[c]) * (x - vx[c]) + (vx[c] - vx[b_]) * (y - vy[c])) / det
-            l2 = ((vy[c] - vy[a]) * (x - vx[c]) + (vx[a] - vx[c]) * (y - vy[c])) / det
-            l3 = 1.0 - l1 - l2
-            if l1 >= -tol and l2 >= -tol and l3 >= -tol:
+            inside, z = linear_z(vx, vy, vz, tris[t, 0], tris[t, 1], tris[t, 2], x, y, tol)
+            if inside:
                 tri_out[k] = t
-                z_out[k] = l1 * vz[a] + l2 * vz[b_] + l3 * vz[c]
+                z_out[k] = z
                 break
     return tri_out, z_out
