@@ -244,6 +244,14 @@ def info(dem: str, encoding, nodata_policy, ground_only, height_scale, as_json: 
     default=None,
     help="Corridor sample spacing (map units) [default: a third of the grid cell].",
 )
+@click.option(
+    "--kind",
+    type=click.Choice(["approximation-tree", "point-quadtree"]),
+    default="approximation-tree",
+    show_default=True,
+    help="Tree to build: the approximation tree, or the point quadtree of scattered points "
+    "(seed 003; --max-points is its δ, default 50; ε, fanout and policy do not apply).",
+)
 @reader_options
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
 @_reports_errors
@@ -259,6 +267,7 @@ def build(
     microstructure_depth: float,
     microstructure_profile: str,
     microstructure_spacing: float | None,
+    kind: str,
     encoding,
     nodata_policy,
     ground_only,
@@ -269,6 +278,11 @@ def build(
     from approxtree.tree import ApproximationTree
 
     terrain = _open(dem, encoding, nodata_policy, ground_only, height_scale)
+    if kind == "point-quadtree":
+        given = click.get_current_context().get_parameter_source("max_points")
+        delta = None if given == click.core.ParameterSource.DEFAULT else max_points
+        _emit(_build_point_quadtree(dem, terrain, delta, out), as_json)
+        return
     if microstructure_files:
         terrain = _refine(
             terrain,
@@ -285,6 +299,24 @@ def build(
     seconds = time.perf_counter() - t0
     nbytes = tree.save(out)
     _emit(tree_figures(tree, seconds, nbytes), as_json)
+
+
+def _build_point_quadtree(path: str, terrain, delta: int | None, out: str) -> dict[str, Any]:
+    """Build and save the PointQuadtree of a point set (δ = delta, default 50); its figures."""
+    from approxtree.errors import InvalidParameterError
+    from approxtree.geometry import TIN
+    from approxtree.tree import PointQuadtree
+
+    if not isinstance(terrain, TIN):
+        raise InvalidParameterError(
+            f"--kind point-quadtree needs scattered points or a TIN (LAS/LAZ, quantized-mesh); "
+            f"{path} reads as a {terrain.kind}. Build an approximation tree of it instead."
+        )
+    t0 = time.perf_counter()
+    tree = PointQuadtree(terrain) if delta is None else PointQuadtree(terrain, delta)
+    seconds = time.perf_counter() - t0
+    nbytes = tree.save(out)
+    return {**tree.stats(), "seconds": round(seconds, 4), "bytes": nbytes}
 
 
 @main.command()
@@ -470,9 +502,9 @@ def render(
     as_json: bool,
 ) -> None:
     """Render a tree file to a PNG (alpha 0 where no terrain is drawn) and print the stats."""
-    from approxtree.tree import ApproximationTree
+    from approxtree.tree import load_tree
 
-    tree = ApproximationTree.load(tree_file)
+    tree = load_tree(tree_file)
     stats = _render_to_png(
         tree,
         Path(out),
@@ -673,10 +705,10 @@ def bake_command(
 
 def _open_tree(path: str, epsilon: float):
     """A tree file (.atree) as saved, or any terrain file built into a tree now."""
-    from approxtree.tree import ApproximationTree
+    from approxtree.tree import ApproximationTree, load_tree
 
     if Path(path).suffix.lower() == ".atree":
-        return ApproximationTree.load(path)
+        return load_tree(path)
     from approxtree.io import open_terrain
 
     return ApproximationTree.build(open_terrain(path), epsilon=epsilon, progress=False)

@@ -139,6 +139,14 @@ class Engine:
     skirts: hang skirts below patch borders (off only to show what they close).
     """
 
+    def __new__(cls, tree: Any, *args: Any, **kwargs: Any) -> Engine:
+        # A PointQuadtree (seed 003) is drawn by its own engine: its cut is a per-view mesh.
+        if cls is Engine and getattr(tree, "tree_kind", None) == "point_quadtree":
+            from approxtree.render.point_quadtree_engine import PointQuadtreeEngine
+
+            return super().__new__(PointQuadtreeEngine)
+        return super().__new__(cls)
+
     def __init__(
         self,
         tree,

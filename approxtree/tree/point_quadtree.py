@@ -37,6 +37,7 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -108,6 +109,9 @@ class PointQuadtree:
     terrain: the point set; max_points: δ, the most points a leaf holds (>= 1).
     Nodes are keyed (level, i, j): cell i (east), j (north) of the 2^level lattice.
     """
+
+    #: What the Engine and the tree file see: a point quadtree, not an approximation tree.
+    tree_kind = TREE_KIND
 
     def __init__(self, terrain: TIN, max_points: int = 50, _build: bool = True) -> None:
         if not isinstance(max_points, int | np.integer) or max_points < 1:
@@ -671,6 +675,22 @@ class PointQuadtree:
         return q
 
     # -- figures -------------------------------------------------------------------------------
+
+    def stats(self) -> dict[str, Any]:
+        """Figures of the built quadtree (``approxtree build --kind point-quadtree``)."""
+        leaves = ~self.internal
+        counts = self.ranges[leaves, 1] - self.ranges[leaves, 0]
+        return {
+            "tree_kind": TREE_KIND,
+            "nodes": len(self),
+            "leaves": int(leaves.sum()),
+            "depth": int(self.levels.max()),
+            "points": len(self.points),
+            "max_points": self.max_points,
+            "max_leaf_points": int(counts.max()),
+            "interpolation_points": self.interpolation_point_count(),
+            "root_error": float(self.node_errors[0]),
+        }
 
     def interpolation_point_count(self) -> int:
         """N_C: distinct lattice points of the leaves' initial triangulations."""
