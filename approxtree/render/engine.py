@@ -277,11 +277,9 @@ class Engine:
         elif max_triangles is not None:
             selection = self._budget_selection(fs, max_triangles)
         else:
-            selection = select(self.tree, fs, alpha, gamma, self.texels)
-            if self.selection_filter is not None:
-                selection = self.selection_filter(selection, fs)
+            selection = self._select(fs, alpha, gamma)
         select_ms = (time.perf_counter() - t0) * 1e3
-        keys = [("full", int(i)) if full_resolution else ("node", int(i)) for i in selection.nodes]
+        keys = self._mesh_keys(selection, full_resolution)
         # 3. Texture patch of each mesh, and the meshes grouped by texture patch.
         tex_nodes = tex_gammas = None
         if self.pyramid is not None:
@@ -333,6 +331,18 @@ class Engine:
             "texture_switches": int(switches),
         }
         return Frame(image, stats, selection, fs, positions, tex_nodes, tex_gammas)
+
+    def _select(self, fs: FrameState, alpha: float, gamma: float) -> Selection:
+        """The cut of the frame by alpha and gamma (after the host's selection filter)."""
+        selection = select(self.tree, fs, alpha, gamma, self.texels)
+        if self.selection_filter is not None:
+            selection = self.selection_filter(selection, fs)
+        return selection
+
+    def _mesh_keys(self, selection: Selection, full_resolution: bool) -> list[tuple]:
+        """GPU cache keys of the meshes to draw for ``selection`` (``_mesh_data`` builds them)."""
+        kind = "full" if full_resolution else "node"
+        return [(kind, int(i)) for i in selection.nodes]
 
     def _budget_selection(self, fs: FrameState, max_triangles: int) -> Selection:
         """Selection under a triangle budget (per-node counts computed on first use)."""

@@ -28,18 +28,16 @@ zero-area triangles), so no skirts are hung; ``skirts`` is accepted and changes 
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import numpy as np
 
 from approxtree.errors import InvalidParameterError
-from approxtree.render.camera import Camera
-from approxtree.render.engine import DEFAULT_CACHE_BYTES, Engine, Frame, create_context
+from approxtree.render.engine import DEFAULT_CACHE_BYTES, Engine, create_context
 from approxtree.render.frame_state import FrameState, display_scale
 from approxtree.render.frustum import boxes_in_frustum
 from approxtree.render.gpu_cache import GpuCache
-from approxtree.render.selector import Selection, check_thresholds, eye_below_ground
+from approxtree.render.selector import Selection, eye_below_ground
 from approxtree.render.shaders import create_program
 
 
@@ -51,7 +49,11 @@ def pixels_per_radian(fs: FrameState) -> float:
 
 
 class PointQuadtreeEngine(Engine):
-    """Renderer of one PointQuadtree (see the module docstring); made by ``Engine(tree)``."""
+    """Renderer of one PointQuadtree (see the module docstring); made by ``Engine(tree)``.
+
+    ``render`` is the Engine's: alpha is the tolerance C, gamma and share_textures do not
+    apply, max_triangles is refused, full_resolution draws the cut at C = 0.
+    """
 
     def __init__(
         self,
@@ -87,49 +89,26 @@ class PointQuadtreeEngine(Engine):
         self._texture_patches: dict[tuple[str, int], Any] = {}
         #: The LODCut of the last frame (None before the first).
         self.last_cut = None
+        self._frame_keys: list[tuple] = []
 
     def set_textures(self, textures: Any) -> None:
         """Only None: a point quadtree is drawn with the hypsometric colour ramp."""
         self._check_alive()
         _no_textures(textures)
 
-    def render(
-        self,
-        camera: Camera,
-        size: tuple[int, int] = (1280, 720),
-        alpha: float = 1.0,
-        gamma: float = 2.0,
-        wireframe: bool = False,
-        full_resolution: bool = False,
-        target: Any = None,
-        read_image: bool | None = None,
-        world_positions: bool = False,
-        lighting: bool = True,
-        share_textures: bool = True,
-        max_triangles: int | None = None,
-    ) -> Frame:
-        """Draw the LOD mesh of ``camera`` with C = alpha (see Engine.render for the arguments;
-        gamma and share_textures do not apply, max_triangles is refused)."""
-        self._check_alive()
-        alpha, gamma = check_thresholds(alpha, gamma)
-        if max_triangles is not None:
-            raise InvalidParameterError(
-                "A triangle budget (max_triangles) is not available for a point quadtree; "
-                "choose its detail with alpha."
-            )
-        fs = self.frame_state(camera, size)
-        w, h = fs.viewport
-        # 1-3. The cut: α as C, λ from the view, frustum-culled nodes kept coarse.
-        t0 = time.perf_counter()
+    # -- the cut (the Engine's selection step) ------------------------------------------------
+
+    def _select(self, fs: FrameState, alpha: float, gamma: float) -> Selection:
+        """The LOD cut of the view with C = alpha (module docstring, steps 1-3)."""
         tree = self.tree
         lam = pixels_per_radian(fs)
         below = eye_below_ground(tree, fs)
         visible = boxes_in_frustum(tree.bboxes, fs.planes)
-        cut = tree.lod_cut(fs.eye, lam, 0.0 if full_resolution else alpha, fs.scale, visible)
+        cut = tree.lod_cut(fs.eye, lam, alpha, fs.scale, visible)
         self.last_cut = cut
         drawn = np.flatnonzero(cut.visible) if not below else np.empty(0, dtype=np.int64)
         rho = cut.screen_errors(lam)[drawn]
-        keys = [
+        self._frame_keys = [
             (
                 "pq",
                 int(cut.rows[k]),
@@ -141,7 +120,7 @@ class PointQuadtreeEngine(Engine):
         ]
         results = np.where(visible, 1, 0).astype(np.uint8)
         results[cut.rows[cut.visible]] = 2
-        selection = Selection(
+        return Selection(
             cut.rows[drawn],
             rho,
             np.zeros(len(drawn)),
@@ -156,41 +135,20 @@ class PointQuadtreeEngine(Engine):
                 "max_gamma": 0.0,
             },
         )
-        select_ms = (time.perf_counter() - t0) * 1e3
-        groups = [(None, keys)]
-        # 4. Upload what the cache lacks.
-        t0 = time.perf_counter()
-        resident = self._upload(groups)
-        upload_ms = (time.perf_counter() - t0) * 1e3
-        # 5. Draw.
-        own = target is None and self.offscreen
-        if target is None:
-            target = self._target("color", w, h) if self.offscreen else self.ctx.fbo
-        if read_image is None:
-            read_image = own
-        draw_ms, triangles, _ = self._draw(
-            target, fs, groups, resident, wireframe, "terrain", lighting
+
+    def _full_resolution_selection(self, fs: FrameState) -> Selection:
+        """The cut at C = 0: every data point of every visible leaf."""
+        return self._select(fs, 0.0, 0.0)
+
+    def _budget_selection(self, fs: FrameState, max_triangles: int) -> Selection:
+        raise InvalidParameterError(
+            "A triangle budget (max_triangles) is not available for a point quadtree; "
+            "choose its detail with alpha."
         )
-        image = None
-        if read_image:
-            raw = target.read(viewport=(0, 0, w, h), components=4, alignment=1)
-            image = np.frombuffer(raw, dtype=np.uint8).reshape(h, w, 4)[::-1].copy()
-        positions = self._positions(fs, groups) if world_positions else None
-        stats = {
-            "nodes_visited": selection.stats["nodes_visited"],
-            "culled": selection.stats["culled"],
-            "patches": len(keys),
-            "triangles": int(triangles),
-            "max_alpha": selection.stats["max_alpha"],
-            "max_gamma": 0.0,
-            "select_ms": round(select_ms, 3),
-            "upload_ms": round(upload_ms, 3),
-            "draw_ms": round(draw_ms, 3),
-            "gpu_bytes": int(self.cache.nbytes),
-            "texture_patches": 0,
-            "texture_switches": 0,
-        }
-        return Frame(image, stats, selection, fs, positions)
+
+    def _mesh_keys(self, selection: Selection, full_resolution: bool) -> list[tuple]:
+        """One GPU cache key per drawn node: (node, midpoints, kept midpoints, replayed)."""
+        return self._frame_keys
 
     def _mesh_data(self, key: tuple) -> tuple[np.ndarray, np.ndarray]:
         """(vertex data (n, 4) float32: local x, y, z and flag 0; triangles (m, 3) uint32)."""
