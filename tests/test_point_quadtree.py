@@ -201,3 +201,22 @@ def test_save_load_round_trip(quadtree, tmp_path):
     (tmp_path / "junk.atree").write_bytes(b"not a tree file at all")
     with pytest.raises(at.StoreError, match="not an approxtree tree file"):
         PointQuadtree.load(tmp_path / "junk.atree")
+
+
+def test_node_error_bounds_every_fan_the_node_is_drawn_as(quadtree):
+    """δ of an internal node is the largest measured error over the 16 fans it can be drawn
+    as (each side's midpoint present or not), so a coarse node drawn beside finer neighbours
+    never shows more error than δ; the bound is reached by one of them."""
+    import itertools
+
+    internal = [n for n, inner in quadtree.children.items() if inner]
+    for node in internal[:: max(1, len(internal) // 30)]:
+        lo, hi = quadtree.point_range(node)
+        pts = quadtree.points[lo:hi]
+        measured = []
+        for mids in itertools.product((False, True), repeat=4):
+            v = quadtree.boundary(node, list(mids))
+            t = np.array([[0, a, a + 1 if a + 1 < len(v) else 1] for a in range(1, len(v))])
+            measured.append(mesh_error(v, t, pts))
+            assert quadtree.fan_error(node, mids) == pytest.approx(measured[-1], abs=1e-9)
+        assert quadtree.errors[node] == pytest.approx(max(measured), abs=1e-9)
