@@ -175,3 +175,27 @@ def range_z_bounds(pz: np.ndarray, start: np.ndarray, stop: np.ndarray) -> np.nd
             hi = max(hi, pz[p])
         out[k, 0], out[k, 1] = lo, hi
     return out
+
+
+@njit(cache=True)
+def first_within(
+    errors: np.ndarray, start: np.ndarray, count: np.ndarray, budget: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per leaf i: the fewest insertions k whose recorded error is within budget[i].
+
+    errors: recorded errors of all leaves, leaf i owning errors[start[i]:start[i] + count[i]]
+    (error after 0..count[i] − 1 insertions). Returns (k (m,) int64, error after k (m,)); the
+    last prefix when none is within.
+    """
+    m = start.shape[0]
+    ks = np.empty(m, dtype=np.int64)
+    es = np.empty(m)
+    for i in range(m):
+        k = count[i] - 1
+        for j in range(count[i]):
+            if errors[start[i] + j] <= budget[i]:
+                k = j
+                break
+        ks[i] = k
+        es[i] = errors[start[i] + k]
+    return ks, es

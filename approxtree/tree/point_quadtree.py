@@ -45,6 +45,7 @@ from approxtree.errors import InvalidParameterError, StoreError
 from approxtree.geometry.tin import TIN
 from approxtree.kernels.point_quadtree import (
     fan_errors,
+    first_within,
     insert_points,
     morton_codes,
     range_z_bounds,
@@ -72,8 +73,9 @@ class LODCut:
     rows: (k,) node rows; midpoints, keep: (k, 4) bool per side W, E, S, N (a midpoint
     vertex; it keeps its lattice height, else lies on the straight edge); inserted: (k,)
     points replayed (leaves) or −1 (a coarse node's fan); errors: (k,) measured max
-    |z − mesh| over each node's points; distances: (k,) d (display units); visible: (k,)
-    inside the frustum; nodes_visited: nodes the traversal reached.
+    |z − mesh| over each visible node's points (δ for culled ones); distances: (k,) d
+    (display units); visible: (k,) inside the frustum; nodes_visited: nodes the traversal
+    reached.
     """
 
     rows: np.ndarray
@@ -380,6 +382,15 @@ class PointQuadtree:
             base = self.boundary(leaf, self.finer_sides(leaf))
             order, errors, _ = insert_points(base, self.points[lo:hi], np.array([-1]), hi - lo)
             self.orders[leaf] = (order, errors)
+        self._order_error_table()
+
+    def _order_error_table(self) -> None:
+        """The recorded errors of all leaves in one array: leaf row r owns order_errors[
+        error_start[r] : error_start[r] + its point count + 1] (internal rows own nothing)."""
+        counts = np.where(self.internal, 0, self.ranges[:, 1] - self.ranges[:, 0] + 1)
+        self.error_start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+        leaves = np.flatnonzero(~self.internal)
+        self.order_errors = np.concatenate([self.orders[self.node_keys[r]][1] for r in leaves])
 
     # -- render time ---------------------------------------------------------------------------
 
@@ -463,21 +474,32 @@ class PointQuadtree:
             [refined[np.maximum(nb, 0)] & (nb >= 0) for nb in self._side_rows(rows)], axis=1
         )
         midpoints = np.where(self.internal[rows, None], cut_finer, self.tree_finer[rows])
-        inserted = np.full(len(rows), -1, dtype=np.int64)
-        errors = np.empty(len(rows))
-        # Per drawn node: a leaf replays up to its first prefix within C·d/λ (measured for its
-        # actual boundary); a coarse node's fan error is measured for its midpoints.
-        for k, row in enumerate(rows.tolist()):
-            node = self.node_keys[row]
-            if self.internal[row]:
+        inserted = np.where(self.internal[rows], -1, 0)
+        errors = self.node_errors[rows].copy()
+        vis = np.ones(len(rows), dtype=bool) if visible is None else np.asarray(visible)[rows]
+        budgets = tolerance * d[rows] / lam
+        # A visible leaf with the boundary it was recorded with replays up to its first prefix
+        # within C·d/λ (one kernel call for all of them).
+        recorded = vis & ~self.internal[rows] & (cut_finer == self.tree_finer[rows]).all(axis=1)
+        r = rows[recorded]
+        inserted[recorded], errors[recorded] = first_within(
+            self.order_errors,
+            self.error_start[r],
+            self.ranges[r, 1] - self.ranges[r, 0] + 1,
+            budgets[recorded],
+        )
+        # The others, beside a drawn neighbour of another level: a leaf whose midpoint lies on
+        # the coarser neighbour's straight edge, or a coarse node's fan; their errors are
+        # measured for that boundary on first use.
+        for k in np.flatnonzero(vis & ~recorded).tolist():
+            node = self.node_keys[rows[k]]
+            if self.internal[rows[k]]:
                 errors[k] = self.fan_error(node, tuple(midpoints[k]))
                 continue
             errs = self.leaf_errors(node, tuple(cut_finer[k]))
-            budget = tolerance * d[row] / lam
-            within = errs <= budget
+            within = errs <= budgets[k]
             inserted[k] = int(np.argmax(within)) if within.any() else len(errs) - 1
             errors[k] = errs[inserted[k]]
-        vis = np.ones(len(rows), dtype=bool) if visible is None else np.asarray(visible)[rows]
         return LODCut(
             rows,
             midpoints,
@@ -672,6 +694,7 @@ class PointQuadtree:
                 a["order_errors"][e : e + n + 1],
             )
             o, e = o + n, e + n + 1
+        q._order_error_table()
         return q
 
     # -- figures -------------------------------------------------------------------------------
