@@ -57,6 +57,8 @@ TREE_KIND = "point_quadtree"
 SECTION_VERSION = 1
 #: Finest quadtree level (2^20 cells a side); points sharing a finest cell stay in one leaf.
 MAX_DEPTH = 20
+#: Bits of the second coordinate in a finest-lattice code (u << bits | v; u, v <= 2^21).
+_LATTICE_BITS = 22
 # Edge directions: west, east, south, north as (di, dj).
 _SIDES = ((-1, 0), (1, 0), (0, -1), (0, 1))
 
@@ -147,12 +149,16 @@ class PointQuadtree:
 
     def point_range(self, node: tuple[int, int, int]) -> tuple[int, int]:
         """[start, stop) of the node's points in ``self.points`` (Z-order)."""
-        level, i, j = node
-        shift = 2 * (MAX_DEPTH - level)
-        prefix = int(morton_codes(np.array([i]), np.array([j]), level)[0]) << shift
-        lo = int(np.searchsorted(self.codes, prefix, side="left"))
-        hi = int(np.searchsorted(self.codes, prefix + (1 << shift), side="left"))
-        return lo, hi
+        lo, hi = self._ranges(*(np.array([v], dtype=np.int64) for v in node))[0]
+        return int(lo), int(hi)
+
+    def _ranges(self, level: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        """(k, 2) [start, stop) in ``self.points`` of the nodes (level, i, j), (k,) int64 each."""
+        shift = 2 * (MAX_DEPTH - np.asarray(level, dtype=np.int64))
+        prefix = morton_codes(np.asarray(i, np.int64), np.asarray(j, np.int64), MAX_DEPTH) << shift
+        lo = np.searchsorted(self.codes, prefix, side="left")
+        hi = np.searchsorted(self.codes, prefix + (np.int64(1) << shift), side="left")
+        return np.column_stack([lo, hi]).astype(np.int64)
 
     def _split(self, node: tuple[int, int, int]) -> list[tuple[int, int, int]]:
         level, i, j = node
@@ -163,16 +169,18 @@ class PointQuadtree:
         return kids
 
     def _subdivide(self) -> None:
-        # Split while a node holds more than δ points (one level at a time).
-        self.children[(0, 0, 0)] = False
-        frontier = [(0, 0, 0)]
-        while frontier:
-            nxt = []
-            for node in frontier:
-                lo, hi = self.point_range(node)
-                if hi - lo > self.max_points and node[0] < MAX_DEPTH:
-                    nxt.extend(self._split(node))
-            frontier = nxt
+        # Split while a node holds more than δ points, one level at a time (arrays per level).
+        fi = fj = np.zeros(1, dtype=np.int64)
+        level = 0
+        while len(fi):
+            r = self._ranges(np.full(len(fi), level), fi, fj)
+            split = (r[:, 1] - r[:, 0] > self.max_points) & (level < MAX_DEPTH)
+            keys = zip([level] * len(fi), fi.tolist(), fj.tolist(), strict=True)
+            self.children.update(zip(keys, split.tolist(), strict=True))
+            si, sj = fi[split], fj[split]
+            fi = np.concatenate([2 * si + a for b in (0, 1) for a in (0, 1)])
+            fj = np.concatenate([2 * sj + b for b in (0, 1) for a in (0, 1)])
+            level += 1
 
     def _ensure(self, node: tuple[int, int, int]) -> list[tuple[int, int, int]]:
         """Make ``node`` exist by splitting its ancestors; returns the nodes split."""
@@ -217,20 +225,28 @@ class PointQuadtree:
         # Corners, centres and edge midpoints of every node, keyed on the finest half-lattice.
         from scipy.spatial import cKDTree
 
-        keys = set()
-        for level, i, j in self.children:
-            for u in (2 * i, 2 * i + 1, 2 * i + 2):
-                for v in (2 * j, 2 * j + 1, 2 * j + 2):
-                    keys.add(self._lattice_key(level, u, v))
-        key_arr = np.array(sorted(keys), dtype=np.int64)
+        a = np.array(list(self.children), dtype=np.int64).reshape(-1, 3)
+        codes = np.unique(self._ring_codes(a[:, 0], a[:, 1], a[:, 2]))
+        ku, kv = codes >> _LATTICE_BITS, codes & ((1 << _LATTICE_BITS) - 1)
         unit = self.size / (1 << (MAX_DEPTH + 1))
-        xy = np.column_stack([self.x0 + key_arr[:, 0] * unit, self.y0 + key_arr[:, 1] * unit])
+        x, y = self.x0 + ku * unit, self.y0 + kv * unit
         k = min(4, len(self.points))
-        _, near = cKDTree(self.points[:, :2]).query(xy, k=k)
-        z = self.points[np.asarray(near).reshape(len(xy), k), 2].mean(axis=1)
-        self.lattice = {
-            (int(a), int(b)): (x, y, h) for (a, b), (x, y), h in zip(key_arr, xy, z, strict=True)
-        }
+        _, near = cKDTree(self.points[:, :2]).query(np.column_stack([x, y]), k=k)
+        z = self.points[np.asarray(near).reshape(len(x), k), 2].mean(axis=1)
+        keys = zip(ku.tolist(), kv.tolist(), strict=True)
+        xyz = zip(x.tolist(), y.tolist(), z.tolist(), strict=True)
+        self.lattice = dict(zip(keys, xyz, strict=True))
+
+    @staticmethod
+    def _ring_codes(level: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        """(k, 9) finest-lattice codes of the corners SW, SE, NE, NW, the centre and the
+        midpoints S, E, N, W of nodes (level, i, j)."""
+        du = np.array([0, 2, 2, 0, 1, 1, 2, 1, 0], dtype=np.int64)
+        dv = np.array([0, 0, 2, 2, 1, 0, 1, 2, 1], dtype=np.int64)
+        shift = (MAX_DEPTH - level)[:, None]
+        u = (2 * i[:, None] + du) << shift
+        v = (2 * j[:, None] + dv) << shift
+        return (u << _LATTICE_BITS) | v
 
     def lattice_point(self, level: int, u: int, v: int) -> tuple[float, float, float]:
         """World (x, y, z) of half-cell lattice point (u, v) of ``level``."""
@@ -250,22 +266,6 @@ class PointQuadtree:
         )
         self.node_errors = err
         self.errors = dict(zip(self.node_keys, err.tolist(), strict=True))
-
-    def _ring(self, node: tuple[int, int, int]) -> list[float]:
-        """Heights of corners SW, SE, NE, NW, the centre, midpoints S, E, N, W of ``node``."""
-        level, i, j = node
-        uv = (
-            (2 * i, 2 * j),
-            (2 * i + 2, 2 * j),
-            (2 * i + 2, 2 * j + 2),
-            (2 * i, 2 * j + 2),
-            (2 * i + 1, 2 * j + 1),
-            (2 * i + 1, 2 * j),
-            (2 * i + 2, 2 * j + 1),
-            (2 * i + 1, 2 * j + 2),
-            (2 * i, 2 * j + 1),
-        )
-        return [self.lattice_point(level, u, v)[2] for u, v in uv]
 
     def _index(self) -> None:
         """Per-node arrays, rows sorted by (level, i, j) so parents precede children.
@@ -291,10 +291,20 @@ class PointQuadtree:
         )
         nbs = [self._neighbour(di, dj) for di, dj in _SIDES]
         self.tree_finer = np.stack([(nb >= 0) & self.internal[np.maximum(nb, 0)] for nb in nbs], 1)
-        self.ranges = np.array([self.point_range(n) for n in self.node_keys], dtype=np.int64)
-        self.ranges = self.ranges.reshape(-1, 2)
-        self.squares = np.array([self.square(n) for n in self.node_keys]).reshape(-1, 3)
-        self._ring_z = np.array([self._ring(n) for n in self.node_keys]).reshape(-1, 9)
+        self.ranges = self._ranges(lv, i, j)
+        side = self.size / (np.int64(1) << lv)
+        self.squares = np.column_stack([self.x0 + i * side, self.y0 + j * side, side])
+        # Ring heights through the lattice as sorted codes (one search for all nodes).
+        lk = np.array(list(self.lattice), dtype=np.int64).reshape(-1, 2)
+        lcodes = (lk[:, 0] << _LATTICE_BITS) | lk[:, 1]
+        lz = np.array([p[2] for p in self.lattice.values()])
+        order = np.argsort(lcodes)
+        lcodes, lz = lcodes[order], lz[order]
+        ring = self._ring_codes(lv, i, j)
+        at = np.minimum(np.searchsorted(lcodes, ring), len(lcodes) - 1)
+        if not (lcodes[at] == ring).all():
+            raise StoreError("a node's lattice point has no height; rebuild the quadtree.")
+        self._ring_z = lz[at]
         z = range_z_bounds(self.points[:, 2].copy(), self.ranges[:, 0], self.ranges[:, 1])
         zmin = np.minimum(z[:, 0], self._ring_z.min(axis=1))
         zmax = np.maximum(z[:, 1], self._ring_z.max(axis=1))
@@ -377,9 +387,10 @@ class PointQuadtree:
 
     def _insertion_orders(self) -> None:
         self.orders: dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]] = {}
-        for leaf in self.leaves:
-            lo, hi = self.point_range(leaf)
-            base = self.boundary(leaf, self.finer_sides(leaf))
+        for row in np.flatnonzero(~self.internal).tolist():
+            leaf = self.node_keys[row]
+            lo, hi = self.ranges[row].tolist()
+            base = self.boundary(leaf, self.tree_finer[row].tolist())
             order, errors, _ = insert_points(base, self.points[lo:hi], np.array([-1]), hi - lo)
             self.orders[leaf] = (order, errors)
         self._order_error_table()
