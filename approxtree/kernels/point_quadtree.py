@@ -199,3 +199,34 @@ def first_within(
         ks[i] = k
         es[i] = errors[start[i] + k]
     return ks, es
+
+
+@njit(cache=True)
+def insertion_orders(
+    bases: np.ndarray, base_start: np.ndarray, pts: np.ndarray, start: np.ndarray, stop: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Greedy insertion orders of many leaves (``insert_points`` per leaf, one call in all).
+
+    bases: (B, 3) the leaves' base rings one after the other, leaf k's at
+    bases[base_start[k]:base_start[k + 1]]; pts: (n, 3) points, leaf k owning
+    pts[start[k]:stop[k]]. Returns (orders (Σ n_k,) leaf-local point indices, errors
+    (Σ (n_k + 1),)), leaf after leaf.
+    """
+    m = start.shape[0]
+    total = 0
+    for k in range(m):
+        total += stop[k] - start[k]
+    orders = np.empty(total, dtype=np.int64)
+    errors = np.empty(total + m)
+    o = 0
+    e = 0
+    none = np.full(1, -1, dtype=np.int64)
+    for k in range(m):
+        n = stop[k] - start[k]
+        base = bases[base_start[k] : base_start[k + 1]]
+        order, errs, _ = insert_points(base, pts[start[k] : stop[k]], none, n)
+        orders[o : o + n] = order
+        errors[e : e + n + 1] = errs
+        o += n
+        e += n + 1
+    return orders, errors

@@ -47,6 +47,7 @@ from approxtree.kernels.point_quadtree import (
     fan_errors,
     first_within,
     insert_points,
+    insertion_orders,
     morton_codes,
     range_z_bounds,
 )
@@ -297,14 +298,16 @@ class PointQuadtree:
         # Ring heights through the lattice as sorted codes (one search for all nodes).
         lk = np.array(list(self.lattice), dtype=np.int64).reshape(-1, 2)
         lcodes = (lk[:, 0] << _LATTICE_BITS) | lk[:, 1]
-        lz = np.array([p[2] for p in self.lattice.values()])
+        lxyz = np.array(list(self.lattice.values()), dtype=np.float64).reshape(-1, 3)
         order = np.argsort(lcodes)
-        lcodes, lz = lcodes[order], lz[order]
+        lcodes, lxyz = lcodes[order], lxyz[order]
         ring = self._ring_codes(lv, i, j)
         at = np.minimum(np.searchsorted(lcodes, ring), len(lcodes) - 1)
         if not (lcodes[at] == ring).all():
             raise StoreError("a node's lattice point has no height; rebuild the quadtree.")
-        self._ring_z = lz[at]
+        #: (n, 9, 3) the lattice points of ``_ring_codes`` (the very values of ``lattice``).
+        self._ring_xyz = lxyz[at]
+        self._ring_z = np.ascontiguousarray(self._ring_xyz[..., 2])
         z = range_z_bounds(self.points[:, 2].copy(), self.ranges[:, 0], self.ranges[:, 1])
         zmin = np.minimum(z[:, 0], self._ring_z.min(axis=1))
         zmax = np.maximum(z[:, 1], self._ring_z.max(axis=1))
@@ -386,13 +389,25 @@ class PointQuadtree:
         return np.array(ring, dtype=np.float64)
 
     def _insertion_orders(self) -> None:
+        # Every leaf's base ring (centre, then SW, [S], SE, [E], NE, [N], NW, [W] with the
+        # midpoints its finer neighbours need) as one array, and one kernel call for all leaves.
+        rows = np.flatnonzero(~self.internal)
+        slots = np.array([4, 0, 5, 1, 6, 2, 7, 3, 8])
+        tf = self.tree_finer[rows]
+        on = np.ones(len(rows), dtype=bool)
+        mask = np.column_stack([on, on, tf[:, 2], on, tf[:, 1], on, tf[:, 3], on, tf[:, 0]])
+        bases = self._ring_xyz[rows][:, slots][mask]
+        base_start = np.concatenate([[0], np.cumsum(mask.sum(axis=1))]).astype(np.int64)
+        r = self.ranges[rows]
+        orders, errors = insertion_orders(
+            np.ascontiguousarray(bases), base_start, self.points, r[:, 0].copy(), r[:, 1].copy()
+        )
+        counts = (r[:, 1] - r[:, 0]).tolist()
         self.orders: dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]] = {}
-        for row in np.flatnonzero(~self.internal).tolist():
-            leaf = self.node_keys[row]
-            lo, hi = self.ranges[row].tolist()
-            base = self.boundary(leaf, self.tree_finer[row].tolist())
-            order, errors, _ = insert_points(base, self.points[lo:hi], np.array([-1]), hi - lo)
-            self.orders[leaf] = (order, errors)
+        o = e = 0
+        for row, n in zip(rows.tolist(), counts, strict=True):
+            self.orders[self.node_keys[row]] = (orders[o : o + n], errors[e : e + n + 1])
+            o, e = o + n, e + n + 1
         self._order_error_table()
 
     def _order_error_table(self) -> None:
