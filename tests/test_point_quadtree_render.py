@@ -140,7 +140,7 @@ def test_every_data_point_is_drawn_within_alpha_pixels(gl_context, quadtree, alp
             pixels_per_radian(fs),
             alpha,
             fs.scale,
-            boxes_in_frustum(quadtree.bboxes, fs.planes),
+            boxes_in_frustum(quadtree.bboxes, fs.planes) & quadtree.in_domain,
         )
         np.testing.assert_array_equal(cut.rows[cut.visible], rows)
         for k in np.flatnonzero(cut.visible):
@@ -162,6 +162,30 @@ def test_every_data_point_is_drawn_within_alpha_pixels(gl_context, quadtree, alp
             if inside.any():
                 worst = max(worst, float(np.linalg.norm(a - b, axis=1)[inside].max()))
     assert 0 < worst <= alpha
+
+
+def test_nothing_is_drawn_outside_the_data_domain(gl_context, data_dir):  # noqa: F811
+    """The root square reaches past the Autzen tile on its short (north-south) side: the
+    overview frame draws no node outside the domain, and its surface pixels lie within one
+    drawn node of it (no extrapolated plateau north of the data)."""
+    from approxtree.render import overview_camera
+
+    laz = data_file(data_dir, "lidar/autzen_trim.laz")
+    q = PointQuadtree(at.open_terrain(laz, ground_only=True), 50)
+    assert not q.in_domain.all()
+    eng = Engine(q, context=gl_context, offscreen=True)
+    try:
+        frame = eng.render(
+            overview_camera(q.bboxes[0], eng.scale), SIZE, alpha=1.0, world_positions=True
+        )
+    finally:
+        eng.release()
+    nodes = frame.selection.nodes
+    assert len(nodes) and q.in_domain[nodes].all()
+    d = q.terrain.domain
+    reach = q.squares[nodes, 2].max()
+    y = frame.positions[..., 1][frame.positions[..., 3] > 0.5]
+    assert len(y) > 1000 and y.max() <= d.ymax + reach < q.y0 + q.size
 
 
 def test_meshes_stay_in_the_gpu_cache_between_frames(gl_context, quadtree):  # noqa: F811

@@ -15,8 +15,10 @@ selection differs. Each frame:
    thus shows its data points within α pixels of where the mesh draws them, the promise α
    makes for approximation trees. ``stats["max_alpha"]`` is the largest ρ of the drawn
    meshes, from their measured errors.
-3. Nodes whose box lies outside the frustum are never refined and not drawn (the cut stays
-   a restricted partition, so their visible neighbours keep matching edges).
+3. Nodes whose box lies outside the frustum, or whose square lies outside the terrain's
+   domain (the root square reaches past the data on its shorter side, where heights would
+   only be extrapolated), are never refined and not drawn (the cut stays a restricted
+   partition, so their visible neighbours keep matching edges).
 4. Each drawn node's mesh is one GPU cache entry keyed by (node, midpoints, kept midpoints,
    points replayed), so a mesh is uploaded again only when its own refinement changes.
 
@@ -103,7 +105,7 @@ class PointQuadtreeEngine(Engine):
         tree = self.tree
         lam = pixels_per_radian(fs)
         below = eye_below_ground(tree, fs)
-        visible = boxes_in_frustum(tree.bboxes, fs.planes)
+        visible = boxes_in_frustum(tree.bboxes, fs.planes) & tree.in_domain
         cut = tree.lod_cut(fs.eye, lam, alpha, fs.scale, visible)
         self.last_cut = cut
         drawn = np.flatnonzero(cut.visible) if not below else np.empty(0, dtype=np.int64)

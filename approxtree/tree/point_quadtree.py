@@ -277,7 +277,8 @@ class PointQuadtree:
         bboxes (n, 6) xmin, ymin, zmin, xmax, ymax, zmax over the node's points and lattice
         points (every mesh the node is drawn as lies inside); tree_finer (n, 4) bool per side
         W, E, S, N: the same-level neighbour is internal; origin (3,) local origin of GPU
-        buffers (domain centre, lowest z).
+        buffers (domain centre, lowest z); in_domain (n,) bool: the square overlaps the
+        terrain's domain.
         """
         self.node_keys = sorted(self.children)
         a = np.array(self.node_keys, dtype=np.int64).reshape(-1, 3)
@@ -317,6 +318,11 @@ class PointQuadtree:
         )
         d = self.terrain.domain
         self.origin = np.array([d.center[0], d.center[1], self.terrain.z_range[0]])
+        # The root square reaches past the data's domain on its shorter side; nodes wholly
+        # outside hold no data point (their heights are extrapolated).
+        b = self.bboxes
+        self.in_domain = (b[:, 0] < d.xmax) & (b[:, 3] > d.xmin) & (b[:, 1] < d.ymax)
+        self.in_domain &= b[:, 4] > d.ymin
         self._leaf_error_cache: dict[tuple, np.ndarray] = {}
         self._fan_error_cache: dict[tuple, float] = {}
 
