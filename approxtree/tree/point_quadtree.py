@@ -60,6 +60,9 @@ SECTION_VERSION = 1
 MAX_DEPTH = 20
 #: Bits of the second coordinate in a finest-lattice code (u << bits | v; u, v <= 2^21).
 _LATTICE_BITS = 22
+# Counter-clockwise from SW: (corner slot, side after it, its midpoint slot, the side's end
+# slots) over the ring slots of ``_ring_codes``; sides are numbered W, E, S, N.
+_BOUNDARY = ((0, 2, 5, 0, 1), (1, 1, 6, 1, 2), (2, 3, 7, 2, 3), (3, 0, 8, 3, 0))
 # Edge directions: west, east, south, north as (di, dj).
 _SIDES = ((-1, 0), (1, 0), (0, -1), (0, 1))
 
@@ -150,7 +153,11 @@ class PointQuadtree:
 
     def point_range(self, node: tuple[int, int, int]) -> tuple[int, int]:
         """[start, stop) of the node's points in ``self.points`` (Z-order)."""
-        lo, hi = self._ranges(*(np.array([v], dtype=np.int64) for v in node))[0]
+        row = getattr(self, "index", {}).get(node)
+        if row is not None:
+            lo, hi = self.ranges[row]
+        else:
+            lo, hi = self._ranges(*(np.array([v], dtype=np.int64) for v in node))[0]
         return int(lo), int(hi)
 
     def _ranges(self, level: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
@@ -281,6 +288,8 @@ class PointQuadtree:
         terrain's domain.
         """
         self.node_keys = sorted(self.children)
+        #: Row of each node key.
+        self.index = dict(zip(self.node_keys, range(len(self.node_keys)), strict=True))
         a = np.array(self.node_keys, dtype=np.int64).reshape(-1, 3)
         self.levels = a[:, 0].copy()
         self.cells = a[:, 1:].copy()
@@ -375,24 +384,20 @@ class PointQuadtree:
         midpoints: per side W, E, S, N whether the edge midpoint is a vertex; keep: per side
         whether it keeps its own height (else it lies on the straight edge).
         """
-        level, i, j = node
         keep = midpoints if keep is None else keep
-        lp = self.lattice_point
-        sw, se = lp(level, 2 * i, 2 * j), lp(level, 2 * i + 2, 2 * j)
-        ne, nw = lp(level, 2 * i + 2, 2 * j + 2), lp(level, 2 * i, 2 * j + 2)
-        mids = {
-            2: (lp(level, 2 * i + 1, 2 * j), sw, se),
-            1: (lp(level, 2 * i + 2, 2 * j + 1), se, ne),
-            3: (lp(level, 2 * i + 1, 2 * j + 2), ne, nw),
-            0: (lp(level, 2 * i, 2 * j + 1), nw, sw),
-        }
-        ring = [lp(level, 2 * i + 1, 2 * j + 1)]
-        for corner, side in ((sw, 2), (se, 1), (ne, 3), (nw, 0)):
-            ring.append(corner)
+        ring = self._ring_xyz[self.index[node]]
+        # Ring slots: 0 SW, 1 SE, 2 NE, 3 NW, 4 centre, 5 S, 6 E, 7 N, 8 W (``_ring_codes``).
+        slots, flat = [4], []
+        for corner, side, mid, a, b in _BOUNDARY:
+            slots.append(corner)
             if midpoints[side]:
-                m, a, b = mids[side]
-                ring.append(m if keep[side] else (m[0], m[1], 0.5 * (a[2] + b[2])))
-        return np.array(ring, dtype=np.float64)
+                slots.append(mid)
+                if not keep[side]:
+                    flat.append((len(slots) - 1, a, b))
+        out = ring[slots]
+        for pos, a, b in flat:
+            out[pos, 2] = 0.5 * (ring[a, 2] + ring[b, 2])
+        return out
 
     def _insertion_orders(self) -> None:
         # Every leaf's base ring (centre, then SW, [S], SE, [E], NE, [N], NW, [W] with the
@@ -432,7 +437,7 @@ class PointQuadtree:
         """(vertices, triangles) of ``leaf`` after replaying its first k insertions."""
         lo, hi = self.point_range(leaf)
         order, _ = self.orders[leaf]
-        base = self.boundary(leaf, self.finer_sides(leaf), keep)
+        base = self.boundary(leaf, self.tree_finer[self.index[leaf]].tolist(), keep)
         pts = self.points[lo:hi]
         replay = order if len(order) else np.array([-1])
         _, _, tris = insert_points(base, pts, replay if k else np.array([0]), k)
@@ -441,7 +446,7 @@ class PointQuadtree:
     def leaf_errors(self, leaf: tuple[int, int, int], keep: tuple[bool, ...]) -> np.ndarray:
         """(n + 1,) measured max |z − mesh| over the leaf's points after 0..n insertions of its
         recorded order, for the boundary whose midpoints keep their heights per ``keep``."""
-        tree_keep = tuple(self.finer_sides(leaf))
+        tree_keep = tuple(self.tree_finer[self.index[leaf]].tolist())
         keep = tuple(bool(k) and t for k, t in zip(keep, tree_keep, strict=True))
         if keep == tree_keep:
             return self.orders[leaf][1]
