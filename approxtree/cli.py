@@ -49,7 +49,11 @@ def _emit(figures: dict[str, Any], as_json: bool) -> None:
 
 
 def reader_options(fn: Callable[..., Any]) -> Callable[..., Any]:
-    """Options that choose how a terrain file is read (shared by info and build)."""
+    """Options that choose how a terrain file is read (shared by the commands taking a terrain).
+
+    Every default is "not given": each format reads with its own defaults, and an option given
+    explicitly to a format that does not take it is an error.
+    """
     fn = click.option(
         "--encoding",
         type=click.Choice(["terrain-rgb", "terrarium"]),
@@ -59,9 +63,9 @@ def reader_options(fn: Callable[..., Any]) -> Callable[..., Any]:
         "--nodata",
         "nodata_policy",
         type=click.Choice(["mask", "fill"]),
-        default="mask",
-        show_default=True,
-        help="Leave nodata out of the terrain (mask) or fill the holes by interpolation.",
+        default=None,
+        help="Grids: leave nodata out of the terrain (mask) or fill the holes by interpolation "
+        "[default: mask].",
     )(fn)
     fn = click.option(
         "--ground-only", is_flag=True, help="Point clouds: keep ground points (class 2) only."
@@ -75,20 +79,79 @@ def reader_options(fn: Callable[..., Any]) -> Callable[..., Any]:
 def _open(
     path: str,
     encoding: str | None,
-    nodata_policy: str,
+    nodata_policy: str | None,
     ground_only: bool,
     height_scale: float | None,
 ):
+    """Read a terrain file, passing only the reader options the user gave.
+
+    An option left at its default is "not given", so every format reads with its own defaults;
+    an option given explicitly that the format does not take is an InvalidParameterError.
+    """
     from approxtree.io import open_terrain
 
-    options: dict[str, Any] = {"nodata": nodata_policy}
+    options = _given_reader_options(encoding, nodata_policy, ground_only, height_scale)
+    _check_reader_flags(path, options)
+    return open_terrain(path, **options)
+
+
+#: The reader options of the command line, by the keyword the readers take.
+_READER_FLAGS = {
+    "encoding": "--encoding",
+    "nodata": "--nodata",
+    "ground_only": "--ground-only",
+    "height_scale": "--height-scale",
+}
+
+
+def _given_reader_options(
+    encoding: str | None, nodata_policy: str | None, ground_only: bool, height_scale: float | None
+) -> dict[str, Any]:
+    """The reader options given on the command line, as open_terrain keywords."""
+    options: dict[str, Any] = {}
+    if nodata_policy is not None:
+        options["nodata"] = nodata_policy
     if encoding:
         options["encoding"] = encoding
     if ground_only:
         options["ground_only"] = True
     if height_scale is not None:
         options["height_scale"] = height_scale
-    return open_terrain(path, **options)
+    return options
+
+
+def _check_reader_flags(path: str, options: dict[str, Any]) -> None:
+    """InvalidParameterError, worded with the command's flags, for a given reader option that
+    the file's format does not take (the readers word it with their keyword names)."""
+    from approxtree.errors import InvalidParameterError
+    from approxtree.io import detect_format
+    from approxtree.io._common import existing_file
+
+    if not options:
+        return
+    fmt = detect_format(existing_file(path), encoding=options.get("encoding"))
+    for name in options:
+        if name not in fmt.options:
+            takes = [flag for key, flag in _READER_FLAGS.items() if key in fmt.options]
+            hint = (
+                f"its reader options: {', '.join(takes)}" if takes else "it has no reader options"
+            )
+            raise InvalidParameterError(
+                f"{_READER_FLAGS[name]} does not apply to {path}, a {fmt.name} file ({hint}); "
+                "leave it out."
+            )
+
+
+def _no_reader_flags_for_tree(path: str, options: dict[str, Any]) -> None:
+    """InvalidParameterError when reader options are given with a tree file (.atree)."""
+    from approxtree.errors import InvalidParameterError
+
+    if options:
+        flags = ", ".join(_READER_FLAGS[name] for name in options)
+        raise InvalidParameterError(
+            f"{flags} choose how a terrain file is read; {path} is a tree file (.atree), "
+            "already built. Leave them out."
+        )
 
 
 def _refine(terrain, files, width: float, depth: float, profile: str, spacing: float | None):
