@@ -606,6 +606,7 @@ def mesh(
     if out is not None:
         mesh_format(out)
     terrain = _open(dem, encoding, nodata_policy, ground_only, height_scale)
+    _check_mesh_strategy(dem, terrain, strategy)
     result = approximate(
         terrain, strategy, max_error, max_points, max_triangles, data_dependent=data_dependent
     )
@@ -614,6 +615,18 @@ def mesh(
         meta = {"strategy": strategy, "crs": terrain.crs, "max_error": figures["max_error"]}
         figures.update(write_mesh(out, result.vertices, result.triangles, meta))
     _emit(figures, as_json)
+
+
+def _check_mesh_strategy(path: str, terrain, strategy: str) -> None:
+    """InvalidParameterError for a lattice strategy asked of a TIN or a point cloud."""
+    from approxtree.errors import InvalidParameterError
+    from approxtree.geometry import Grid
+
+    if strategy != "tin" and not isinstance(terrain, Grid):
+        raise InvalidParameterError(
+            f"--strategy {strategy} needs a raster grid; {path} reads as a {terrain.kind} "
+            "(scattered points or triangles): use --strategy tin."
+        )
 
 
 @main.command("bake")
@@ -695,6 +708,9 @@ def bake_command(
 ) -> None:
     """Bake a terrain's textures (DEM file or .atree tree) into a pyramid folder.
 
+    A point cloud or TIN is shaded from its heights sampled on a lattice (--texel, default its
+    mean point spacing).
+
     The folder holds pyramid.json and one georeferenced RGBA GeoTIFF per level, level0.tif
     the finest (pure shading: R = G = B = shade).
     """
@@ -704,6 +720,9 @@ def bake_command(
     if source.endswith(".atree"):
         from approxtree.tree import ApproximationTree
 
+        _no_reader_flags_for_tree(
+            source, _given_reader_options(encoding, nodata_policy, ground_only, height_scale)
+        )
         terrain = ApproximationTree.load(source).terrain
     else:
         terrain = _open(source, encoding, nodata_policy, ground_only, height_scale)
@@ -734,15 +753,17 @@ def bake_command(
     _emit(result.figures(), as_json)
 
 
-def _open_tree(path: str, epsilon: float):
-    """A tree file (.atree) as saved, or any terrain file built into a tree now."""
+def _open_tree(path: str, epsilon: float, reader: dict[str, Any]):
+    """A tree file (.atree) as saved, or any terrain file built into a tree now.
+
+    reader: the reader options given (encoding, nodata_policy, ground_only, height_scale).
+    """
     from approxtree.tree import ApproximationTree
 
     if Path(path).suffix.lower() == ".atree":
+        _no_reader_flags_for_tree(path, _given_reader_options(**reader))
         return ApproximationTree.load(path)
-    from approxtree.io import open_terrain
-
-    return ApproximationTree.build(open_terrain(path), epsilon=epsilon, progress=False)
+    return ApproximationTree.build(_open(path, **reader), epsilon=epsilon, progress=False)
 
 
 @main.command()
@@ -803,6 +824,7 @@ def _open_tree(path: str, epsilon: float):
     default=None,
     help="Stop uploading meshes after this many milliseconds in a frame (after one).",
 )
+@reader_options
 @_reports_errors
 def view(
     source: str,
@@ -819,6 +841,10 @@ def view(
     frames: int | None,
     max_uploads: int,
     upload_ms: float | None,
+    encoding,
+    nodata_policy,
+    ground_only,
+    height_scale,
 ) -> None:
     """Open an interactive window over a tree file or a DEM (F1 in the window: keys)."""
     from approxtree.render.selector import check_thresholds
@@ -828,7 +854,13 @@ def view(
     check_thresholds(alpha, gamma)
     presses = parse_key_presses(keys_text)
     script = script_frames(load_script(script_path)) if script_path else None
-    tree = _open_tree(source, epsilon)
+    reader = dict(
+        encoding=encoding,
+        nodata_policy=nodata_policy,
+        ground_only=ground_only,
+        height_scale=height_scale,
+    )
+    tree = _open_tree(source, epsilon, reader)
     with Viewer(
         tree,
         textures=list(textures),
