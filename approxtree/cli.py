@@ -329,8 +329,10 @@ def build(
     as_json: bool,
 ) -> None:
     """Build the approximation tree of a terrain file and save it."""
+    from approxtree.io.output_path import check_output_file
     from approxtree.tree import ApproximationTree
 
+    check_output_file(out, "tree file")
     terrain = _open(dem, encoding, nodata_policy, ground_only, height_scale)
     if microstructure_files:
         terrain = _refine(
@@ -373,8 +375,14 @@ def demo(out: str, epsilon: float, png: str | None, as_json: bool) -> None:
     """Build the tree of the sample terrain (matplotlib's Jacksboro fault DEM), bake its
     hillshade pyramid (next to the tree, <out>_textures/) and render it textured."""
     from approxtree.datasets import sample_terrain
+    from approxtree.io.output_path import check_output_file, check_output_folder
     from approxtree.tree import ApproximationTree
 
+    png_path = Path(png) if png else Path(out).with_suffix(".png")
+    folder = Path(out).with_name(Path(out).stem + "_textures")
+    check_output_file(out, "tree file")
+    check_output_file(png_path, "image")
+    check_output_folder(folder, "texture pyramid folder")
     terrain = sample_terrain()
     t0 = time.perf_counter()
     tree = ApproximationTree.build(terrain, epsilon=epsilon)
@@ -388,10 +396,8 @@ def demo(out: str, epsilon: float, png: str | None, as_json: bool) -> None:
     # unlit: the baked hillshade is the shading (decal mode, core paper 5.1).
     from approxtree.textures.bake import bake as bake_textures
 
-    folder = Path(out).with_name(Path(out).stem + "_textures")
     baked = bake_textures(terrain, folder)
     figures.update(textures=str(folder), bake_seconds=round(baked.seconds, 4), bake_gl=baked.gl)
-    png_path = Path(png) if png else Path(out).with_suffix(".png")
     figures.update(
         _render_to_png(
             tree,
@@ -533,8 +539,10 @@ def render(
     as_json: bool,
 ) -> None:
     """Render a tree file to a PNG (alpha 0 where no terrain is drawn) and print the stats."""
+    from approxtree.io.output_path import check_output_file
     from approxtree.tree import ApproximationTree
 
+    check_output_file(out, "image")
     tree = ApproximationTree.load(tree_file)
     stats = _render_to_png(
         tree,
@@ -715,8 +723,10 @@ def bake_command(
     the finest (pure shading: R = G = B = shade).
     """
     from approxtree.errors import InvalidParameterError
+    from approxtree.io.output_path import check_output_folder
     from approxtree.textures.bake import bake
 
+    check_output_folder(out, "texture pyramid folder")
     if source.endswith(".atree"):
         from approxtree.tree import ApproximationTree
 
@@ -847,11 +857,16 @@ def view(
     height_scale,
 ) -> None:
     """Open an interactive window over a tree file or a DEM (F1 in the window: keys)."""
+    from approxtree.io.output_path import check_output_file, check_output_folder
     from approxtree.render.selector import check_thresholds
     from approxtree.viewer import load_script, parse_key_presses, script_frames
     from approxtree.viewer.app import Viewer
 
     check_thresholds(alpha, gamma)
+    if stats_path is not None:
+        check_output_file(stats_path, "stats file")
+    if screenshots is not None:
+        check_output_folder(screenshots, "screenshot folder")
     presses = parse_key_presses(keys_text)
     script = script_frames(load_script(script_path)) if script_path else None
     reader = dict(
@@ -930,6 +945,10 @@ def rd(
     from approxtree.rd import lattice_heights, rd_curves
     from approxtree.rd.curves import json_ready, plot_rd
 
+    if plot:
+        from approxtree.io.output_path import check_output_file
+
+        check_output_file(plot, "plot")
     terrain = _open(dem, encoding, nodata_policy, ground_only, height_scale)
     if not isinstance(terrain, Grid):
         from approxtree.errors import InvalidParameterError

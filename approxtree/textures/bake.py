@@ -27,6 +27,7 @@ from approxtree.errors import InvalidParameterError, TerrainFormatError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rasterize import rasterize
+from approxtree.io.output_path import check_output_folder
 from approxtree.textures.base import TextureData
 from approxtree.textures.blend import BLEND_MODES, MultiTexture
 from approxtree.textures.pyramid import TexturePyramid
@@ -147,6 +148,8 @@ def bake(
     False always uses numpy.
     """
     t0 = time.perf_counter()
+    # The pyramid's folder must be writable before any work (its parents are never created).
+    check_output_folder(folder, "texture pyramid folder")
     # A TIN or point cloud is shaded from its heights sampled on a lattice (at the texel size,
     # else at its mean point spacing); outside its triangles the texture is transparent.
     if not isinstance(terrain, Grid):
