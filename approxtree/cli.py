@@ -11,6 +11,7 @@ import json
 import math
 import sys
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -463,8 +464,11 @@ def _render_to_png(
 
     from approxtree.io.atomic import atomic_write
     from approxtree.render import Camera, Engine, overview_camera
+    from approxtree.render.engine import EmptyFrameWarning
 
-    with Engine(tree, textures=textures) as engine:
+    # An empty frame is reported below as one Warning line, not as Python's warning text.
+    with warnings.catch_warnings(), Engine(tree, textures=textures) as engine:
+        warnings.simplefilter("ignore", EmptyFrameWarning)
         box = tree.bboxes[0]
         if eye is None:
             camera = overview_camera(box, engine.scale, fov=fov)
@@ -487,6 +491,8 @@ def _render_to_png(
         Image.fromarray(frame.image, mode="RGBA").save(f, format="PNG")
     stats = {k: (_finite(v) if isinstance(v, float) else v) for k, v in frame.stats.items()}
     stats["image"] = str(path)
+    if stats.get("warning"):
+        click.echo(f"Warning: {stats['warning']}", err=True)
     return stats
 
 

@@ -34,6 +34,7 @@ import itertools
 import math
 import os
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -76,6 +77,8 @@ STAT_KEYS = (
     "gpu_bytes",
     "texture_patches",
     "texture_switches",
+    "empty",
+    "warning",
 )
 
 _INSTALL_HINT = (
@@ -113,6 +116,40 @@ def _check_drawable(tree) -> None:
             "line, e.g. one grid cell of valid corners). Check the file's nodata value or use "
             "a larger area."
         )
+
+
+class EmptyFrameWarning(UserWarning):
+    """A frame shows no terrain (camera under the ground, frustum that misses the terrain)."""
+
+
+def empty_frame_reason(
+    selection: Selection, triangles: int, image: np.ndarray | None
+) -> str | None:
+    """Why a frame shows no terrain, or None when it shows some.
+
+    image: (h, w, 4) uint8 read back (alpha 0 where nothing is drawn), or None when not read.
+    """
+    if selection.below_ground:
+        return (
+            "The camera is below the terrain surface: the frame shows no terrain. Move the "
+            "eye above the ground."
+        )
+    if len(selection.nodes) == 0:
+        return (
+            "No part of the terrain lies in the view frustum: the frame shows no terrain. "
+            "Aim the camera at the terrain."
+        )
+    if triangles == 0:
+        return (
+            "The patches in view hold no triangle (isolated valid data points): the frame "
+            "shows no terrain."
+        )
+    if image is not None and not image[..., 3].any():
+        return (
+            "No terrain pixel was drawn: the terrain's bounding boxes touch the view frustum "
+            "but its surface stays outside the image. Aim the camera at the terrain."
+        )
+    return None
 
 
 @dataclass
@@ -336,6 +373,12 @@ class Engine:
             "texture_patches": sum(1 for tex, _ in groups if tex is not None),
             "texture_switches": int(switches),
         }
+        # 7. A frame without terrain says so (stats and a warning) instead of a silent blank.
+        reason = empty_frame_reason(selection, triangles, image)
+        stats["empty"] = reason is not None
+        stats["warning"] = reason
+        if reason is not None:
+            warnings.warn(reason, EmptyFrameWarning, stacklevel=2)
         return Frame(image, stats, selection, fs, positions, tex_nodes, tex_gammas)
 
     def _budget_selection(self, fs: FrameState, max_triangles: int) -> Selection:
