@@ -395,6 +395,14 @@ def test_inapplicable_reader_option_given_explicitly_is_one_error_line(files):
     assert not (files / "t.atree").exists()
 
 
+def test_explicit_reader_options_still_apply_to_their_format():
+    """--nodata given explicitly still reaches a grid reader (fill leaves no nodata)."""
+    path = path_of(BY_ID["asc"], Path())
+    assert run_json("info", path, "--nodata", "mask")["nodata_count"] == 2028
+    filled = run_json("info", path, "--nodata", "fill")
+    assert filled["nodata_count"] == 0 and filled["points"] == 76 * 55
+
+
 def test_reader_options_with_a_tree_file_are_refused(built, files, tmp_path):
     """Reader options choose how a terrain file is read; with a built tree they are an error
     (they used to be ignored silently)."""
@@ -434,3 +442,21 @@ def test_installed_entry_point_reads_point_clouds(files, tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["max_leaf_error"] <= 1.0
     assert ApproximationTree.load(out).terrain.point_count == 300
+
+
+def test_rasterize_samples_h_t_on_a_lattice_over_the_domain(files):
+    """bake shades a point cloud through rasterize: a lattice whose outer points lie on the
+    domain's edges, heights equal to h_T there, nodata beyond the convex hull."""
+    from approxtree.geometry.rasterize import mean_spacing, rasterize
+
+    points = open_terrain(files / "small.las")
+    grid = rasterize(points)
+    d, g = points.domain, grid.domain
+    assert (g.xmin, g.ymin, g.xmax, g.ymax) == pytest.approx((d.xmin, d.ymin, d.xmax, d.ymax))
+    # About one lattice point per data point.
+    assert abs(grid.cell_size[0] - mean_spacing(points)) < 0.1 * mean_spacing(points)
+    xyz = grid.points()
+    assert np.allclose(xyz[:, 2], points.height_at(xyz[:, 0], xyz[:, 1]))
+    # Lattice points beyond the hull (the corners) are nodata.
+    assert 0 < grid.nodata_count < 0.2 * grid.width * grid.height
+    assert rasterize(grid) is grid
