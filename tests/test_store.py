@@ -134,9 +134,9 @@ def test_records_round_trip_empty_and_odd_arrays():
 
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
-    """The bytes of a tiny saved tree (a few kB), small enough to flip every byte."""
+    """The bytes of a tiny saved tree (5 nodes, 2.6 kB), small enough to flip every byte."""
     tree = ApproximationTree.build(
-        fractal_terrain(9, seed=4, relief=100.0), epsilon=0.5, max_points=9
+        fractal_terrain(5, seed=4, relief=100.0), epsilon=0.5, max_points=9
     )
     path = tmp_path_factory.mktemp("tiny") / "tiny.atree"
     tree.save(path)
