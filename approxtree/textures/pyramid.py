@@ -209,10 +209,11 @@ class TexturePyramid:
         self._offsets = [
             _level_offset(lv.path, lv, self.build_id, k) for k, lv in enumerate(self.levels)
         ]
+        self._check_chain()
         self._maps: dict[int, np.ndarray] = {}
 
     def _check_levels(self, files: list[str], sizes: list[int]) -> None:
-        """The level list of pyramid.json against the folder: names, files, bytes, halving."""
+        """The level list of pyramid.json against the folder: names, missing or extra files, bytes."""
         where = self.folder / "pyramid.json"
         if not self.levels:
             raise StoreError(f"{where} lists no level; rebake the pyramid.")
@@ -230,7 +231,10 @@ class TexturePyramid:
                 raise StoreError(
                     f"{lv.path} has {actual} bytes, pyramid.json says {nbytes}; rebake the pyramid."
                 )
-        # Each level halves the one before (rounding up) until one fits the texture limit.
+
+    def _check_chain(self) -> None:
+        """Each level halves the one before (rounding up) until one fits the texture limit."""
+        where = self.folder / "pyramid.json"
         for fine, coarse in zip(self.levels, self.levels[1:], strict=False):
             if (coarse.width, coarse.height) != (-(-fine.width // 2), -(-fine.height // 2)):
                 raise StoreError(f"{where} lists levels that do not halve; rebake the pyramid.")
