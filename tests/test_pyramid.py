@@ -269,6 +269,13 @@ def test_a_folder_with_other_files_is_refused_before_the_work(tmp_path, terrain)
     with pytest.raises(StoreError, match=r"notes\.txt"):
         bake(terrain, tmp_path, gl=False)
     assert os.listdir(tmp_path) == ["notes.txt"]
+    # Files of a pyramid (and temp files an older bake left inside it) may be replaced.
+    old = tmp_path / "old"
+    old.mkdir()
+    for name in ("pyramid.json", "level0.tif", "level0.tif.aux.xml", ".level1.tif.tmp"):
+        (old / name).write_text("x")
+    _constant_pyramid(old, 3)
+    assert _values(old) == {3}
 
 
 def test_pyramid_files_get_umask_permissions_and_the_folder_keeps_its_mode(tmp_path):

@@ -38,8 +38,11 @@ PYRAMID_FORMAT = 2
 #: GeoTIFF tags naming a level's build and its number in the pyramid.
 _TAG_BUILD = "APPROXTREE_PYRAMID"
 _TAG_LEVEL = "APPROXTREE_LEVEL"
-#: The files a pyramid folder holds (GDAL may add .aux.xml side files when reading).
-_PYRAMID_FILE = re.compile(r"^(pyramid\.json|level\d+\.tif(\.aux\.xml)?)$")
+#: The files a pyramid folder holds: GDAL may add .aux.xml side files when reading, and bakes
+#: of format 1 killed midway left .levelK.tif.tmp and .pyramid.json.*.tmp temp files inside.
+_PYRAMID_FILE = re.compile(
+    r"^(pyramid\.json|level\d+\.tif(\.aux\.xml)?|\.level\d+\.tif\.tmp|\.pyramid\.json\..+\.tmp)$"
+)
 _LEVEL_FILE = re.compile(r"^level\d+\.tif$")
 
 
@@ -213,7 +216,7 @@ class TexturePyramid:
         self._maps: dict[int, np.ndarray] = {}
 
     def _check_levels(self, files: list[str], sizes: list[int]) -> None:
-        """The level list of pyramid.json against the folder: names, missing or extra files, bytes."""
+        """pyramid.json's level list against the folder: names, missing or extra files, bytes."""
         where = self.folder / "pyramid.json"
         if not self.levels:
             raise StoreError(f"{where} lists no level; rebake the pyramid.")
