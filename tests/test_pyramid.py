@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 
 import numpy as np
 import pytest
@@ -133,11 +134,11 @@ from affine import Affine
 import approxtree.io.atomic as atomic
 import approxtree.textures.pyramid as pyramid
 
-folder, value, at = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+folder, value, at, how = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4]
 write_level, exchange = pyramid._write_level, getattr(atomic, "_exchange", None)
 
 def die():
-    os.kill(os.getpid(), signal.SIGKILL)
+    os.kill(os.getpid(), getattr(signal, how))
 
 def killing_write(path, *args):
     write_level(path, *args)
@@ -181,18 +182,25 @@ def _values(folder) -> set[int]:
 def test_killed_bakes_leave_a_whole_pyramid(tmp_path):
     """A bake killed (SIGKILL) while writing levels or just before the swap leaves the old
     pyramid whole; killed just after the swap, the new one; the next bake removes what the
-    killed ones left beside the folder."""
+    killed ones left beside the folder. A bake stopped by SIGTERM cleans up at once."""
     import subprocess
     import sys
 
     folder = tmp_path / "pyr"
     _constant_pyramid(folder, 200)
-    for value, at, expected in [(7, "level1", 200), (9, "swap", 200), (11, "swapped", 11)]:
-        done = subprocess.run(
-            [sys.executable, "-c", _KILLED_BAKE, str(folder), str(value), at], capture_output=True
-        )
-        assert done.returncode == -9, done.stderr.decode()
+    runs = [
+        (5, "level1", "SIGTERM", 200),
+        (7, "level1", "SIGKILL", 200),
+        (9, "swap", "SIGKILL", 200),
+        (11, "swapped", "SIGKILL", 11),
+    ]
+    for value, at, how, expected in runs:
+        args = [str(folder), str(value), at, how]
+        done = subprocess.run([sys.executable, "-c", _KILLED_BAKE, *args], capture_output=True)
+        assert done.returncode == -getattr(signal, how), done.stderr.decode()
         assert _values(folder) == {expected}, at
+        if how == "SIGTERM":
+            assert os.listdir(tmp_path) == ["pyr"]
     _constant_pyramid(folder, 13)
     assert _values(folder) == {13}
     assert os.listdir(tmp_path) == ["pyr"]
