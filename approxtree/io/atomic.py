@@ -62,6 +62,8 @@ def _in_use(path: Path, pid: int) -> bool:
     if pid == os.getpid():
         with _ACTIVE_LOCK:
             return path in _ACTIVE
+    if os.name == "nt":  # os.kill(pid, 0) would end the process there: never guess
+        return True
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -155,7 +157,7 @@ def atomic_write(path: str | os.PathLike) -> Iterator[BinaryIO]:
             # O_EXCL with 0666: the kernel applies the umask, as for a plain open().
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
             if keep_mode is not None:
-                os.fchmod(fd, keep_mode)
+                os.chmod(tmp, keep_mode)
             with os.fdopen(fd, "wb") as f:
                 yield f
                 f.flush()
@@ -176,7 +178,7 @@ def _exchange(a: Path, b: Path) -> bool:
     try:
         libc = ctypes.CDLL(None, use_errno=True)
         renameat2 = libc.renameat2
-    except (OSError, AttributeError):
+    except (OSError, AttributeError, TypeError):
         return False
     renameat2.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p]
     renameat2.argtypes += [ctypes.c_uint]
