@@ -158,3 +158,17 @@ def test_gitignore_matches_temp_names():
     for name in names:
         done = subprocess.run(["git", "check-ignore", "-q", "--no-index", name], cwd=REPO)
         assert done.returncode == 0, name
+
+
+def test_a_write_that_cannot_be_done_is_a_store_error(tmp_path):
+    """A target the rename cannot replace (here a folder) is a StoreError naming it, not an
+    OSError, and leaves no temp file."""
+    from approxtree import StoreError
+
+    (tmp_path / "out.bin").mkdir()
+    with (
+        pytest.raises(StoreError, match=r"Cannot replace .*out\.bin"),
+        atomic_write(tmp_path / "out.bin") as f,
+    ):
+        f.write(b"x")
+    assert os.listdir(tmp_path) == ["out.bin"]

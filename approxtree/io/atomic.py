@@ -136,6 +136,15 @@ def _check_folder(target: Path) -> Path:
     return folder
 
 
+@contextlib.contextmanager
+def _os_errors(what: str) -> Iterator[None]:
+    """An OSError of the block as a StoreError saying what could not be done and why."""
+    try:
+        yield
+    except OSError as exc:
+        raise StoreError(f"{what}: {exc.strerror or exc}.") from exc
+
+
 def _existing_mode(path: Path) -> int | None:
     """Permission bits of ``path`` when it exists (following links), else None."""
     try:
@@ -155,14 +164,16 @@ def atomic_write(path: str | os.PathLike) -> Iterator[BinaryIO]:
     with _sigterm_unwinds(), _registered(tmp):
         try:
             # O_EXCL with 0666: the kernel applies the umask, as for a plain open().
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-            if keep_mode is not None:
-                os.chmod(tmp, keep_mode)
+            with _os_errors(f"Cannot write {target}"):
+                fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
             with os.fdopen(fd, "wb") as f:
+                if keep_mode is not None:
+                    os.chmod(tmp, keep_mode)
                 yield f
                 f.flush()
                 os.fsync(f.fileno())
-            os.replace(tmp, target)
+            with _os_errors(f"Cannot replace {target}"):
+                os.replace(tmp, target)
         except BaseException:
             with contextlib.suppress(FileNotFoundError):
                 os.unlink(tmp)
@@ -211,20 +222,22 @@ def atomic_directory(path: str | os.PathLike) -> Iterator[Path]:
     with _sigterm_unwinds(), _registered(tmp), _registered(aside):
         try:
             # mkdir with 0777: the kernel applies the umask, as for a plain mkdir.
-            os.mkdir(tmp, 0o777)
+            with _os_errors(f"Cannot write {target}"):
+                os.mkdir(tmp, 0o777)
             if keep_mode is not None:
                 os.chmod(tmp, keep_mode)
             yield tmp
-            if keep_mode is None:
-                os.rename(tmp, target)
-            elif not _exchange(tmp, target):
-                os.rename(target, aside)
-                try:
+            with _os_errors(f"Cannot replace {target}"):
+                if keep_mode is None:
                     os.rename(tmp, target)
-                except BaseException:
-                    os.rename(aside, target)
-                    raise
-                tmp = aside
+                elif not _exchange(tmp, target):
+                    os.rename(target, aside)
+                    try:
+                        os.rename(tmp, target)
+                    except BaseException:
+                        os.rename(aside, target)
+                        raise
+                    tmp = aside
             # ``tmp`` now holds the old folder (or nothing).
             shutil.rmtree(tmp, ignore_errors=True)
         except BaseException:
