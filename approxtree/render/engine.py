@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from approxtree.errors import ContextUnavailableError, InvalidParameterError
+from approxtree.errors import ContextUnavailableError, EmptyTerrainError, InvalidParameterError
 from approxtree.geometry.grid import Grid
 from approxtree.render.camera import Camera
 from approxtree.render.frame_state import (
@@ -104,6 +104,17 @@ def create_context() -> Any:
     return ctx
 
 
+def _check_drawable(tree) -> None:
+    """EmptyTerrainError for a tree whose only node has no triangle (too few valid points)."""
+    if tree.child_count[0] == 0 and len(tree.patch(0).triangles) == 0:
+        raise EmptyTerrainError(
+            f"This tree has nothing to draw: its terrain's {tree.terrain.point_count} valid "
+            "data point(s) form no triangle (a surface needs at least three points not on one "
+            "line, e.g. one grid cell of valid corners). Check the file's nodata value or use "
+            "a larger area."
+        )
+
+
 @dataclass
 class Frame:
     """One rendered frame.
@@ -148,7 +159,8 @@ class Engine:
         offscreen: bool | None = None,
         skirts: bool = True,
     ) -> None:
-        # Bad textures fail before any GPU object exists.
+        # Bad textures and a tree with nothing to draw fail before any GPU object exists.
+        _check_drawable(tree)
         textures = _as_pyramid(textures, tree.terrain)
         if not (isinstance(cache_bytes, int) and cache_bytes > 0):
             raise InvalidParameterError(f"cache_bytes must be an int > 0, got {cache_bytes!r}.")
@@ -486,6 +498,8 @@ class Engine:
                         switches += 1
                     meshes = resident[g][1] if resident else (self._get_mesh(k) for k in keys)
                     for mesh in meshes:
+                        if mesh.triangles == 0:
+                            continue
                         mesh.vao(ctx, prog).render(moderngl.TRIANGLES)
                         triangles += mesh.triangles
             finally:
