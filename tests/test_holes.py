@@ -188,3 +188,27 @@ def test_coarse_cuts_draw_nothing_over_voids(gl_context, data_dir, alpha):  # no
             assert bad == 0, (view, alpha, bad)
     finally:
         eng.release()
+
+
+def test_neighbour_errors_match_brute_force():
+    """kernels.rect_neighbours: per node, the largest finite error of the nodes touching a
+    side of its rectangle from outside along a stretch — against a double loop over pairs."""
+    from approxtree.datasets import fractal_terrain
+    from approxtree.kernels.rect_neighbours import neighbour_max_errors
+
+    heights = fractal_terrain(65, seed=3, relief=200.0).heights.copy()
+    heights[20:30, 35:41] = np.nan  # some nodes of infinite error
+    tree = ApproximationTree.build(Grid(heights), epsilon=0.5, max_points=5 * 5, progress=False)
+    rects = np.asarray(tree.rects, dtype=np.float64)
+    errors = tree.errors
+    assert np.isinf(errors).any() and len(tree) > 50
+    expected = np.zeros(len(tree))
+    for a, (ax0, ay0, ax1, ay1) in enumerate(rects):
+        for b, (bx0, by0, bx1, by1) in enumerate(rects):
+            side_x = (ax1 == bx0 or bx1 == ax0) and min(ay1, by1) > max(ay0, by0)
+            side_y = (ay1 == by0 or by1 == ay0) and min(ax1, bx1) > max(ax0, bx0)
+            if (side_x or side_y) and np.isfinite(errors[b]):
+                expected[a] = max(expected[a], errors[b])
+    got = neighbour_max_errors(rects, np.asarray(errors, dtype=np.float64))
+    np.testing.assert_array_equal(got, expected)
+    assert (got < np.nanmax(np.where(np.isfinite(errors), errors, np.nan))).any()

@@ -175,9 +175,10 @@ class Engine:
         self.texels = self._data_texels
         # Skirts: infinite errors stand in by the node's z extent; walls on node borders only.
         extents = tree.bboxes[:, 5] - tree.bboxes[:, 2]
-        self.skirt_depths = skirt_depths(tree.errors, tree.terrain.z_range, extents)
-        self.skirt_base = skirt_base(tree.errors, tree.terrain.z_range, extents)
         self._node_borders = patches_reach_rect(tree.terrain)
+        rects = np.asarray(tree.rects, dtype=np.float64) if self._node_borders else None
+        self.skirt_depths = skirt_depths(tree.errors, tree.terrain.z_range, extents, rects)
+        self.skirt_base = skirt_base(tree.errors, tree.terrain.z_range, extents)
         d = tree.terrain.domain
         self._domain = (d.xmin, d.ymin, d.xmax, d.ymax)
         self._full_chunks: list[tuple[Any, np.ndarray]] | None = None

@@ -16,6 +16,11 @@ everything but the gap. Walls end no lower than a common base z_min − ε_max; 
 terrain's outer border hang down to that base, so that from outside the domain the terrain
 reads as a block whose sides hide the interior walls under the terrain sheet.
 
+*Neighbours only.* When patches reach their rectangles, B can only be a node whose rectangle
+touches a side of N's from the outside (at any level), so ε_max is taken per node over those
+nodes (``kernels.rect_neighbours``): deep in the tree a wall is as deep as the errors next to
+it, not as the coarsest node of the whole tree.
+
 *Node borders only.* Walls close the gap between neighbours, so they hang only from border
 edges that lie on the node's rectangle (the lines it shares with its neighbours, or the
 domain's outer border). A patch's other border edges run along nodata inside the node: the
@@ -35,6 +40,7 @@ import numpy as np
 
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.tin import TIN
+from approxtree.kernels.rect_neighbours import neighbour_max_errors
 
 
 def border_edges(triangles: np.ndarray) -> np.ndarray:
@@ -173,14 +179,25 @@ def skirt_base(
 
 
 def skirt_depths(
-    errors: np.ndarray, z_range: tuple[float, float], extents: np.ndarray | None = None
+    errors: np.ndarray,
+    z_range: tuple[float, float],
+    extents: np.ndarray | None = None,
+    rects: np.ndarray | None = None,
 ) -> np.ndarray:
     """(n,) skirt depth of every node: ε_T(N) + ε_max + margin (see the module docstring).
 
     errors: (n,) ε_T(N), inf where a patch misses data points; extents: (n,) z extent of
     each node (bbox z max − z min), standing in for an infinite ε_T(N); None: the relief.
+    rects: (n, 4) node rectangles when patches reach them: ε_max is then taken per node over
+    the nodes across its sides only; None: over the whole tree.
     """
     relief = max(z_range[1] - z_range[0], 0.0)
     e, e_max = _bounded_errors(errors, z_range, extents)
     margin = 1e-3 * max(relief, 1.0)
-    return e + e_max + margin
+    if rects is None:
+        return e + e_max + margin
+    across = neighbour_max_errors(
+        np.ascontiguousarray(rects, dtype=np.float64),
+        np.ascontiguousarray(errors, dtype=np.float64),
+    )
+    return e + across + margin
