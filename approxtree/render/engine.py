@@ -53,7 +53,7 @@ from approxtree.render.frustum import boxes_in_frustum
 from approxtree.render.gpu_cache import GpuCache
 from approxtree.render.selector import Selection, check_thresholds, eye_below_ground, select
 from approxtree.render.shaders import create_program
-from approxtree.render.skirts import add_skirts, skirt_base, skirt_depths
+from approxtree.render.skirts import add_skirts, patches_reach_rect, skirt_base, skirt_depths
 from approxtree.render.texture_sharing import texture_nodes
 from approxtree.render.visual_error import texel_sizes
 
@@ -210,8 +210,12 @@ class Engine:
         # Per-node figures used every frame, computed once.
         self._data_texels = texel_sizes(tree)
         self.texels = self._data_texels
-        self.skirt_depths = skirt_depths(tree.errors, tree.terrain.z_range)
-        self.skirt_base = skirt_base(tree.errors, tree.terrain.z_range)
+        # Skirts: infinite errors stand in by the node's z extent; walls on node borders only.
+        extents = tree.bboxes[:, 5] - tree.bboxes[:, 2]
+        self._node_borders = patches_reach_rect(tree.terrain)
+        rects = np.asarray(tree.rects, dtype=np.float64) if self._node_borders else None
+        self.skirt_depths = skirt_depths(tree.errors, tree.terrain.z_range, extents, rects)
+        self.skirt_base = skirt_base(tree.errors, tree.terrain.z_range, extents)
         d = tree.terrain.domain
         self._domain = (d.xmin, d.ymin, d.xmax, d.ymax)
         self._full_chunks: list[tuple[Any, np.ndarray]] | None = None
@@ -599,6 +603,7 @@ class Engine:
                 float(self.skirt_depths[i]),
                 self._domain,
                 self.skirt_base,
+                patch.rect.as_tuple() if self._node_borders else None,
             )
         data = np.empty((len(verts), 4), dtype=np.float32)
         data[:, :3] = verts - self.tree.origin
