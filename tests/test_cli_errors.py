@@ -73,18 +73,33 @@ def test_rendering_a_tree_of_one_valid_point_is_a_clear_error(tmp_path):
     assert not (tmp_path / "one.png").exists()
 
 
-def test_patches_without_triangles_are_skipped_not_fatal():
-    """A grid whose valid cells never touch (a checkerboard of nodata) has nodes whose patches
-    hold no triangle beside nodes that do; the frame draws the others (was a GL error)."""
+def checkerboard_tree(columns: slice) -> ApproximationTree:
+    """The tree of a 40 × 40 grid with nodata on every other cell centre of ``columns``
+    (there no two valid points are neighbours: the patches hold no triangle)."""
     heights = hills(40, 40)
-    heights[(np.add.outer(np.arange(40), np.arange(40)) % 2) == 1] = np.nan
-    tree = ApproximationTree.build(Grid(heights), epsilon=0.5, max_points=64, progress=False)
+    checker = np.zeros((40, 40), dtype=bool)
+    checker[:, columns] = (np.add.outer(np.arange(40), np.arange(40)) % 2 == 1)[:, columns]
+    heights[checker] = np.nan
+    return ApproximationTree.build(Grid(heights), epsilon=0.5, max_points=64, progress=False)
+
+
+def test_patches_without_triangles_are_skipped_not_fatal():
+    """Nodes whose patches hold no triangle (a checkerboard of nodata on the east half) are
+    drawn beside nodes that do (was a GL error); a tree of such nodes only draws an empty
+    frame that says why."""
+    tree = checkerboard_tree(slice(20, None))
     with Engine(tree) as engine:
         frame = engine.render(overview_camera(tree.bboxes[0], engine.scale), (64, 48))
     counts = [len(tree.patch(int(i)).triangles) for i in frame.selection.nodes]
     assert 0 in counts and max(counts) > 0
     assert frame.stats["triangles"] > 0 and frame.stats["empty"] is False
     assert frame.image[..., 3].any()
+    tree = checkerboard_tree(slice(None))
+    with Engine(tree) as engine:
+        with pytest.warns(EmptyFrameWarning, match="no triangle"):
+            frame = engine.render(overview_camera(tree.bboxes[0], engine.scale), (64, 48))
+    assert frame.stats["patches"] > 0 and frame.stats["triangles"] == 0
+    assert frame.stats["empty"] is True and not frame.image[..., 3].any()
 
 
 # -- field of view -----------------------------------------------------------------------------
