@@ -11,6 +11,10 @@ from __future__ import annotations
 import errno
 import json
 import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -180,6 +184,34 @@ def test_read_only_location_is_refused_before_the_work(folder, tmp_path, no_work
         code, _, err = run(*args)
         assert_one_error_line(code, err, "not writable (Read-only file system)")
     assert list(out.iterdir()) == []
+
+
+def in_read_only_mount(folder, command: str) -> list[str]:
+    """The argv running ``command`` in a shell that sees a read-only tmpfs on ``folder`` (a
+    private mount namespace through ``unshare -rm``: no privileges needed)."""
+    return ["unshare", "-rm", "sh", "-c", f"mount -t tmpfs -o ro none '{folder}' && {command}"]
+
+
+def test_real_read_only_mount_is_refused(folder, tmp_path):
+    """On a real read-only mount (binding root too) build and bake end with one Error line
+    that names the reason, from the installed entry point."""
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    probe = None
+    if shutil.which("unshare") is not None:
+        probe = subprocess.run(in_read_only_mount(ro, "echo mounted"), capture_output=True)
+    if probe is None or probe.stdout.strip() != b"mounted":
+        pytest.skip("cannot mount a read-only tmpfs here (unshare -rm not available)")
+    exe = Path(sys.executable).with_name("approxtree")
+    dem = folder / "dem.npy"
+    for command in (
+        f"'{exe}' build '{dem}' --out '{ro / 't.atree'}'",
+        f"'{exe}' bake '{dem}' --out '{ro / 'tex'}'",
+    ):
+        proc = subprocess.run(
+            in_read_only_mount(ro, command), capture_output=True, text=True, timeout=120
+        )
+        assert_one_error_line(proc.returncode, proc.stderr, "Read-only file system")
 
 
 @pytest.mark.skipif(
