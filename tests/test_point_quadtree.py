@@ -196,7 +196,7 @@ def test_save_load_round_trip(quadtree, tmp_path):
     np.testing.assert_array_equal(a.vertices, b.vertices)
     old = tmp_path / "old.npz"
     np.savez(old, x=np.zeros(3))
-    with pytest.raises(at.StoreError, match="earlier version.*--kind point-quadtree"):
+    with pytest.raises(at.StoreError, match=r"earlier version.*--kind point-quadtree"):
         PointQuadtree.load(old)
     (tmp_path / "junk.atree").write_bytes(b"not a tree file at all")
     with pytest.raises(at.StoreError, match="not an approxtree tree file"):

@@ -34,12 +34,13 @@ import itertools
 import math
 import os
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from approxtree.errors import ContextUnavailableError, InvalidParameterError
+from approxtree.errors import ContextUnavailableError, EmptyTerrainError, InvalidParameterError
 from approxtree.geometry.grid import Grid
 from approxtree.render.camera import Camera
 from approxtree.render.frame_state import (
@@ -52,7 +53,7 @@ from approxtree.render.frustum import boxes_in_frustum
 from approxtree.render.gpu_cache import GpuCache
 from approxtree.render.selector import Selection, check_thresholds, eye_below_ground, select
 from approxtree.render.shaders import create_program
-from approxtree.render.skirts import add_skirts, skirt_base, skirt_depths
+from approxtree.render.skirts import add_skirts, patches_reach_rect, skirt_base, skirt_depths
 from approxtree.render.texture_sharing import texture_nodes
 from approxtree.render.visual_error import texel_sizes
 
@@ -76,6 +77,8 @@ STAT_KEYS = (
     "gpu_bytes",
     "texture_patches",
     "texture_switches",
+    "empty",
+    "warning",
 )
 
 _INSTALL_HINT = (
@@ -102,6 +105,51 @@ def create_context() -> Any:
             f"OpenGL 3.3 or newer is needed, the EGL context offers {version}. {_INSTALL_HINT}"
         )
     return ctx
+
+
+def _check_drawable(tree) -> None:
+    """EmptyTerrainError for a tree whose only node has no triangle (too few valid points)."""
+    if tree.child_count[0] == 0 and len(tree.patch(0).triangles) == 0:
+        raise EmptyTerrainError(
+            f"This tree has nothing to draw: its terrain's {tree.terrain.point_count} valid "
+            "data point(s) form no triangle (a surface needs at least three points not on one "
+            "line, e.g. one grid cell of valid corners). Check the file's nodata value or use "
+            "a larger area."
+        )
+
+
+class EmptyFrameWarning(UserWarning):
+    """A frame shows no terrain (camera under the ground, frustum that misses the terrain)."""
+
+
+def empty_frame_reason(
+    selection: Selection, triangles: int, image: np.ndarray | None
+) -> str | None:
+    """Why a frame shows no terrain, or None when it shows some.
+
+    image: (h, w, 4) uint8 read back (alpha 0 where nothing is drawn), or None when not read.
+    """
+    if selection.below_ground:
+        return (
+            "The camera is below the terrain surface: the frame shows no terrain. Move the "
+            "eye above the ground."
+        )
+    if len(selection.nodes) == 0:
+        return (
+            "No part of the terrain lies in the view frustum: the frame shows no terrain. "
+            "Aim the camera at the terrain."
+        )
+    if triangles == 0:
+        return (
+            "The patches in view hold no triangle (isolated valid data points): the frame "
+            "shows no terrain."
+        )
+    if image is not None and not image[..., 3].any():
+        return (
+            "No terrain pixel was drawn: the terrain's bounding boxes touch the view frustum "
+            "but its surface stays outside the image. Aim the camera at the terrain."
+        )
+    return None
 
 
 @dataclass
@@ -156,7 +204,8 @@ class Engine:
         offscreen: bool | None = None,
         skirts: bool = True,
     ) -> None:
-        # Bad textures fail before any GPU object exists.
+        # Bad textures and a tree with nothing to draw fail before any GPU object exists.
+        _check_drawable(tree)
         textures = _as_pyramid(textures, tree.terrain)
         if not (isinstance(cache_bytes, int) and cache_bytes > 0):
             raise InvalidParameterError(f"cache_bytes must be an int > 0, got {cache_bytes!r}.")
@@ -169,8 +218,12 @@ class Engine:
         # Per-node figures used every frame, computed once.
         self._data_texels = texel_sizes(tree)
         self.texels = self._data_texels
-        self.skirt_depths = skirt_depths(tree.errors, tree.terrain.z_range)
-        self.skirt_base = skirt_base(tree.errors, tree.terrain.z_range)
+        # Skirts: infinite errors stand in by the node's z extent; walls on node borders only.
+        extents = tree.bboxes[:, 5] - tree.bboxes[:, 2]
+        self._node_borders = patches_reach_rect(tree.terrain)
+        rects = np.asarray(tree.rects, dtype=np.float64) if self._node_borders else None
+        self.skirt_depths = skirt_depths(tree.errors, tree.terrain.z_range, extents, rects)
+        self.skirt_base = skirt_base(tree.errors, tree.terrain.z_range, extents)
         d = tree.terrain.domain
         self._domain = (d.xmin, d.ymin, d.xmax, d.ymax)
         self._full_chunks: list[tuple[Any, np.ndarray]] | None = None
@@ -330,6 +383,12 @@ class Engine:
             "texture_patches": sum(1 for tex, _ in groups if tex is not None),
             "texture_switches": int(switches),
         }
+        # 7. A frame without terrain says so (stats and a warning) instead of a silent blank.
+        reason = empty_frame_reason(selection, triangles, image)
+        stats["empty"] = reason is not None
+        stats["warning"] = reason
+        if reason is not None:
+            warnings.warn(reason, EmptyFrameWarning, stacklevel=2)
         return Frame(image, stats, selection, fs, positions, tex_nodes, tex_gammas)
 
     def _select(self, fs: FrameState, alpha: float, gamma: float) -> Selection:
@@ -501,6 +560,8 @@ class Engine:
                         switches += 1
                     meshes = resident[g][1] if resident else (self._get_mesh(k) for k in keys)
                     for mesh in meshes:
+                        if mesh.triangles == 0:
+                            continue
                         mesh.vao(ctx, prog).render(moderngl.TRIANGLES)
                         triangles += mesh.triangles
             finally:
@@ -560,6 +621,7 @@ class Engine:
                 float(self.skirt_depths[i]),
                 self._domain,
                 self.skirt_base,
+                patch.rect.as_tuple() if self._node_borders else None,
             )
         data = np.empty((len(verts), 4), dtype=np.float32)
         data[:, :3] = verts - self.tree.origin

@@ -26,7 +26,7 @@ import pyrr
 
 from approxtree.errors import InvalidParameterError
 from approxtree.geometry.base import GeometryData
-from approxtree.render.camera import Camera
+from approxtree.render.camera import Camera, Projection
 
 #: Mean Earth radius (IUGG), metres: the sphere behind the geographic display scale.
 EARTH_RADIUS = 6_371_008.8
@@ -226,6 +226,8 @@ def overview_camera(
     The eye looks at the box centre from ``elevation`` degrees above the horizon, far enough
     that the box's bounding sphere (in display units) fits the vertical field of view.
     """
+    # The field of view is validated before the distance divides by its sine.
+    Projection(fov)
     b = np.asarray(bounds, dtype=np.float64).reshape(2, 3)
     b = np.where(np.isfinite(b), b, 0.0)
     centre = b.mean(axis=0)
