@@ -28,8 +28,8 @@ cut (render/point_quadtree_engine.py).
 boundary (``leaf_errors``), so every drawn node's ρ is a measured bound, never an estimate.
 
 Storage: ``save`` writes the project's ``.atree`` tree file (tree kind "point_quadtree",
-sections "terrain" and "quadtree"); ``load`` reads it, and still reads the ``.npz`` files of
-format 1 written by earlier versions.
+sections "terrain" and "quadtree", checksummed like every section); ``load`` reads it (and
+refuses the ``.npz`` files of earlier versions with a StoreError saying to rebuild).
 """
 
 from __future__ import annotations
