@@ -22,6 +22,7 @@ from approxtree.render import Camera, Engine
 from approxtree.render.engine import STAT_KEYS
 from approxtree.render.frustum import boxes_in_frustum
 from approxtree.render.point_quadtree_engine import PointQuadtreeEngine, pixels_per_radian
+from approxtree.render.selector import SelectionResult
 from approxtree.tree.point_quadtree import PointQuadtree
 from approxtree.tree.store import TreeFile
 
@@ -194,6 +195,10 @@ def test_meshes_stay_in_the_gpu_cache_between_frames(gl_context, quadtree):  # n
     try:
         cam = all_terrain_views(quadtree)["oblique"]
         first = eng.render(cam, SIZE, alpha=2.0)
+        # The selection reports the cut like an approximation tree's traversal.
+        sel = first.selection
+        assert sel.result_of(0) == SelectionResult.REFINED
+        assert {sel.result_of(int(n)) for n in sel.nodes} == {SelectionResult.SELECTED}
         before = set(eng.cache.keys())
         again = eng.render(cam, SIZE, alpha=2.0)
         assert set(eng.cache.keys()) == before

@@ -120,13 +120,16 @@ class PointQuadtreeEngine(Engine):
             )
             for k in drawn.tolist()
         ]
-        results = np.where(visible, 1, 0).astype(np.uint8)
-        results[cut.rows[cut.visible]] = 2
+        # Visited: the refined ancestors (REFINED), then the cut (SELECTED, or CULLED).
+        visited = np.concatenate([cut.refined, cut.rows])
+        results = np.concatenate(
+            [np.full(len(cut.refined), 1), np.where(cut.visible, 2, 0)]
+        ).astype(np.uint8)
         return Selection(
             cut.rows[drawn],
             rho,
             np.zeros(len(drawn)),
-            np.arange(len(tree), dtype=np.int64),
+            visited,
             results,
             below,
             {

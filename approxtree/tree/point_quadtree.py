@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -81,7 +81,7 @@ class LODCut:
     points replayed (leaves) or −1 (a coarse node's fan); errors: (k,) measured max
     |z − mesh| over each visible node's points (δ for culled ones); distances: (k,) d
     (display units); visible: (k,) inside the frustum; nodes_visited: nodes the traversal
-    reached.
+    reached; refined: rows of the nodes replaced by their children (ancestors of the cut).
     """
 
     rows: np.ndarray
@@ -92,6 +92,7 @@ class LODCut:
     distances: np.ndarray
     visible: np.ndarray
     nodes_visited: int
+    refined: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
 
     def screen_errors(self, lam: float) -> np.ndarray:
         """(k,) ρ = λ·error/d of each drawn node (pixels; inf at d = 0 with an error)."""
@@ -546,6 +547,7 @@ class PointQuadtree:
             d[rows],
             vis,
             int(reached.sum()),
+            np.flatnonzero(refined),
         )
 
     def _side_rows(self, rows: np.ndarray) -> list[np.ndarray]:
