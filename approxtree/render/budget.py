@@ -5,7 +5,8 @@ Pure and GL-free, like ``selector``: (tree, FrameState, max_triangles, node tria
 of the visible tree has every selected node's α_N <= α* and at most max_triangles triangles,
 and draws that cut (the one with the fewest triangles). γ is reported, not constrained.
 
-1. Traverse every node whose box meets the frustum; α_N, γ_N as in threshold mode. Culled
+1. Traverse every node whose box meets the frustum; α_N, γ_N as in threshold mode (α_N bounds
+   the node's screen error anywhere in the view, see visual_error.py). Culled
    nodes cost 0 triangles and are skipped with their subtree.
 2. For a candidate a, cost(a) = the fewest triangles of a cut whose selected nodes all have
    α_N <= a, by one bottom-up pass: cost(N) = sum over children when N has children, replaced

@@ -11,6 +11,9 @@ Decision for each node N of the frontier (starting with the root):
                                                           frontier.
 3. otherwise (a leaf, or errors within the thresholds)  → SELECTED: T_N is drawn.
 
+α_N bounds the on-screen length of every error segment of N anywhere in the view, image edges
+included (visual_error.py), so every drawn inner node is within alpha pixels of the terrain.
+
 Before the traversal: an eye below the terrain surface (z < h_T(x, y)) sees nothing, and the
 selection is empty.
 """
