@@ -32,7 +32,12 @@ from approxtree.render.frame_state import FrameState
 from approxtree.render.frustum import box_in_frustum
 from approxtree.render.selector import Selection, SelectionResult, _stats, eye_below_ground
 from approxtree.render.skirts import border_edges
-from approxtree.render.visual_error import node_visual_errors, texel_sizes
+from approxtree.render.visual_error import (
+    box_tuple,
+    frame_tuples,
+    node_visual_errors,
+    texel_sizes,
+)
 
 
 def node_triangles(tree, skirts: bool = True) -> np.ndarray:
@@ -128,6 +133,8 @@ def _visible_tree(bboxes, errors, texels, child_start, child_count, planes, eye,
     Returns (ids (v,), first (v,) position of the first child in ids (−1: none traversed),
     α (v,), γ (v,), visible (v,) bool). Children of a node are contiguous in ids.
     """
+    # The frame as tuples: per-node calls then pass no arrays (see node_visual_errors).
+    mt, et, lt = frame_tuples(m, eye, lens)
     cap = min(bboxes.shape[0], 4096)
     ids = np.empty(cap, dtype=np.int64)
     first = np.full(cap, -1, dtype=np.int64)
@@ -141,7 +148,7 @@ def _visible_tree(bboxes, errors, texels, child_start, child_count, planes, eye,
         if box_in_frustum(bboxes[i], planes):
             vis[head] = True
             a, g = node_visual_errors(
-                bboxes[i], errors[i], texels[i, 0], texels[i, 1], eye, m, vw, vh, lens
+                box_tuple(bboxes, i), errors[i], texels[i, 0], texels[i, 1], et, mt, vw, vh, lt
             )
             a_out[head] = a
             g_out[head] = g

@@ -53,18 +53,39 @@ from approxtree.render.frame_state import FrameState
 
 
 @njit(cache=True, inline="always")
-def _project(m: np.ndarray, x: float, y: float, z: float, vw: float, vh: float):
-    """World point → (pixel x, pixel y, clip w) through the column-vector clip matrix m."""
-    cx = m[0, 0] * x + m[0, 1] * y + m[0, 2] * z + m[0, 3]
-    cy = m[1, 0] * x + m[1, 1] * y + m[1, 2] * z + m[1, 3]
-    cw = m[3, 0] * x + m[3, 1] * y + m[3, 2] * z + m[3, 3]
+def frame_tuples(m: np.ndarray, eye: np.ndarray, lens: np.ndarray):
+    """(m (16,) row-major, eye (3,), lens (7,)) as tuples, for the per-node kernels."""
+    # fmt: off
+    mt = (
+        m[0, 0], m[0, 1], m[0, 2], m[0, 3],
+        m[1, 0], m[1, 1], m[1, 2], m[1, 3],
+        m[2, 0], m[2, 1], m[2, 2], m[2, 3],
+        m[3, 0], m[3, 1], m[3, 2], m[3, 3],
+    )
+    # fmt: on
+    lt = (lens[0], lens[1], lens[2], lens[3], lens[4], lens[5], lens[6])
+    return mt, (eye[0], eye[1], eye[2]), lt
+
+
+@njit(cache=True, inline="always")
+def box_tuple(bboxes: np.ndarray, i: int):
+    """Row i of bboxes (n, 6) as a tuple."""
+    return (bboxes[i, 0], bboxes[i, 1], bboxes[i, 2], bboxes[i, 3], bboxes[i, 4], bboxes[i, 5])
+
+
+@njit(cache=True, inline="always")
+def _project(m: tuple, x: float, y: float, z: float, vw: float, vh: float):
+    """World point → (pixel x, pixel y, clip w) through the clip matrix m (16,) row-major."""
+    cx = m[0] * x + m[1] * y + m[2] * z + m[3]
+    cy = m[4] * x + m[5] * y + m[6] * z + m[7]
+    cw = m[12] * x + m[13] * y + m[14] * z + m[15]
     if cw <= 0.0:
         return 0.0, 0.0, cw
     return (cx / cw * 0.5 + 0.5) * vw, (cy / cw * 0.5 + 0.5) * vh, cw
 
 
 @njit(cache=True, inline="always")
-def _nadir_gain(box: np.ndarray, eye: np.ndarray, lens: np.ndarray) -> float:
+def _nadir_gain(box: tuple, eye: tuple, lens: tuple) -> float:
     """max over B_N of ρ / (ρ² + z²), display units: ρ horizontal distance, z height gap."""
     sx, sy, sz = lens[1], lens[2], lens[3]
     # Nearest and farthest horizontal distances from the eye to the box's footprint.
@@ -72,8 +93,8 @@ def _nadir_gain(box: np.ndarray, eye: np.ndarray, lens: np.ndarray) -> float:
     ny = max(box[1] - eye[1], 0.0, eye[1] - box[4]) * sy
     fx = max(abs(eye[0] - box[0]), abs(eye[0] - box[3])) * sx
     fy = max(abs(eye[1] - box[1]), abs(eye[1] - box[4])) * sy
-    dmin = math.hypot(nx, ny)
-    dmax = math.hypot(fx, fy)
+    dmin = math.sqrt(nx * nx + ny * ny)
+    dmax = math.sqrt(fx * fx + fy * fy)
     gap = max(box[2] - eye[2], 0.0, eye[2] - box[5]) * sz
     if gap == 0.0:
         return np.inf if dmin == 0.0 else 1.0 / dmin
@@ -82,44 +103,45 @@ def _nadir_gain(box: np.ndarray, eye: np.ndarray, lens: np.ndarray) -> float:
     return d / (d * d + gap * gap)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def node_alpha(
-    box: np.ndarray,
-    error: float,
-    eye: np.ndarray,
-    m: np.ndarray,
-    vw: float,
-    vh: float,
-    lens: np.ndarray,
+    box: tuple, error: float, eye: tuple, m: tuple, vw: float, vh: float, lens: tuple
 ) -> float:
-    """α_N of one node (see the module docstring): box (6,) world B_N, error ε_T(N), eye (3,)
-    world, m (4, 4) world → clip, viewport vw × vh pixels, lens (7,) FrameState.lens."""
+    """α_N of one node (see the module docstring); arguments as in ``node_visual_errors``."""
     # An exact patch is 0 px at any depth; an unknown error is never good enough.
     if error == 0.0:
         return 0.0
-    if not np.isfinite(error):
+    if not math.isfinite(error):
         return np.inf
-    # The eye inside B_N: parts of B_N lie arbitrarily close to it.
-    inside = True
-    for k in range(3):
-        inside = inside and box[k] <= eye[k] <= box[k + 3]
-    if inside:
+    # Gaps from the eye to B_N per axis, display units; all 0: the eye inside B_N, parts of
+    # which lie arbitrarily close to it.
+    qx = max(box[0] - eye[0], 0.0, eye[0] - box[3]) * lens[1]
+    qy = max(box[1] - eye[1], 0.0, eye[1] - box[4]) * lens[2]
+    qz = max(box[2] - eye[2], 0.0, eye[2] - box[5]) * lens[3]
+    if qx + qy + qz == 0.0:
         return np.inf
     focal, tan_x, tan_y, near = lens[0], lens[4], lens[5], lens[6]
-    # NDC rectangle of B_N ∩ frustum and the smallest corner depth (clip w = depth).
+    # NDC rectangle of B_N ∩ frustum and the smallest corner depth (clip w = depth). Clip
+    # coordinates are linear: each corner sums one term per axis.
     x0, y0, x1, y1 = np.inf, np.inf, -np.inf, -np.inf
     wmin = np.inf
-    for c in range(8):
-        px = box[3] if c & 1 else box[0]
-        py = box[4] if c & 2 else box[1]
-        pz = box[5] if c & 4 else box[2]
-        cx = m[0, 0] * px + m[0, 1] * py + m[0, 2] * pz + m[0, 3]
-        cy = m[1, 0] * px + m[1, 1] * py + m[1, 2] * pz + m[1, 3]
-        cw = m[3, 0] * px + m[3, 1] * py + m[3, 2] * pz + m[3, 3]
-        wmin = min(wmin, cw)
-        if cw > 0.0:
-            x0, x1 = min(x0, cx / cw), max(x1, cx / cw)
-            y0, y1 = min(y0, cy / cw), max(y1, cy / cw)
+    for x in (box[0], box[3]):
+        ax = m[0] * x + m[3]
+        ay = m[4] * x + m[7]
+        aw = m[12] * x + m[15]
+        for y in (box[1], box[4]):
+            bx = ax + m[1] * y
+            by = ay + m[5] * y
+            bw = aw + m[13] * y
+            for z in (box[2], box[5]):
+                cw = bw + m[14] * z
+                wmin = min(wmin, cw)
+                if cw > 0.0:
+                    inv = 1.0 / cw
+                    nx = (bx + m[2] * z) * inv
+                    ny = (by + m[6] * z) * inv
+                    x0, x1 = min(x0, nx), max(x1, nx)
+                    y0, y1 = min(y0, ny), max(y1, ny)
     if wmin > 0.0:
         x0, x1 = max(x0, -1.0), min(x1, 1.0)
         y0, y1 = max(y0, -1.0), min(y1, 1.0)
@@ -134,34 +156,36 @@ def node_alpha(
     a1 = error * lens[3] * focal * _nadir_gain(box, eye, lens) * (1.0 + t2)
     # Bound 2: largest pixel speed numerator over the rectangle's corners / smallest depth.
     hx, hy = 0.5 * vw, 0.5 * vh
-    num = 0.0
-    for c in range(4):
-        nx = x1 if c & 1 else x0
-        ny = y1 if c & 2 else y0
-        num = max(num, math.hypot(hx * (m[0, 2] - nx * m[3, 2]), hy * (m[1, 2] - ny * m[3, 2])))
-    qx = max(box[0] - eye[0], 0.0, eye[0] - box[3]) * lens[1]
-    qy = max(box[1] - eye[1], 0.0, eye[1] - box[4]) * lens[2]
-    qz = max(box[2] - eye[2], 0.0, eye[2] - box[5]) * lens[3]
+    num2 = 0.0
+    for nx in (x0, x1):
+        for ny in (y0, y1):
+            sx = hx * (m[2] - nx * m[14])
+            sy = hy * (m[6] - ny * m[14])
+            num2 = max(num2, sx * sx + sy * sy)
     depth = max(wmin, near, math.sqrt((qx * qx + qy * qy + qz * qz) / (1.0 + t2)))
-    a2 = error * num / depth
+    a2 = error * math.sqrt(num2) / depth
     return min(a1, a2)
 
 
 @njit(cache=True)
 def node_visual_errors(
-    box: np.ndarray,
+    box: tuple,
     error: float,
     tw: float,
     th: float,
-    eye: np.ndarray,
-    m: np.ndarray,
+    eye: tuple,
+    m: tuple,
     vw: float,
     vh: float,
-    lens: np.ndarray,
+    lens: tuple,
 ) -> tuple[float, float]:
     """(α_N, γ_N) of one node: box (6,) world B_N, error ε_T(N), texel tw × th (world units),
-    eye (3,) world, m (4, 4) world → clip, viewport vw × vh pixels, lens (7,) FrameState.lens
-    (focal length in pixels, display scale, viewport tangents, near)."""
+    eye (3,) world, m (16,) world → clip row-major, viewport vw × vh pixels, lens (7,)
+    FrameState.lens (focal length in pixels, display scale, viewport tangents, near).
+
+    Tuples, not arrays (``frame_tuples``, ``box_tuple``): arrays passed per node cost numba
+    reference counting, which doubled the traversal's time per node.
+    """
     alpha = node_alpha(box, error, eye, m, vw, vh, lens)
     # γ: the tw × th rectangle centred at the nearest point p, parallel to the xy-plane;
     # clamping per axis is the same in world and display units (diagonal positive scale).
@@ -186,9 +210,10 @@ def _visual_errors_many(bboxes, errors, texels, eye, m, vw, vh, lens):
     n = bboxes.shape[0]
     alpha = np.empty(n)
     gamma = np.empty(n)
+    mt, et, lt = frame_tuples(m, eye, lens)
     for i in range(n):
         alpha[i], gamma[i] = node_visual_errors(
-            bboxes[i], errors[i], texels[i, 0], texels[i, 1], eye, m, vw, vh, lens
+            box_tuple(bboxes, i), errors[i], texels[i, 0], texels[i, 1], et, mt, vw, vh, lt
         )
     return alpha, gamma
 
