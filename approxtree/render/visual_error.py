@@ -24,7 +24,7 @@ Two upper bounds of the speed over B_N ∩ frustum, both kept, α_N the smaller:
    gap z that B_N allows (it rises up to ρ = z, then falls: the nadir bound), and |t|² over the
    tangents that B_N ∩ frustum can take. The factor 1 + |t|² = 1/cos²θ is the perspective's
    growth of pixels per radian towards the image edges; it is what a bound measured at the image
-   centre misses (up to 2.1× at the corners of a 60° 16:9 view, 4.6× for 100°).
+   centre misses (2.4× at the corners of a 60° 16:9 view, 6.9× at 100°).
 2. speed <= max over those tangents of F·|v_s − v_f·t|, over the smallest depth d of B_N ∩
    frustum. v_s − v_f·t is affine in t, so its largest norm over a rectangle of tangents is at a
    corner; d is at least the smallest corner depth, the near distance, and |Q|min / sqrt(1+|t|²).
@@ -32,8 +32,10 @@ Two upper bounds of the speed over B_N ∩ frustum, both kept, α_N the smaller:
 
 The tangents B_N can take: when all eight corners lie in front of the eye, the bounding
 rectangle of the corners' projections (a box in front of the eye projects inside the hull of
-its corners), cut to the viewport; otherwise the viewport. Both bounds are computed from the
-real clip matrix (pixel speed (vw/2·(m02 − x·m32), vh/2·(m12 − y·m32)) / w at NDC (x, y)).
+its corners), cut to the viewport; otherwise the viewport. Corners go through the real clip
+matrix m; in bound 2 the pixel speed per world z unit at NDC (x, y) and clip w is
+(vw/2·(m02 − x·m32), vh/2·(m12 − y·m32)) / w. Both ends of an error segment lie in B_N: its
+z range holds the node's data, and the patch interpolates data points.
 
 An eye inside B_N gives +inf (always refined), as does a rectangle reaching behind the eye for
 γ (clip w <= 0). A segment part outside the frustum is not on screen and is not bounded.
