@@ -124,14 +124,15 @@ _DEMS: dict[str, Dem] = {}
 
 
 @pytest.fixture(params=list(DEMS))
-def dem(request, data_dir) -> Dem:
-    """One of the DEMs of DEMS, built once per test session."""
+def dem(request) -> Dem:
+    """One of the DEMs of DEMS, built once per test session (real ones skip without data)."""
     name = request.param
     if name not in _DEMS:
         path, r0, c0 = DEMS[name]
         if path is None:
             terrain = fractal_terrain(CROP, seed=5, relief=300.0)
         else:
+            data_dir = request.getfixturevalue("data_dir")
             terrain = crop(at.open_terrain(data_file(data_dir, path)), r0, c0, CROP)
         _DEMS[name] = Dem(terrain)
     return _DEMS[name]
