@@ -199,8 +199,14 @@ class FrameState:
 
     @property
     def lens(self) -> np.ndarray:
-        """(4,) float64: focal length in pixels and the display scale, for the α kernels."""
-        return np.array([self.focal_px, *self.scale], dtype=np.float64)
+        """(7,) float64 for the α kernels: focal length in pixels, the display scale (3),
+        tan_x, tan_y (the viewport's half-width and half-height in tangents of the angle off
+        the view axis) and near (display units)."""
+        p = self.projection
+        return np.array(
+            [self.focal_px, *self.scale, 1.0 / p[0, 0], 1.0 / p[1, 1], self.near],
+            dtype=np.float64,
+        )
 
     def world_to_pixels(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Project world points: (..., 3) → ((..., 2) pixel coordinates, (...,) clip w).
