@@ -220,3 +220,58 @@ def test_node_error_bounds_every_fan_the_node_is_drawn_as(quadtree):
             measured.append(mesh_error(v, t, pts))
             assert quadtree.fan_error(node, mids) == pytest.approx(measured[-1], abs=1e-9)
         assert quadtree.errors[node] == pytest.approx(max(measured), abs=1e-9)
+
+
+def reference_node_mesh(q: PointQuadtree, node, midpoints, keep, inserted):
+    """The per-node Python mesh of a drawn node (``node_mesh`` before the batch kernel)."""
+    if inserted >= 0:
+        v, t = q.leaf_mesh(node, int(inserted), keep=list(keep))
+    else:
+        v = q.boundary(node, list(midpoints))
+        b = len(v)
+        t = np.array([[0, a, a + 1 if a + 1 < b else 1] for a in range(1, b)])
+    fill = []
+    pos = 0  # ring index after the centre: SW, [S], SE, [E], NE, [N], NW, [W]
+    for side in (2, 1, 3, 0):
+        pos += 1
+        if midpoints[side]:
+            pos += 1
+            if not keep[side]:
+                fill.append((pos - 1, pos + 1 if side != 0 else 1, pos))
+    if fill:
+        t = np.concatenate([t, np.array(fill, dtype=t.dtype)])
+    return v, t
+
+
+def test_batch_meshes_equal_the_per_node_meshes(quadtree):
+    """``node_meshes`` builds every drawn node's mesh of a cut in one call, equal vertex for
+    vertex and triangle for triangle to the per-node Python meshes; cuts at several eyes
+    and tolerances cover fans with midpoints, replayed leaves and flat midpoints."""
+    seen = {"fan midpoint": 0, "replayed leaf": 0, "flat midpoint": 0, "bare leaf": 0}
+    s = quadtree.size
+    for ex, ey, ez in ((-10, -10, 30), (0.15 * s, 0.15 * s, 5), (0.6 * s, 0.2 * s, 2)):
+        eye = (quadtree.x0 + ex, quadtree.y0 + ey, ez)
+        for c in (8.0, 1.0, 0.2):
+            cut = quadtree.lod_cut(eye, 640 / np.radians(60), c)
+            verts, vstart, tris, tstart = quadtree.node_meshes(
+                cut.rows, cut.midpoints, cut.keep, cut.inserted
+            )
+            assert len(vstart) == len(tstart) == len(cut.rows) + 1
+            assert vstart[-1] == len(verts) and tstart[-1] == len(tris)
+            for m, row in enumerate(cut.rows.tolist()):
+                node = quadtree.node_keys[row]
+                args = (tuple(cut.midpoints[m]), tuple(cut.keep[m]), int(cut.inserted[m]))
+                v, t = reference_node_mesh(quadtree, node, *args)
+                np.testing.assert_array_equal(verts[vstart[m] : vstart[m + 1]], v)
+                np.testing.assert_array_equal(tris[tstart[m] : tstart[m + 1]], t)
+                # The single-node form is the same batch of one.
+                v1, t1 = quadtree.node_mesh(node, *args)
+                np.testing.assert_array_equal(v1, v)
+                np.testing.assert_array_equal(t1, t)
+                leaf = cut.inserted[m] >= 0
+                seen["fan midpoint"] += bool(not leaf and cut.midpoints[m].any())
+                seen["replayed leaf"] += bool(cut.inserted[m] > 0)
+                seen["bare leaf"] += bool(cut.inserted[m] == 0)
+                seen["flat midpoint"] += bool((cut.midpoints[m] & ~cut.keep[m]).any())
+    assert min(seen.values()) > 0, seen
+

@@ -49,6 +49,7 @@ from approxtree.kernels.point_quadtree import (
     insert_points,
     insertion_orders,
     morton_codes,
+    node_meshes,
     range_z_bounds,
 )
 
@@ -429,6 +430,12 @@ class PointQuadtree:
         self.error_start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
         leaves = np.flatnonzero(~self.internal)
         self.order_errors = np.concatenate([self.orders[self.node_keys[r]][1] for r in leaves])
+        # The recorded orders alike: leaf row r owns order_flat[order_start[r]:] (its count).
+        counts = np.where(self.internal, 0, self.ranges[:, 1] - self.ranges[:, 0])
+        self.order_start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+        self.order_flat = np.concatenate(
+            [np.zeros(0, dtype=np.int64)] + [self.orders[self.node_keys[r]][0] for r in leaves]
+        ).astype(np.int64)
 
     # -- render time ---------------------------------------------------------------------------
 
@@ -590,23 +597,38 @@ class PointQuadtree:
         the straight edge (not kept) gets a zero-area triangle over its edge: the coarser
         neighbour's edge then meets this mesh edge for edge on screen (no T-junction pinhole).
         """
-        if inserted >= 0:
-            v, t = self.leaf_mesh(node, int(inserted), keep=list(keep))
-        else:
-            v = self.boundary(node, list(midpoints))
-            b = len(v)
-            t = np.array([[0, a, a + 1 if a + 1 < b else 1] for a in range(1, b)])
-        fill = []
-        pos = 0  # ring index after the centre: SW, [S], SE, [E], NE, [N], NW, [W]
-        for side in (2, 1, 3, 0):
-            pos += 1
-            if midpoints[side]:
-                pos += 1
-                if not keep[side]:
-                    fill.append((pos - 1, pos + 1 if side != 0 else 1, pos))
-        if fill:
-            t = np.concatenate([t, np.array(fill, dtype=t.dtype)])
+        v, _, t, _ = self.node_meshes(
+            np.array([self.index[node]]), np.array([midpoints]), np.array([keep]), [inserted]
+        )
         return v, t
+
+    def node_meshes(
+        self,
+        rows: np.ndarray,
+        midpoints: np.ndarray,
+        keep: np.ndarray,
+        inserted: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The meshes of k drawn nodes (``node_mesh`` of each, in one kernel call).
+
+        rows: (k,) node rows; midpoints, keep: (k, 4) bool; inserted: (k,) as in ``LODCut``.
+        Returns (vertices (V, 3) world, vertex_start (k + 1,), triangles (T, 3) int64,
+        triangle_start (k + 1,)): node m's vertices are vertices[vertex_start[m]:
+        vertex_start[m + 1]] and its triangles, indexing them from 0,
+        triangles[triangle_start[m]:triangle_start[m + 1]].
+        """
+        k = len(rows)
+        return node_meshes(
+            self._ring_xyz,
+            self.points,
+            self.ranges,
+            self.order_flat,
+            self.order_start,
+            np.asarray(rows, dtype=np.int64).reshape(k),
+            np.ascontiguousarray(np.asarray(midpoints, dtype=np.bool_).reshape(k, 4)),
+            np.ascontiguousarray(np.asarray(keep, dtype=np.bool_).reshape(k, 4)),
+            np.asarray(inserted, dtype=np.int64).reshape(k),
+        )
 
     def lod_mesh(
         self, eye: tuple[float, float, float], fov: float, width: int, tolerance: float = 10.0
@@ -614,21 +636,14 @@ class PointQuadtree:
         """The view-dependent mesh for an eye position, horizontal field of view (degrees),
         viewport width (pixels) and screen tolerance C (pixels): λ = width / fov."""
         cut = self.lod_cut(eye, width / math.radians(fov), tolerance)
-        verts, tris = [], []
-        offset = 0
-        for k, row in enumerate(cut.rows.tolist()):
-            v, t = self.node_mesh(
-                self.node_keys[row],
-                tuple(cut.midpoints[k]),
-                tuple(cut.keep[k]),
-                int(cut.inserted[k]),
-            )
-            verts.append(v)
-            tris.append(t + offset)
-            offset += len(v)
+        verts, vstart, tris, tstart = self.node_meshes(
+            cut.rows, cut.midpoints, cut.keep, cut.inserted
+        )
+        # Node-local triangle indices → indices into all the vertices.
+        tris = tris + np.repeat(vstart[:-1], np.diff(tstart))[:, None]
         return LODMesh(
-            np.concatenate(verts),
-            np.concatenate(tris),
+            verts,
+            tris,
             len(cut.rows),
             int((cut.inserted > 0).sum()),
             int(cut.inserted[cut.inserted > 0].sum()),
