@@ -275,3 +275,48 @@ def test_batch_meshes_equal_the_per_node_meshes(quadtree):
                 seen["flat midpoint"] += bool((cut.midpoints[m] & ~cut.keep[m]).any())
     assert min(seen.values()) > 0, seen
 
+
+def reference_restrict(q: PointQuadtree) -> None:
+    """The restriction of the build as a Python work list (before the array pass)."""
+
+    def split(node):
+        level, i, j = node
+        q.children[node] = True
+        for b in (0, 1):
+            for a in (0, 1):
+                q.children.setdefault((level + 1, 2 * i + a, 2 * j + b), False)
+
+    def ensure(node):
+        if node in q.children:
+            return []
+        level, i, j = node
+        parent = (level - 1, i // 2, j // 2)
+        done = ensure(parent)
+        split(parent)
+        return [*done, parent]
+
+    work = [n for n, internal in q.children.items() if internal]
+    while work:
+        level, i, j = work.pop()
+        for di, dj in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+            ni, nj = i + di, j + dj
+            if 0 <= ni < (1 << level) and 0 <= nj < (1 << level):
+                work.extend(ensure((level, ni, nj)))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_array_restriction_equals_the_work_list(seed, monkeypatch):
+    """The array pass that restricts the built quadtree splits exactly the nodes the Python
+    work list split (clustered clouds, so the restriction has splits to make)."""
+    rng = np.random.default_rng(seed)
+    xy = np.concatenate([rng.uniform(0, 100, (300, 2)), 50 + rng.normal(0, 0.05, (400, 2))])
+    pts = at.TINPointSet(np.column_stack([xy, rng.normal(0, 1, len(xy))]))
+    q = PointQuadtree(pts, max_points=5)
+    monkeypatch.setattr(PointQuadtree, "_restrict", reference_restrict)
+    ref = PointQuadtree(pts, max_points=5)
+    monkeypatch.undo()
+    monkeypatch.setattr(PointQuadtree, "_restrict", lambda self: None)
+    bare = PointQuadtree(pts, max_points=5)
+    assert sum(bare.children.values()) < sum(ref.children.values())  # splits were needed
+    assert q.children == ref.children
+    np.testing.assert_array_equal(q.node_errors, ref.node_errors)

@@ -170,14 +170,6 @@ class PointQuadtree:
         hi = np.searchsorted(self.codes, prefix + (np.int64(1) << shift), side="left")
         return np.column_stack([lo, hi]).astype(np.int64)
 
-    def _split(self, node: tuple[int, int, int]) -> list[tuple[int, int, int]]:
-        level, i, j = node
-        self.children[node] = True
-        kids = [(level + 1, 2 * i + a, 2 * j + b) for b in (0, 1) for a in (0, 1)]
-        for k in kids:
-            self.children.setdefault(k, False)
-        return kids
-
     def _subdivide(self) -> None:
         # Split while a node holds more than δ points, one level at a time (arrays per level).
         fi = fj = np.zeros(1, dtype=np.int64)
@@ -192,26 +184,44 @@ class PointQuadtree:
             fj = np.concatenate([2 * sj + b for b in (0, 1) for a in (0, 1)])
             level += 1
 
-    def _ensure(self, node: tuple[int, int, int]) -> list[tuple[int, int, int]]:
-        """Make ``node`` exist by splitting its ancestors; returns the nodes split."""
-        if node in self.children:
-            return []
-        level, i, j = node
-        parent = (level - 1, i // 2, j // 2)
-        split = self._ensure(parent)
-        self._split(parent)
-        return [*split, parent]
-
     def _restrict(self) -> None:
-        # An internal node's edge neighbours must exist at its level, else a leaf two or more
-        # levels coarser would touch its grandchildren. New splits are checked in turn.
-        work = [n for n, internal in self.children.items() if internal]
-        while work:
-            level, i, j = work.pop()
-            for di, dj in _SIDES:
-                ni, nj = i + di, j + dj
-                if 0 <= ni < (1 << level) and 0 <= nj < (1 << level):
-                    work.extend(self._ensure((level, ni, nj)))
+        # Restricted quadtree: an internal node's same-level edge neighbours must exist, i.e.
+        # their parents must be internal (else a leaf two or more levels coarser would touch
+        # its grandchildren), and so must every ancestor of an internal node. A split made for
+        # level L lies at level L − 1, so one pass from the finest level up closes the set.
+        a = np.array(list(self.children), dtype=np.int64).reshape(-1, 3)
+        internal = np.fromiter(self.children.values(), dtype=bool, count=len(a))
+        a = a[internal]
+        if len(a) == 0:
+            return
+        cell = (a[:, 1] << 21) | a[:, 2]
+        need = np.zeros(0, dtype=np.int64)
+        new_levels, new_cells = [], []
+        for level in range(int(a[:, 0].max()), -1, -1):
+            have = cell[a[:, 0] == level]
+            cur = np.union1d(have, need)
+            new = np.setdiff1d(cur, have, assume_unique=True)
+            new_levels.append(np.full(len(new), level, dtype=np.int64))
+            new_cells.append(new)
+            # The parents of the nodes themselves (offset 0) and of their edge neighbours.
+            i, j = cur >> 21, cur & ((1 << 21) - 1)
+            ni = np.concatenate([i] + [i + di for di, _ in _SIDES])
+            nj = np.concatenate([j] + [j + dj for _, dj in _SIDES])
+            ok = (ni >= 0) & (nj >= 0) & (ni < (1 << level)) & (nj < (1 << level))
+            need = np.unique(((ni[ok] >> 1) << 21) | (nj[ok] >> 1))
+        lv = np.concatenate(new_levels)
+        if len(lv) == 0:
+            return
+        c = np.concatenate(new_cells)
+        i, j = c >> 21, c & ((1 << 21) - 1)
+        split = list(zip(lv.tolist(), i.tolist(), j.tolist(), strict=True))
+        # The children of the new splits are leaves unless split themselves.
+        kl = np.repeat(lv + 1, 4)
+        ki = (2 * i[:, None] + np.array([0, 1, 0, 1])).ravel()
+        kj = (2 * j[:, None] + np.array([0, 0, 1, 1])).ravel()
+        kids = zip(kl.tolist(), ki.tolist(), kj.tolist(), strict=True)
+        self.children = {**dict.fromkeys(kids, False), **self.children}
+        self.children.update(dict.fromkeys(split, True))
 
     def is_leaf(self, node: tuple[int, int, int]) -> bool:
         return not self.children[node]
