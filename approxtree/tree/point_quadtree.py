@@ -174,12 +174,15 @@ class PointQuadtree:
         # Split while a node holds more than δ points, one level at a time (arrays per level).
         fi = fj = np.zeros(1, dtype=np.int64)
         level = 0
+        #: Per level, (k,) cell codes i << 21 | j of the split nodes (``_restrict`` adds its own).
+        self._splits: list[np.ndarray] = []
         while len(fi):
             r = self._ranges(np.full(len(fi), level), fi, fj)
             split = (r[:, 1] - r[:, 0] > self.max_points) & (level < MAX_DEPTH)
             keys = zip([level] * len(fi), fi.tolist(), fj.tolist(), strict=True)
             self.children.update(zip(keys, split.tolist(), strict=True))
             si, sj = fi[split], fj[split]
+            self._splits.append((si << 21) | sj)
             fi = np.concatenate([2 * si + a for b in (0, 1) for a in (0, 1)])
             fj = np.concatenate([2 * sj + b for b in (0, 1) for a in (0, 1)])
             level += 1
@@ -189,38 +192,33 @@ class PointQuadtree:
         # their parents must be internal (else a leaf two or more levels coarser would touch
         # its grandchildren), and so must every ancestor of an internal node. A split made for
         # level L lies at level L − 1, so one pass from the finest level up closes the set.
-        a = np.array(list(self.children), dtype=np.int64).reshape(-1, 3)
-        internal = np.fromiter(self.children.values(), dtype=bool, count=len(a))
-        a = a[internal]
-        if len(a) == 0:
-            return
-        cell = (a[:, 1] << 21) | a[:, 2]
         need = np.zeros(0, dtype=np.int64)
         new_levels, new_cells = [], []
-        for level in range(int(a[:, 0].max()), -1, -1):
-            have = cell[a[:, 0] == level]
-            cur = np.union1d(have, need)
-            new = np.setdiff1d(cur, have, assume_unique=True)
+        for level in range(len(self._splits) - 1, -1, -1):
+            have = self._splits[level]
+            new = np.setdiff1d(need, have, assume_unique=True)
             new_levels.append(np.full(len(new), level, dtype=np.int64))
             new_cells.append(new)
+            cur = np.concatenate([have, new])
             # The parents of the nodes themselves (offset 0) and of their edge neighbours.
             i, j = cur >> 21, cur & ((1 << 21) - 1)
             ni = np.concatenate([i] + [i + di for di, _ in _SIDES])
             nj = np.concatenate([j] + [j + dj for _, dj in _SIDES])
             ok = (ni >= 0) & (nj >= 0) & (ni < (1 << level)) & (nj < (1 << level))
             need = np.unique(((ni[ok] >> 1) << 21) | (nj[ok] >> 1))
-        lv = np.concatenate(new_levels)
+            self._splits[level] = cur
+        lv = np.concatenate(new_levels) if new_levels else np.zeros(0, dtype=np.int64)
         if len(lv) == 0:
             return
         c = np.concatenate(new_cells)
         i, j = c >> 21, c & ((1 << 21) - 1)
         split = list(zip(lv.tolist(), i.tolist(), j.tolist(), strict=True))
-        # The children of the new splits are leaves unless split themselves.
+        # The children of the new splits are new nodes, leaves unless split themselves.
         kl = np.repeat(lv + 1, 4)
         ki = (2 * i[:, None] + np.array([0, 1, 0, 1])).ravel()
         kj = (2 * j[:, None] + np.array([0, 0, 1, 1])).ravel()
         kids = zip(kl.tolist(), ki.tolist(), kj.tolist(), strict=True)
-        self.children = {**dict.fromkeys(kids, False), **self.children}
+        self.children.update(dict.fromkeys(kids, False))
         self.children.update(dict.fromkeys(split, True))
 
     def is_leaf(self, node: tuple[int, int, int]) -> bool:
