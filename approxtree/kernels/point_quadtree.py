@@ -1,4 +1,5 @@
-"""Kernels of the point quadtree (seed 003): Morton codes, fan errors, greedy point insertion.
+"""Kernels of the point quadtree (seed 003): Morton codes, fan errors, greedy point insertion,
+and the meshes of a cut's drawn nodes (``node_meshes``, one call for all of them).
 
 Leaf meshes start from a fan around the leaf's centre through its boundary lattice points
 (corners and the edge midpoints its finer neighbours need) and grow by inserting the leaf's
