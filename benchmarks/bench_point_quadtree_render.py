@@ -4,7 +4,11 @@ For the ground points and all points of ../shared/data/lidar/autzen_trim.laz (δ
 save and load seconds, file size; then, for an oblique view from the south at 1280 × 720, the
 frames at α = 1 and α = 4 (the second of two frames, so meshes are cached) beside the
 full-resolution frame of the same view (every data point of every visible leaf) as the peer;
-and the cut alone (``lod_cut``: min and median of 10 calls).
+the first frames (every mesh built and uploaded: ``first_frame``, and an overview from above
+the whole data set at α = 1, ``first_overview``, each in a fresh Engine), with the meshes
+built alone (``mesh_build_ms``: every drawn node's mesh of the overview cut, one
+``PointQuadtree.node_meshes`` call); and the cut alone (``lod_cut``: min and median of 10
+calls).
 
     python benchmarks/bench_point_quadtree_render.py
 
@@ -33,8 +37,11 @@ def case(ground: bool, tmp: Path) -> dict:
     from approxtree.render.point_quadtree_engine import pixels_per_radian
     from approxtree.tree.point_quadtree import PointQuadtree
 
-    # Warm-up: load the compiled kernels before timing.
-    PointQuadtree(at.TINPointSet(np.random.default_rng(0).uniform(0, 9, (200, 3))), 20)
+    # Warm-up: load the compiled kernels (build, cut, meshes) and the GL programs before timing.
+    warm = PointQuadtree(at.TINPointSet(np.random.default_rng(0).uniform(0, 9, (200, 3))), 20)
+    warm.lod_mesh((-1.0, -1.0, 5.0), 60.0, 640, 0.5)
+    with Engine(warm) as eng:
+        eng.render(Camera.look_at((4.5, -5.0, 9.0), (4.5, 4.5, 0.0), fov=45), (64, 48))
     terrain = at.open_terrain(DATA / "lidar" / "autzen_trim.laz", ground_only=ground)
     t0 = time.perf_counter()
     q = PointQuadtree(terrain, 50)
@@ -49,6 +56,22 @@ def case(ground: bool, tmp: Path) -> dict:
     (cx, cy), (z0, z1) = d.center, terrain.z_range
     cam = Camera.look_at((cx, cy - 0.25 * d.height, z1 + 0.2 * d.height), (cx, cy, z0), fov=45)
     frames: dict = {}
+    # First frames: nothing cached, every drawn node's mesh built and uploaded.
+    top = Camera.look_at((cx, cy - 1e-3 * d.height, z1 + 1.3 * d.height), (cx, cy, z0), fov=45)
+    firsts = {}
+    for label, camera in (("first_frame", cam), ("first_overview", top)):
+        with Engine(q) as eng:
+            t0 = time.perf_counter()
+            f = eng.render(camera, (1280, 720), alpha=1.0)
+            firsts[label] = {k: f.stats[k] for k in KEYS}
+            firsts[label]["frame_ms"] = round((time.perf_counter() - t0) * 1e3, 3)
+            cut = eng.last_cut
+    # The overview's meshes built alone (no GPU).
+    mesh_ms = []
+    for _ in range(3):
+        t0 = time.perf_counter()
+        q.node_meshes(cut.rows, cut.midpoints, cut.keep, cut.inserted)
+        mesh_ms.append((time.perf_counter() - t0) * 1e3)
     with Engine(q) as eng:
         for alpha in (1.0, 4.0):
             eng.render(cam, (1280, 720), alpha=alpha)
@@ -72,6 +95,8 @@ def case(ground: bool, tmp: Path) -> dict:
         "load_seconds": round(load, 4),
         "file_bytes": nbytes,
         "frames_1280x720": frames,
+        "first_frames_1280x720": firsts,
+        "mesh_build_ms": {"nodes": len(cut.rows), "min": round(min(mesh_ms), 3)},
         "lod_cut_ms": {"min": round(min(times), 3), "median": round(statistics.median(times), 3)},
     }
 

@@ -220,3 +220,103 @@ def test_node_error_bounds_every_fan_the_node_is_drawn_as(quadtree):
             measured.append(mesh_error(v, t, pts))
             assert quadtree.fan_error(node, mids) == pytest.approx(measured[-1], abs=1e-9)
         assert quadtree.errors[node] == pytest.approx(max(measured), abs=1e-9)
+
+
+def reference_node_mesh(q: PointQuadtree, node, midpoints, keep, inserted):
+    """The per-node Python mesh of a drawn node (``node_mesh`` before the batch kernel)."""
+    if inserted >= 0:
+        v, t = q.leaf_mesh(node, int(inserted), keep=list(keep))
+    else:
+        v = q.boundary(node, list(midpoints))
+        b = len(v)
+        t = np.array([[0, a, a + 1 if a + 1 < b else 1] for a in range(1, b)])
+    fill = []
+    pos = 0  # ring index after the centre: SW, [S], SE, [E], NE, [N], NW, [W]
+    for side in (2, 1, 3, 0):
+        pos += 1
+        if midpoints[side]:
+            pos += 1
+            if not keep[side]:
+                fill.append((pos - 1, pos + 1 if side != 0 else 1, pos))
+    if fill:
+        t = np.concatenate([t, np.array(fill, dtype=t.dtype)])
+    return v, t
+
+
+def test_batch_meshes_equal_the_per_node_meshes(quadtree):
+    """``node_meshes`` builds every drawn node's mesh of a cut in one call, equal vertex for
+    vertex and triangle for triangle to the per-node Python meshes; cuts at several eyes
+    and tolerances cover fans with midpoints, replayed leaves and flat midpoints."""
+    seen = {"fan midpoint": 0, "replayed leaf": 0, "flat midpoint": 0, "bare leaf": 0}
+    s = quadtree.size
+    for ex, ey, ez in ((-10, -10, 30), (0.15 * s, 0.15 * s, 5), (0.6 * s, 0.2 * s, 2)):
+        eye = (quadtree.x0 + ex, quadtree.y0 + ey, ez)
+        for c in (8.0, 1.0, 0.2):
+            cut = quadtree.lod_cut(eye, 640 / np.radians(60), c)
+            verts, vstart, tris, tstart = quadtree.node_meshes(
+                cut.rows, cut.midpoints, cut.keep, cut.inserted
+            )
+            assert len(vstart) == len(tstart) == len(cut.rows) + 1
+            assert vstart[-1] == len(verts) and tstart[-1] == len(tris)
+            for m, row in enumerate(cut.rows.tolist()):
+                node = quadtree.node_keys[row]
+                args = (tuple(cut.midpoints[m]), tuple(cut.keep[m]), int(cut.inserted[m]))
+                v, t = reference_node_mesh(quadtree, node, *args)
+                np.testing.assert_array_equal(verts[vstart[m] : vstart[m + 1]], v)
+                np.testing.assert_array_equal(tris[tstart[m] : tstart[m + 1]], t)
+                # The single-node form is the same batch of one.
+                v1, t1 = quadtree.node_mesh(node, *args)
+                np.testing.assert_array_equal(v1, v)
+                np.testing.assert_array_equal(t1, t)
+                leaf = cut.inserted[m] >= 0
+                seen["fan midpoint"] += bool(not leaf and cut.midpoints[m].any())
+                seen["replayed leaf"] += bool(cut.inserted[m] > 0)
+                seen["bare leaf"] += bool(cut.inserted[m] == 0)
+                seen["flat midpoint"] += bool((cut.midpoints[m] & ~cut.keep[m]).any())
+    assert min(seen.values()) > 0, seen
+
+
+def reference_restrict(q: PointQuadtree) -> None:
+    """The restriction of the build as a Python work list (before the array pass)."""
+
+    def split(node):
+        level, i, j = node
+        q.children[node] = True
+        for b in (0, 1):
+            for a in (0, 1):
+                q.children.setdefault((level + 1, 2 * i + a, 2 * j + b), False)
+
+    def ensure(node):
+        if node in q.children:
+            return []
+        level, i, j = node
+        parent = (level - 1, i // 2, j // 2)
+        done = ensure(parent)
+        split(parent)
+        return [*done, parent]
+
+    work = [n for n, internal in q.children.items() if internal]
+    while work:
+        level, i, j = work.pop()
+        for di, dj in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+            ni, nj = i + di, j + dj
+            if 0 <= ni < (1 << level) and 0 <= nj < (1 << level):
+                work.extend(ensure((level, ni, nj)))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_array_restriction_equals_the_work_list(seed, monkeypatch):
+    """The array pass that restricts the built quadtree splits exactly the nodes the Python
+    work list split (clustered clouds, so the restriction has splits to make)."""
+    rng = np.random.default_rng(seed)
+    xy = np.concatenate([rng.uniform(0, 100, (300, 2)), 50 + rng.normal(0, 0.05, (400, 2))])
+    pts = at.TINPointSet(np.column_stack([xy, rng.normal(0, 1, len(xy))]))
+    q = PointQuadtree(pts, max_points=5)
+    monkeypatch.setattr(PointQuadtree, "_restrict", reference_restrict)
+    ref = PointQuadtree(pts, max_points=5)
+    monkeypatch.undo()
+    monkeypatch.setattr(PointQuadtree, "_restrict", lambda self: None)
+    bare = PointQuadtree(pts, max_points=5)
+    assert sum(bare.children.values()) < sum(ref.children.values())  # splits were needed
+    assert q.children == ref.children
+    np.testing.assert_array_equal(q.node_errors, ref.node_errors)

@@ -209,6 +209,38 @@ def test_meshes_stay_in_the_gpu_cache_between_frames(gl_context, quadtree):  # n
         eng.release()
 
 
+def test_a_frame_builds_its_new_meshes_in_one_kernel_call(
+    gl_context,  # noqa: F811
+    quadtree,
+    monkeypatch,
+):
+    """A frame builds the meshes the GPU cache lacks in one ``node_meshes`` call (not one
+    per node), and the cache still holds one entry per drawn node: a second view builds
+    only its new nodes' meshes, again in one call."""
+    calls = []
+    batch = PointQuadtree.node_meshes
+
+    def counted(self, rows, *args):
+        calls.append(len(rows))
+        return batch(self, rows, *args)
+
+    monkeypatch.setattr(PointQuadtree, "node_meshes", counted)
+    eng = Engine(quadtree, context=gl_context, offscreen=True)
+    try:
+        views = all_terrain_views(quadtree)
+        first = eng.render(views["oblique"], SIZE, alpha=2.0)
+        assert calls == [first.stats["patches"]]
+        assert len(eng.cache) == first.stats["patches"]
+        before = set(eng.cache.keys())
+        calls.clear()
+        close = eng.render(views["close"], SIZE, alpha=2.0)
+        new = set(eng.cache.keys()) - before
+        assert len(new) > 0 and calls == [len(new)]
+        assert close.stats["patches"] <= len(eng.cache)
+    finally:
+        eng.release()
+
+
 def test_engine_refuses_what_does_not_apply(gl_context):  # noqa: F811
     """Texture pyramids and a triangle budget are clear errors for a point quadtree."""
     q = PointQuadtree(scattered_cloud(), 200)

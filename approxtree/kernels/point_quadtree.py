@@ -1,4 +1,5 @@
-"""Kernels of the point quadtree (seed 003): Morton codes, fan errors, greedy point insertion.
+"""Kernels of the point quadtree (seed 003): Morton codes, fan errors, greedy point insertion,
+and the meshes of a cut's drawn nodes (``node_meshes``, one call for all of them).
 
 Leaf meshes start from a fan around the leaf's centre through its boundary lattice points
 (corners and the edge midpoints its finer neighbours need) and grow by inserting the leaf's
@@ -230,3 +231,108 @@ def insertion_orders(
         o += n
         e += n + 1
     return orders, errors
+
+
+# Ring slots (``PointQuadtree._ring_codes``: 0 SW, 1 SE, 2 NE, 3 NW, 4 centre, 5 S, 6 E, 7 N,
+# 8 W) of the boundary counter-clockwise from SW: per corner, the side after it (W 0, E 1,
+# S 2, N 3), the side's midpoint slot and the side's end slots.
+_CORNER = np.array([0, 1, 2, 3], dtype=np.int64)
+_SIDE = np.array([2, 1, 3, 0], dtype=np.int64)
+_MID = np.array([5, 6, 7, 8], dtype=np.int64)
+_END = np.array([1, 2, 3, 0], dtype=np.int64)
+
+
+@njit(cache=True)
+def node_meshes(
+    ring_xyz: np.ndarray,
+    points: np.ndarray,
+    ranges: np.ndarray,
+    orders: np.ndarray,
+    order_start: np.ndarray,
+    rows: np.ndarray,
+    midpoints: np.ndarray,
+    keep: np.ndarray,
+    inserted: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The meshes of k drawn nodes of a cut, one after the other (CSR layout).
+
+    ring_xyz: (n, 9, 3) lattice points of every node (ring slots above); points: (p, 3) data
+    points, node r owning points[ranges[r, 0]:ranges[r, 1]]; orders: recorded insertion
+    orders (leaf-local indices), leaf r's at orders[order_start[r]:]; rows: (k,) drawn node
+    rows; midpoints, keep: (k, 4) bool per side W, E, S, N (a midpoint vertex; it keeps its
+    lattice height, else lies on the straight edge); inserted: (k,) points replayed (a leaf)
+    or −1 (a coarse node's fan).
+
+    A node's vertices are its centre, its boundary counter-clockwise from SW, then (a leaf)
+    all its data points; its triangles are the fan grown by replaying ``inserted`` points
+    (``insert_points``), then one zero-area triangle over each side whose midpoint lies on
+    the straight edge. Returns (vertices (V, 3) world, vertex_start (k + 1,), triangles
+    (T, 3) int64 indices local to each node's vertices, triangle_start (k + 1,)).
+    """
+    k = rows.shape[0]
+    # Sizes first: b boundary vertices (centre included), the leaf's points, triangles.
+    nb = np.empty(k, dtype=np.int64)
+    nfill = np.empty(k, dtype=np.int64)
+    vertex_start = np.zeros(k + 1, dtype=np.int64)
+    triangle_start = np.zeros(k + 1, dtype=np.int64)
+    for m in range(k):
+        b = 5
+        fills = 0
+        for s in range(4):
+            if midpoints[m, s]:
+                b += 1
+                if not keep[m, s]:
+                    fills += 1
+        nb[m] = b
+        nfill[m] = fills
+        r = rows[m]
+        nv = b
+        nt = b - 1 + fills
+        if inserted[m] >= 0:
+            nv += ranges[r, 1] - ranges[r, 0]
+            nt += 2 * inserted[m]
+        vertex_start[m + 1] = vertex_start[m] + nv
+        triangle_start[m + 1] = triangle_start[m] + nt
+    vertices = np.empty((vertex_start[k], 3))
+    triangles = np.empty((triangle_start[k], 3), dtype=np.int64)
+    none = np.zeros(1, dtype=np.int64)
+    for m in range(k):
+        r = rows[m]
+        b = nb[m]
+        v0 = vertex_start[m]
+        t0 = triangle_start[m]
+        # The boundary ring: centre, then each corner and (where drawn) its side's midpoint,
+        # on the straight edge unless kept.
+        base = vertices[v0 : v0 + b]
+        base[0] = ring_xyz[r, 4]
+        pos = 1
+        fill = triangle_start[m + 1] - nfill[m]
+        for c in range(4):
+            base[pos] = ring_xyz[r, _CORNER[c]]
+            pos += 1
+            s = _SIDE[c]
+            if midpoints[m, s]:
+                base[pos] = ring_xyz[r, _MID[c]]
+                if not keep[m, s]:
+                    base[pos, 2] = 0.5 * (ring_xyz[r, _CORNER[c], 2] + ring_xyz[r, _END[c], 2])
+                    # Zero-area triangle over the edge (corner, next corner, midpoint).
+                    triangles[fill, 0] = pos - 1
+                    triangles[fill, 1] = pos + 1 if c < 3 else 1
+                    triangles[fill, 2] = pos
+                    fill += 1
+                pos += 1
+        if inserted[m] >= 0:
+            # A leaf: the fan grown by its first ``inserted`` recorded insertions.
+            lo, hi = ranges[r, 0], ranges[r, 1]
+            vertices[v0 + b : v0 + b + hi - lo] = points[lo:hi]
+            steps = inserted[m]
+            replay = orders[order_start[r] : order_start[r] + hi - lo] if steps > 0 else none
+            _, _, tris = insert_points(base.copy(), points[lo:hi], replay, steps)
+            triangles[t0 : t0 + tris.shape[0]] = tris
+        else:
+            # A coarse node: its fan.
+            for a in range(1, b):
+                triangles[t0 + a - 1, 0] = 0
+                triangles[t0 + a - 1, 1] = a
+                triangles[t0 + a - 1, 2] = a + 1 if a + 1 < b else 1
+    return vertices, vertex_start, triangles, triangle_start

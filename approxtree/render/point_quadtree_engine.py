@@ -20,7 +20,9 @@ selection differs. Each frame:
    only be extrapolated), are never refined and not drawn (the cut stays a restricted
    partition, so their visible neighbours keep matching edges).
 4. Each drawn node's mesh is one GPU cache entry keyed by (node, midpoints, kept midpoints,
-   points replayed), so a mesh is uploaded again only when its own refinement changes.
+   points replayed), so a mesh is uploaded again only when its own refinement changes. The
+   meshes a frame lacks are built together, in one kernel call over arrays
+   (``PointQuadtree.node_meshes``), and handed to the cache node by node.
 
 The cut's mesh is continuous (shared lattice vertices, midpoints on straight edges covered by
 zero-area triangles), so no skirts are hung; ``skirts`` is accepted and changes nothing.
@@ -92,6 +94,8 @@ class PointQuadtreeEngine(Engine):
         #: The LODCut of the last frame (None before the first).
         self.last_cut = None
         self._frame_keys: list[tuple] = []
+        # The meshes built for the upload in progress (``_upload``), by GPU cache key.
+        self._batch: dict[tuple, tuple[np.ndarray, np.ndarray]] | None = None
 
     def set_textures(self, textures: Any) -> None:
         """Only None: a point quadtree is drawn with the hypsometric colour ramp."""
@@ -155,13 +159,36 @@ class PointQuadtreeEngine(Engine):
         """One GPU cache key per drawn node: (node, midpoints, kept midpoints, replayed)."""
         return self._frame_keys
 
-    def _mesh_data(self, key: tuple) -> tuple[np.ndarray, np.ndarray]:
-        """(vertex data (n, 4) float32: local x, y, z and flag 0; triangles (m, 3) uint32)."""
-        _, row, midpoints, keep, inserted = key
-        verts, tris = self.tree.node_mesh(self.tree.node_keys[row], midpoints, keep, inserted)
+    def _upload(self, groups) -> list[tuple[Any, list[Any]]] | None:
+        """The Engine's upload, after building every mesh the cache lacks in one kernel call
+        (``PointQuadtree.node_meshes``); the cache then takes them node by node."""
+        missing = [key for _, keys in groups for key in keys if key not in self.cache]
+        self._batch = self._build_meshes(missing)
+        try:
+            return super()._upload(groups)
+        finally:
+            self._batch = None
+
+    def _build_meshes(self, keys: list[tuple]) -> dict[tuple, tuple[np.ndarray, np.ndarray]]:
+        """The GPU data of the meshes of ``keys`` (``_mesh_data``), built in one kernel call:
+        views into one vertex array (V, 4) float32 and one triangle array (T, 3) uint32."""
+        if not keys:
+            return {}
+        _, rows, midpoints, keep, inserted = zip(*keys, strict=True)
+        verts, vstart, tris, tstart = self.tree.node_meshes(rows, midpoints, keep, inserted)
         data = np.zeros((len(verts), 4), dtype=np.float32)
         data[:, :3] = verts - self.tree.origin
-        return data, np.asarray(tris, dtype=np.uint32)
+        tris = tris.astype(np.uint32)
+        v, t = vstart.tolist(), tstart.tolist()
+        return {key: (data[v[m] : v[m + 1]], tris[t[m] : t[m + 1]]) for m, key in enumerate(keys)}
+
+    def _mesh_data(self, key: tuple) -> tuple[np.ndarray, np.ndarray]:
+        """(vertex data (n, 4) float32: local x, y, z and flag 0; triangles (m, 3) uint32)."""
+        batch = getattr(self, "_batch", None)
+        if batch and key in batch:
+            return batch[key]
+        # Outside a frame's upload (or a mesh evicted since): a batch of one.
+        return self._build_meshes([key])[key]
 
     def resident(self, nodes: np.ndarray) -> np.ndarray:
         """(k,) bool: whether a mesh of each node row of ``nodes`` is in the GPU cache."""

@@ -49,6 +49,7 @@ from approxtree.kernels.point_quadtree import (
     insert_points,
     insertion_orders,
     morton_codes,
+    node_meshes,
     range_z_bounds,
 )
 
@@ -169,48 +170,56 @@ class PointQuadtree:
         hi = np.searchsorted(self.codes, prefix + (np.int64(1) << shift), side="left")
         return np.column_stack([lo, hi]).astype(np.int64)
 
-    def _split(self, node: tuple[int, int, int]) -> list[tuple[int, int, int]]:
-        level, i, j = node
-        self.children[node] = True
-        kids = [(level + 1, 2 * i + a, 2 * j + b) for b in (0, 1) for a in (0, 1)]
-        for k in kids:
-            self.children.setdefault(k, False)
-        return kids
-
     def _subdivide(self) -> None:
         # Split while a node holds more than δ points, one level at a time (arrays per level).
         fi = fj = np.zeros(1, dtype=np.int64)
         level = 0
+        #: Per level, (k,) cell codes i << 21 | j of the split nodes (``_restrict`` adds its own).
+        self._splits: list[np.ndarray] = []
         while len(fi):
             r = self._ranges(np.full(len(fi), level), fi, fj)
             split = (r[:, 1] - r[:, 0] > self.max_points) & (level < MAX_DEPTH)
             keys = zip([level] * len(fi), fi.tolist(), fj.tolist(), strict=True)
             self.children.update(zip(keys, split.tolist(), strict=True))
             si, sj = fi[split], fj[split]
+            self._splits.append((si << 21) | sj)
             fi = np.concatenate([2 * si + a for b in (0, 1) for a in (0, 1)])
             fj = np.concatenate([2 * sj + b for b in (0, 1) for a in (0, 1)])
             level += 1
 
-    def _ensure(self, node: tuple[int, int, int]) -> list[tuple[int, int, int]]:
-        """Make ``node`` exist by splitting its ancestors; returns the nodes split."""
-        if node in self.children:
-            return []
-        level, i, j = node
-        parent = (level - 1, i // 2, j // 2)
-        split = self._ensure(parent)
-        self._split(parent)
-        return [*split, parent]
-
     def _restrict(self) -> None:
-        # An internal node's edge neighbours must exist at its level, else a leaf two or more
-        # levels coarser would touch its grandchildren. New splits are checked in turn.
-        work = [n for n, internal in self.children.items() if internal]
-        while work:
-            level, i, j = work.pop()
-            for di, dj in _SIDES:
-                ni, nj = i + di, j + dj
-                if 0 <= ni < (1 << level) and 0 <= nj < (1 << level):
-                    work.extend(self._ensure((level, ni, nj)))
+        # Restricted quadtree: an internal node's same-level edge neighbours must exist, i.e.
+        # their parents must be internal (else a leaf two or more levels coarser would touch
+        # its grandchildren), and so must every ancestor of an internal node. A split made for
+        # level L lies at level L − 1, so one pass from the finest level up closes the set.
+        need = np.zeros(0, dtype=np.int64)
+        new_levels, new_cells = [], []
+        for level in range(len(self._splits) - 1, -1, -1):
+            have = self._splits[level]
+            new = np.setdiff1d(need, have, assume_unique=True)
+            new_levels.append(np.full(len(new), level, dtype=np.int64))
+            new_cells.append(new)
+            cur = np.concatenate([have, new])
+            # The parents of the nodes themselves (offset 0) and of their edge neighbours.
+            i, j = cur >> 21, cur & ((1 << 21) - 1)
+            ni = np.concatenate([i] + [i + di for di, _ in _SIDES])
+            nj = np.concatenate([j] + [j + dj for _, dj in _SIDES])
+            ok = (ni >= 0) & (nj >= 0) & (ni < (1 << level)) & (nj < (1 << level))
+            need = np.unique(((ni[ok] >> 1) << 21) | (nj[ok] >> 1))
+            self._splits[level] = cur
+        lv = np.concatenate(new_levels) if new_levels else np.zeros(0, dtype=np.int64)
+        if len(lv) == 0:
+            return
+        c = np.concatenate(new_cells)
+        i, j = c >> 21, c & ((1 << 21) - 1)
+        split = list(zip(lv.tolist(), i.tolist(), j.tolist(), strict=True))
+        # The children of the new splits are new nodes, leaves unless split themselves.
+        kl = np.repeat(lv + 1, 4)
+        ki = (2 * i[:, None] + np.array([0, 1, 0, 1])).ravel()
+        kj = (2 * j[:, None] + np.array([0, 0, 1, 1])).ravel()
+        kids = zip(kl.tolist(), ki.tolist(), kj.tolist(), strict=True)
+        self.children.update(dict.fromkeys(kids, False))
+        self.children.update(dict.fromkeys(split, True))
 
     def is_leaf(self, node: tuple[int, int, int]) -> bool:
         return not self.children[node]
@@ -429,6 +438,12 @@ class PointQuadtree:
         self.error_start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
         leaves = np.flatnonzero(~self.internal)
         self.order_errors = np.concatenate([self.orders[self.node_keys[r]][1] for r in leaves])
+        # The recorded orders alike: leaf row r owns order_flat[order_start[r]:] (its count).
+        counts = np.where(self.internal, 0, self.ranges[:, 1] - self.ranges[:, 0])
+        self.order_start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+        self.order_flat = np.concatenate(
+            [np.zeros(0, dtype=np.int64)] + [self.orders[self.node_keys[r]][0] for r in leaves]
+        ).astype(np.int64)
 
     # -- render time ---------------------------------------------------------------------------
 
@@ -590,23 +605,38 @@ class PointQuadtree:
         the straight edge (not kept) gets a zero-area triangle over its edge: the coarser
         neighbour's edge then meets this mesh edge for edge on screen (no T-junction pinhole).
         """
-        if inserted >= 0:
-            v, t = self.leaf_mesh(node, int(inserted), keep=list(keep))
-        else:
-            v = self.boundary(node, list(midpoints))
-            b = len(v)
-            t = np.array([[0, a, a + 1 if a + 1 < b else 1] for a in range(1, b)])
-        fill = []
-        pos = 0  # ring index after the centre: SW, [S], SE, [E], NE, [N], NW, [W]
-        for side in (2, 1, 3, 0):
-            pos += 1
-            if midpoints[side]:
-                pos += 1
-                if not keep[side]:
-                    fill.append((pos - 1, pos + 1 if side != 0 else 1, pos))
-        if fill:
-            t = np.concatenate([t, np.array(fill, dtype=t.dtype)])
+        v, _, t, _ = self.node_meshes(
+            np.array([self.index[node]]), np.array([midpoints]), np.array([keep]), [inserted]
+        )
         return v, t
+
+    def node_meshes(
+        self,
+        rows: np.ndarray,
+        midpoints: np.ndarray,
+        keep: np.ndarray,
+        inserted: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The meshes of k drawn nodes (``node_mesh`` of each, in one kernel call).
+
+        rows: (k,) node rows; midpoints, keep: (k, 4) bool; inserted: (k,) as in ``LODCut``.
+        Returns (vertices (V, 3) world, vertex_start (k + 1,), triangles (T, 3) int64,
+        triangle_start (k + 1,)): node m's vertices are vertices[vertex_start[m]:
+        vertex_start[m + 1]] and its triangles, indexing them from 0,
+        triangles[triangle_start[m]:triangle_start[m + 1]].
+        """
+        k = len(rows)
+        return node_meshes(
+            self._ring_xyz,
+            self.points,
+            self.ranges,
+            self.order_flat,
+            self.order_start,
+            np.asarray(rows, dtype=np.int64).reshape(k),
+            np.ascontiguousarray(np.asarray(midpoints, dtype=np.bool_).reshape(k, 4)),
+            np.ascontiguousarray(np.asarray(keep, dtype=np.bool_).reshape(k, 4)),
+            np.asarray(inserted, dtype=np.int64).reshape(k),
+        )
 
     def lod_mesh(
         self, eye: tuple[float, float, float], fov: float, width: int, tolerance: float = 10.0
@@ -614,21 +644,14 @@ class PointQuadtree:
         """The view-dependent mesh for an eye position, horizontal field of view (degrees),
         viewport width (pixels) and screen tolerance C (pixels): λ = width / fov."""
         cut = self.lod_cut(eye, width / math.radians(fov), tolerance)
-        verts, tris = [], []
-        offset = 0
-        for k, row in enumerate(cut.rows.tolist()):
-            v, t = self.node_mesh(
-                self.node_keys[row],
-                tuple(cut.midpoints[k]),
-                tuple(cut.keep[k]),
-                int(cut.inserted[k]),
-            )
-            verts.append(v)
-            tris.append(t + offset)
-            offset += len(v)
+        verts, vstart, tris, tstart = self.node_meshes(
+            cut.rows, cut.midpoints, cut.keep, cut.inserted
+        )
+        # Node-local triangle indices → indices into all the vertices.
+        tris = tris + np.repeat(vstart[:-1], np.diff(tstart))[:, None]
         return LODMesh(
-            np.concatenate(verts),
-            np.concatenate(tris),
+            verts,
+            tris,
             len(cut.rows),
             int((cut.inserted > 0).sum()),
             int(cut.inserted[cut.inserted > 0].sum()),
