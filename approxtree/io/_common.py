@@ -227,15 +227,38 @@ def resolve_transform(
     origin: tuple[float, float] | None,
     path: Path,
 ) -> Affine:
-    """The file's own georeference, or one built from cell_size/origin when it has none."""
+    """The file's own georeference, or one built from cell_size/origin when it has none.
+
+    TerrainFormatError when it places the grid nowhere (a NaN, infinite or zero cell size or
+    origin, or an extent beyond float range).
+    """
     if own is None:
-        return plain_transform(shape, cell_size, origin)
+        return check_transform(plain_transform(shape, cell_size, origin), shape, path)
     if cell_size is not None or origin is not None:
         raise InvalidParameterError(
             f"{path} carries its own georeference; cell_size and origin apply only to data "
             "without one. Leave them out."
         )
-    return own
+    return check_transform(own, shape, path)
+
+
+def check_transform(transform: Affine, shape: tuple[int, int], path: Path) -> Affine:
+    """The transform if every coefficient and both grid corners are finite and cells non-empty."""
+    rows, cols = shape
+    corners = (transform.c + cols * transform.a, transform.f + rows * transform.e)
+    if not all(math.isfinite(v) for v in (*tuple(transform)[:6], *corners)):
+        raise TerrainFormatError(
+            f"{path} has an unusable georeference: pixel size ({transform.a}, {transform.e}) "
+            f"and origin ({transform.c}, {transform.f}) must be finite numbers and the grid's "
+            "extent must stay finite. Fix the file's geotransform (for example with "
+            "gdal_edit.py -a_ullr) or its world file."
+        )
+    if transform.a == 0.0 or transform.e == 0.0:
+        raise TerrainFormatError(
+            f"{path} has a pixel size of zero ({transform.a}, {transform.e}); fix the file's "
+            "geotransform (for example with gdal_edit.py -a_ullr) or its world file."
+        )
+    return transform
 
 
 def fill_holes(heights: np.ndarray) -> tuple[np.ndarray, int]:
