@@ -139,3 +139,66 @@ def test_memory_bound(autzen):
     """Points that would not fit in the memory given are refused before laspy allocates them."""
     with pytest.raises(TerrainFormatError, match="GB of memory"):
         check_las_layout(autzen, memory=110_000 * 34)
+
+
+# -- GeoTIFF georeference and encoded PNGs -----------------------------------------------------
+
+
+@pytest.mark.parametrize("size", [float("nan"), float("inf"), -float("inf")])
+def test_geotiff_unusable_pixel_size(tmp_path, size):
+    """A GeoTIFF whose pixel size is NaN or infinite raises TerrainFormatError (was: ValueError)."""
+    import rasterio
+    from affine import Affine
+
+    path = tmp_path / "bad.tif"
+    profile = {"driver": "GTiff", "width": 4, "height": 3, "count": 1, "dtype": "float32"}
+    with rasterio.open(path, "w", transform=Affine(size, 0, 0, 0, -1, 10), **profile) as ds:
+        ds.write(np.arange(12, dtype=np.float32).reshape(1, 3, 4))
+    with pytest.raises(TerrainFormatError, match="pixel size"):
+        open_terrain(path)
+
+
+def _photo(path: Path) -> Path:
+    """An 8-bit RGB 'photo': uniform noise, no height encoding."""
+    from PIL import Image
+
+    pixels = np.random.default_rng(3).integers(0, 256, (20, 30, 3)).astype(np.uint8)
+    Image.fromarray(pixels, "RGB").save(path)
+    return path
+
+
+def test_encoded_heights_warn_beyond_earth(tmp_path):
+    """A photo read as Terrain-RGB/Terrarium decodes to heights no terrain has: a warning.
+
+    Real extremes (−9,000 m, as Terrain-RGB starts at −10,000, and 8,849 m) read silently.
+    """
+    import warnings
+
+    from PIL import Image
+
+    from approxtree import TerrainDataWarning
+
+    v = np.rint((np.array([[-9000.0, 8849.0], [0.0, 1.5]]) + 10000.0) * 10.0).astype(np.int64)
+    pixels = np.stack([v // 65536, (v // 256) % 256, v % 256], axis=-1).astype(np.uint8)
+    Image.fromarray(pixels, "RGB").save(tmp_path / "t.png")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        grid = open_terrain(tmp_path / "t.png", encoding="terrain-rgb")
+    assert grid.z_range == pytest.approx((-9000.0, 8849.0))
+    photo = _photo(tmp_path / "photo.png")
+    for encoding in ("terrain-rgb", "terrarium"):
+        with pytest.warns(TerrainDataWarning, match="beyond any terrain on Earth"):
+            grid = open_terrain(photo, encoding=encoding)
+        assert grid.z_range[1] > 9000.0
+
+
+def test_cli_prints_warning_line(tmp_path):
+    """The CLI shows the warning as one 'Warning:' line on stderr and still answers."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "approxtree", "info", str(_photo(tmp_path / "photo.png")),
+         "--encoding", "terrain-rgb"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("Warning: ") and "terrain-rgb" in lines[0]
