@@ -202,3 +202,56 @@ def test_cli_prints_warning_line(tmp_path):
     assert proc.returncode == 0, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("Warning: ") and "terrain-rgb" in lines[0]
+
+
+# -- headers that claim more data than the file holds (found by tests/test_fuzz_readers.py) ----
+
+
+def test_npy_header_claiming_320_gb(tmp_path):
+    """An .npy whose header shape asks for 320 GB is refused before numpy allocates it."""
+    path = tmp_path / "z.npy"
+    np.save(path, np.zeros((24, 20), np.float32))
+    data = path.read_bytes().replace(b"(24, 20)", b"(4294967296, 20)")
+    # The header keeps its length (numpy pads it to 64 bytes with spaces).
+    data = data.replace(b"}        ", b"}", 1)
+    path.write_bytes(data)
+    result = _read_in_child(path)
+    assert result.returncode == 3, (result.returncode, result.stderr[-2000:])
+    assert "truncated or corrupt" in result.stdout
+
+
+def test_npz_member_claiming_more_than_it_holds(tmp_path):
+    """A .npz entry whose header claims more bytes than the entry holds is refused."""
+    import zipfile
+
+    member = tmp_path / "elevation.npy"
+    np.save(member, np.zeros((24, 20), np.float32))
+    data = member.read_bytes().replace(b"(24, 20)", b"(2400000, 20000)", 1)
+    data = data.replace(b"}        ", b"}", 1)
+    with zipfile.ZipFile(tmp_path / "z.npz", "w") as archive:
+        archive.writestr("elevation.npy", data)
+    result = _read_in_child(tmp_path / "z.npz")
+    assert result.returncode == 3, (result.returncode, result.stderr[-2000:])
+    assert "elevation.npy" in result.stdout
+
+
+def test_geotiff_claiming_60000_squared(tmp_path):
+    """A compressed GeoTIFF whose size tags say 60,000 × 60,000 is refused before reading."""
+    import rasterio
+    from affine import Affine
+
+    path = tmp_path / "big.tif"
+    profile = dict(driver="GTiff", width=64, height=64, count=1, dtype="float32")
+    tiles = dict(compress="deflate", tiled=True, blockxsize=16, blockysize=16)
+    with rasterio.open(path, "w", transform=Affine(1, 0, 0, 0, -1, 64), **profile, **tiles) as ds:
+        ds.write(np.zeros((1, 64, 64), np.float32))
+    data = bytearray(path.read_bytes())
+    ifd = struct.unpack_from("<I", data, 4)[0]
+    for i in range(struct.unpack_from("<H", data, ifd)[0]):
+        entry = ifd + 2 + 12 * i
+        if struct.unpack_from("<H", data, entry)[0] in (256, 257):  # ImageWidth, ImageLength
+            struct.pack_into("<HIHH", data, entry + 2, 3, 1, 60000, 0)
+    path.write_bytes(bytes(data))
+    result = _read_in_child(path)
+    assert result.returncode == 3, (result.returncode, result.stderr[-2000:])
+    assert "60000 × 60000" in result.stdout

@@ -61,6 +61,41 @@ def reading(path: str | os.PathLike, what: str) -> Iterator[None]:
         raise TerrainFormatError(f"Cannot read {path} as {what}: {_reason(exc)}") from exc
 
 
+def available_memory() -> int:
+    """Bytes of memory this process may still use: MemAvailable, else the physical memory."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return 2**40
+
+
+def check_claimed_bytes(path: Path, claimed: int, present: int | None, what: str) -> None:
+    """TerrainFormatError when a header claims more bytes than the file holds or memory fits.
+
+    Libraries allocate what a header claims before reading: a few flipped bits ask for
+    hundreds of GB (MemoryError, or the system's OOM killer). present: bytes of data the file
+    holds, or None for compressed data whose size says nothing.
+    """
+    if present is not None and claimed > present:
+        raise TerrainFormatError(
+            f"{path} is truncated or corrupt: its header claims {what} ({claimed} bytes), but "
+            f"only {present} bytes of data follow."
+        )
+    memory = available_memory()
+    if claimed > memory:
+        raise TerrainFormatError(
+            f"{path} claims {what}, {claimed / 1e9:.1f} GB, more than the {memory / 1e9:.1f} GB "
+            "of memory available; crop or tile it first."
+        )
+
+
 # -- option checks -----------------------------------------------------------------------------
 
 

@@ -21,6 +21,7 @@ from approxtree.errors import InvalidParameterError, TerrainDataWarning, Terrain
 from approxtree.geometry import Grid
 from approxtree.io._common import (
     check_cell_size,
+    check_claimed_bytes,
     check_crs,
     check_nodata_policy,
     check_number,
@@ -117,6 +118,10 @@ def read_png(
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
             with rasterio.open(p) as ds:
+                # Every band, the mask and the float heights: about (count + 3) × 8 bytes a cell.
+                cells = ds.width * ds.height
+                need = cells * 8 * (ds.count + 3)
+                check_claimed_bytes(p, need, None, f"{ds.width} × {ds.height} pixels")
                 colour, valid = _split_bands(ds)
                 dtype = np.dtype(ds.dtypes[0])
                 palette = ds.colorinterp[0] == ColorInterp.palette

@@ -17,13 +17,13 @@ payload, LAS 1.4).
 from __future__ import annotations
 
 import io
-import os
 import struct
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
 
 from approxtree.errors import TerrainFormatError
+from approxtree.io._common import available_memory
 
 #: Public header size of each LAS version (laspy reads these).
 HEADER_SIZES = {(1, 0): 227, (1, 1): 227, (1, 2): 227, (1, 3): 235, (1, 4): 375, (1, 5): 393}
@@ -67,21 +67,6 @@ def _bad(path: Path, what: str) -> TerrainFormatError:
         f"{path} is not a valid LAS/LAZ point cloud: {what}. The file is corrupt or truncated; "
         "export it again (or check it with lasinfo / pdal info)."
     )
-
-
-def available_memory() -> int:
-    """Bytes of memory this process may still use: MemAvailable, else the physical memory."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):
-        return 2**40
 
 
 def _read_at(f: BinaryIO, offset: int, size: int) -> bytes:
