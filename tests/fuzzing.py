@@ -297,10 +297,11 @@ def reader_case(draw, seeds: list[Seed]) -> ReaderCase:
     return ReaderCase(seed, tuple(steps))
 
 
-def read_case(folder: Path, case: ReaderCase) -> str:
+def read_case(folder: Path, case: ReaderCase, watch: bool = True) -> str:
     """Read the mutated file; the outcome's name ("ok" or the ApproxTreeError subclass).
 
     AssertionError when the reader returns an unusable terrain; any other exception propagates.
+    watch: end the process if the read hangs (off for warm-up reads that compile kernels).
     """
     from approxtree.io import open_terrain
 
@@ -311,7 +312,8 @@ def read_case(folder: Path, case: ReaderCase) -> str:
     for extra in folder.glob(seed.name + ".*"):
         extra.unlink()
     try:
-        with watchdog(), warnings.catch_warnings():
+        guard = watchdog() if watch else contextlib.nullcontext()
+        with guard, warnings.catch_warnings():
             warnings.simplefilter("ignore")
             terrain = open_terrain(path, **seed.options)
             _check_terrain(terrain)
