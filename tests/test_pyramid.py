@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
+import shutil
+import signal
 
 import numpy as np
 import pytest
@@ -118,3 +121,187 @@ def test_levels_with_empty_strips_stay_memory_mappable(tmp_path):
     )
     np.testing.assert_array_equal(pyramid.level(0), rgba)
     assert len(pyramid) == 3
+
+
+# -- all or nothing ------------------------------------------------------------------------------
+
+_SHAPE = (300, 200)  # levels 300 × 200, 150 × 100, 75 × 50, 38 × 25 at a 64-texel limit
+
+_KILLED_BAKE = """
+import os, signal, sys
+import numpy as np
+from affine import Affine
+import approxtree.io.atomic as atomic
+import approxtree.textures.pyramid as pyramid
+
+folder, value, at, how = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4]
+write_level, exchange = pyramid._write_level, getattr(atomic, "_exchange", None)
+
+def die():
+    os.kill(os.getpid(), getattr(signal, how))
+
+def killing_write(path, *args):
+    write_level(path, *args)
+    if at == "level1" and path.name == "level1.tif":
+        die()
+
+def killing_exchange(a, b):
+    if at == "swap":
+        die()
+    done = exchange(a, b)
+    if at == "swapped":
+        die()
+    return done
+
+pyramid._write_level = killing_write
+atomic._exchange = killing_exchange
+rgba = np.full((300, 200, 4), value, np.uint8)
+rgba[..., 3] = 255
+transform = Affine(1, 0, 0, 0, -1, 300)
+pyramid.TexturePyramid.build(rgba, folder, max_texture_size=64, transform=transform)
+"""
+
+
+def _constant_pyramid(folder, value: int) -> TexturePyramid:
+    from affine import Affine
+
+    rgba = np.full((*_SHAPE, 4), value, np.uint8)
+    rgba[..., 3] = 255
+    return TexturePyramid.build(
+        rgba, folder, max_texture_size=64, transform=Affine(1, 0, 0, 0, -1, 300)
+    )
+
+
+def _values(folder) -> set[int]:
+    """The grey values found in all levels of the pyramid in ``folder`` (opened afresh)."""
+    p = TexturePyramid(folder)
+    assert len(p) == 4
+    return {int(v) for k in range(len(p)) for v in np.unique(p.level(k)[..., :3])}
+
+
+def test_killed_bakes_leave_a_whole_pyramid(tmp_path):
+    """A bake killed (SIGKILL) while writing levels or just before the swap leaves the old
+    pyramid whole; killed just after the swap, the new one; the next bake removes what the
+    killed ones left beside the folder. A bake stopped by SIGTERM cleans up at once."""
+    import subprocess
+    import sys
+
+    folder = tmp_path / "pyr"
+    _constant_pyramid(folder, 200)
+    runs = [
+        (5, "level1", "SIGTERM", 200),
+        (7, "level1", "SIGKILL", 200),
+        (9, "swap", "SIGKILL", 200),
+        (11, "swapped", "SIGKILL", 11),
+    ]
+    for value, at, how, expected in runs:
+        args = [str(folder), str(value), at, how]
+        done = subprocess.run([sys.executable, "-c", _KILLED_BAKE, *args], capture_output=True)
+        assert done.returncode == -getattr(signal, how), done.stderr.decode()
+        assert _values(folder) == {expected}, at
+        if how == "SIGTERM":
+            assert os.listdir(tmp_path) == ["pyr"]
+    _constant_pyramid(folder, 13)
+    assert _values(folder) == {13}
+    assert os.listdir(tmp_path) == ["pyr"]
+    assert sorted(os.listdir(folder)) == [
+        "level0.tif",
+        "level1.tif",
+        "level2.tif",
+        "level3.tif",
+        "pyramid.json",
+    ]
+
+
+def _swap_level(folder, other):
+    shutil.copy(other / "level0.tif", folder / "level0.tif")
+
+
+def _drop_level(folder, other):
+    (folder / "level2.tif").unlink()
+
+
+def _extra_level(folder, other):
+    shutil.copy(folder / "level3.tif", folder / "level4.tif")
+
+
+def _truncate_level(folder, other):
+    data = (folder / "level1.tif").read_bytes()
+    (folder / "level1.tif").write_bytes(data[:-100])
+
+
+def _wrong_size(folder, other):
+    meta = json.loads((folder / "pyramid.json").read_text())
+    meta["levels"][0]["width"] = 201
+    (folder / "pyramid.json").write_text(json.dumps(meta))
+
+
+def _old_format(folder, other):
+    meta = json.loads((folder / "pyramid.json").read_text())
+    for key in ("format", "build"):
+        meta.pop(key, None)
+    for lv in meta["levels"]:
+        lv.pop("bytes", None)
+    (folder / "pyramid.json").write_text(json.dumps(meta))
+
+
+@pytest.mark.parametrize(
+    ("damage", "message"),
+    [
+        (_swap_level, "another bake"),
+        (_drop_level, "missing"),
+        (_extra_level, "not listed"),
+        (_truncate_level, "bytes"),
+        (_wrong_size, "201"),
+        (_old_format, "format 1"),
+    ],
+)
+def test_levels_that_do_not_match_pyramid_json_are_refused(tmp_path, damage, message):
+    """A level of another bake (same size), a missing, extra or truncated level, a size unlike
+    pyramid.json says, or a pyramid.json without level fingerprints: a StoreError on open,
+    never a pyramid that drapes the wrong texels."""
+    folder, other = tmp_path / "a", tmp_path / "b"
+    _constant_pyramid(folder, 200)
+    _constant_pyramid(other, 7)
+    damage(folder, other)
+    with pytest.raises(StoreError, match=message):
+        TexturePyramid(folder)
+
+
+def test_a_folder_with_other_files_is_refused_before_the_work(tmp_path, terrain):
+    """A bake replaces its whole folder, so a folder holding other files is refused (before
+    any shading is computed) and left as it was."""
+    from approxtree.textures.bake import bake
+
+    (tmp_path / "notes.txt").write_text("keep me")
+    with pytest.raises(StoreError, match=r"notes\.txt"):
+        bake(terrain, tmp_path, gl=False)
+    assert os.listdir(tmp_path) == ["notes.txt"]
+    # Files of a pyramid (and temp files an older bake left inside it) may be replaced.
+    old = tmp_path / "old"
+    old.mkdir()
+    for name in ("pyramid.json", "level0.tif", "level0.tif.aux.xml", ".level1.tif.tmp"):
+        (old / name).write_text("x")
+    _constant_pyramid(old, 3)
+    assert _values(old) == {3}
+
+
+def test_pyramid_files_get_umask_permissions_and_the_folder_keeps_its_mode(tmp_path):
+    """Under umask 022 a new pyramid folder is 0755 and its files 0644 (pyramid.json was
+    0600); a rebake keeps the folder's mode."""
+    import stat
+
+    saved = os.umask(0o022)
+    try:
+        folder = tmp_path / "pyr"
+        _constant_pyramid(folder, 1)
+        mode = lambda p: stat.S_IMODE(os.stat(p).st_mode)  # noqa: E731
+        assert mode(folder) == 0o755
+        assert {n: mode(folder / n) for n in os.listdir(folder)} == {
+            n: 0o644 for n in os.listdir(folder)
+        }
+        folder.chmod(0o750)
+        _constant_pyramid(folder, 2)
+        assert mode(folder) == 0o750
+    finally:
+        os.umask(saved)

@@ -130,3 +130,78 @@ def test_records_round_trip_empty_and_odd_arrays():
     for name, a in arrays.items():
         assert back[name].shape == a.shape
         np.testing.assert_array_equal(back[name], a)
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """The bytes of a tiny saved tree (5 nodes, 2.6 kB), small enough to flip every byte."""
+    tree = ApproximationTree.build(
+        fractal_terrain(5, seed=4, relief=100.0), epsilon=0.5, max_points=9
+    )
+    path = tmp_path_factory.mktemp("tiny") / "tiny.atree"
+    tree.save(path)
+    return path.read_bytes()
+
+
+def test_every_byte_is_covered(tiny, tmp_path):
+    """Flipping any single byte of the file (the reserved prefix bytes 20–23 included) is a
+    StoreError on load, never a silent success."""
+    path = tmp_path / "flip.atree"
+    silent = []
+    for offset in range(len(tiny)):
+        bad = bytearray(tiny)
+        bad[offset] ^= 0xFF
+        path.write_bytes(bytes(bad))
+        try:
+            ApproximationTree.load(path)
+        except StoreError:
+            continue
+        silent.append(offset)
+    assert silent == []
+
+
+def _as_version_1(data: bytes, reserved: int = 0) -> bytes:
+    """The same tree as the previous writer (format 1) laid it out: header CRC over the JSON
+    header only."""
+    import struct
+    import zlib
+
+    _, _, hlen, _, _ = struct.unpack_from("<8sIIII", data, 0)
+    header = data[24 : 24 + hlen]
+    prefix = struct.pack("<8sIIII", b"ATREE\x00\r\n", 1, hlen, zlib.crc32(header), reserved)
+    return prefix + data[24:]
+
+
+def test_version_1_files_load_and_their_reserved_bytes_are_checked(saved, tmp_path):
+    """Files of the previous format still load (same tree); their reserved bytes, which no
+    checksum covers there, must be zero."""
+    tree, _, data = saved
+    path = tmp_path / "v1.atree"
+    path.write_bytes(_as_version_1(data))
+    old = ApproximationTree.load(path)
+    np.testing.assert_array_equal(old.errors, tree.errors)
+    path.write_bytes(_as_version_1(data, reserved=1 << 24))
+    with pytest.raises(StoreError, match="reserved"):
+        ApproximationTree.load(path)
+
+
+def test_a_gap_between_records_is_refused(saved, tmp_path):
+    """Bytes that no record covers (here 8 between the sections and the patches, the header
+    shifted to match with its checksum recomputed) are refused: no byte escapes a checksum."""
+    import json
+    import struct
+
+    _, _, data = saved
+    _, _, hlen, _, _ = struct.unpack_from("<8sIIII", data, 0)
+    header = json.loads(data[24 : 24 + hlen])
+    base = header["patch_base"]
+    header["patch_base"] += 8
+    header["file_size"] += 8
+    raw = json.dumps(header).encode()
+    assert len(raw) <= hlen
+    raw += b" " * (hlen - len(raw))
+    gapped = data[:24] + raw + data[24 + hlen : base] + bytes(8) + data[base:]
+    path = tmp_path / "gap.atree"
+    path.write_bytes(_as_version_1(gapped))
+    with pytest.raises(StoreError, match="tile"):
+        ApproximationTree.load(path)

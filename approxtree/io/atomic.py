@@ -1,35 +1,245 @@
-"""Atomic file writes: a temp file in the target's folder, fsync, then rename over the target.
+"""Atomic writes: a temp file (or folder) beside the target, then one rename over the target.
 
 An interrupted write leaves the previous file (or nothing) in place, never half a file.
+
+- Temp names are ``.NAME.PID.TOKEN.tmp`` (PID: the writing process). A write removes the temp
+  files its own failure leaves (any exception, KeyboardInterrupt, SIGTERM in the main thread);
+  a process killed outright (SIGKILL, power loss) cannot, so the next write to the same target
+  removes the temp files of writers that no longer run.
+- Permissions are those a plain ``open()`` would give: a new file gets 0666 & ~umask (a new
+  folder 0777 & ~umask), and a replaced file or folder keeps its mode.
 """
 
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import errno
 import os
-import tempfile
+import re
+import secrets
+import shutil
+import signal
+import stat
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 from typing import BinaryIO
 
 from approxtree.errors import StoreError
 
+_TOKEN_CHARS = "abcdefghijklmnopqrstuvwxyz0123456789"
+
+#: Temp paths this process is writing now: a temp name with our own PID that is not listed
+#: here was left by an earlier process that had the same PID (PIDs are reused).
+_ACTIVE: set[Path] = set()
+_ACTIVE_LOCK = threading.Lock()
+
+
+def temp_pattern(name: str) -> re.Pattern[str]:
+    """The temp names of writes to a target called ``name``; group 1 is the writer's PID."""
+    return re.compile(rf"^\.{re.escape(name)}\.(\d+)\.[a-z0-9]{{8}}\.tmp$")
+
+
+def _temp_path(target: Path) -> Path:
+    token = "".join(secrets.choice(_TOKEN_CHARS) for _ in range(8))
+    return target.with_name(f".{target.name}.{os.getpid()}.{token}.tmp")
+
+
+@contextlib.contextmanager
+def _registered(path: Path) -> Iterator[None]:
+    with _ACTIVE_LOCK:
+        _ACTIVE.add(path)
+    try:
+        yield
+    finally:
+        with _ACTIVE_LOCK:
+            _ACTIVE.discard(path)
+
+
+def _in_use(path: Path, pid: int) -> bool:
+    """Whether the writer named in a temp name may still be writing it."""
+    if pid == os.getpid():
+        with _ACTIVE_LOCK:
+            return path in _ACTIVE
+    if os.name == "nt":  # os.kill(pid, 0) would end the process there: never guess
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, ValueError):
+        # Another user's process runs under that PID (or the name is not ours): keep it.
+        return True
+    return True
+
+
+def remove_stale_temps(target: str | os.PathLike) -> list[Path]:
+    """Remove the temp files and folders of dead writers to ``target``; returns what went."""
+    target = Path(target)
+    folder = target.parent
+    pattern = temp_pattern(target.name)
+    removed = []
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return removed
+    for name in names:
+        m = pattern.match(name)
+        path = folder / name
+        if m is None or _in_use(path, int(m.group(1))):
+            continue
+        # A dead writer's leftover: a half-written file, or a folder (built or swapped out).
+        with contextlib.suppress(OSError):
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path)
+            else:
+                path.unlink()
+            removed.append(path)
+    return removed
+
+
+class _Terminated(BaseException):
+    """SIGTERM received during a write: unwinds like KeyboardInterrupt so temp files go."""
+
+
+@contextlib.contextmanager
+def _sigterm_unwinds() -> Iterator[None]:
+    """Within the block, SIGTERM raises (so ``finally`` and ``except`` clean up); after the
+    cleanup the process still dies by SIGTERM. Only in the main thread, and only where no
+    handler of the host program is installed."""
+    if (
+        threading.current_thread() is not threading.main_thread()
+        or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL
+    ):
+        yield
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        raise _Terminated
+
+    signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    except _Terminated:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        os.kill(os.getpid(), signal.SIGTERM)
+        raise
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def _check_folder(target: Path) -> Path:
+    folder = target.parent if str(target.parent) else Path(".")
+    if not folder.is_dir():
+        raise StoreError(f"Cannot write {target}: the folder {folder} does not exist.")
+    return folder
+
+
+@contextlib.contextmanager
+def _os_errors(what: str) -> Iterator[None]:
+    """An OSError of the block as a StoreError saying what could not be done and why."""
+    try:
+        yield
+    except OSError as exc:
+        raise StoreError(f"{what}: {exc.strerror or exc}.") from exc
+
+
+def _existing_mode(path: Path) -> int | None:
+    """Permission bits of ``path`` when it exists (following links), else None."""
+    try:
+        return stat.S_IMODE(os.stat(path).st_mode)
+    except (FileNotFoundError, NotADirectoryError):
+        return None
+
 
 @contextlib.contextmanager
 def atomic_write(path: str | os.PathLike) -> Iterator[BinaryIO]:
     """Open a binary temp file that replaces ``path`` only when the block finishes cleanly."""
     target = Path(path)
-    folder = target.parent if str(target.parent) else Path(".")
-    if not folder.is_dir():
-        raise StoreError(f"Cannot write {target}: the folder {folder} does not exist.")
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=folder)
+    _check_folder(target)
+    remove_stale_temps(target)
+    keep_mode = _existing_mode(target)
+    tmp = _temp_path(target)
+    with _sigterm_unwinds(), _registered(tmp):
+        try:
+            # O_EXCL with 0666: the kernel applies the umask, as for a plain open().
+            with _os_errors(f"Cannot write {target}"):
+                fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+            with os.fdopen(fd, "wb") as f:
+                if keep_mode is not None:
+                    os.chmod(tmp, keep_mode)
+                yield f
+                f.flush()
+                os.fsync(f.fileno())
+            with _os_errors(f"Cannot replace {target}"):
+                os.replace(tmp, target)
+        except BaseException:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(tmp)
+            raise
+
+
+_RENAME_EXCHANGE = 2
+_AT_FDCWD = -100
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths in one step (Linux renameat2 RENAME_EXCHANGE); False where unsupported."""
     try:
-        with os.fdopen(fd, "wb") as f:
-            yield f
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, target)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
+        libc = ctypes.CDLL(None, use_errno=True)
+        renameat2 = libc.renameat2
+    except (OSError, AttributeError, TypeError):
+        return False
+    renameat2.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p]
+    renameat2.argtypes += [ctypes.c_uint]
+    rc = renameat2(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE)
+    if rc == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP):
+        return False
+    raise OSError(err, os.strerror(err), str(b))
+
+
+@contextlib.contextmanager
+def atomic_directory(path: str | os.PathLike) -> Iterator[Path]:
+    """A temp folder beside ``path`` that replaces the folder ``path`` when the block finishes
+    cleanly (all or nothing); on failure it is removed and ``path`` is left as it was.
+
+    An existing ``path`` is swapped out in one step where the OS can (Linux), else renamed
+    aside and back in; the old folder is then removed. The caller checks beforehand that the
+    old folder holds nothing that must survive.
+    """
+    target = Path(os.path.realpath(path))
+    _check_folder(target)
+    remove_stale_temps(target)
+    keep_mode = _existing_mode(target)
+    if keep_mode is not None and not target.is_dir():
+        raise StoreError(f"Cannot write the folder {target}: a file of that name exists.")
+    tmp = _temp_path(target)
+    aside = _temp_path(target)
+    with _sigterm_unwinds(), _registered(tmp), _registered(aside):
+        try:
+            # mkdir with 0777: the kernel applies the umask, as for a plain mkdir.
+            with _os_errors(f"Cannot write {target}"):
+                os.mkdir(tmp, 0o777)
+            if keep_mode is not None:
+                os.chmod(tmp, keep_mode)
+            yield tmp
+            with _os_errors(f"Cannot replace {target}"):
+                if keep_mode is None:
+                    os.rename(tmp, target)
+                elif not _exchange(tmp, target):
+                    os.rename(target, aside)
+                    try:
+                        os.rename(tmp, target)
+                    except BaseException:
+                        os.rename(aside, target)
+                        raise
+                    tmp = aside
+            # ``tmp`` now holds the old folder (or nothing).
+            shutil.rmtree(tmp, ignore_errors=True)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise

@@ -317,6 +317,8 @@ def mesh_error(heights, r0, c0, rows, cols, vx, vy, tv, he):
 
     Triangles with a nodata corner are not drawn. Every data point is counted once: a point on
     an edge shared by two drawn triangles belongs to the lower-numbered one, corners are exact.
+    A nodata point inside (or on an edge of) a drawn triangle makes the max error infinite: the
+    mesh would cover a hole.
     Returns (max error, sum of squared errors, points represented, drawn (m,) bool); the
     caller compares the count with the window's valid points (missing ones: infinite error).
     """
@@ -366,6 +368,8 @@ def mesh_error(heights, r0, c0, rows, cols, vx, vy, tv, he):
                         continue
                 z = heights[r0 + y, c0 + x]
                 if np.isnan(z):
+                    # Nodata under a drawn triangle: the mesh would cover a hole.
+                    vmax = np.inf
                     continue
                 err = abs(z - (za + gx * (x - ax) + gy * (y - ay)))
                 count += 1

@@ -10,6 +10,9 @@ Triangles with a nodata corner are not drawn. A data point that lies in no drawn
 triangles all touch nodata) is not represented by the patch: its error is infinite, which forces
 the node to split until such points become patch vertices. A point on an edge is represented
 when any drawn triangle holds that edge, including the triangle of the neighbouring block.
+Likewise a nodata point that a drawn triangle holds (edges included) would be covered by
+invented surface: its error is infinite too, so holes stay holes (the node splits until the
+hole's points are vertices, whose triangles are not drawn).
 """
 
 from __future__ import annotations
@@ -82,13 +85,13 @@ def _patch_error(heights, r0, r1, c0, c1, sr, sc):
                 dr = r - rb
                 for c in range(cb, cend + 1):
                     z = heights[r, c]
-                    if np.isnan(z):
-                        continue
-                    count += 1
-                    if z < zmin:
-                        zmin = z
-                    if z > zmax:
-                        zmax = z
+                    valid = not np.isnan(z)
+                    if valid:
+                        count += 1
+                        if z < zmin:
+                            zmin = z
+                        if z > zmax:
+                            zmax = z
                     dc = c - cb
                     # Patch vertices are reproduced exactly.
                     if (dr == 0 or r == re) and (dc == 0 or c == ce):
@@ -100,6 +103,11 @@ def _patch_error(heights, r0, r1, c0, c1, sr, sc):
                         p = z00 + (dr / hr) * (z10 - z00) + (dc / wc) * (z11 - z10)
                     if np.isnan(p):
                         p = _edge_value(heights, r, c, rb, re, cb, ce, sr, sc, kr, kc)
+                    if not valid:
+                        # Nodata under a drawn triangle: the patch would cover a hole.
+                        if not np.isnan(p):
+                            err = np.inf
+                        continue
                     if np.isnan(p):
                         err = np.inf
                     else:

@@ -61,14 +61,18 @@ def _cell_worst(heights, ra, rb, ca, cb):
         edge_row = dr == 0 or dr == hr
         for c in range(ca, cb + 1):
             z = heights[r, c]
-            if np.isnan(z):
-                continue
             dc = c - ca
             # Corners are lattice vertices: reproduced exactly.
             if edge_row and (dc == 0 or dc == wc):
                 continue
             p = _interpolate(z00, z01, z10, z11, dr, dc, hr, wc)
-            e = np.inf if np.isnan(p) else abs(z - p)
+            if np.isnan(z):
+                # Nodata under a drawn triangle must become a vertex (the hole is cut out).
+                if np.isnan(p):
+                    continue
+                e = np.inf
+            else:
+                e = np.inf if np.isnan(p) else abs(z - p)
             if e > best:
                 best = e
                 br = r
@@ -295,7 +299,8 @@ def lattice_error(heights, rows, cols):
 
     rows: (kr,) int64 sorted chosen rows, cols: (kc,) int64 sorted chosen columns, both >= 2;
     the data points are those of the window rows[0]..rows[-1] × cols[0]..cols[-1], each
-    evaluated once. A valid point in no drawn triangle gives an infinite max error (and sum).
+    evaluated once. A valid point in no drawn triangle gives an infinite max error (and sum); a
+    nodata point in a drawn triangle (the lattice would cover a hole) an infinite max error.
     """
     return _lattice_error(heights, rows, cols, np.inf)
 
@@ -328,13 +333,13 @@ def _lattice_error(heights, rows, cols, limit):
                 dr = r - rb
                 for c in range(cb, cend + 1):
                     z = heights[r, c]
-                    if np.isnan(z):
-                        continue
-                    count += 1
-                    if z < zmin:
-                        zmin = z
-                    if z > zmax:
-                        zmax = z
+                    valid = not np.isnan(z)
+                    if valid:
+                        count += 1
+                        if z < zmin:
+                            zmin = z
+                        if z > zmax:
+                            zmax = z
                     dc = c - cb
                     if (dr == 0 or r == re) and (dc == 0 or c == ce):
                         continue
@@ -344,6 +349,13 @@ def _lattice_error(heights, rows, cols, limit):
                         p = z00 + (dr / hr) * (z10 - z00) + (dc / wc) * (z11 - z10)
                     if np.isnan(p):
                         p = _other_triangle(heights, rows, cols, i, j, r, c)
+                    if not valid:
+                        # Nodata under a drawn triangle: the lattice would cover a hole.
+                        if not np.isnan(p):
+                            err = np.inf
+                            if err > limit:
+                                return err, sumsq, count, zmin, zmax
+                        continue
                     if np.isnan(p):
                         err = np.inf
                         sumsq = np.inf

@@ -40,7 +40,8 @@ class GeometryPatch(ABC):
     kind: ClassVar[str]
 
     rect: Rect
-    #: ε_T(N) over the data points of ``rect`` (inf if some data point is not represented).
+    #: ε_T(N) over the data points of ``rect`` (inf if some data point is not represented, or
+    #: if a drawn triangle covers nodata: holes stay holes).
     error: float
     #: (z_min, z_max) of the terrain's data points inside ``rect`` (NaN when it has none).
     z_range: tuple[float, float]

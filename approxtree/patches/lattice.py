@@ -4,7 +4,8 @@ A lattice mesh lives in a window of the grid, the index range (r0, r1, c0, c1) o
 Its vertices are (row, column) grid indices and its triangles have orient > 0 in (column, row)
 space; world coordinates and counter-clockwise order (seen from above) are made on demand.
 Errors are measured exactly with ``kernels.greedy_tin.mesh_error``: every valid data point of
-the window once, nodata never, a point outside every drawn triangle as an infinite error.
+the window once, a point outside every drawn triangle as an infinite error, and nodata inside a
+drawn triangle as an infinite error too (the mesh would cover a hole).
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ never grows when the budget grows. And a threshold selection with T triangles an
 is one of the cuts tried for budget T, so α*(T) <= m.
 
 Triangle counts are what the engine draws per node: the patch's triangles plus its skirt walls
-(two per border edge) when skirts are on (``node_triangles``).
+(two per border edge on the node's rectangle) when skirts are on (``node_triangles``).
 """
 
 from __future__ import annotations
@@ -30,19 +30,25 @@ from approxtree.errors import InvalidParameterError
 from approxtree.render.frame_state import FrameState
 from approxtree.render.frustum import box_in_frustum
 from approxtree.render.selector import Selection, SelectionResult, _stats, eye_below_ground
-from approxtree.render.skirts import border_edges
+from approxtree.render.skirts import patches_reach_rect, skirt_edge_count
 from approxtree.render.visual_error import node_visual_errors, texel_sizes
 
 
 def node_triangles(tree, skirts: bool = True) -> np.ndarray:
-    """(n,) int64 triangles the engine draws for each node (patch, plus 2 per border edge).
+    """(n,) int64 triangles the engine draws for each node (patch, plus 2 per skirted edge).
 
     Loads every patch of a lazily loaded tree.
     """
     out = np.empty(len(tree), dtype=np.int64)
+    node_borders = patches_reach_rect(tree.terrain)
     for i in range(len(tree)):
-        tris = tree.patch(i).triangles
-        out[i] = len(tris) + (2 * len(border_edges(tris)) if skirts and len(tris) else 0)
+        patch = tree.patch(i)
+        tris = patch.triangles
+        walls = 0
+        if skirts and len(tris):
+            rect = patch.rect.as_tuple() if node_borders else None
+            walls = 2 * skirt_edge_count(patch.vertices, tris, rect)
+        out[i] = len(tris) + walls
     return out
 
 

@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from approxtree.errors import ContextUnavailableError, InvalidParameterError
+from approxtree.errors import ContextUnavailableError, EmptyTerrainError, InvalidParameterError
 from approxtree.geometry.grid import Grid
 from approxtree.render.camera import Camera
 from approxtree.render.frame_state import (
@@ -52,7 +52,7 @@ from approxtree.render.frustum import boxes_in_frustum
 from approxtree.render.gpu_cache import GpuCache
 from approxtree.render.selector import Selection, check_thresholds, eye_below_ground, select
 from approxtree.render.shaders import create_program
-from approxtree.render.skirts import add_skirts, skirt_base, skirt_depths
+from approxtree.render.skirts import add_skirts, patches_reach_rect, skirt_base, skirt_depths
 from approxtree.render.texture_sharing import texture_nodes
 from approxtree.render.visual_error import texel_sizes
 
@@ -104,6 +104,17 @@ def create_context() -> Any:
     return ctx
 
 
+def _check_drawable(tree) -> None:
+    """EmptyTerrainError for a tree whose only node has no triangle (too few valid points)."""
+    if tree.child_count[0] == 0 and len(tree.patch(0).triangles) == 0:
+        raise EmptyTerrainError(
+            f"This tree has nothing to draw: its terrain's {tree.terrain.point_count} valid "
+            "data point(s) form no triangle (a surface needs at least three points not on one "
+            "line, e.g. one grid cell of valid corners). Check the file's nodata value or use "
+            "a larger area."
+        )
+
+
 @dataclass
 class Frame:
     """One rendered frame.
@@ -148,7 +159,8 @@ class Engine:
         offscreen: bool | None = None,
         skirts: bool = True,
     ) -> None:
-        # Bad textures fail before any GPU object exists.
+        # Bad textures and a tree with nothing to draw fail before any GPU object exists.
+        _check_drawable(tree)
         textures = _as_pyramid(textures, tree.terrain)
         if not (isinstance(cache_bytes, int) and cache_bytes > 0):
             raise InvalidParameterError(f"cache_bytes must be an int > 0, got {cache_bytes!r}.")
@@ -161,8 +173,12 @@ class Engine:
         # Per-node figures used every frame, computed once.
         self._data_texels = texel_sizes(tree)
         self.texels = self._data_texels
-        self.skirt_depths = skirt_depths(tree.errors, tree.terrain.z_range)
-        self.skirt_base = skirt_base(tree.errors, tree.terrain.z_range)
+        # Skirts: infinite errors stand in by the node's z extent; walls on node borders only.
+        extents = tree.bboxes[:, 5] - tree.bboxes[:, 2]
+        self._node_borders = patches_reach_rect(tree.terrain)
+        rects = np.asarray(tree.rects, dtype=np.float64) if self._node_borders else None
+        self.skirt_depths = skirt_depths(tree.errors, tree.terrain.z_range, extents, rects)
+        self.skirt_base = skirt_base(tree.errors, tree.terrain.z_range, extents)
         d = tree.terrain.domain
         self._domain = (d.xmin, d.ymin, d.xmax, d.ymax)
         self._full_chunks: list[tuple[Any, np.ndarray]] | None = None
@@ -483,6 +499,8 @@ class Engine:
                         switches += 1
                     meshes = resident[g][1] if resident else (self._get_mesh(k) for k in keys)
                     for mesh in meshes:
+                        if mesh.triangles == 0:
+                            continue
                         mesh.vao(ctx, prog).render(moderngl.TRIANGLES)
                         triangles += mesh.triangles
             finally:
@@ -542,6 +560,7 @@ class Engine:
                 float(self.skirt_depths[i]),
                 self._domain,
                 self.skirt_base,
+                patch.rect.as_tuple() if self._node_borders else None,
             )
         data = np.empty((len(verts), 4), dtype=np.float32)
         data[:, :3] = verts - self.tree.origin

@@ -23,7 +23,10 @@ from approxtree.render.shaders import VERTEX_LAYOUT
 
 @dataclass
 class GpuMesh:
-    """One uploaded mesh. nbytes: vertex + index buffer bytes; triangles: index count / 3."""
+    """One uploaded mesh. nbytes: vertex + index buffer bytes; triangles: index count / 3.
+
+    A mesh of no triangles has no buffers (vbo and ibo None) and is never drawn.
+    """
 
     vbo: Any
     ibo: Any
@@ -49,8 +52,9 @@ class GpuMesh:
         for vao in self.vaos.values():
             vao.release()
         self.vaos.clear()
-        self.vbo.release()
-        self.ibo.release()
+        if self.vbo is not None:
+            self.vbo.release()
+            self.ibo.release()
 
 
 def mipmap_bytes(width: int, height: int, components: int = 4) -> int:
@@ -111,6 +115,10 @@ class GpuCache:
             self._entries.move_to_end(key)
             return entry  # type: ignore[return-value]
         vertex_data, triangles = build()
+        # A patch without triangles (isolated valid points) draws nothing, and GL refuses
+        # empty buffers: its entry holds none (triangles 0; callers skip it).
+        if len(triangles) == 0:
+            return self._add(key, GpuMesh(None, None, 0, 0))
         vbo = self.ctx.buffer(np.ascontiguousarray(vertex_data, dtype="f4").tobytes())
         ibo = self.ctx.buffer(np.ascontiguousarray(triangles, dtype="u4").tobytes())
         return self._add(key, GpuMesh(vbo, ibo, vbo.size + ibo.size, len(triangles)))

@@ -27,7 +27,7 @@ from approxtree.errors import InvalidParameterError, TerrainFormatError
 from approxtree.geometry.grid import Grid
 from approxtree.textures.base import TextureData
 from approxtree.textures.blend import BLEND_MODES, MultiTexture
-from approxtree.textures.pyramid import TexturePyramid
+from approxtree.textures.pyramid import TexturePyramid, check_pyramid_target
 from approxtree.textures.shading import GouraudShading, PhongShading, TopographicShading
 from approxtree.textures.thematic import (
     ClassTable,
@@ -159,6 +159,8 @@ def bake(
         raise InvalidParameterError(
             f"texel_size must be a positive number of world units, got {texel_size!r}."
         )
+    # A bake replaces the whole folder: refuse one holding other files before the work.
+    check_pyramid_target(folder)
     thematic_path = Path(thematic) if thematic is not None else None
     if thematic_path is not None and not thematic_path.is_file():
         raise TerrainFormatError(f"Thematic raster {thematic_path} does not exist.")

@@ -6,12 +6,20 @@ renderer's maximum texture size. Every level is an uncompressed, pixel-interleav
 covering the domain of level 0 (odd sizes add at most one texel at the east and south edges),
 opened through ``numpy.memmap``: reading a texture patch touches only its rows, so pyramids
 larger than memory work. ``pyramid.json`` lists the levels.
+
+A pyramid is written all or nothing: built in a temp folder beside its folder, then swapped in
+(``atomic_directory``). Each build has an id, stored in pyramid.json and in every level's
+GeoTIFF tags with the level's number; opening a pyramid checks every level against
+pyramid.json (id, number, size, bytes, pixel format, halving chain), so a level of another
+bake, a missing, extra or truncated level is refused instead of draped.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
+import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,11 +27,23 @@ import numpy as np
 from affine import Affine
 
 from approxtree.errors import InvalidParameterError, StoreError
-from approxtree.io.atomic import atomic_write
+from approxtree.io.atomic import atomic_directory
 from approxtree.textures.base import TextureData
 
 #: Rows handled at once while halving a level, bounding memory for huge textures.
 _CHUNK_ROWS = 2048
+
+#: pyramid.json format: 2 added the build id, the level tags and the level byte counts.
+PYRAMID_FORMAT = 2
+#: GeoTIFF tags naming a level's build and its number in the pyramid.
+_TAG_BUILD = "APPROXTREE_PYRAMID"
+_TAG_LEVEL = "APPROXTREE_LEVEL"
+#: The files a pyramid folder holds: GDAL may add .aux.xml side files when reading, and bakes
+#: of format 1 killed midway left .levelK.tif.tmp and .pyramid.json.*.tmp temp files inside.
+_PYRAMID_FILE = re.compile(
+    r"^(pyramid\.json|level\d+\.tif(\.aux\.xml)?|\.level\d+\.tif\.tmp|\.pyramid\.json\..+\.tmp)$"
+)
+_LEVEL_FILE = re.compile(r"^level\d+\.tif$")
 
 
 @dataclass(frozen=True)
@@ -40,8 +60,11 @@ class PyramidLevel:
         return (abs(self.transform.a), abs(self.transform.e))
 
 
-def _write_level(path: Path, rgba: np.ndarray, transform: Affine, crs: str | None) -> None:
-    """Write (rows, cols, 4) uint8 as an uncompressed pixel-interleaved GeoTIFF, atomically."""
+def _write_level(
+    path: Path, rgba: np.ndarray, transform: Affine, crs: str | None, build: str, level: int
+) -> None:
+    """Write (rows, cols, 4) uint8 as an uncompressed pixel-interleaved GeoTIFF tagged with
+    the pyramid's build id and the level number (into the pyramid's temp folder)."""
     import rasterio
 
     rows, cols, _ = rgba.shape
@@ -61,17 +84,15 @@ def _write_level(path: Path, rgba: np.ndarray, transform: Affine, crs: str | Non
         # otherwise defers empty strips to the end of the file and breaks the memory map).
         "streamable_output": "YES",
     }
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        with rasterio.open(tmp, "w", **profile) as ds:
-            for r0 in range(0, rows, _CHUNK_ROWS):
-                r1 = min(rows, r0 + _CHUNK_ROWS)
-                window = rasterio.windows.Window(0, r0, cols, r1 - r0)
-                ds.write(np.moveaxis(np.asarray(rgba[r0:r1]), -1, 0), window=window)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    with rasterio.open(path, "w", **profile) as ds:
+        for r0 in range(0, rows, _CHUNK_ROWS):
+            r1 = min(rows, r0 + _CHUNK_ROWS)
+            window = rasterio.windows.Window(0, r0, cols, r1 - r0)
+            ds.write(np.moveaxis(np.asarray(rgba[r0:r1]), -1, 0), window=window)
+    # Tags go in afterwards (GDAL rewrites the directory at the end, strips stay in place):
+    # set on a streamed file before its pixels, tags longer than 4 bytes shift its strips.
+    with rasterio.open(path, "r+") as ds:
+        ds.update_tags(**{_TAG_BUILD: build, _TAG_LEVEL: str(level)})
 
 
 def _halve(src: np.ndarray) -> np.ndarray:
@@ -93,24 +114,61 @@ def _halve(src: np.ndarray) -> np.ndarray:
     return np.clip(np.round(out), 0, 255).astype(np.uint8)
 
 
-def _open_memmap(path: Path) -> np.ndarray:
-    """Read-only (rows, cols, 4) uint8 memory map of a level written by ``_write_level``."""
+def _level_offset(path: Path, level: PyramidLevel, build: str, k: int) -> int:
+    """Byte offset of the pixels of a level written by ``_write_level``, after checking the
+    file against its entry in pyramid.json (build id, level number, size, pixel format)."""
     import rasterio
 
-    with rasterio.open(path) as ds:
-        rows, cols = ds.height, ds.width
-        block_rows = ds.block_shapes[0][0]
-        first = ds.get_tag_item("BLOCK_OFFSET_0_0", "TIFF", bidx=1)
-        last_block = (rows - 1) // block_rows
-        last = ds.get_tag_item(f"BLOCK_OFFSET_0_{last_block}", "TIFF", bidx=1)
-        compressed = ds.compression is not None
+    try:
+        with rasterio.open(path) as ds:
+            rows, cols, count, dtypes = ds.height, ds.width, ds.count, set(ds.dtypes)
+            tags = ds.tags()
+            block_rows = ds.block_shapes[0][0]
+            first = ds.get_tag_item("BLOCK_OFFSET_0_0", "TIFF", bidx=1)
+            last_block = (rows - 1) // block_rows
+            last = ds.get_tag_item(f"BLOCK_OFFSET_0_{last_block}", "TIFF", bidx=1)
+            compressed = ds.compression is not None
+            transform = ds.transform
+    except rasterio.errors.RasterioError as exc:
+        raise StoreError(f"{path} is not a readable GeoTIFF ({exc}); rebake the pyramid.") from exc
+    if tags.get(_TAG_BUILD) != build or tags.get(_TAG_LEVEL) != str(k):
+        raise StoreError(
+            f"{path} belongs to another bake than {path.parent / 'pyramid.json'} (level {k} "
+            "of a different pyramid); the folder is inconsistent: rebake the pyramid."
+        )
+    if (cols, rows) != (level.width, level.height) or count != 4 or dtypes != {"uint8"}:
+        raise StoreError(
+            f"{path} is {cols} × {rows} × {count} {sorted(dtypes)}, but pyramid.json lists "
+            f"{level.width} × {level.height} × 4 uint8; rebake the pyramid."
+        )
+    if not transform.almost_equals(level.transform):
+        raise StoreError(f"{path} is georeferenced unlike pyramid.json says; rebake the pyramid.")
     if first is None or last is None or compressed:
         raise StoreError(f"{path} is not an uncompressed strip GeoTIFF; rebake the pyramid.")
     first, last = int(first), int(last)
     # Strips must follow one another so that the pixels form one contiguous array.
     if last - first != last_block * block_rows * cols * 4:
         raise StoreError(f"{path} stores its strips out of order; rebake the pyramid.")
-    return np.memmap(path, dtype=np.uint8, mode="r", offset=first, shape=(rows, cols, 4))
+    if first + rows * cols * 4 > path.stat().st_size:
+        raise StoreError(f"{path} is truncated; rebake the pyramid.")
+    return first
+
+
+def check_pyramid_target(folder: str | os.PathLike) -> None:
+    """Refuse, before any work, a folder that a new pyramid cannot replace whole: a file, or
+    a folder holding anything besides a texture pyramid (the swap would delete it)."""
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise StoreError(f"Cannot bake into {folder}: it is a file, not a folder.")
+    if folder.is_dir():
+        foreign = sorted(n for n in os.listdir(folder) if not _PYRAMID_FILE.match(n))
+        if foreign:
+            shown = ", ".join(foreign[:5]) + (", ..." if len(foreign) > 5 else "")
+            raise StoreError(
+                f"Cannot bake into {folder}: it holds files that are not part of a texture "
+                f"pyramid ({shown}), and a bake replaces the whole folder. Bake into a new or "
+                "empty folder, or one that holds only a pyramid."
+            )
 
 
 class TexturePyramid:
@@ -126,8 +184,19 @@ class TexturePyramid:
             )
         try:
             meta = json.loads(meta_path.read_text())
+            version = meta.get("format", 1)
+            if version != PYRAMID_FORMAT:
+                raise StoreError(
+                    f"{self.folder} is a texture pyramid of format {version}; this approxtree "
+                    f"reads format {PYRAMID_FORMAT} (levels checked against pyramid.json). "
+                    "Rebake it (approxtree bake)."
+                )
+            self.build_id: str = str(meta["build"])
             self.crs: str | None = meta["crs"]
             self.max_texture_size: int = int(meta["max_texture_size"])
+            entries = meta["levels"]
+            files = [str(lv["file"]) for lv in entries]
+            sizes = [int(lv["bytes"]) for lv in entries]
             self.levels = [
                 PyramidLevel(
                     self.folder / lv["file"],
@@ -135,11 +204,51 @@ class TexturePyramid:
                     int(lv["height"]),
                     Affine(*lv["transform"]),
                 )
-                for lv in meta["levels"]
+                for lv in entries
             ]
-        except (ValueError, KeyError, TypeError) as exc:
+        except (ValueError, KeyError, TypeError, AttributeError) as exc:
             raise StoreError(f"{meta_path} is malformed: {exc}") from exc
+        self._check_levels(files, sizes)
+        self._offsets = [
+            _level_offset(lv.path, lv, self.build_id, k) for k, lv in enumerate(self.levels)
+        ]
+        self._check_chain()
         self._maps: dict[int, np.ndarray] = {}
+
+    def _check_levels(self, files: list[str], sizes: list[int]) -> None:
+        """pyramid.json's level list against the folder: names, missing or extra files, bytes."""
+        where = self.folder / "pyramid.json"
+        if not self.levels:
+            raise StoreError(f"{where} lists no level; rebake the pyramid.")
+        if files != [f"level{k}.tif" for k in range(len(files))]:
+            raise StoreError(f"{where} names its levels {files}; rebake the pyramid.")
+        on_disk = {n for n in os.listdir(self.folder) if _LEVEL_FILE.match(n)}
+        missing = [f for f in files if f not in on_disk]
+        extra = sorted(on_disk - set(files))
+        if missing or extra:
+            what = f"missing {missing}" if missing else f"not listed in pyramid.json: {extra}"
+            raise StoreError(f"{self.folder} has level files {what}; rebake the pyramid.")
+        for lv, nbytes in zip(self.levels, sizes, strict=True):
+            actual = lv.path.stat().st_size
+            if actual != nbytes:
+                raise StoreError(
+                    f"{lv.path} has {actual} bytes, pyramid.json says {nbytes}; rebake the pyramid."
+                )
+
+    def _check_chain(self) -> None:
+        """Each level halves the one before (rounding up) until one fits the texture limit."""
+        where = self.folder / "pyramid.json"
+        for fine, coarse in zip(self.levels, self.levels[1:], strict=False):
+            if (coarse.width, coarse.height) != (-(-fine.width // 2), -(-fine.height // 2)):
+                raise StoreError(f"{where} lists levels that do not halve; rebake the pyramid.")
+        last = self.levels[-1]
+        fits = [max(lv.width, lv.height) <= self.max_texture_size for lv in self.levels]
+        if not fits[-1] or any(fits[:-1]):
+            raise StoreError(
+                f"{where} lists levels that do not end at the first one fitting "
+                f"{self.max_texture_size} texels (last {last.width} × {last.height}); "
+                "rebake the pyramid."
+            )
 
     @classmethod
     def build(
@@ -169,31 +278,50 @@ class TexturePyramid:
                 f"A texture must be (rows, cols, 4) uint8, got {rgba.shape} {rgba.dtype}."
             )
         folder = Path(folder)
-        folder.mkdir(parents=True, exist_ok=True)
-        levels = []
-        level = 0
-        current = rgba
-        t = transform
-        while True:
-            path = folder / f"level{level}.tif"
-            _write_level(path, current, t, crs)
-            rows, cols = current.shape[:2]
-            levels.append(
-                {"file": path.name, "width": cols, "height": rows, "transform": list(t)[:6]}
-            )
-            if max(rows, cols) <= max_texture_size:
-                break
-            # Texels exactly twice as large keep every level registered on level 0; an odd size
-            # repeats its last texel, so a coarser level may reach one finer texel further.
-            mapped = _open_memmap(path)
-            current = np.concatenate(
-                [_halve(mapped[r0 : r0 + _CHUNK_ROWS]) for r0 in range(0, rows, _CHUNK_ROWS)]
-            )
-            t = t @ Affine.scale(2.0)
-            level += 1
-        meta = {"crs": crs, "max_texture_size": max_texture_size, "levels": levels}
-        with atomic_write(folder / "pyramid.json") as f:
-            f.write(json.dumps(meta, indent=2).encode())
+        check_pyramid_target(folder)
+        folder.absolute().parent.mkdir(parents=True, exist_ok=True)
+        build = uuid.uuid4().hex
+        # All or nothing: the levels and pyramid.json go to a temp folder swapped in at the end.
+        with atomic_directory(folder) as tmp:
+            levels = []
+            level = 0
+            current = rgba
+            t = transform
+            while True:
+                path = tmp / f"level{level}.tif"
+                _write_level(path, current, t, crs, build, level)
+                rows, cols = current.shape[:2]
+                levels.append(
+                    {
+                        "file": path.name,
+                        "width": cols,
+                        "height": rows,
+                        "transform": list(t)[:6],
+                        "bytes": path.stat().st_size,
+                    }
+                )
+                if max(rows, cols) <= max_texture_size:
+                    break
+                # Texels exactly twice as large keep every level registered on level 0; an odd
+                # size repeats its last texel, so a coarser level may reach one finer texel
+                # further.
+                entry = PyramidLevel(path, cols, rows, t)
+                offset = _level_offset(path, entry, build, level)
+                mapped = np.memmap(path, np.uint8, mode="r", offset=offset, shape=(rows, cols, 4))
+                current = np.concatenate(
+                    [_halve(mapped[r0 : r0 + _CHUNK_ROWS]) for r0 in range(0, rows, _CHUNK_ROWS)]
+                )
+                del mapped
+                t = t @ Affine.scale(2.0)
+                level += 1
+            meta = {
+                "format": PYRAMID_FORMAT,
+                "build": build,
+                "crs": crs,
+                "max_texture_size": max_texture_size,
+                "levels": levels,
+            }
+            (tmp / "pyramid.json").write_text(json.dumps(meta, indent=2))
         return cls(folder)
 
     def __len__(self) -> int:
@@ -202,7 +330,11 @@ class TexturePyramid:
     def level(self, k: int) -> np.ndarray:
         """Level k as a read-only (rows, cols, 4) uint8 memory map."""
         if k not in self._maps:
-            self._maps[k] = _open_memmap(self.levels[k].path)
+            lv = self.levels[k]
+            shape = (lv.height, lv.width, 4)
+            self._maps[k] = np.memmap(
+                lv.path, np.uint8, mode="r", offset=self._offsets[k], shape=shape
+            )
         return self._maps[k]
 
     @property

@@ -5,11 +5,15 @@ Layout (all integers little-endian)::
     0   8 bytes  magic b"ATREE\\x00\\r\\n"
     8   u32      format version
     12  u32      header length H
-    16  u32      CRC-32 of the header
+    16  u32      CRC-32 of bytes 0–15, 20–23 and the header (version 1: of the header only)
     20  u32      reserved (0)
     24  H bytes  header: UTF-8 JSON {file_size, meta, sections: {name: [offset, length, crc]}}
     ... sections, each a *record*, 8-byte aligned: "terrain", "nodes", "patch_index"
     ... one record per node patch; "patch_index" holds their offsets, lengths and CRC-32s
+
+Every byte is covered: the prefix and header by the header CRC (the reserved field must be 0),
+then sections and patches tile the rest of the file exactly (no gap, no overlap, checked on
+open), each under its own CRC-32.
 
 A record is ``u32 manifest length M``, M bytes of JSON ``{"attrs": ..., "arrays": [[name,
 dtype, shape, offset, nbytes], ...]}``, then the array bytes. No pickle: only JSON and raw
@@ -35,7 +39,9 @@ from approxtree.errors import StoreError
 from approxtree.io.atomic import atomic_write
 
 MAGIC = b"ATREE\x00\r\n"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+#: Versions this reader opens; version 1's header CRC left out the 24-byte prefix.
+READ_VERSIONS = (1, 2)
 _PREFIX = struct.Struct("<8sIIII")
 _ALIGN = 8
 
@@ -87,6 +93,13 @@ def decode_record(buf: memoryview) -> Record:
         raise
     except (ValueError, KeyError, TypeError, struct.error) as exc:
         raise StoreError(f"malformed record in tree file: {exc}") from exc
+
+
+def _header_crc(version: int, prefix: bytes | memoryview, header: bytes | memoryview) -> int:
+    """The CRC-32 stored at offset 16: over bytes 0–15, 20–23 and the header (version 2)."""
+    if version == 1:
+        return zlib.crc32(header)
+    return zlib.crc32(header, zlib.crc32(prefix[20:24], zlib.crc32(prefix[:16])))
 
 
 def _crc(chunks: Iterable[memoryview]) -> tuple[int, int]:
@@ -152,7 +165,9 @@ def write_tree_file(
         header = new_header
     else:  # pragma: no cover - the loop converges in two passes
         raise StoreError("could not lay out the tree file header")
-    prefix = _PREFIX.pack(MAGIC, FORMAT_VERSION, len(header), zlib.crc32(header), 0)
+    unsigned = _PREFIX.pack(MAGIC, FORMAT_VERSION, len(header), 0, 0)
+    crc = _header_crc(FORMAT_VERSION, unsigned, header)
+    prefix = _PREFIX.pack(MAGIC, FORMAT_VERSION, len(header), crc, 0)
     with atomic_write(path) as f:
         f.write(prefix)
         f.write(header)
@@ -181,30 +196,70 @@ class TreeFile:
         with open(self.path, "rb") as f:
             self._mm = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
         self.buf = memoryview(self._mm)
-        magic, version, hlen, hcrc, _ = _PREFIX.unpack_from(self.buf, 0)
+        magic, version, hlen, hcrc, reserved = _PREFIX.unpack_from(self.buf, 0)
         if magic != MAGIC:
             raise StoreError(
                 f"{self.path} is not an approxtree tree file (bad magic bytes); rebuild it with "
                 "`approxtree build`."
             )
-        if version != FORMAT_VERSION:
+        if version not in READ_VERSIONS:
             raise StoreError(
-                f"{self.path} has tree format version {version}; this approxtree reads version "
-                f"{FORMAT_VERSION}. Rebuild the tree with this version."
+                f"{self.path} has tree format version {version}; this approxtree reads versions "
+                f"{', '.join(map(str, READ_VERSIONS))}. Rebuild the tree with this version."
             )
         raw = self.buf[_PREFIX.size : _PREFIX.size + hlen]
-        if len(raw) != hlen or zlib.crc32(raw) != hcrc:
+        prefix = self.buf[: _PREFIX.size]
+        if len(raw) != hlen or _header_crc(version, prefix, raw) != hcrc:
             raise StoreError(f"{self.path} is corrupted: header checksum mismatch. Rebuild it.")
-        header = json.loads(bytes(raw))
-        if header["file_size"] != size:
+        # Version 1 left the reserved field out of every checksum: it must hold its zeros.
+        if reserved != 0:
+            raise StoreError(f"{self.path} is corrupted: reserved header bytes set. Rebuild it.")
+        try:
+            header = json.loads(bytes(raw))
+            file_size = int(header["file_size"])
+            self.meta: dict[str, Any] = header["meta"]
+            self._sections: dict[str, list[int]] = header["sections"]
+            self._patch_base: int = int(header["patch_base"])
+        except (ValueError, KeyError, TypeError) as exc:
+            raise StoreError(f"{self.path} is corrupted: malformed header ({exc}).") from exc
+        if file_size != size:
             raise StoreError(
                 f"{self.path} is truncated or padded: {size} bytes, expected "
-                f"{header['file_size']}. Rebuild it."
+                f"{file_size}. Rebuild it."
             )
-        self.meta: dict[str, Any] = header["meta"]
-        self._sections: dict[str, list[int]] = header["sections"]
-        self._patch_base: int = header["patch_base"]
         self.patch_index = self.section("patch_index")[1]
+        self._check_tiling(_PREFIX.size + hlen, size)
+
+    def _check_tiling(self, start: int, size: int) -> None:
+        """Sections, then patches, must cover bytes ``start``..``size`` exactly, so that no
+        byte of the file escapes every checksum."""
+        try:
+            spans = sorted((int(o), int(n)) for o, n, _ in self._sections.values())
+        except (ValueError, TypeError) as exc:
+            raise StoreError(f"{self.path} is corrupted: malformed section table.") from exc
+        pos = start
+        for offset, length in spans:
+            if offset != pos or length < 0:
+                raise StoreError(
+                    f"{self.path} is corrupted: sections leave a gap or overlap at byte {pos}. "
+                    "Rebuild it."
+                )
+            pos += length
+        offsets = np.asarray(self.patch_index["offset"], dtype=np.int64)
+        lengths = np.asarray(self.patch_index["length"], dtype=np.int64)
+        ends = np.cumsum(lengths)
+        tiled = (
+            pos == self._patch_base
+            and offsets.shape == lengths.shape
+            and not (lengths < 0).any()
+            and (offsets[1:] == ends[:-1]).all()
+            and (len(offsets) == 0 or offsets[0] == 0)
+            and self._patch_base + int(ends[-1] if len(ends) else 0) == size
+        )
+        if not tiled:
+            raise StoreError(
+                f"{self.path} is corrupted: patch records do not tile the patch area. Rebuild it."
+            )
 
     def section(self, name: str) -> Record:
         """A verified section record."""
