@@ -158,6 +158,8 @@ def _check_vlrs(path: Path, f: BinaryIO, layout: LasLayout) -> bytes | None:
     laszip = None
     pos = layout.header_size
     for i in range(layout.vlr_count):
+        if pos + _VLR_HEADER > layout.point_offset:
+            raise _bad(path, f"VLR {i} at offset {pos} runs past the point data offset")
         head = _read_at(f, pos, _VLR_HEADER)
         user_id = head[2:18].rstrip(b"\x00")
         record_id, length = struct.unpack_from("<HH", head, 18)

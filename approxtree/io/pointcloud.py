@@ -40,8 +40,8 @@ def read_point_cloud(
     crs = check_crs(crs)
     # laspy and lazrs trust the header (a bad one hangs laspy or aborts the process in lazrs):
     # every size and offset is checked against the file and the memory first.
-    check_las_layout(p)
     with reading(p, "a LAS/LAZ point cloud"):
+        check_las_layout(p)
         import laspy
 
         las = laspy.read(p)
