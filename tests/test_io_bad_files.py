@@ -1,7 +1,8 @@
 """Crafted bad files: each reader answers TerrainFormatError (or warns), never aborts or hangs.
 
 The LAS/LAZ files are autzen_trim.laz (or a LAS 1.4 copy of part of it) with header bytes
-patched. Reads that could abort the interpreter (lazrs allocation failures) or hang run in a
+patched; the others are small files with a patched pixel size or size field. Reads that could
+abort the interpreter (lazrs allocation failures), hang, or allocate hundreds of GB run in a
 child process under a 4 GB address-space limit and a watchdog, so a regression fails the test
 instead of killing pytest.
 """
