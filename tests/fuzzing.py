@@ -35,7 +35,7 @@ from approxtree.errors import ApproxTreeError
 WATCHDOG_SECONDS = 60.0
 
 
-def fuzz_settings(cases: int, derandomize: bool = True, seconds: float = 3.0) -> settings:
+def fuzz_settings(cases: int, derandomize: bool = True, seconds: float = 5.0) -> settings:
     """Hypothesis settings of a fuzz run: no example database, a per-case deadline, and no
     "explain" phase (its line tracing slows numba's compiler and every reader tenfold)."""
     return settings(
