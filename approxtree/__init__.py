@@ -23,7 +23,7 @@ from approxtree.geometry import (
 
 __version__ = "0.1.0"
 
-from approxtree.tree import ApproximationTree, Node, StrategyPolicy
+from approxtree.tree import ApproximationTree, Node, PointQuadtree, StrategyPolicy, load_tree
 
 
 def __getattr__(name: str):
@@ -57,6 +57,7 @@ __all__ = [
     "InvalidParameterError",
     "Node",
     "NonRegularGrid",
+    "PointQuadtree",
     "Rect",
     "StoreError",
     "StrategyPolicy",
@@ -65,5 +66,6 @@ __all__ = [
     "TerrainFormatError",
     "UnsupportedStrategyError",
     "__version__",
+    "load_tree",
     "open_terrain",
 ]

@@ -63,7 +63,11 @@ def _emit(figures: dict[str, Any], as_json: bool) -> None:
 
 
 def reader_options(fn: Callable[..., Any]) -> Callable[..., Any]:
-    """Options that choose how a terrain file is read (shared by info and build)."""
+    """Options that choose how a terrain file is read (shared by the commands taking a terrain).
+
+    Every default is "not given": each format reads with its own defaults, and an option given
+    explicitly to a format that does not take it is an error.
+    """
     fn = click.option(
         "--encoding",
         type=click.Choice(["terrain-rgb", "terrarium"]),
@@ -73,9 +77,9 @@ def reader_options(fn: Callable[..., Any]) -> Callable[..., Any]:
         "--nodata",
         "nodata_policy",
         type=click.Choice(["mask", "fill"]),
-        default="mask",
-        show_default=True,
-        help="Leave nodata out of the terrain (mask) or fill the holes by interpolation.",
+        default=None,
+        help="Grids: leave nodata out of the terrain (mask) or fill the holes by interpolation "
+        "[default: mask].",
     )(fn)
     fn = click.option(
         "--ground-only", is_flag=True, help="Point clouds: keep ground points (class 2) only."
@@ -89,20 +93,79 @@ def reader_options(fn: Callable[..., Any]) -> Callable[..., Any]:
 def _open(
     path: str,
     encoding: str | None,
-    nodata_policy: str,
+    nodata_policy: str | None,
     ground_only: bool,
     height_scale: float | None,
 ):
+    """Read a terrain file, passing only the reader options the user gave.
+
+    An option left at its default is "not given", so every format reads with its own defaults;
+    an option given explicitly that the format does not take is an InvalidParameterError.
+    """
     from approxtree.io import open_terrain
 
-    options: dict[str, Any] = {"nodata": nodata_policy}
+    options = _given_reader_options(encoding, nodata_policy, ground_only, height_scale)
+    _check_reader_flags(path, options)
+    return open_terrain(path, **options)
+
+
+#: The reader options of the command line, by the keyword the readers take.
+_READER_FLAGS = {
+    "encoding": "--encoding",
+    "nodata": "--nodata",
+    "ground_only": "--ground-only",
+    "height_scale": "--height-scale",
+}
+
+
+def _given_reader_options(
+    encoding: str | None, nodata_policy: str | None, ground_only: bool, height_scale: float | None
+) -> dict[str, Any]:
+    """The reader options given on the command line, as open_terrain keywords."""
+    options: dict[str, Any] = {}
+    if nodata_policy is not None:
+        options["nodata"] = nodata_policy
     if encoding:
         options["encoding"] = encoding
     if ground_only:
         options["ground_only"] = True
     if height_scale is not None:
         options["height_scale"] = height_scale
-    return open_terrain(path, **options)
+    return options
+
+
+def _check_reader_flags(path: str, options: dict[str, Any]) -> None:
+    """InvalidParameterError, worded with the command's flags, for a given reader option that
+    the file's format does not take (the readers word it with their keyword names)."""
+    from approxtree.errors import InvalidParameterError
+    from approxtree.io import detect_format
+    from approxtree.io._common import existing_file
+
+    if not options:
+        return
+    fmt = detect_format(existing_file(path), encoding=options.get("encoding"))
+    for name in options:
+        if name not in fmt.options:
+            takes = [flag for key, flag in _READER_FLAGS.items() if key in fmt.options]
+            hint = (
+                f"its reader options: {', '.join(takes)}" if takes else "it has no reader options"
+            )
+            raise InvalidParameterError(
+                f"{_READER_FLAGS[name]} does not apply to {path}, a {fmt.name} file ({hint}); "
+                "leave it out."
+            )
+
+
+def _no_reader_flags_for_tree(path: str, options: dict[str, Any]) -> None:
+    """InvalidParameterError when reader options are given with a tree file (.atree)."""
+    from approxtree.errors import InvalidParameterError
+
+    if options:
+        flags = ", ".join(_READER_FLAGS[name] for name in options)
+        raise InvalidParameterError(
+            f"{flags} choose how a terrain file is read; {path} is a tree file (.atree), "
+            "already built. Leave them out."
+        )
 
 
 def _refine(terrain, files, width: float, depth: float, profile: str, spacing: float | None):
@@ -258,6 +321,14 @@ def info(dem: str, encoding, nodata_policy, ground_only, height_scale, as_json: 
     default=None,
     help="Corridor sample spacing (map units) [default: a third of the grid cell].",
 )
+@click.option(
+    "--kind",
+    type=click.Choice(["approximation-tree", "point-quadtree"]),
+    default="approximation-tree",
+    show_default=True,
+    help="Tree to build: the approximation tree, or the point quadtree of scattered points "
+    "(seed 003; --max-points is its δ, default 50; ε, fanout and policy do not apply).",
+)
 @reader_options
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
 @_reports_errors
@@ -273,6 +344,7 @@ def build(
     microstructure_depth: float,
     microstructure_profile: str,
     microstructure_spacing: float | None,
+    kind: str,
     encoding,
     nodata_policy,
     ground_only,
@@ -280,9 +352,16 @@ def build(
     as_json: bool,
 ) -> None:
     """Build the approximation tree of a terrain file and save it."""
+    from approxtree.io.output_path import check_output_file
     from approxtree.tree import ApproximationTree
 
+    check_output_file(out, "tree file")
     terrain = _open(dem, encoding, nodata_policy, ground_only, height_scale)
+    if kind == "point-quadtree":
+        given = click.get_current_context().get_parameter_source("max_points")
+        delta = None if given == click.core.ParameterSource.DEFAULT else max_points
+        _emit(_build_point_quadtree(dem, terrain, delta, out), as_json)
+        return
     if microstructure_files:
         terrain = _refine(
             terrain,
@@ -299,6 +378,24 @@ def build(
     seconds = time.perf_counter() - t0
     nbytes = tree.save(out)
     _emit(tree_figures(tree, seconds, nbytes), as_json)
+
+
+def _build_point_quadtree(path: str, terrain, delta: int | None, out: str) -> dict[str, Any]:
+    """Build and save the PointQuadtree of a point set (δ = delta, default 50); its figures."""
+    from approxtree.errors import InvalidParameterError
+    from approxtree.geometry import TIN
+    from approxtree.tree import PointQuadtree
+
+    if not isinstance(terrain, TIN):
+        raise InvalidParameterError(
+            f"--kind point-quadtree needs scattered points or a TIN (LAS/LAZ, quantized-mesh); "
+            f"{path} reads as a {terrain.kind}. Build an approximation tree of it instead."
+        )
+    t0 = time.perf_counter()
+    tree = PointQuadtree(terrain) if delta is None else PointQuadtree(terrain, delta)
+    seconds = time.perf_counter() - t0
+    nbytes = tree.save(out)
+    return {**tree.stats(), "seconds": round(seconds, 4), "bytes": nbytes}
 
 
 @main.command()
@@ -324,8 +421,14 @@ def demo(out: str, epsilon: float, png: str | None, as_json: bool) -> None:
     """Build the tree of the sample terrain (matplotlib's Jacksboro fault DEM), bake its
     hillshade pyramid (next to the tree, <out>_textures/) and render it textured."""
     from approxtree.datasets import sample_terrain
+    from approxtree.io.output_path import check_output_file, check_output_folder
     from approxtree.tree import ApproximationTree
 
+    png_path = Path(png) if png else Path(out).with_suffix(".png")
+    folder = Path(out).with_name(Path(out).stem + "_textures")
+    check_output_file(out, "tree file")
+    check_output_file(png_path, "image")
+    check_output_folder(folder, "texture pyramid folder")
     terrain = sample_terrain()
     t0 = time.perf_counter()
     tree = ApproximationTree.build(terrain, epsilon=epsilon)
@@ -339,10 +442,8 @@ def demo(out: str, epsilon: float, png: str | None, as_json: bool) -> None:
     # unlit: the baked hillshade is the shading (decal mode, core paper 5.1).
     from approxtree.textures.bake import bake as bake_textures
 
-    folder = Path(out).with_name(Path(out).stem + "_textures")
     baked = bake_textures(terrain, folder)
     figures.update(textures=str(folder), bake_seconds=round(baked.seconds, 4), bake_gl=baked.gl)
-    png_path = Path(png) if png else Path(out).with_suffix(".png")
     figures.update(
         _render_to_png(
             tree,
@@ -408,8 +509,11 @@ def _render_to_png(
 
     from approxtree.io.atomic import atomic_write
     from approxtree.render import Camera, Engine, overview_camera
+    from approxtree.render.engine import EmptyFrameWarning
 
-    with Engine(tree, textures=textures) as engine:
+    # An empty frame is reported below as one Warning line, not as Python's warning text.
+    with warnings.catch_warnings(), Engine(tree, textures=textures) as engine:
+        warnings.simplefilter("ignore", EmptyFrameWarning)
         box = tree.bboxes[0]
         if eye is None:
             camera = overview_camera(box, engine.scale, fov=fov)
@@ -432,6 +536,8 @@ def _render_to_png(
         Image.fromarray(frame.image, mode="RGBA").save(f, format="PNG")
     stats = {k: (_finite(v) if isinstance(v, float) else v) for k, v in frame.stats.items()}
     stats["image"] = str(path)
+    if stats.get("warning"):
+        click.echo(f"Warning: {stats['warning']}", err=True)
     return stats
 
 
@@ -484,9 +590,11 @@ def render(
     as_json: bool,
 ) -> None:
     """Render a tree file to a PNG (alpha 0 where no terrain is drawn) and print the stats."""
-    from approxtree.tree import ApproximationTree
+    from approxtree.io.output_path import check_output_file
+    from approxtree.tree import load_tree
 
-    tree = ApproximationTree.load(tree_file)
+    check_output_file(out, "image")
+    tree = load_tree(tree_file)
     stats = _render_to_png(
         tree,
         Path(out),
@@ -557,6 +665,7 @@ def mesh(
     if out is not None:
         mesh_format(out)
     terrain = _open(dem, encoding, nodata_policy, ground_only, height_scale)
+    _check_mesh_strategy(dem, terrain, strategy)
     result = approximate(
         terrain, strategy, max_error, max_points, max_triangles, data_dependent=data_dependent
     )
@@ -565,6 +674,18 @@ def mesh(
         meta = {"strategy": strategy, "crs": terrain.crs, "max_error": figures["max_error"]}
         figures.update(write_mesh(out, result.vertices, result.triangles, meta))
     _emit(figures, as_json)
+
+
+def _check_mesh_strategy(path: str, terrain, strategy: str) -> None:
+    """InvalidParameterError for a lattice strategy asked of a TIN or a point cloud."""
+    from approxtree.errors import InvalidParameterError
+    from approxtree.geometry import Grid
+
+    if strategy != "tin" and not isinstance(terrain, Grid):
+        raise InvalidParameterError(
+            f"--strategy {strategy} needs a raster grid; {path} reads as a {terrain.kind} "
+            "(scattered points or triangles): use --strategy tin."
+        )
 
 
 @main.command("bake")
@@ -646,15 +767,23 @@ def bake_command(
 ) -> None:
     """Bake a terrain's textures (DEM file or .atree tree) into a pyramid folder.
 
+    A point cloud or TIN is shaded from its heights sampled on a lattice (--texel, default its
+    mean point spacing).
+
     The folder holds pyramid.json and one georeferenced RGBA GeoTIFF per level, level0.tif
     the finest (pure shading: R = G = B = shade).
     """
     from approxtree.errors import InvalidParameterError
+    from approxtree.io.output_path import check_output_folder
     from approxtree.textures.bake import bake
 
+    check_output_folder(out, "texture pyramid folder")
     if source.endswith(".atree"):
         from approxtree.tree import ApproximationTree
 
+        _no_reader_flags_for_tree(
+            source, _given_reader_options(encoding, nodata_policy, ground_only, height_scale)
+        )
         terrain = ApproximationTree.load(source).terrain
     else:
         terrain = _open(source, encoding, nodata_policy, ground_only, height_scale)
@@ -685,15 +814,17 @@ def bake_command(
     _emit(result.figures(), as_json)
 
 
-def _open_tree(path: str, epsilon: float):
-    """A tree file (.atree) as saved, or any terrain file built into a tree now."""
-    from approxtree.tree import ApproximationTree
+def _open_tree(path: str, epsilon: float, reader: dict[str, Any]):
+    """A tree file (.atree) as saved, or any terrain file built into a tree now.
+
+    reader: the reader options given (encoding, nodata_policy, ground_only, height_scale).
+    """
+    from approxtree.tree import ApproximationTree, load_tree
 
     if Path(path).suffix.lower() == ".atree":
-        return ApproximationTree.load(path)
-    from approxtree.io import open_terrain
-
-    return ApproximationTree.build(open_terrain(path), epsilon=epsilon, progress=False)
+        _no_reader_flags_for_tree(path, _given_reader_options(**reader))
+        return load_tree(path)
+    return ApproximationTree.build(_open(path, **reader), epsilon=epsilon, progress=False)
 
 
 @main.command()
@@ -754,6 +885,7 @@ def _open_tree(path: str, epsilon: float):
     default=None,
     help="Stop uploading meshes after this many milliseconds in a frame (after one).",
 )
+@reader_options
 @_reports_errors
 def view(
     source: str,
@@ -770,16 +902,31 @@ def view(
     frames: int | None,
     max_uploads: int,
     upload_ms: float | None,
+    encoding,
+    nodata_policy,
+    ground_only,
+    height_scale,
 ) -> None:
     """Open an interactive window over a tree file or a DEM (F1 in the window: keys)."""
+    from approxtree.io.output_path import check_output_file, check_output_folder
     from approxtree.render.selector import check_thresholds
     from approxtree.viewer import load_script, parse_key_presses, script_frames
     from approxtree.viewer.app import Viewer
 
     check_thresholds(alpha, gamma)
+    if stats_path is not None:
+        check_output_file(stats_path, "stats file")
+    if screenshots is not None:
+        check_output_folder(screenshots, "screenshot folder")
     presses = parse_key_presses(keys_text)
     script = script_frames(load_script(script_path)) if script_path else None
-    tree = _open_tree(source, epsilon)
+    reader = dict(
+        encoding=encoding,
+        nodata_policy=nodata_policy,
+        ground_only=ground_only,
+        height_scale=height_scale,
+    )
+    tree = _open_tree(source, epsilon, reader)
     with Viewer(
         tree,
         textures=list(textures),
@@ -849,6 +996,10 @@ def rd(
     from approxtree.rd import lattice_heights, rd_curves
     from approxtree.rd.curves import json_ready, plot_rd
 
+    if plot:
+        from approxtree.io.output_path import check_output_file
+
+        check_output_file(plot, "plot")
     terrain = _open(dem, encoding, nodata_policy, ground_only, height_scale)
     if not isinstance(terrain, Grid):
         from approxtree.errors import InvalidParameterError

@@ -179,11 +179,14 @@ def test_kd_tree_a25_2_over_scattered_points(quadtree):
 
 
 def test_save_load_round_trip(quadtree, tmp_path):
-    """save → load gives the same nodes, orders and LOD mesh; a foreign file is a StoreError."""
-    path = tmp_path / "q.npz"
+    """save → load through the .atree tree file gives the same nodes, errors, boxes, orders and
+    LOD mesh; foreign and old .npz files are StoreErrors that say what to do."""
+    path = tmp_path / "q.atree"
     assert quadtree.save(path) == path.stat().st_size
+    assert path.read_bytes()[:5] == b"ATREE"
     back = PointQuadtree.load(path)
     assert back.children == quadtree.children and back.errors == quadtree.errors
+    np.testing.assert_array_equal(back.bboxes, quadtree.bboxes)
     for leaf in quadtree.leaves:
         np.testing.assert_array_equal(back.orders[leaf][0], quadtree.orders[leaf][0])
         np.testing.assert_array_equal(back.orders[leaf][1], quadtree.orders[leaf][1])
@@ -191,10 +194,29 @@ def test_save_load_round_trip(quadtree, tmp_path):
     a, b = quadtree.lod_mesh(eye, 60.0, 640, 2.0), back.lod_mesh(eye, 60.0, 640, 2.0)
     np.testing.assert_array_equal(a.triangles, b.triangles)
     np.testing.assert_array_equal(a.vertices, b.vertices)
-    bad = tmp_path / "bad.npz"
-    np.savez(bad, x=np.zeros(3))
-    with pytest.raises(at.StoreError, match="point quadtree"):
-        PointQuadtree.load(bad)
-    (tmp_path / "junk.npz").write_bytes(b"not a zip")
-    with pytest.raises(at.StoreError, match="Cannot read"):
-        PointQuadtree.load(tmp_path / "junk.npz")
+    old = tmp_path / "old.npz"
+    np.savez(old, x=np.zeros(3))
+    with pytest.raises(at.StoreError, match=r"earlier version.*--kind point-quadtree"):
+        PointQuadtree.load(old)
+    (tmp_path / "junk.atree").write_bytes(b"not a tree file at all")
+    with pytest.raises(at.StoreError, match="not an approxtree tree file"):
+        PointQuadtree.load(tmp_path / "junk.atree")
+
+
+def test_node_error_bounds_every_fan_the_node_is_drawn_as(quadtree):
+    """δ of an internal node is the largest measured error over the 16 fans it can be drawn
+    as (each side's midpoint present or not), so a coarse node drawn beside finer neighbours
+    never shows more error than δ; the bound is reached by one of them."""
+    import itertools
+
+    internal = [n for n, inner in quadtree.children.items() if inner]
+    for node in internal[:: max(1, len(internal) // 30)]:
+        lo, hi = quadtree.point_range(node)
+        pts = quadtree.points[lo:hi]
+        measured = []
+        for mids in itertools.product((False, True), repeat=4):
+            v = quadtree.boundary(node, list(mids))
+            t = np.array([[0, a, a + 1 if a + 1 < len(v) else 1] for a in range(1, len(v))])
+            measured.append(mesh_error(v, t, pts))
+            assert quadtree.fan_error(node, mids) == pytest.approx(measured[-1], abs=1e-9)
+        assert quadtree.errors[node] == pytest.approx(max(measured), abs=1e-9)

@@ -16,15 +16,16 @@ from typing import Any
 
 import numpy as np
 
-from approxtree.errors import InvalidParameterError, StoreError
+from approxtree.errors import InvalidParameterError
 from approxtree.io.atomic import atomic_write
+from approxtree.io.output_path import check_output_file
 
 #: Extension → trimesh file type.
 MESH_FORMATS = {".ply": "ply", ".obj": "obj", ".glb": "glb"}
 
 
 def mesh_format(path: str | os.PathLike) -> str:
-    """The trimesh file type of ``path`` from its extension; checks the folder exists."""
+    """The trimesh file type of ``path`` from its extension; checks a file can be written there."""
     target = Path(path)
     kind = MESH_FORMATS.get(target.suffix.lower())
     if kind is None:
@@ -32,9 +33,7 @@ def mesh_format(path: str | os.PathLike) -> str:
             f"Cannot write a mesh to {target}: unknown extension {target.suffix!r}; "
             f"use one of {', '.join(MESH_FORMATS)}."
         )
-    folder = target.parent if str(target.parent) else Path(".")
-    if not folder.is_dir():
-        raise StoreError(f"Cannot write {target}: the folder {folder} does not exist.")
+    check_output_file(target, "mesh file")
     return kind
 
 

@@ -45,12 +45,18 @@ def fan_errors(
     start: np.ndarray,
     stop: np.ndarray,
     squares: np.ndarray,
-    corner_z: np.ndarray,
+    ring_z: np.ndarray,
 ) -> np.ndarray:
-    """δ(node) = max |z − fan| over the node's points, fan = 4 triangles centre–corners.
+    """δ(node) = max |z − fan| over the node's points, for every fan the node can be drawn as.
+
+    A drawn node is a fan around its centre through its corners and, on each side whose drawn
+    neighbour is finer, the side's midpoint. Each point lies in the sector of one side, where
+    only that side's choice matters, so the largest error over all 16 fans is the largest of
+    the 4-triangle fan's and the 8-triangle fan's errors at each point.
 
     px, py, pz: (n,) points sorted so node k owns start[k]:stop[k]; squares: (m, 3) x0, y0,
-    size; corner_z: (m, 5) heights of corners SW, SE, NE, NW and the centre.
+    size; ring_z: (m, 9) heights of corners SW, SE, NE, NW, the centre, then the midpoints
+    of sides S, E, N, W.
     """
     m = start.shape[0]
     out = np.zeros(m)
@@ -59,6 +65,7 @@ def fan_errors(
         cxs = np.array([x0, x0 + s, x0 + s, x0])
         cys = np.array([y0, y0, y0 + s, y0 + s])
         mx, my = x0 + 0.5 * s, y0 + 0.5 * s
+        cz = ring_z[k, 4]
         worst = 0.0
         for p in range(start[k], stop[k]):
             best = np.inf
@@ -66,8 +73,17 @@ def fan_errors(
                 f = (e + 1) % 4
                 l1, l2, l3 = _bary(mx, my, cxs[e], cys[e], cxs[f], cys[f], px[p], py[p])
                 if l1 >= -1e-9 and l2 >= -1e-9 and l3 >= -1e-9:
-                    h = l1 * corner_z[k, 4] + l2 * corner_z[k, e] + l3 * corner_z[k, f]
+                    h = l1 * cz + l2 * ring_z[k, e] + l3 * ring_z[k, f]
                     best = abs(pz[p] - h)
+                    # The same sector split at the side's midpoint.
+                    hx, hy, hz = 0.5 * (cxs[e] + cxs[f]), 0.5 * (cys[e] + cys[f]), ring_z[k, 5 + e]
+                    l1, l2, l3 = _bary(mx, my, cxs[e], cys[e], hx, hy, px[p], py[p])
+                    if not (l1 >= -1e-9 and l2 >= -1e-9 and l3 >= -1e-9):
+                        l1, l2, l3 = _bary(mx, my, hx, hy, cxs[f], cys[f], px[p], py[p])
+                        h = l1 * cz + l2 * hz + l3 * ring_z[k, f]
+                    else:
+                        h = l1 * cz + l2 * ring_z[k, e] + l3 * hz
+                    best = max(best, abs(pz[p] - h))
                     break
             worst = max(worst, best)
         out[k] = worst
@@ -145,3 +161,72 @@ def insert_points(
                     locate(q, nt, nt + 2)
         nt += 2
     return order, errors, tris[:nt].copy()
+
+
+@njit(cache=True)
+def range_z_bounds(pz: np.ndarray, start: np.ndarray, stop: np.ndarray) -> np.ndarray:
+    """(m, 2) min and max of pz[start[k]:stop[k]] per range k (+inf, −inf when empty)."""
+    m = start.shape[0]
+    out = np.empty((m, 2))
+    for k in range(m):
+        lo, hi = np.inf, -np.inf
+        for p in range(start[k], stop[k]):
+            lo = min(lo, pz[p])
+            hi = max(hi, pz[p])
+        out[k, 0], out[k, 1] = lo, hi
+    return out
+
+
+@njit(cache=True)
+def first_within(
+    errors: np.ndarray, start: np.ndarray, count: np.ndarray, budget: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per leaf i: the fewest insertions k whose recorded error is within budget[i].
+
+    errors: recorded errors of all leaves, leaf i owning errors[start[i]:start[i] + count[i]]
+    (error after 0..count[i] − 1 insertions). Returns (k (m,) int64, error after k (m,)); the
+    last prefix when none is within.
+    """
+    m = start.shape[0]
+    ks = np.empty(m, dtype=np.int64)
+    es = np.empty(m)
+    for i in range(m):
+        k = count[i] - 1
+        for j in range(count[i]):
+            if errors[start[i] + j] <= budget[i]:
+                k = j
+                break
+        ks[i] = k
+        es[i] = errors[start[i] + k]
+    return ks, es
+
+
+@njit(cache=True)
+def insertion_orders(
+    bases: np.ndarray, base_start: np.ndarray, pts: np.ndarray, start: np.ndarray, stop: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Greedy insertion orders of many leaves (``insert_points`` per leaf, one call in all).
+
+    bases: (B, 3) the leaves' base rings one after the other, leaf k's at
+    bases[base_start[k]:base_start[k + 1]]; pts: (n, 3) points, leaf k owning
+    pts[start[k]:stop[k]]. Returns (orders (Σ n_k,) leaf-local point indices, errors
+    (Σ (n_k + 1),)), leaf after leaf.
+    """
+    m = start.shape[0]
+    total = 0
+    for k in range(m):
+        total += stop[k] - start[k]
+    orders = np.empty(total, dtype=np.int64)
+    errors = np.empty(total + m)
+    o = 0
+    e = 0
+    none = np.full(1, -1, dtype=np.int64)
+    for k in range(m):
+        n = stop[k] - start[k]
+        base = bases[base_start[k] : base_start[k + 1]]
+        order, errs, _ = insert_points(base, pts[start[k] : stop[k]], none, n)
+        orders[o : o + n] = order
+        errors[e : e + n + 1] = errs
+        o += n
+        e += n + 1
+    return orders, errors

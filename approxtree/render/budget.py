@@ -5,7 +5,8 @@ Pure and GL-free, like ``selector``: (tree, FrameState, max_triangles, node tria
 of the visible tree has every selected node's α_N <= α* and at most max_triangles triangles,
 and draws that cut (the one with the fewest triangles). γ is reported, not constrained.
 
-1. Traverse every node whose box meets the frustum; α_N, γ_N as in threshold mode. Culled
+1. Traverse every node whose box meets the frustum; α_N, γ_N as in threshold mode (α_N bounds
+   the node's screen error anywhere in the view, see visual_error.py). Culled
    nodes cost 0 triangles and are skipped with their subtree.
 2. For a candidate a, cost(a) = the fewest triangles of a cut whose selected nodes all have
    α_N <= a, by one bottom-up pass: cost(N) = sum over children when N has children, replaced
@@ -31,7 +32,12 @@ from approxtree.render.frame_state import FrameState
 from approxtree.render.frustum import box_in_frustum
 from approxtree.render.selector import Selection, SelectionResult, _stats, eye_below_ground
 from approxtree.render.skirts import patches_reach_rect, skirt_edge_count
-from approxtree.render.visual_error import node_visual_errors, texel_sizes
+from approxtree.render.visual_error import (
+    box_tuple,
+    frame_tuples,
+    node_visual_errors,
+    texel_sizes,
+)
 
 
 def node_triangles(tree, skirts: bool = True) -> np.ndarray:
@@ -133,6 +139,8 @@ def _visible_tree(bboxes, errors, texels, child_start, child_count, planes, eye,
     Returns (ids (v,), first (v,) position of the first child in ids (−1: none traversed),
     α (v,), γ (v,), visible (v,) bool). Children of a node are contiguous in ids.
     """
+    # The frame as tuples: per-node calls then pass no arrays (see node_visual_errors).
+    mt, et, lt = frame_tuples(m, eye, lens)
     cap = min(bboxes.shape[0], 4096)
     ids = np.empty(cap, dtype=np.int64)
     first = np.full(cap, -1, dtype=np.int64)
@@ -146,7 +154,7 @@ def _visible_tree(bboxes, errors, texels, child_start, child_count, planes, eye,
         if box_in_frustum(bboxes[i], planes):
             vis[head] = True
             a, g = node_visual_errors(
-                bboxes[i], errors[i], texels[i, 0], texels[i, 1], eye, m, vw, vh, lens
+                box_tuple(bboxes, i), errors[i], texels[i, 0], texels[i, 1], et, mt, vw, vh, lt
             )
             a_out[head] = a
             g_out[head] = g

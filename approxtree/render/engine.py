@@ -34,6 +34,7 @@ import itertools
 import math
 import os
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -76,6 +77,8 @@ STAT_KEYS = (
     "gpu_bytes",
     "texture_patches",
     "texture_switches",
+    "empty",
+    "warning",
 )
 
 _INSTALL_HINT = (
@@ -115,6 +118,40 @@ def _check_drawable(tree) -> None:
         )
 
 
+class EmptyFrameWarning(UserWarning):
+    """A frame shows no terrain (camera under the ground, frustum that misses the terrain)."""
+
+
+def empty_frame_reason(
+    selection: Selection, triangles: int, image: np.ndarray | None
+) -> str | None:
+    """Why a frame shows no terrain, or None when it shows some.
+
+    image: (h, w, 4) uint8 read back (alpha 0 where nothing is drawn), or None when not read.
+    """
+    if selection.below_ground:
+        return (
+            "The camera is below the terrain surface: the frame shows no terrain. Move the "
+            "eye above the ground."
+        )
+    if len(selection.nodes) == 0:
+        return (
+            "No part of the terrain lies in the view frustum: the frame shows no terrain. "
+            "Aim the camera at the terrain."
+        )
+    if triangles == 0:
+        return (
+            "The patches in view hold no triangle (isolated valid data points): the frame "
+            "shows no terrain."
+        )
+    if image is not None and not image[..., 3].any():
+        return (
+            "No terrain pixel was drawn: the terrain's bounding boxes touch the view frustum "
+            "but its surface stays outside the image. Aim the camera at the terrain."
+        )
+    return None
+
+
 @dataclass
 class Frame:
     """One rendered frame.
@@ -149,6 +186,14 @@ class Engine:
     framebuffer bound in ``context``).
     skirts: hang skirts below patch borders (off only to show what they close).
     """
+
+    def __new__(cls, tree: Any, *args: Any, **kwargs: Any) -> Engine:
+        # A PointQuadtree (seed 003) is drawn by its own engine: its cut is a per-view mesh.
+        if cls is Engine and getattr(tree, "tree_kind", None) == "point_quadtree":
+            from approxtree.render.point_quadtree_engine import PointQuadtreeEngine
+
+            return super().__new__(PointQuadtreeEngine)
+        return super().__new__(cls)
 
     def __init__(
         self,
@@ -285,11 +330,9 @@ class Engine:
         elif max_triangles is not None:
             selection = self._budget_selection(fs, max_triangles)
         else:
-            selection = select(self.tree, fs, alpha, gamma, self.texels)
-            if self.selection_filter is not None:
-                selection = self.selection_filter(selection, fs)
+            selection = self._select(fs, alpha, gamma)
         select_ms = (time.perf_counter() - t0) * 1e3
-        keys = [("full", int(i)) if full_resolution else ("node", int(i)) for i in selection.nodes]
+        keys = self._mesh_keys(selection, full_resolution)
         # 3. Texture patch of each mesh, and the meshes grouped by texture patch.
         tex_nodes = tex_gammas = None
         if self.pyramid is not None:
@@ -340,7 +383,25 @@ class Engine:
             "texture_patches": sum(1 for tex, _ in groups if tex is not None),
             "texture_switches": int(switches),
         }
+        # 7. A frame without terrain says so (stats and a warning) instead of a silent blank.
+        reason = empty_frame_reason(selection, triangles, image)
+        stats["empty"] = reason is not None
+        stats["warning"] = reason
+        if reason is not None:
+            warnings.warn(reason, EmptyFrameWarning, stacklevel=2)
         return Frame(image, stats, selection, fs, positions, tex_nodes, tex_gammas)
+
+    def _select(self, fs: FrameState, alpha: float, gamma: float) -> Selection:
+        """The cut of the frame by alpha and gamma (after the host's selection filter)."""
+        selection = select(self.tree, fs, alpha, gamma, self.texels)
+        if self.selection_filter is not None:
+            selection = self.selection_filter(selection, fs)
+        return selection
+
+    def _mesh_keys(self, selection: Selection, full_resolution: bool) -> list[tuple]:
+        """GPU cache keys of the meshes to draw for ``selection`` (``_mesh_data`` builds them)."""
+        kind = "full" if full_resolution else "node"
+        return [(kind, int(i)) for i in selection.nodes]
 
     def _budget_selection(self, fs: FrameState, max_triangles: int) -> Selection:
         """Selection under a triangle budget (per-node counts computed on first use)."""

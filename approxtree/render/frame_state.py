@@ -26,7 +26,7 @@ import pyrr
 
 from approxtree.errors import InvalidParameterError
 from approxtree.geometry.base import GeometryData
-from approxtree.render.camera import Camera
+from approxtree.render.camera import Camera, Projection
 
 #: Mean Earth radius (IUGG), metres: the sphere behind the geographic display scale.
 EARTH_RADIUS = 6_371_008.8
@@ -199,8 +199,14 @@ class FrameState:
 
     @property
     def lens(self) -> np.ndarray:
-        """(4,) float64: focal length in pixels and the display scale, for the α kernels."""
-        return np.array([self.focal_px, *self.scale], dtype=np.float64)
+        """(7,) float64 for the α kernels: focal length in pixels, the display scale (3),
+        tan_x, tan_y (the viewport's half-width and half-height in tangents of the angle off
+        the view axis) and near (display units)."""
+        p = self.projection
+        return np.array(
+            [self.focal_px, *self.scale, 1.0 / p[0, 0], 1.0 / p[1, 1], self.near],
+            dtype=np.float64,
+        )
 
     def world_to_pixels(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Project world points: (..., 3) → ((..., 2) pixel coordinates, (...,) clip w).
@@ -226,6 +232,8 @@ def overview_camera(
     The eye looks at the box centre from ``elevation`` degrees above the horizon, far enough
     that the box's bounding sphere (in display units) fits the vertical field of view.
     """
+    # The field of view is validated before the distance divides by its sine.
+    Projection(fov)
     b = np.asarray(bounds, dtype=np.float64).reshape(2, 3)
     b = np.where(np.isfinite(b), b, 0.0)
     centre = b.mean(axis=0)

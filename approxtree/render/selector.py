@@ -11,6 +11,9 @@ Decision for each node N of the frontier (starting with the root):
                                                           frontier.
 3. otherwise (a leaf, or errors within the thresholds)  → SELECTED: T_N is drawn.
 
+α_N bounds the on-screen length of every error segment of N anywhere in the view, image edges
+included (visual_error.py), so every drawn inner node is within alpha pixels of the terrain.
+
 Before the traversal: an eye below the terrain surface (z < h_T(x, y)) sees nothing, and the
 selection is empty.
 """
@@ -28,7 +31,12 @@ from numba import njit
 from approxtree.errors import InvalidParameterError
 from approxtree.render.frame_state import FrameState
 from approxtree.render.frustum import box_in_frustum
-from approxtree.render.visual_error import node_visual_errors, texel_sizes
+from approxtree.render.visual_error import (
+    box_tuple,
+    frame_tuples,
+    node_visual_errors,
+    texel_sizes,
+)
 
 
 class SelectionResult(IntEnum):
@@ -146,6 +154,8 @@ def _traverse(
     as their parent is refined, and read in order.
     """
     # Output arrays double when full: cost follows the nodes visited, not the tree's size.
+    # The frame as tuples: per-node calls then pass no arrays (see node_visual_errors).
+    mt, et, lt = frame_tuples(m, eye, lens)
     cap = min(bboxes.shape[0], 4096)
     visited = np.empty(cap, dtype=np.int64)
     results = np.empty(cap, dtype=np.uint8)
@@ -161,7 +171,7 @@ def _traverse(
         # 1. Frustum test of B_N.
         if box_in_frustum(bboxes[i], planes):
             a, g = node_visual_errors(
-                bboxes[i], errors[i], texels[i, 0], texels[i, 1], eye, m, vw, vh, lens
+                box_tuple(bboxes, i), errors[i], texels[i, 0], texels[i, 1], et, mt, vw, vh, lt
             )
             a_out[head] = a
             g_out[head] = g

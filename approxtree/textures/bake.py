@@ -24,7 +24,10 @@ import numpy as np
 from affine import Affine
 
 from approxtree.errors import InvalidParameterError, TerrainFormatError
+from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
+from approxtree.geometry.rasterize import rasterize
+from approxtree.io.output_path import check_output_folder
 from approxtree.textures.base import TextureData
 from approxtree.textures.blend import BLEND_MODES, MultiTexture
 from approxtree.textures.pyramid import TexturePyramid, check_pyramid_target
@@ -118,7 +121,7 @@ def _thematic_on_lattice(
 
 
 def bake(
-    terrain: Grid,
+    terrain: GeometryData,
     folder: str | os.PathLike,
     shading: str | None = "topographic",
     shading_options: dict[str, Any] | None = None,
@@ -134,6 +137,8 @@ def bake(
 ) -> BakeResult:
     """Bake the terrain's textures into a pyramid in ``folder`` and return what was written.
 
+    terrain: a Grid, or any terrain (TIN, point cloud), rasterized first (``rasterize``).
+
     shading: "topographic", "phong", "gouraud" or None; shading_options: keyword arguments of
     that shading class. thematic: a raster of classes or values; palette: a gdaldem colour file
     or a matplotlib colormap name (None: the raster's embedded colour table). overlays: vector
@@ -143,10 +148,12 @@ def bake(
     False always uses numpy.
     """
     t0 = time.perf_counter()
+    # The pyramid's folder must be writable before any work (its parents are never created).
+    check_output_folder(folder, "texture pyramid folder")
+    # A TIN or point cloud is shaded from its heights sampled on a lattice (at the texel size,
+    # else at its mean point spacing); outside its triangles the texture is transparent.
     if not isinstance(terrain, Grid):
-        raise InvalidParameterError(
-            f"Baking needs a regular Grid terrain, got a {type(terrain).__name__}."
-        )
+        terrain = rasterize(terrain, texel_size)
     if shading is not None and shading not in SHADINGS:
         raise InvalidParameterError(f"Unknown shading {shading!r}; choose one of {list(SHADINGS)}.")
     if blend not in BLEND_MODES:

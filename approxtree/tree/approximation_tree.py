@@ -244,6 +244,11 @@ class ApproximationTree:
         """
         f = TreeFile(path)
         meta = f.meta
+        if meta.get("tree_kind", "approximation_tree") != "approximation_tree":
+            raise StoreError(
+                f"{path} holds a {meta['tree_kind']!r} tree, not an approximation tree; open it "
+                "with approxtree.load_tree."
+            )
         kind = meta.get("terrain_kind")
         if kind not in TERRAIN_TYPES:
             raise StoreError(f"{path} holds an unknown terrain kind {kind!r}.")

@@ -13,31 +13,92 @@ Build (pre-processing):
    centre and the corners); each leaf records, at build time, the order in which its points are
    inserted (largest error first) and the error after every insertion.
 
-Render time (``lod_mesh``): a node is refined while the screen projection error
-ρ = λ·δ/d > C (λ = w/φ: viewport width in pixels over the horizontal field of view); the cut
-is restricted again; a drawn leaf whose ρ still exceeds C replays its insertion order until
-ρ ≤ C or no point is left. Edge midpoints are kept where the drawn neighbour is finer and laid
-on the straight edge otherwise, so the mesh is continuous.
+Render time (``lod_cut``, ``lod_mesh``): a node is refined while the screen projection error
+ρ = λ·δ/d > C, λ the pixels per radian of the view, d the distance from the eye to the
+node's 3-D box (so δ/d bounds the angle any vertical error segment in the node subtends);
+the cut is restricted again (nodes split by the restriction are checked in turn); a drawn
+leaf replays its insertion order up to the first prefix whose measured error is within
+C·d/λ. Edge midpoints are kept where the drawn neighbour is finer and laid on the straight
+edge otherwise (with a zero-area triangle over the edge, so rasterization leaves no pinhole
+at the T-junction), so the mesh is continuous. The Engine maps its α to C and draws the
+cut (render/point_quadtree_engine.py).
+
+δ(node) of an internal node is the largest error over every fan the node can be drawn as
+(with or without each side's midpoint); a drawn leaf's error is measured for its actual
+boundary (``leaf_errors``), so every drawn node's ρ is a measured bound, never an estimate.
+
+Storage: ``save`` writes the project's ``.atree`` tree file (tree kind "point_quadtree",
+sections "terrain" and "quadtree", checksummed like every section); ``load`` reads it (and
+refuses the ``.npz`` files of earlier versions with a StoreError saying to rebuild).
 """
 
 from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from approxtree.errors import InvalidParameterError, StoreError
 from approxtree.geometry.tin import TIN
-from approxtree.kernels.point_quadtree import fan_errors, insert_points, morton_codes
+from approxtree.kernels.point_quadtree import (
+    fan_errors,
+    first_within,
+    insert_points,
+    insertion_orders,
+    morton_codes,
+    range_z_bounds,
+)
 
-#: Version of the .npz layout written by ``PointQuadtree.save``.
-FORMAT_VERSION = 1
+#: ``meta["tree_kind"]`` of a point quadtree inside a .atree tree file.
+TREE_KIND = "point_quadtree"
+#: Version of the "quadtree" section's layout.
+SECTION_VERSION = 1
 #: Finest quadtree level (2^20 cells a side); points sharing a finest cell stay in one leaf.
 MAX_DEPTH = 20
+#: Bits of the second coordinate in a finest-lattice code (u << bits | v; u, v <= 2^21).
+_LATTICE_BITS = 22
+# Counter-clockwise from SW: (corner slot, side after it, its midpoint slot, the side's end
+# slots) over the ring slots of ``_ring_codes``; sides are numbered W, E, S, N.
+_BOUNDARY = ((0, 2, 5, 0, 1), (1, 1, 6, 1, 2), (2, 3, 7, 2, 3), (3, 0, 8, 3, 0))
 # Edge directions: west, east, south, north as (di, dj).
 _SIDES = ((-1, 0), (1, 0), (0, -1), (0, 1))
+
+
+def _encode(level: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """(k,) int64 keys of nodes (level, i, j), increasing with (level, i, j)."""
+    return (np.asarray(level, np.int64) << 42) | (np.asarray(i, np.int64) << 21) | j
+
+
+@dataclass
+class LODCut:
+    """The drawn nodes of one view (k of them), each with the figures of its mesh.
+
+    rows: (k,) node rows; midpoints, keep: (k, 4) bool per side W, E, S, N (a midpoint
+    vertex; it keeps its lattice height, else lies on the straight edge); inserted: (k,)
+    points replayed (leaves) or −1 (a coarse node's fan); errors: (k,) measured max
+    |z − mesh| over each visible node's points (δ for culled ones); distances: (k,) d
+    (display units); visible: (k,) inside the frustum; nodes_visited: nodes the traversal
+    reached; refined: rows of the nodes replaced by their children (ancestors of the cut).
+    """
+
+    rows: np.ndarray
+    midpoints: np.ndarray
+    keep: np.ndarray
+    inserted: np.ndarray
+    errors: np.ndarray
+    distances: np.ndarray
+    visible: np.ndarray
+    nodes_visited: int
+    refined: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
+
+    def screen_errors(self, lam: float) -> np.ndarray:
+        """(k,) ρ = λ·error/d of each drawn node (pixels; inf at d = 0 with an error)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rho = np.where(self.distances > 0, lam * self.errors / self.distances, np.inf)
+        return np.where(self.errors == 0, 0.0, rho)
 
 
 @dataclass
@@ -57,6 +118,9 @@ class PointQuadtree:
     terrain: the point set; max_points: δ, the most points a leaf holds (>= 1).
     Nodes are keyed (level, i, j): cell i (east), j (north) of the 2^level lattice.
     """
+
+    #: What the Engine and the tree file see: a point quadtree, not an approximation tree.
+    tree_kind = TREE_KIND
 
     def __init__(self, terrain: TIN, max_points: int = 50, _build: bool = True) -> None:
         if not isinstance(max_points, int | np.integer) or max_points < 1:
@@ -82,6 +146,7 @@ class PointQuadtree:
         self._subdivide()
         self._restrict()
         self._heights()
+        self._index()
         self._errors()
         self._insertion_orders()
 
@@ -89,12 +154,20 @@ class PointQuadtree:
 
     def point_range(self, node: tuple[int, int, int]) -> tuple[int, int]:
         """[start, stop) of the node's points in ``self.points`` (Z-order)."""
-        level, i, j = node
-        shift = 2 * (MAX_DEPTH - level)
-        prefix = int(morton_codes(np.array([i]), np.array([j]), level)[0]) << shift
-        lo = int(np.searchsorted(self.codes, prefix, side="left"))
-        hi = int(np.searchsorted(self.codes, prefix + (1 << shift), side="left"))
-        return lo, hi
+        row = getattr(self, "index", {}).get(node)
+        if row is not None:
+            lo, hi = self.ranges[row]
+        else:
+            lo, hi = self._ranges(*(np.array([v], dtype=np.int64) for v in node))[0]
+        return int(lo), int(hi)
+
+    def _ranges(self, level: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        """(k, 2) [start, stop) in ``self.points`` of the nodes (level, i, j), (k,) int64 each."""
+        shift = 2 * (MAX_DEPTH - np.asarray(level, dtype=np.int64))
+        prefix = morton_codes(np.asarray(i, np.int64), np.asarray(j, np.int64), MAX_DEPTH) << shift
+        lo = np.searchsorted(self.codes, prefix, side="left")
+        hi = np.searchsorted(self.codes, prefix + (np.int64(1) << shift), side="left")
+        return np.column_stack([lo, hi]).astype(np.int64)
 
     def _split(self, node: tuple[int, int, int]) -> list[tuple[int, int, int]]:
         level, i, j = node
@@ -105,16 +178,18 @@ class PointQuadtree:
         return kids
 
     def _subdivide(self) -> None:
-        # Split while a node holds more than δ points (one level at a time).
-        self.children[(0, 0, 0)] = False
-        frontier = [(0, 0, 0)]
-        while frontier:
-            nxt = []
-            for node in frontier:
-                lo, hi = self.point_range(node)
-                if hi - lo > self.max_points and node[0] < MAX_DEPTH:
-                    nxt.extend(self._split(node))
-            frontier = nxt
+        # Split while a node holds more than δ points, one level at a time (arrays per level).
+        fi = fj = np.zeros(1, dtype=np.int64)
+        level = 0
+        while len(fi):
+            r = self._ranges(np.full(len(fi), level), fi, fj)
+            split = (r[:, 1] - r[:, 0] > self.max_points) & (level < MAX_DEPTH)
+            keys = zip([level] * len(fi), fi.tolist(), fj.tolist(), strict=True)
+            self.children.update(zip(keys, split.tolist(), strict=True))
+            si, sj = fi[split], fj[split]
+            fi = np.concatenate([2 * si + a for b in (0, 1) for a in (0, 1)])
+            fj = np.concatenate([2 * sj + b for b in (0, 1) for a in (0, 1)])
+            level += 1
 
     def _ensure(self, node: tuple[int, int, int]) -> list[tuple[int, int, int]]:
         """Make ``node`` exist by splitting its ancestors; returns the nodes split."""
@@ -159,48 +234,124 @@ class PointQuadtree:
         # Corners, centres and edge midpoints of every node, keyed on the finest half-lattice.
         from scipy.spatial import cKDTree
 
-        keys = set()
-        for level, i, j in self.children:
-            for u in (2 * i, 2 * i + 1, 2 * i + 2):
-                for v in (2 * j, 2 * j + 1, 2 * j + 2):
-                    keys.add(self._lattice_key(level, u, v))
-        key_arr = np.array(sorted(keys), dtype=np.int64)
+        a = np.array(list(self.children), dtype=np.int64).reshape(-1, 3)
+        codes = np.unique(self._ring_codes(a[:, 0], a[:, 1], a[:, 2]))
+        ku, kv = codes >> _LATTICE_BITS, codes & ((1 << _LATTICE_BITS) - 1)
         unit = self.size / (1 << (MAX_DEPTH + 1))
-        xy = np.column_stack([self.x0 + key_arr[:, 0] * unit, self.y0 + key_arr[:, 1] * unit])
+        x, y = self.x0 + ku * unit, self.y0 + kv * unit
         k = min(4, len(self.points))
-        _, near = cKDTree(self.points[:, :2]).query(xy, k=k)
-        z = self.points[np.asarray(near).reshape(len(xy), k), 2].mean(axis=1)
-        self.lattice = {
-            (int(a), int(b)): (x, y, h) for (a, b), (x, y), h in zip(key_arr, xy, z, strict=True)
-        }
+        _, near = cKDTree(self.points[:, :2]).query(np.column_stack([x, y]), k=k)
+        z = self.points[np.asarray(near).reshape(len(x), k), 2].mean(axis=1)
+        keys = zip(ku.tolist(), kv.tolist(), strict=True)
+        xyz = zip(x.tolist(), y.tolist(), z.tolist(), strict=True)
+        self.lattice = dict(zip(keys, xyz, strict=True))
+
+    @staticmethod
+    def _ring_codes(level: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        """(k, 9) finest-lattice codes of the corners SW, SE, NE, NW, the centre and the
+        midpoints S, E, N, W of nodes (level, i, j)."""
+        du = np.array([0, 2, 2, 0, 1, 1, 2, 1, 0], dtype=np.int64)
+        dv = np.array([0, 0, 2, 2, 1, 0, 1, 2, 1], dtype=np.int64)
+        shift = (MAX_DEPTH - level)[:, None]
+        u = (2 * i[:, None] + du) << shift
+        v = (2 * j[:, None] + dv) << shift
+        return (u << _LATTICE_BITS) | v
 
     def lattice_point(self, level: int, u: int, v: int) -> tuple[float, float, float]:
         """World (x, y, z) of half-cell lattice point (u, v) of ``level``."""
         return self.lattice[self._lattice_key(level, u, v)]
 
-    def _fan_z(self, node: tuple[int, int, int]) -> list[float]:
-        level, i, j = node
-        uv = [(2 * i, 2 * j), (2 * i + 2, 2 * j), (2 * i + 2, 2 * j + 2), (2 * i, 2 * j + 2)]
-        return [self.lattice_point(level, u, v)[2] for u, v in uv] + [
-            self.lattice_point(level, 2 * i + 1, 2 * j + 1)[2]
-        ]
-
     def _errors(self) -> None:
-        nodes = list(self.children)
-        ranges = np.array([self.point_range(n) for n in nodes], dtype=np.int64)
-        squares = np.array([self.square(n) for n in nodes])
-        cz = np.array([self._fan_z(n) for n in nodes])
+        # δ per node: the largest error over every fan it can be drawn as (kernel docstring).
         p = self.points
         err = fan_errors(
             p[:, 0].copy(),
             p[:, 1].copy(),
             p[:, 2].copy(),
-            ranges[:, 0].copy(),
-            ranges[:, 1].copy(),
-            squares,
-            cz,
+            self.ranges[:, 0].copy(),
+            self.ranges[:, 1].copy(),
+            np.ascontiguousarray(self.squares),
+            self._ring_z,
         )
-        self.errors = dict(zip(nodes, err.tolist(), strict=True))
+        self.node_errors = err
+        self.errors = dict(zip(self.node_keys, err.tolist(), strict=True))
+
+    def _index(self) -> None:
+        """Per-node arrays, rows sorted by (level, i, j) so parents precede children.
+
+        node_keys: list of (level, i, j); levels, cells (n, 2) i, j; internal (n,) bool;
+        parents (n,) row or −1; child_rows (n, 4) rows of children SW, SE, NW, NE or −1;
+        ranges (n, 2) [start, stop) of the points; squares (n, 3) x0, y0, size;
+        bboxes (n, 6) xmin, ymin, zmin, xmax, ymax, zmax over the node's points and lattice
+        points (every mesh the node is drawn as lies inside); tree_finer (n, 4) bool per side
+        W, E, S, N: the same-level neighbour is internal; origin (3,) local origin of GPU
+        buffers (domain centre, lowest z); in_domain (n,) bool: the square overlaps the
+        terrain's domain.
+        """
+        self.node_keys = sorted(self.children)
+        #: Row of each node key.
+        self.index = dict(zip(self.node_keys, range(len(self.node_keys)), strict=True))
+        a = np.array(self.node_keys, dtype=np.int64).reshape(-1, 3)
+        self.levels = a[:, 0].copy()
+        self.cells = a[:, 1:].copy()
+        self._keys = _encode(a[:, 0], a[:, 1], a[:, 2])
+        self.internal = np.array([self.children[n] for n in self.node_keys], dtype=bool)
+        lv, i, j = self.levels, self.cells[:, 0], self.cells[:, 1]
+        self.parents = np.where(lv > 0, self._lookup(lv - 1, i // 2, j // 2), -1)
+        self.child_rows = np.stack(
+            [self._lookup(lv + 1, 2 * i + a, 2 * j + b) for b in (0, 1) for a in (0, 1)], axis=1
+        )
+        nbs = [self._neighbour(di, dj) for di, dj in _SIDES]
+        self.tree_finer = np.stack([(nb >= 0) & self.internal[np.maximum(nb, 0)] for nb in nbs], 1)
+        self.ranges = self._ranges(lv, i, j)
+        side = self.size / (np.int64(1) << lv)
+        self.squares = np.column_stack([self.x0 + i * side, self.y0 + j * side, side])
+        # Ring heights through the lattice as sorted codes (one search for all nodes).
+        lk = np.array(list(self.lattice), dtype=np.int64).reshape(-1, 2)
+        lcodes = (lk[:, 0] << _LATTICE_BITS) | lk[:, 1]
+        lxyz = np.array(list(self.lattice.values()), dtype=np.float64).reshape(-1, 3)
+        order = np.argsort(lcodes)
+        lcodes, lxyz = lcodes[order], lxyz[order]
+        ring = self._ring_codes(lv, i, j)
+        at = np.minimum(np.searchsorted(lcodes, ring), len(lcodes) - 1)
+        if not (lcodes[at] == ring).all():
+            raise StoreError("a node's lattice point has no height; rebuild the quadtree.")
+        #: (n, 9, 3) the lattice points of ``_ring_codes`` (the very values of ``lattice``).
+        self._ring_xyz = lxyz[at]
+        self._ring_z = np.ascontiguousarray(self._ring_xyz[..., 2])
+        z = range_z_bounds(self.points[:, 2].copy(), self.ranges[:, 0], self.ranges[:, 1])
+        zmin = np.minimum(z[:, 0], self._ring_z.min(axis=1))
+        zmax = np.maximum(z[:, 1], self._ring_z.max(axis=1))
+        sq = self.squares
+        self.bboxes = np.column_stack(
+            [sq[:, 0], sq[:, 1], zmin, sq[:, 0] + sq[:, 2], sq[:, 1] + sq[:, 2], zmax]
+        )
+        d = self.terrain.domain
+        self.origin = np.array([d.center[0], d.center[1], self.terrain.z_range[0]])
+        # The root square reaches past the data's domain on its shorter side; nodes wholly
+        # outside hold no data point (their heights are extrapolated).
+        b = self.bboxes
+        self.in_domain = (b[:, 0] < d.xmax) & (b[:, 3] > d.xmin) & (b[:, 1] < d.ymax)
+        self.in_domain &= b[:, 4] > d.ymin
+        self._leaf_error_cache: dict[tuple, np.ndarray] = {}
+        self._fan_error_cache: dict[tuple, float] = {}
+
+    def _lookup(self, level: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        """(k,) rows of nodes (level, i, j), −1 where there is no such node."""
+        level, i, j = np.broadcast_arrays(level, i, j)
+        inside = (i >= 0) & (j >= 0) & (i < (1 << level)) & (j < (1 << level))
+        inside &= level <= MAX_DEPTH
+        keys = _encode(level, np.where(inside, i, 0), np.where(inside, j, 0))
+        idx = np.minimum(np.searchsorted(self._keys, keys), len(self._keys) - 1)
+        return np.where(inside & (self._keys[idx] == keys), idx, -1)
+
+    def _neighbour(self, di: int, dj: int, rows: np.ndarray | None = None) -> np.ndarray:
+        """(k,) rows of the same-level neighbours across side (di, dj) of ``rows`` (all)."""
+        rows = slice(None) if rows is None else rows
+        return self._lookup(self.levels[rows], self.cells[rows, 0] + di, self.cells[rows, 1] + dj)
+
+    def __len__(self) -> int:
+        return len(self.node_keys)
 
     def finer_sides(self, node: tuple[int, int, int], drawn: set | None = None) -> list[bool]:
         """Per side (W, E, S, N): is the neighbour finer (in the tree, or in the cut ``drawn``)?"""
@@ -234,32 +385,50 @@ class PointQuadtree:
         midpoints: per side W, E, S, N whether the edge midpoint is a vertex; keep: per side
         whether it keeps its own height (else it lies on the straight edge).
         """
-        level, i, j = node
         keep = midpoints if keep is None else keep
-        lp = self.lattice_point
-        sw, se = lp(level, 2 * i, 2 * j), lp(level, 2 * i + 2, 2 * j)
-        ne, nw = lp(level, 2 * i + 2, 2 * j + 2), lp(level, 2 * i, 2 * j + 2)
-        mids = {
-            2: (lp(level, 2 * i + 1, 2 * j), sw, se),
-            1: (lp(level, 2 * i + 2, 2 * j + 1), se, ne),
-            3: (lp(level, 2 * i + 1, 2 * j + 2), ne, nw),
-            0: (lp(level, 2 * i, 2 * j + 1), nw, sw),
-        }
-        ring = [lp(level, 2 * i + 1, 2 * j + 1)]
-        for corner, side in ((sw, 2), (se, 1), (ne, 3), (nw, 0)):
-            ring.append(corner)
+        ring = self._ring_xyz[self.index[node]]
+        # Ring slots: 0 SW, 1 SE, 2 NE, 3 NW, 4 centre, 5 S, 6 E, 7 N, 8 W (``_ring_codes``).
+        slots, flat = [4], []
+        for corner, side, mid, a, b in _BOUNDARY:
+            slots.append(corner)
             if midpoints[side]:
-                m, a, b = mids[side]
-                ring.append(m if keep[side] else (m[0], m[1], 0.5 * (a[2] + b[2])))
-        return np.array(ring, dtype=np.float64)
+                slots.append(mid)
+                if not keep[side]:
+                    flat.append((len(slots) - 1, a, b))
+        out = ring[slots]
+        for pos, a, b in flat:
+            out[pos, 2] = 0.5 * (ring[a, 2] + ring[b, 2])
+        return out
 
     def _insertion_orders(self) -> None:
+        # Every leaf's base ring (centre, then SW, [S], SE, [E], NE, [N], NW, [W] with the
+        # midpoints its finer neighbours need) as one array, and one kernel call for all leaves.
+        rows = np.flatnonzero(~self.internal)
+        slots = np.array([4, 0, 5, 1, 6, 2, 7, 3, 8])
+        tf = self.tree_finer[rows]
+        on = np.ones(len(rows), dtype=bool)
+        mask = np.column_stack([on, on, tf[:, 2], on, tf[:, 1], on, tf[:, 3], on, tf[:, 0]])
+        bases = self._ring_xyz[rows][:, slots][mask]
+        base_start = np.concatenate([[0], np.cumsum(mask.sum(axis=1))]).astype(np.int64)
+        r = self.ranges[rows]
+        orders, errors = insertion_orders(
+            np.ascontiguousarray(bases), base_start, self.points, r[:, 0].copy(), r[:, 1].copy()
+        )
+        counts = (r[:, 1] - r[:, 0]).tolist()
         self.orders: dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]] = {}
-        for leaf in self.leaves:
-            lo, hi = self.point_range(leaf)
-            base = self.boundary(leaf, self.finer_sides(leaf))
-            order, errors, _ = insert_points(base, self.points[lo:hi], np.array([-1]), hi - lo)
-            self.orders[leaf] = (order, errors)
+        o = e = 0
+        for row, n in zip(rows.tolist(), counts, strict=True):
+            self.orders[self.node_keys[row]] = (orders[o : o + n], errors[e : e + n + 1])
+            o, e = o + n, e + n + 1
+        self._order_error_table()
+
+    def _order_error_table(self) -> None:
+        """The recorded errors of all leaves in one array: leaf row r owns order_errors[
+        error_start[r] : error_start[r] + its point count + 1] (internal rows own nothing)."""
+        counts = np.where(self.internal, 0, self.ranges[:, 1] - self.ranges[:, 0] + 1)
+        self.error_start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+        leaves = np.flatnonzero(~self.internal)
+        self.order_errors = np.concatenate([self.orders[self.node_keys[r]][1] for r in leaves])
 
     # -- render time ---------------------------------------------------------------------------
 
@@ -269,161 +438,321 @@ class PointQuadtree:
         """(vertices, triangles) of ``leaf`` after replaying its first k insertions."""
         lo, hi = self.point_range(leaf)
         order, _ = self.orders[leaf]
-        base = self.boundary(leaf, self.finer_sides(leaf), keep)
+        base = self.boundary(leaf, self.tree_finer[self.index[leaf]].tolist(), keep)
         pts = self.points[lo:hi]
         replay = order if len(order) else np.array([-1])
         _, _, tris = insert_points(base, pts, replay if k else np.array([0]), k)
         return np.concatenate([base, pts]), tris
 
+    def leaf_errors(self, leaf: tuple[int, int, int], keep: tuple[bool, ...]) -> np.ndarray:
+        """(n + 1,) measured max |z − mesh| over the leaf's points after 0..n insertions of its
+        recorded order, for the boundary whose midpoints keep their heights per ``keep``."""
+        tree_keep = tuple(self.tree_finer[self.index[leaf]].tolist())
+        keep = tuple(bool(k) and t for k, t in zip(keep, tree_keep, strict=True))
+        if keep == tree_keep:
+            return self.orders[leaf][1]
+        key = (leaf, keep)
+        errors = self._leaf_error_cache.get(key)
+        if errors is None:
+            lo, hi = self.point_range(leaf)
+            order = self.orders[leaf][0]
+            base = self.boundary(leaf, list(tree_keep), list(keep))
+            replay = order if len(order) else np.array([-1])
+            _, errors, _ = insert_points(base, self.points[lo:hi], replay, hi - lo)
+            self._leaf_error_cache[key] = errors
+        return errors
+
+    def fan_error(self, node: tuple[int, int, int], midpoints: tuple[bool, ...]) -> float:
+        """Measured max |z − fan| over the node's points for the fan with ``midpoints``."""
+        key = (node, tuple(bool(m) for m in midpoints))
+        err = self._fan_error_cache.get(key)
+        if err is None:
+            lo, hi = self.point_range(node)
+            base = self.boundary(node, list(key[1]))
+            err = float(insert_points(base, self.points[lo:hi], np.array([-1]), 0)[1][0])
+            self._fan_error_cache[key] = err
+        return err
+
+    def lod_cut(
+        self,
+        eye: tuple[float, float, float] | np.ndarray,
+        lam: float,
+        tolerance: float,
+        scale: np.ndarray | None = None,
+        visible: np.ndarray | None = None,
+    ) -> LODCut:
+        """The restricted cut for an eye (world), λ (pixels per radian), tolerance C (pixels).
+
+        scale: (3,) display scale applied to eye-to-box offsets (d in display units);
+        visible: (n,) bool per node row, False for nodes outside the frustum (never refined).
+        """
+        e = np.asarray(eye, dtype=np.float64)
+        sc = np.ones(3) if scale is None else np.asarray(scale, dtype=np.float64)
+        box = self.bboxes
+        d = np.linalg.norm((e - np.clip(e, box[:, :3], box[:, 3:])) * sc, axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rho = np.where(d > 0, lam * self.node_errors / d, np.inf)
+        rho[self.node_errors == 0] = 0.0
+        want = self.internal & (rho > tolerance)
+        if visible is not None:
+            want &= np.asarray(visible, dtype=bool)
+        # Traversal from the root, level by level (rows are sorted by level).
+        reached = np.zeros(len(self), dtype=bool)
+        reached[0] = True
+        bounds = np.searchsorted(self.levels, np.arange(self.levels[-1] + 2))
+        for level in range(1, int(self.levels[-1]) + 1):
+            rows = np.arange(bounds[level], bounds[level + 1])
+            p = self.parents[rows]
+            reached[rows] = reached[p] & want[p]
+        refined = reached & want
+        drawn = reached & ~want
+        self._restrict_rows(drawn, refined, want)
+        rows = np.flatnonzero(drawn)
+        cut_finer = np.stack(
+            [refined[np.maximum(nb, 0)] & (nb >= 0) for nb in self._side_rows(rows)], axis=1
+        )
+        midpoints = np.where(self.internal[rows, None], cut_finer, self.tree_finer[rows])
+        inserted = np.where(self.internal[rows], -1, 0)
+        errors = self.node_errors[rows].copy()
+        vis = np.ones(len(rows), dtype=bool) if visible is None else np.asarray(visible)[rows]
+        budgets = tolerance * d[rows] / lam
+        # A visible leaf with the boundary it was recorded with replays up to its first prefix
+        # within C·d/λ (one kernel call for all of them).
+        recorded = vis & ~self.internal[rows] & (cut_finer == self.tree_finer[rows]).all(axis=1)
+        r = rows[recorded]
+        inserted[recorded], errors[recorded] = first_within(
+            self.order_errors,
+            self.error_start[r],
+            self.ranges[r, 1] - self.ranges[r, 0] + 1,
+            budgets[recorded],
+        )
+        # The others, beside a drawn neighbour of another level: a leaf whose midpoint lies on
+        # the coarser neighbour's straight edge, or a coarse node's fan; their errors are
+        # measured for that boundary on first use.
+        for k in np.flatnonzero(vis & ~recorded).tolist():
+            node = self.node_keys[rows[k]]
+            if self.internal[rows[k]]:
+                errors[k] = self.fan_error(node, tuple(midpoints[k]))
+                continue
+            errs = self.leaf_errors(node, tuple(cut_finer[k]))
+            within = errs <= budgets[k]
+            inserted[k] = int(np.argmax(within)) if within.any() else len(errs) - 1
+            errors[k] = errs[inserted[k]]
+        return LODCut(
+            rows,
+            midpoints,
+            cut_finer & midpoints,
+            inserted,
+            errors,
+            d[rows],
+            vis,
+            int(reached.sum()),
+            np.flatnonzero(refined),
+        )
+
+    def _side_rows(self, rows: np.ndarray) -> list[np.ndarray]:
+        return [self._neighbour(di, dj, rows) for di, dj in _SIDES]
+
+    def _restrict_rows(self, drawn: np.ndarray, refined: np.ndarray, want: np.ndarray) -> None:
+        """Restrict the cut in place: split drawn nodes next to neighbours refined twice along
+        the shared edge (leaves two levels apart would meet), and nodes the splits put in the
+        cut that ask for refinement themselves; repeat until stable."""
+        # Children of the west, east, south, north neighbour that touch the shared edge.
+        adjacent = ((1, 0, 1, 1), (0, 0, 0, 1), (0, 1, 1, 1), (0, 0, 1, 0))
+        while True:
+            cand = np.flatnonzero(drawn & self.internal)
+            if len(cand) == 0:
+                return
+            lv, i, j = self.levels[cand], self.cells[cand, 0], self.cells[cand, 1]
+            split = want[cand].copy()
+            for (di, dj), (a0, b0, a1, b1) in zip(_SIDES, adjacent, strict=True):
+                ni, nj = i + di, j + dj
+                for a, b in ((a0, b0), (a1, b1)):
+                    kid = self._lookup(lv + 1, 2 * ni + a, 2 * nj + b)
+                    split |= (kid >= 0) & refined[np.maximum(kid, 0)]
+            if not split.any():
+                return
+            s = cand[split]
+            drawn[s] = False
+            refined[s] = True
+            drawn[self.child_rows[s].ravel()] = True
+
+    def node_mesh(
+        self,
+        node: tuple[int, int, int],
+        midpoints: tuple[bool, ...],
+        keep: tuple[bool, ...],
+        inserted: int,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(vertices (n, 3) world, triangles (m, 3)) of one drawn node of a cut.
+
+        inserted: points replayed (a leaf), or −1 for a coarse node's fan. A midpoint laid on
+        the straight edge (not kept) gets a zero-area triangle over its edge: the coarser
+        neighbour's edge then meets this mesh edge for edge on screen (no T-junction pinhole).
+        """
+        if inserted >= 0:
+            v, t = self.leaf_mesh(node, int(inserted), keep=list(keep))
+        else:
+            v = self.boundary(node, list(midpoints))
+            b = len(v)
+            t = np.array([[0, a, a + 1 if a + 1 < b else 1] for a in range(1, b)])
+        fill = []
+        pos = 0  # ring index after the centre: SW, [S], SE, [E], NE, [N], NW, [W]
+        for side in (2, 1, 3, 0):
+            pos += 1
+            if midpoints[side]:
+                pos += 1
+                if not keep[side]:
+                    fill.append((pos - 1, pos + 1 if side != 0 else 1, pos))
+        if fill:
+            t = np.concatenate([t, np.array(fill, dtype=t.dtype)])
+        return v, t
+
     def lod_mesh(
         self, eye: tuple[float, float, float], fov: float, width: int, tolerance: float = 10.0
     ) -> LODMesh:
         """The view-dependent mesh for an eye position, horizontal field of view (degrees),
-        viewport width (pixels) and screen tolerance C (pixels)."""
-        lam = width / math.radians(fov)
-        e = np.asarray(eye, dtype=np.float64)
-
-        def distance(node) -> float:
-            x0, y0, s = self.square(node)
-            q = np.clip(e[:2], [x0, y0], [x0 + s, y0 + s])
-            z = self.lattice_point(node[0], 2 * node[1] + 1, 2 * node[2] + 1)[2]
-            return max(float(np.hypot(*(e[:2] - q)) ** 2 + (e[2] - z) ** 2) ** 0.5, 1e-9)
-
-        drawn: set[tuple[int, int, int]] = set()
-        stack = [(0, 0, 0)]
-        while stack:
-            node = stack.pop()
-            if self.children[node] and lam * self.errors[node] / distance(node) > tolerance:
-                level, i, j = node
-                stack.extend((level + 1, 2 * i + a, 2 * j + b) for a in (0, 1) for b in (0, 1))
-            else:
-                drawn.add(node)
-        drawn = self._restrict_cut(drawn)
+        viewport width (pixels) and screen tolerance C (pixels): λ = width / fov."""
+        cut = self.lod_cut(eye, width / math.radians(fov), tolerance)
         verts, tris = [], []
-        offset = inserted = refined = 0
-        for node in drawn:
-            finer = self.finer_sides(node, drawn)
-            if self.is_leaf(node):
-                _, errors = self.orders[node]
-                budget = tolerance * distance(node) / lam
-                k = (
-                    int(np.argmax(errors <= budget))
-                    if (errors <= budget).any()
-                    else len(errors) - 1
-                )
-                refined += k > 0
-                inserted += k
-                v, t = self.leaf_mesh(node, k, keep=finer)
-            else:
-                v = self.boundary(node, finer)
-                b = len(v)
-                t = np.array([[0, a, a + 1 if a + 1 < b else 1] for a in range(1, b)])
+        offset = 0
+        for k, row in enumerate(cut.rows.tolist()):
+            v, t = self.node_mesh(
+                self.node_keys[row],
+                tuple(cut.midpoints[k]),
+                tuple(cut.keep[k]),
+                int(cut.inserted[k]),
+            )
             verts.append(v)
             tris.append(t + offset)
             offset += len(v)
-        return LODMesh(np.concatenate(verts), np.concatenate(tris), len(drawn), refined, inserted)
-
-    def _restrict_cut(self, drawn: set) -> set:
-        # Split drawn nodes whose edge neighbour's children along the shared edge are refined
-        # (leaves two levels apart would meet); splits can ripple, so repeat until stable.
-        adjacent = {
-            (-1, 0): ((1, 0), (1, 1)),
-            (1, 0): ((0, 0), (0, 1)),
-            (0, -1): ((0, 1), (1, 1)),
-            (0, 1): ((0, 0), (1, 0)),
-        }
-        changed = True
-        while changed:
-            changed = False
-            for node in sorted(drawn, key=lambda n: -n[0]):
-                if node not in drawn or not self.children[node]:
-                    continue
-                level, i, j = node
-                for di, dj in _SIDES:
-                    ni, nj = i + di, j + dj
-                    kids = [(level + 1, 2 * ni + a, 2 * nj + b) for a, b in adjacent[(di, dj)]]
-                    if any(self._subdivided(k, drawn) for k in kids):
-                        drawn.discard(node)
-                        drawn.update(
-                            (level + 1, 2 * i + a, 2 * j + b) for a in (0, 1) for b in (0, 1)
-                        )
-                        changed = True
-                        break
-        return drawn
+        return LODMesh(
+            np.concatenate(verts),
+            np.concatenate(tris),
+            len(cut.rows),
+            int((cut.inserted > 0).sum()),
+            int(cut.inserted[cut.inserted > 0].sum()),
+        )
 
     # -- storage -------------------------------------------------------------------------------
 
     def save(self, path: str | os.PathLike) -> int:
-        """Write the quadtree (terrain, nodes, heights, insertion orders) atomically as .npz;
-        returns the file size."""
-        from approxtree.io.atomic import atomic_write
+        """Write the quadtree (terrain, nodes, heights, insertion orders) atomically as a
+        ``.atree`` tree file of kind "point_quadtree"; returns the file size."""
+        from approxtree import __version__
+        from approxtree.tree.store import write_tree_file
 
-        nodes = list(self.children)
-        leaves = self.leaves
+        leaves = [self.node_keys[r] for r in np.flatnonzero(~self.internal)]
         lattice = sorted(self.lattice.items())
-        _, tarrays = self.terrain.to_record()
         arrays = {
-            "header": np.array(
-                [FORMAT_VERSION, self.max_points, self.size, self.x0, self.y0], dtype="<f8"
-            ),
-            "crs": np.array(self.terrain.crs or ""),
-            "terrain_vertices": tarrays["vertices"],
-            "terrain_triangles": tarrays["triangles"],
+            "header": np.array([self.max_points, self.size, self.x0, self.y0], dtype="<f8"),
             "points": self.points,
             "codes": self.codes,
-            "nodes": np.array(nodes, dtype="<i8").reshape(-1, 3),
-            "internal": np.array([self.children[n] for n in nodes], dtype=bool),
-            "node_errors": np.array([self.errors[n] for n in nodes], dtype="<f8"),
+            "nodes": np.array(self.node_keys, dtype="<i8").reshape(-1, 3),
+            "internal": self.internal,
+            "node_errors": self.node_errors,
             "lattice_keys": np.array([k for k, _ in lattice], dtype="<i8").reshape(-1, 2),
             "lattice_xyz": np.array([v for _, v in lattice], dtype="<f8").reshape(-1, 3),
-            "leaves": np.array(leaves, dtype="<i8").reshape(-1, 3),
             "order_counts": np.array([len(self.orders[n][0]) for n in leaves], dtype="<i8"),
-            "orders": np.concatenate([self.orders[n][0] for n in leaves] or [np.zeros(0)]),
+            "orders": np.concatenate([self.orders[n][0] for n in leaves]).astype("<i8"),
             "order_errors": np.concatenate([self.orders[n][1] for n in leaves]),
         }
-        with atomic_write(path) as f:
-            np.savez(f, **arrays)
-        return os.path.getsize(path)
+        meta = {
+            "library": f"approxtree {__version__}",
+            "tree_kind": TREE_KIND,
+            "section_version": SECTION_VERSION,
+            "terrain_kind": self.terrain.kind,
+        }
+        sections = {"terrain": self.terrain.to_record(), "quadtree": ({}, arrays)}
+        return write_tree_file(path, meta, sections, [], np.zeros(0, dtype=np.uint8))
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> PointQuadtree:
-        """Read a quadtree written by ``save``."""
+        """Read a quadtree written by ``save`` (every section's checksum verified)."""
+        from approxtree.geometry import TERRAIN_TYPES
+        from approxtree.tree.store import TreeFile
+
         try:
-            with np.load(path, allow_pickle=False) as z:
-                a = {k: z[k] for k in z.files}
-        except (OSError, ValueError, KeyError) as exc:
+            with open(path, "rb") as fh:
+                head = fh.read(4)
+        except OSError as exc:
             raise StoreError(f"Cannot read point quadtree {path}: {exc}") from exc
-        header = a.get("header")
-        if header is None or int(header[0]) != FORMAT_VERSION:
+        if head == b"PK\x03\x04":
             raise StoreError(
-                f"{path} is not a point quadtree file of format {FORMAT_VERSION}; rebuild it."
+                f"{path} is a point quadtree .npz file of an earlier version, which is no longer "
+                "read; rebuild it with `approxtree build POINTS --kind point-quadtree`."
             )
-        crs = str(a["crs"]) or None
-        terrain = TIN.from_record(
-            {"crs": crs}, {"vertices": a["terrain_vertices"], "triangles": a["terrain_triangles"]}
-        )
-        q = cls(terrain, int(header[1]), _build=False)
-        q.size, q.x0, q.y0 = float(header[2]), float(header[3]), float(header[4])
-        q.points, q.codes = a["points"], a["codes"]
+        f = TreeFile(path)
+        meta = f.meta
+        if meta.get("tree_kind") != TREE_KIND:
+            raise StoreError(
+                f"{path} holds an approximation tree, not a point quadtree; open it with "
+                "ApproximationTree.load or approxtree.load_tree."
+            )
+        if meta.get("section_version") != SECTION_VERSION:
+            raise StoreError(
+                f"{path} has point quadtree layout {meta.get('section_version')!r}; this "
+                f"approxtree reads {SECTION_VERSION}. Rebuild it with this version."
+            )
+        kind = meta.get("terrain_kind")
+        if kind not in TERRAIN_TYPES:
+            raise StoreError(f"{path} holds an unknown terrain kind {kind!r}.")
+        terrain = TERRAIN_TYPES[kind].from_record(*f.section("terrain"))
+        _, raw = f.section("quadtree")
+        a = {k: np.array(v) for k, v in raw.items()}
+        try:
+            return cls._from_arrays(terrain, a)
+        except (KeyError, ValueError, IndexError) as exc:
+            raise StoreError(
+                f"{path} holds a malformed point quadtree ({exc}); rebuild it."
+            ) from exc
+
+    @classmethod
+    def _from_arrays(cls, terrain: TIN, a: dict[str, np.ndarray]) -> PointQuadtree:
+        header = a["header"]
+        q = cls(terrain, int(header[0]), _build=False)
+        q.size, q.x0, q.y0 = float(header[1]), float(header[2]), float(header[3])
+        q.points, q.codes = a["points"].astype(np.float64), a["codes"].astype(np.int64)
         nodes = [tuple(int(v) for v in n) for n in a["nodes"]]
-        q.children = dict(zip(nodes, a["internal"].tolist(), strict=True))
-        q.errors = dict(zip(nodes, a["node_errors"].tolist(), strict=True))
+        q.children = dict(zip(nodes, a["internal"].astype(bool).tolist(), strict=True))
         q.lattice = {
             (int(k[0]), int(k[1])): tuple(float(c) for c in v)
             for k, v in zip(a["lattice_keys"], a["lattice_xyz"], strict=True)
         }
+        q._index()
+        q.node_errors = a["node_errors"].astype(np.float64)
+        if len(q.node_errors) != len(q):
+            raise ValueError("one error per node expected")
+        q.errors = dict(zip(q.node_keys, q.node_errors.tolist(), strict=True))
         q.orders = {}
         o = e = 0
-        for leaf, n in zip(a["leaves"], a["order_counts"], strict=True):
-            n = int(n)
-            q.orders[tuple(int(v) for v in leaf)] = (
+        leaves = [q.node_keys[r] for r in np.flatnonzero(~q.internal)]
+        for leaf, n in zip(leaves, a["order_counts"].tolist(), strict=True):
+            q.orders[leaf] = (
                 a["orders"][o : o + n].astype(np.int64),
                 a["order_errors"][e : e + n + 1],
             )
             o, e = o + n, e + n + 1
+        q._order_error_table()
         return q
 
     # -- figures -------------------------------------------------------------------------------
+
+    def stats(self) -> dict[str, Any]:
+        """Figures of the built quadtree (``approxtree build --kind point-quadtree``)."""
+        leaves = ~self.internal
+        counts = self.ranges[leaves, 1] - self.ranges[leaves, 0]
+        return {
+            "tree_kind": TREE_KIND,
+            "nodes": len(self),
+            "leaves": int(leaves.sum()),
+            "depth": int(self.levels.max()),
+            "points": len(self.points),
+            "max_points": self.max_points,
+            "max_leaf_points": int(counts.max()),
+            "interpolation_points": self.interpolation_point_count(),
+            "root_error": float(self.node_errors[0]),
+        }
 
     def interpolation_point_count(self) -> int:
         """N_C: distinct lattice points of the leaves' initial triangulations."""

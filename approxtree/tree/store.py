@@ -20,6 +20,12 @@ dtype, shape, offset, nbytes], ...]}``, then the array bytes. No pickle: only JS
 little-endian arrays are ever read. Every section and every patch has its own CRC-32, so one
 node's patch can be read and verified on its own, and truncation or corruption anywhere is
 reported as a StoreError. Files are written atomically.
+
+Tree kinds: ``meta["tree_kind"]`` names what the file holds; absent (files of earlier
+versions) or "approximation_tree" is an ApproximationTree as above; "point_quadtree" is a
+PointQuadtree (seed 003): sections "terrain" and "quadtree" (nodes, errors, lattice heights,
+insertion orders; ``tree.point_quadtree``) and no patches. ``approxtree.load_tree`` opens
+either.
 """
 
 from __future__ import annotations

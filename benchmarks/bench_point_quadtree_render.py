@@ -1,0 +1,92 @@
+"""Point quadtree (seed 003) drawn by the Engine: build, store and frame figures on Autzen.
+
+For the ground points and all points of ../shared/data/lidar/autzen_trim.laz (δ = 50): build,
+save and load seconds, file size; then, for an oblique view from the south at 1280 × 720, the
+frames at α = 1 and α = 4 (the second of two frames, so meshes are cached) beside the
+full-resolution frame of the same view (every data point of every visible leaf) as the peer;
+and the cut alone (``lod_cut``: min and median of 10 calls).
+
+    python benchmarks/bench_point_quadtree_render.py
+
+Writes benchmarks/results/point_quadtree_render.json.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import statistics
+import time
+from pathlib import Path
+
+RESULTS = Path(__file__).resolve().parent / "results"
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+KEYS = ("patches", "triangles", "max_alpha", "select_ms", "upload_ms", "draw_ms")
+
+
+def case(ground: bool, tmp: Path) -> dict:
+    import numpy as np
+
+    import approxtree as at
+    from approxtree.render import Camera, Engine
+    from approxtree.render.frustum import boxes_in_frustum
+    from approxtree.render.point_quadtree_engine import pixels_per_radian
+    from approxtree.tree.point_quadtree import PointQuadtree
+
+    # Warm-up: load the compiled kernels before timing.
+    PointQuadtree(at.TINPointSet(np.random.default_rng(0).uniform(0, 9, (200, 3))), 20)
+    terrain = at.open_terrain(DATA / "lidar" / "autzen_trim.laz", ground_only=ground)
+    t0 = time.perf_counter()
+    q = PointQuadtree(terrain, 50)
+    build = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    nbytes = q.save(tmp / "q.atree")
+    save = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    q = PointQuadtree.load(tmp / "q.atree")
+    load = time.perf_counter() - t0
+    d = terrain.domain
+    (cx, cy), (z0, z1) = d.center, terrain.z_range
+    cam = Camera.look_at((cx, cy - 0.25 * d.height, z1 + 0.2 * d.height), (cx, cy, z0), fov=45)
+    frames: dict = {}
+    with Engine(q) as eng:
+        for alpha in (1.0, 4.0):
+            eng.render(cam, (1280, 720), alpha=alpha)
+            f = eng.render(cam, (1280, 720), alpha=alpha)
+            frames[f"alpha={alpha:g}"] = {k: f.stats[k] for k in KEYS}
+        f = eng.render(cam, (1280, 720), full_resolution=True)
+        frames["full_resolution"] = {k: f.stats[k] for k in KEYS if k != "max_alpha"}
+        fs = eng.frame_state(cam, (1280, 720))
+    lam = pixels_per_radian(fs)
+    visible = boxes_in_frustum(q.bboxes, fs.planes)
+    times = []
+    for _ in range(10):
+        t0 = time.perf_counter()
+        q.lod_cut(fs.eye, lam, 1.0, fs.scale, visible)
+        times.append((time.perf_counter() - t0) * 1e3)
+    return {
+        "points": len(q.points),
+        "nodes": len(q),
+        "build_seconds": round(build, 4),
+        "save_seconds": round(save, 4),
+        "load_seconds": round(load, 4),
+        "file_bytes": nbytes,
+        "frames_1280x720": frames,
+        "lod_cut_ms": {"min": round(min(times), 3), "median": round(statistics.median(times), 3)},
+    }
+
+
+def main() -> None:
+    import tempfile
+
+    out = {"machine": platform.platform(), "delta": 50}
+    with tempfile.TemporaryDirectory() as tmp:
+        for label, ground in (("ground", True), ("all", False)):
+            out[label] = case(ground, Path(tmp))
+            print(json.dumps({label: out[label]}, indent=1))
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / "point_quadtree_render.json").write_text(json.dumps(out, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
