@@ -2,10 +2,12 @@
 
 from approxtree.errors import (
     ApproxTreeError,
+    ApproxTreeWarning,
     ContextUnavailableError,
     EmptyTerrainError,
     InvalidParameterError,
     StoreError,
+    TerrainDataWarning,
     TerrainFormatError,
     UnsupportedStrategyError,
 )
@@ -41,6 +43,7 @@ def __getattr__(name: str):
 __all__ = [
     "TIN",
     "ApproxTreeError",
+    "ApproxTreeWarning",
     "ApproximationTree",
     "Camera",
     "ContextUnavailableError",
@@ -59,6 +62,7 @@ __all__ = [
     "StoreError",
     "StrategyPolicy",
     "TINPointSet",
+    "TerrainDataWarning",
     "TerrainFormatError",
     "UnsupportedStrategyError",
     "__version__",

@@ -18,19 +18,32 @@ from typing import Any
 
 import click
 
-from approxtree.errors import ApproxTreeError
+from approxtree.errors import ApproxTreeError, ApproxTreeWarning
 
 
 def _reports_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
-    """Turn an ApproxTreeError into a one-line message on stderr and exit code 2."""
+    """Turn an ApproxTreeError into a one-line message on stderr and exit code 2.
+
+    An ApproxTreeWarning is printed as one ``Warning:`` line on stderr when it is raised.
+    """
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        try:
-            return fn(*args, **kwargs)
-        except ApproxTreeError as exc:
-            click.echo(f"Error: {exc}", err=True)
-            sys.exit(2)
+        with warnings.catch_warnings():
+            shown = warnings.showwarning
+
+            def show(message, category, filename, lineno, file=None, line=None):
+                if issubclass(category, ApproxTreeWarning):
+                    click.echo(f"Warning: {message}", err=True)
+                else:
+                    shown(message, category, filename, lineno, file, line)
+
+            warnings.showwarning = show
+            try:
+                return fn(*args, **kwargs)
+            except ApproxTreeError as exc:
+                click.echo(f"Error: {exc}", err=True)
+                sys.exit(2)
 
     return wrapper
 

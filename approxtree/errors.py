@@ -32,3 +32,14 @@ class StoreError(ApproxTreeError):
 
 class ContextUnavailableError(ApproxTreeError):
     """No OpenGL context can be created (headless EGL or a window)."""
+
+
+class ApproxTreeWarning(UserWarning):
+    """Base class of the warnings approxtree gives about input that is usable but suspicious.
+
+    The CLI prints each as one ``Warning:`` line on stderr.
+    """
+
+
+class TerrainDataWarning(ApproxTreeWarning):
+    """A terrain file reads, but its values look wrong (heights beyond the Earth's range, ...)."""

@@ -27,6 +27,31 @@ def _as_heights(heights: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.float32)
 
 
+#: Fewest float64 steps a cell must span at the grid's coordinates; below it data points on a
+#: node's border fall on either side of it by round-off.
+MIN_CELL_STEPS = 1e4
+
+
+def _check_resolution(transform: Affine, rows: int, cols: int) -> None:
+    """TerrainFormatError unless the grid's corners are finite and float64 resolves its cells."""
+    t = transform
+    xs, ys = (t.c, t.c + cols * t.a), (t.f, t.f + rows * t.e)
+    if not np.all(np.isfinite([*tuple(t)[:6], *xs, *ys])):
+        raise TerrainFormatError(
+            f"The grid's georeference is not finite: transform {tuple(t)[:6]} over "
+            f"{rows} × {cols} cells. Fix the file's geotransform."
+        )
+    magnitude = max(abs(v) for v in (*xs, *ys))
+    cell = min(abs(t.a), abs(t.e))
+    step = float(np.spacing(magnitude))
+    if cell < MIN_CELL_STEPS * step:
+        raise TerrainFormatError(
+            f"Cells of {cell:g} at coordinates of {magnitude:g} are too small for float64 "
+            f"(its steps there are {step:g}): shift the origin towards 0 (for example a local "
+            "projected CRS or a false easting/northing) or use larger cells."
+        )
+
+
 class Grid(GeometryData):
     """A regular grid of heights with an affine georeference.
 
@@ -69,6 +94,7 @@ class Grid(GeometryData):
             )
         if transform.a == 0.0 or transform.e == 0.0:
             raise TerrainFormatError(f"The grid's cell size is zero: transform {tuple(transform)}.")
+        _check_resolution(transform, rows, cols)
         self.heights = h
         self.transform = transform
         #: How the reader treated nodata: "mask" (holes stay NaN) or "fill" (interpolated).
@@ -134,9 +160,12 @@ class Grid(GeometryData):
         """
         fr_a, fc_a = self.fractional_index(np.array(rect.xmin), np.array(rect.ymin))
         fr_b, fc_b = self.fractional_index(np.array(rect.xmax), np.array(rect.ymax))
-        # A tolerance of 1e-9 cells keeps points on the rectangle's border inside it despite
-        # round-off in world coordinates.
-        eps = 1e-9
+        # A tolerance keeps points on the rectangle's border inside it despite round-off in
+        # world coordinates: 1e-9 cells, or a few units in the last place of the coordinates
+        # where they are large against the cell size (an origin of 1e9 and 1 cm cells).
+        t = self.transform
+        ulp = np.spacing(max(abs(rect.xmin), abs(rect.xmax), abs(rect.ymin), abs(rect.ymax)))
+        eps = max(1e-9, 16.0 * ulp / min(abs(t.a), abs(t.e)))
         r0 = max(int(np.ceil(min(fr_a, fr_b) - eps)), 0)
         r1 = min(int(np.floor(max(fr_a, fr_b) + eps)), self.height - 1)
         c0 = max(int(np.ceil(min(fc_a, fc_b) - eps)), 0)

@@ -61,6 +61,41 @@ def reading(path: str | os.PathLike, what: str) -> Iterator[None]:
         raise TerrainFormatError(f"Cannot read {path} as {what}: {_reason(exc)}") from exc
 
 
+def available_memory() -> int:
+    """Bytes of memory this process may still use: MemAvailable, else the physical memory."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return 2**40
+
+
+def check_claimed_bytes(path: Path, claimed: int, present: int | None, what: str) -> None:
+    """TerrainFormatError when a header claims more bytes than the file holds or memory fits.
+
+    Libraries allocate what a header claims before reading: a few flipped bits ask for
+    hundreds of GB (MemoryError, or the system's OOM killer). present: bytes of data the file
+    holds, or None for compressed data whose size says nothing.
+    """
+    if present is not None and claimed > present:
+        raise TerrainFormatError(
+            f"{path} is truncated or corrupt: its header claims {what} ({claimed} bytes), but "
+            f"only {present} bytes of data follow."
+        )
+    memory = available_memory()
+    if claimed > memory:
+        raise TerrainFormatError(
+            f"{path} claims {what}, {claimed / 1e9:.1f} GB, more than the {memory / 1e9:.1f} GB "
+            "of memory available; crop or tile it first."
+        )
+
+
 # -- option checks -----------------------------------------------------------------------------
 
 
@@ -227,15 +262,38 @@ def resolve_transform(
     origin: tuple[float, float] | None,
     path: Path,
 ) -> Affine:
-    """The file's own georeference, or one built from cell_size/origin when it has none."""
+    """The file's own georeference, or one built from cell_size/origin when it has none.
+
+    TerrainFormatError when it places the grid nowhere (a NaN, infinite or zero cell size or
+    origin, or an extent beyond float range).
+    """
     if own is None:
-        return plain_transform(shape, cell_size, origin)
+        return check_transform(plain_transform(shape, cell_size, origin), shape, path)
     if cell_size is not None or origin is not None:
         raise InvalidParameterError(
             f"{path} carries its own georeference; cell_size and origin apply only to data "
             "without one. Leave them out."
         )
-    return own
+    return check_transform(own, shape, path)
+
+
+def check_transform(transform: Affine, shape: tuple[int, int], path: Path) -> Affine:
+    """The transform if every coefficient and both grid corners are finite and cells non-empty."""
+    rows, cols = shape
+    corners = (transform.c + cols * transform.a, transform.f + rows * transform.e)
+    if not all(math.isfinite(v) for v in (*tuple(transform)[:6], *corners)):
+        raise TerrainFormatError(
+            f"{path} has an unusable georeference: pixel size ({transform.a}, {transform.e}) "
+            f"and origin ({transform.c}, {transform.f}) must be finite numbers and the grid's "
+            "extent must stay finite. Fix the file's geotransform (for example with "
+            "gdal_edit.py -a_ullr) or its world file."
+        )
+    if transform.a == 0.0 or transform.e == 0.0:
+        raise TerrainFormatError(
+            f"{path} has a pixel size of zero ({transform.a}, {transform.e}); fix the file's "
+            "geotransform (for example with gdal_edit.py -a_ullr) or its world file."
+        )
+    return transform
 
 
 def fill_holes(heights: np.ndarray) -> tuple[np.ndarray, int]:

@@ -10,7 +10,9 @@ A .npz may carry its extent as scalars ``xmin, xmax, ymin, ymax`` (cell edges, a
 from __future__ import annotations
 
 import os
+import zipfile
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 from affine import Affine
@@ -20,6 +22,7 @@ from approxtree.geometry import Grid
 from approxtree.io._common import (
     as_heights,
     check_cell_size,
+    check_claimed_bytes,
     check_crs,
     check_nodata_policy,
     check_origin,
@@ -55,6 +58,8 @@ def read_array(
     if key is not None and not isinstance(key, str):
         raise InvalidParameterError(f"key must be the name of a .npz entry, got {key!r}.")
     with reading(p, "a numpy array file"):
+        # numpy allocates the shape a header claims before reading: check it against the file.
+        _check_sizes(p)
         # Pickled objects could run code; height arrays never need them.
         loaded = np.load(p, allow_pickle=False)
         if isinstance(loaded, np.lib.npyio.NpzFile):
@@ -68,6 +73,34 @@ def read_array(
     heights = as_heights(values)
     transform = resolve_transform(own, heights.shape, cell, corner, p)
     return make_grid(heights, transform, crs, None, policy)
+
+
+def _npy_claim(f: BinaryIO) -> tuple[int, str]:
+    """(bytes of data, shape and dtype in words) from an .npy header; f is left at the data."""
+    version = np.lib.format.read_magic(f)
+    if version == (1, 0):
+        shape, _, dtype = np.lib.format.read_array_header_1_0(f)
+    else:
+        shape, _, dtype = np.lib.format.read_array_header_2_0(f)
+    return int(np.prod(shape, dtype=object)) * dtype.itemsize, f"a {shape} array of {dtype}"
+
+
+def _check_sizes(path: Path) -> None:
+    """Every array of a .npy/.npz claims no more bytes than its file (or zip member) holds."""
+    if zipfile.is_zipfile(path):
+        with zipfile.ZipFile(path) as archive:
+            for info in archive.infolist():
+                if not info.filename.endswith(".npy"):
+                    continue
+                with archive.open(info) as member:
+                    claimed, what = _npy_claim(member)
+                    present = info.file_size - member.tell()
+                check_claimed_bytes(path, claimed, present, f"{what} in {info.filename}")
+        return
+    with open(path, "rb") as f:
+        claimed, what = _npy_claim(f)
+        present = path.stat().st_size - f.tell()
+    check_claimed_bytes(path, claimed, present, what)
 
 
 def _check_array(path: Path, values: np.ndarray) -> np.ndarray:

@@ -17,10 +17,11 @@ import warnings
 
 import numpy as np
 
-from approxtree.errors import InvalidParameterError, TerrainFormatError
+from approxtree.errors import InvalidParameterError, TerrainDataWarning, TerrainFormatError
 from approxtree.geometry import Grid
 from approxtree.io._common import (
     check_cell_size,
+    check_claimed_bytes,
     check_crs,
     check_nodata_policy,
     check_number,
@@ -34,6 +35,10 @@ from approxtree.io._common import (
 
 #: Known RGB height encodings.
 ENCODINGS = ("terrain-rgb", "terrarium")
+
+#: Heights (m) an Earth terrain can have: the Challenger Deep (−10,935 m) to Everest (8,849 m)
+#: with a margin. Decoded heights beyond them mean the image is not height-encoded.
+EARTH_HEIGHTS = (-12_000.0, 9_000.0)
 
 
 def decode_terrain_rgb(rgb: np.ndarray) -> np.ndarray:
@@ -113,6 +118,10 @@ def read_png(
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
             with rasterio.open(p) as ds:
+                # Every band, the mask and the float heights: about (count + 3) × 8 bytes a cell.
+                cells = ds.width * ds.height
+                need = cells * 8 * (ds.count + 3)
+                check_claimed_bytes(p, need, None, f"{ds.width} × {ds.height} pixels")
                 colour, valid = _split_bands(ds)
                 dtype = np.dtype(ds.dtypes[0])
                 palette = ds.colorinterp[0] == ColorInterp.palette
@@ -130,8 +139,31 @@ def read_png(
             )
         heights = _DECODERS[encoding](pixels[:3])
     heights[~valid] = np.nan
+    if encoding is not None:
+        _warn_unearthly(p, heights, encoding)
     transform = resolve_transform(own, heights.shape, cell, corner, p)
     return make_grid(heights, transform, crs or file_crs, None, policy)
+
+
+def _warn_unearthly(path: os.PathLike, heights: np.ndarray, encoding: str) -> None:
+    """TerrainDataWarning when decoded heights (rows, cols) leave EARTH_HEIGHTS.
+
+    Any RGB image decodes to some height (a photo read as Terrain-RGB reaches 1,667 km), so a
+    range no terrain has is the sign of an image that does not encode heights.
+    """
+    valid = heights[np.isfinite(heights)]
+    if valid.size == 0:
+        return
+    lo, hi = float(valid.min()), float(valid.max())
+    if lo < EARTH_HEIGHTS[0] or hi > EARTH_HEIGHTS[1]:
+        warnings.warn(
+            f"{path} decoded as {encoding} has heights {lo:,.1f} .. {hi:,.1f} m, beyond any "
+            f"terrain on Earth ({EARTH_HEIGHTS[0]:,.0f} .. {EARTH_HEIGHTS[1]:,.0f} m): check "
+            "that the image really is a "
+            f"{encoding} height tile (and the encoding is the right one).",
+            TerrainDataWarning,
+            stacklevel=3,
+        )
 
 
 def _grayscale(

@@ -14,6 +14,7 @@ import numpy as np
 from approxtree.errors import EmptyTerrainError
 from approxtree.geometry import TINPointSet
 from approxtree.io._common import check_crs, check_flag, existing_file, reading
+from approxtree.io.las_layout import check_las_layout
 
 #: ASPRS classification code of ground points.
 GROUND_CLASS = 2
@@ -37,7 +38,10 @@ def read_point_cloud(
     p = existing_file(path)
     ground_only = check_flag(ground_only, "ground_only")
     crs = check_crs(crs)
+    # laspy and lazrs trust the header (a bad one hangs laspy or aborts the process in lazrs):
+    # every size and offset is checked against the file and the memory first.
     with reading(p, "a LAS/LAZ point cloud"):
+        check_las_layout(p)
         import laspy
 
         las = laspy.read(p)

@@ -18,6 +18,7 @@ from approxtree.geometry import Grid
 from approxtree.io._common import (
     as_heights,
     check_cell_size,
+    check_claimed_bytes,
     check_crs,
     check_nodata_policy,
     check_origin,
@@ -86,6 +87,9 @@ def read_raster(
                     raise InvalidParameterError(
                         f"band {band} does not exist: {p} has {ds.count} band(s)."
                     )
+                # The band, its mask and the float heights: about 3 × 8 bytes a cell.
+                cells = ds.width * ds.height
+                check_claimed_bytes(p, cells * 24, None, f"{ds.width} × {ds.height} cells")
                 values = ds.read(int(band), masked=True)
                 own = own_transform(ds)
                 file_crs = ds.crs.to_string() if ds.crs else None

@@ -25,8 +25,8 @@ from approxtree.io._common import (
     check_origin,
     existing_file,
     make_grid,
-    plain_transform,
     reading,
+    resolve_transform,
 )
 
 _STM_HEADER = re.compile(rb"STM (\d+) (\d+) (.{4})\n", re.DOTALL)
@@ -61,7 +61,7 @@ def read_stm(
             )
         values = np.fromfile(p, dtype=dtype, count=width * height, offset=offset)
     heights = values.reshape(height, width).astype(np.float32)
-    transform = plain_transform(heights.shape, cell, corner)
+    transform = resolve_transform(None, heights.shape, cell, corner, p)
     return make_grid(heights, transform, crs, None, policy)
 
 
@@ -107,7 +107,7 @@ def read_pgm(
     if maxval != full_scale:
         values = np.rint(values * maxval / full_scale)
     heights = values.astype(np.float32)
-    transform = plain_transform(heights.shape, cell, corner)
+    transform = resolve_transform(None, heights.shape, cell, corner, p)
     return make_grid(heights, transform, crs, None, policy)
 
 
