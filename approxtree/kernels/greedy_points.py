@@ -229,9 +229,9 @@ def greedy_point_tin(
 def _greedy(x: np.ndarray, y: np.ndarray, z: np.ndarray, max_error: float, max_points: int):
     """Greedy insertion over scattered points x, y, z (n,) float64 (any order, duplicates ok).
 
-    max_error < 0 and max_points <= 0 disable those stopping rules (then every point that is
-    not represented exactly is inserted). The convex hull's vertices are always in the mesh,
-    even past ``max_points``.
+    max_error < 0 inserts every point (up to ``max_points``, if > 0): with distinct positions
+    that is the full Delaunay triangulation; max_error >= 0 stops once every point is within
+    it. The convex hull's vertices are always in the mesh, even past ``max_points``.
     Returns (verts (k,) int64 point indices in insertion order, tv (3m,) int32 triangles as
     indices into verts, counter-clockwise, max error and sum of squared errors over all n
     points). When the points are all on one line there are no triangles: every point is a
@@ -312,7 +312,8 @@ def _greedy(x: np.ndarray, y: np.ndarray, z: np.ndarray, max_error: float, max_p
         pending[n_pending] = t
         n_pending += 1
 
-    done = max(max_error, 0.0)
+    # A negative goal inserts every point, exactly represented or not (full triangulation).
+    done = -1.0 if max_error < 0 else max_error
     size = 0
     while True:
         # Rescan the changed triangles and put them back in the heap.
