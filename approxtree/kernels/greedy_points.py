@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from approxtree.kernels.predicates import in_circle_sure, orient2d
+from approxtree.kernels.predicates import in_circle_sure, orient2d, orient2d_exact
 from approxtree.kernels.tin_mesh import (
     flip,
     grow,
@@ -52,13 +52,30 @@ def _plane(x, y, z, a, b, c):
 @njit(cache=True)
 def _scan(t, tv, x, y, z, head, nxt):
     """(max error, its point or −1, sum of squared errors) over the bucket of triangle t."""
-    ax, ay, za, gx, gy = _plane(x, y, z, tv[3 * t], tv[3 * t + 1], tv[3 * t + 2])
+    a, b, c = tv[3 * t], tv[3 * t + 1], tv[3 * t + 2]
+    ax, ay, za, gx, gy = _plane(x, y, z, a, b, c)
+    bx, by = x[b] - ax, y[b] - ay
+    cx, cy = x[c] - ax, y[c] - ay
+    # A sliver's gradient is ill-conditioned: interpolate it by barycentric weights from
+    # exactly evaluated areas instead (accurate to a few ulps of the height differences).
+    d = bx * cy - by * cx
+    sliver = abs(d) < 1e-3 * (abs(bx * cy) + abs(by * cx))
+    if sliver:
+        d = orient2d_exact(ax, ay, x[b], y[b], x[c], y[c])
+    dzb = z[b] - za
+    dzc = z[c] - za
     best = -1.0
     arg = -1
     s = 0.0
     i = head[t]
     while i >= 0:
-        e = abs(z[i] - (za + gx * (x[i] - ax) + gy * (y[i] - ay)))
+        if sliver:
+            wb = orient2d_exact(ax, ay, x[i], y[i], x[c], y[c]) / d
+            wc = orient2d_exact(ax, ay, x[b], y[b], x[i], y[i]) / d
+            h = za + wb * dzb + wc * dzc
+        else:
+            h = za + gx * (x[i] - ax) + gy * (y[i] - ay)
+        e = abs(z[i] - h)
         s += e * e
         if e > best:
             best = e
@@ -231,7 +248,8 @@ def _greedy(x: np.ndarray, y: np.ndarray, z: np.ndarray, max_error: float, max_p
 
     max_error < 0 inserts every point (up to ``max_points``, if > 0): with distinct positions
     that is the full Delaunay triangulation; max_error >= 0 stops once every point is within
-    it. The convex hull's vertices are always in the mesh, even past ``max_points``.
+    it. The mesh starts from the convex hull; a hull of more than ``max_points`` vertices is
+    thinned to ``max_points`` and the points left outside make the error infinite.
     Returns (verts (k,) int64 point indices in insertion order, tv (3m,) int32 triangles as
     indices into verts, counter-clockwise, max error and sum of squared errors over all n
     points). When the points are all on one line there are no triangles: every point is a
@@ -244,6 +262,14 @@ def _greedy(x: np.ndarray, y: np.ndarray, z: np.ndarray, max_error: float, max_p
     nh = hull.shape[0]
     if nh < 3:
         return np.arange(n, dtype=np.int64), np.empty(0, dtype=np.int32), 0.0, 0.0
+    reduced = 0 < max_points < nh
+    if reduced:
+        # A hull larger than the budget: keep evenly spread hull vertices (still strictly
+        # convex); the points left outside are not represented (infinite error).
+        keep = max(max_points, 3)
+        hull = hull[(np.arange(keep) * nh) // keep]
+        nh = keep
+    uncovered = 0
 
     cap_t = 2 * n
     tv = np.empty(3 * cap_t, dtype=np.int32)
@@ -293,7 +319,17 @@ def _greedy(x: np.ndarray, y: np.ndarray, z: np.ndarray, max_error: float, max_p
                 lo = mid
             else:
                 hi = mid - 1
-        _push(min(lo - 1, nt - 1), i, head, nxt)
+        k = min(lo - 1, nt - 1)
+        # Outside a reduced hull: beyond the first or last spoke, or past the hull edge.
+        if reduced and (
+            orient2d(x[h0], y[h0], x[hull[1]], y[hull[1]], x[i], y[i]) < 0.0
+            or orient2d(x[h0], y[h0], x[hull[nh - 1]], y[hull[nh - 1]], x[i], y[i]) > 0.0
+            or orient2d(x[hull[k + 1]], y[hull[k + 1]], x[hull[k + 2]], y[hull[k + 2]], x[i], y[i])
+            < 0.0
+        ):
+            uncovered += 1
+            continue
+        _push(k, i, head, nxt)
 
     # Make the fan Delaunay (a general Lawson pass), then scan every triangle.
     n_pending = 0
@@ -449,6 +485,9 @@ def _greedy(x: np.ndarray, y: np.ndarray, z: np.ndarray, max_error: float, max_p
         if e > worst:
             worst = e
         sse += e * e
+    if uncovered > 0:
+        worst = np.inf
+        sse = np.inf
     # Triangles as indices into verts (insertion order).
     slot = np.empty(n, dtype=np.int32)
     for k in range(nv):

@@ -56,8 +56,9 @@ def _two_product(a: float, b: float) -> tuple[float, float]:
 
 
 @njit(cache=True)
-def _orient_exact(ax, ay, bx, by, px, py) -> float:
-    """Sign-exact (bx − ax)(py − ay) − (by − ay)(px − ax) as the top term of an expansion."""
+def orient2d_exact(ax, ay, bx, by, px, py) -> float:
+    """(bx − ax)(py − ay) − (by − ay)(px − ax) evaluated exactly as an expansion; returns its
+    largest component: the exact sign, and the value to about one ulp."""
     terms = np.empty(16)
     u1, u0 = _two_diff(bx, ax)
     v1, v0 = _two_diff(py, ay)
@@ -102,7 +103,7 @@ def orient2d(ax: float, ay: float, bx: float, by: float, px: float, py: float) -
     bound = _CCW_BOUND * (abs(left) + abs(right))
     if det > bound or -det > bound:
         return det
-    return _orient_exact(ax, ay, bx, by, px, py)
+    return orient2d_exact(ax, ay, bx, by, px, py)
 
 
 @njit(cache=True, inline="always")
