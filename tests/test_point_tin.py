@@ -113,6 +113,14 @@ def test_point_set_tree_errors_are_true_errors_with_near_duplicates(seed):
     check_tree(terrain, tree, 0.5)
 
 
+def test_point_set_terrain_keeps_every_point_a_vertex():
+    """h_T of a TINPointSet passes through every data point, near-coincident ones included."""
+    terrain = at.TINPointSet(scattered_cloud(4))
+    assert len(np.unique(terrain.triangles)) == terrain.point_count
+    v = terrain.vertices
+    np.testing.assert_allclose(terrain.height_at(v[:, 0], v[:, 1]), v[:, 2], atol=1e-9)
+
+
 @pytest.mark.parametrize(("ground", "side"), [(False, 120.0), (True, 400.0), (True, 0.0)])
 def test_autzen_point_set_trees_have_exact_errors(data_dir, ground, side):
     """Lidar (all returns or ground only, crops and the whole ground set): stored == true."""
