@@ -42,6 +42,7 @@ def check_tree(terrain: at.TINPointSet, tree: ApproximationTree, epsilon: float)
         patch = node.patch
         expected = true_error(points, patch.vertices, patch.triangles)
         assert node.error == pytest.approx(expected, abs=1e-9), (node.index, len(points))
+        assert patch.data_count == len(points)
         assert patch.point_count <= tree.max_points or len(patch.triangles) == 0
     assert (tree.errors[tree.leaves] <= epsilon).all()
 
