@@ -214,3 +214,34 @@ def test_point_budget_and_hull():
     assert len(chosen) == 50
     err = np.abs(pts[:, 2] - interpolate(pts[chosen], tris, pts[:, :2]))
     assert worst == pytest.approx(err.max(), abs=1e-9)
+
+
+def test_random_degenerate_inputs_stay_valid_and_exact():
+    """Small random inputs full of duplicates, collinear runs and tiny spreads far from the
+    origin, with every stopping rule: valid meshes, exact errors, budgets kept."""
+    rng = np.random.default_rng(123)
+    for case in range(80):
+        n = int(rng.integers(1, 40))
+        kind = case % 4
+        if kind == 0:
+            xy = rng.integers(0, 5, (n, 2)).astype(np.float64)
+        elif kind == 1:
+            xy = rng.uniform(0, 1, (n, 2)) * 1e-6 + 6.0e5
+        elif kind == 2:
+            t = rng.uniform(0, 1, n)
+            xy = np.column_stack([t, 0.5 * t]) + rng.normal(0, 1e-12, (n, 2))
+        else:
+            xy = rng.uniform(-1, 1, (n, 2))
+            xy[: n // 2] = xy[0]
+        pts = np.column_stack([xy, rng.normal(0, 1, n)])
+        max_error = float(rng.choice([-1.0, 0.0, 0.5]))
+        max_points = int(rng.choice([0, 4, 10]))
+        chosen, tris, worst, _ = greedy_points(xy, pts[:, 2], max_error, max_points)
+        if max_points:
+            assert len(chosen) <= max_points or len(tris) == 0
+        if len(tris) == 0:
+            continue
+        v = pts[chosen]
+        assert ccw_exact(v, tris)
+        expected = exact_error(pts, v, tris)
+        assert worst == expected or worst == pytest.approx(expected, abs=1e-9)
