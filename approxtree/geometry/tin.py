@@ -14,6 +14,8 @@ import numpy as np
 from approxtree.errors import EmptyTerrainError, TerrainFormatError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
+from approxtree.kernels.greedy_points import greedy_point_tin
+from approxtree.kernels.point_index import bin_points, points_in_rects
 from approxtree.kernels.tin_locate import build_buckets, locate_and_interpolate
 
 
@@ -62,6 +64,31 @@ class TIN(GeometryData):
         if rect is None:
             return self.vertices.copy()
         return self.vertices[rect.contains(self.vertices[:, 0], self.vertices[:, 1])]
+
+    @cached_property
+    def _cells(self) -> tuple:
+        """The vertices binned into a cell grid of about 16 points a cell (see point_index)."""
+        d = self.domain
+        n = len(self.vertices)
+        w = max(d.width, 1e-12)
+        h = max(d.height, 1e-12)
+        nbx = max(1, min(4096, round(np.sqrt(n / 16 * w / h))))
+        nby = max(1, min(4096, round(np.sqrt(n / 16 * h / w))))
+        cw, ch = w / nbx, h / nby
+        vx = np.ascontiguousarray(self.vertices[:, 0])
+        vy = np.ascontiguousarray(self.vertices[:, 1])
+        start, items = bin_points(vx, vy, d.xmin, d.ymin, cw, ch, nbx, nby)
+        return vx, vy, start, items, d.xmin, d.ymin, cw, ch, nbx, nby
+
+    def point_indices(self, rects: list[Rect]) -> tuple[np.ndarray, np.ndarray]:
+        """Indices of the vertices inside each closed rectangle, as ``Rect.contains`` decides.
+
+        Returns (index (Σ,) int64, starts (r + 1,) int64): rectangle k holds
+        index[starts[k]:starts[k + 1]] (grouped by cell, not sorted).
+        """
+        vx, vy, start, items, x0, y0, cw, ch, nbx, nby = self._cells
+        boxes = np.array([r.as_tuple() for r in rects], dtype=np.float64).reshape(-1, 4)
+        return points_in_rects(vx, vy, start, items, x0, y0, cw, ch, nbx, nby, boxes)
 
     @cached_property
     def _buckets(self) -> tuple:
@@ -137,7 +164,7 @@ class TIN(GeometryData):
 
 
 class TINPointSet(TIN):
-    """Scattered data points, Delaunay-triangulated with scipy.
+    """Scattered data points, Delaunay-triangulated (``kernels.greedy_points``, every point).
 
     points: (n, 3) float64 x, y, z. Points sharing the same (x, y) are merged into one data point
     at their mean height, since a height field has one height per position.
@@ -155,14 +182,15 @@ class TINPointSet(TIN):
         xy, inverse, counts = np.unique(p[:, :2], axis=0, return_inverse=True, return_counts=True)
         z = np.bincount(inverse.ravel(), weights=p[:, 2]) / counts
         merged = np.column_stack([xy, z])
-        from scipy.spatial import Delaunay, QhullError
-
-        try:
-            tri = Delaunay(merged[:, :2])
-        except QhullError as exc:
+        # Full insertion with exact orientation keeps every point a vertex (Qhull dropped
+        # near-coincident points far from the origin, so h_T missed their heights).
+        verts, tv, _, _ = greedy_point_tin(
+            np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]), z, -1.0, 0
+        )
+        if len(tv) == 0:
             raise EmptyTerrainError(
                 "The points cannot be triangulated (all on one line or one position)."
-            ) from exc
+            )
         #: Input points dropped because another point had the same (x, y).
         self.duplicates_merged = int(len(p) - len(merged))
-        super().__init__(merged, tri.simplices, crs=crs)
+        super().__init__(merged, verts[tv.reshape(-1, 3)], crs=crs)

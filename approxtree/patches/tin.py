@@ -3,8 +3,8 @@
 On a Grid the patch runs ``kernels.greedy_tin`` over the window of its rectangle: vertices are
 grid points of the window (so vertices on the node border are data points of that border),
 nodata stays out of the mesh (triangles never span a hole once refinement is done). On a
-TIN / TINPointSet the data points are scattered: ``patches.tin_points`` inserts the input
-point of largest error, measured at the input points themselves.
+TIN / TINPointSet the data points are scattered: ``patches.tin_points`` runs
+``kernels.greedy_points`` (per-triangle buckets of input points) over each rectangle's points.
 
 Stored: (row, col) grid indices or point indices of the vertices, and the triangles.
 """
@@ -110,6 +110,11 @@ class TINPatch(GeometryPatch):
             from approxtree.patches.refined import RefinedTINPatch
 
             return RefinedTINPatch.build_many(terrain, rects, max_points, epsilon)
+        if isinstance(terrain, TIN):
+            from approxtree.patches.tin_points import PointTINPatch
+
+            # Scattered points: every rectangle of the level in one kernel call.
+            return list(PointTINPatch.build_points(terrain, rects, max_points, epsilon))
         out: list[GeometryPatch] = []
         for rect in rects:
             if isinstance(terrain, Grid):
@@ -118,10 +123,6 @@ class TINPatch(GeometryPatch):
                     terrain, win, epsilon, max_points, data_dependent=cls.data_dependent
                 )
                 out.append(GridTINPatch.from_greedy(terrain, rect, win, result))
-            elif isinstance(terrain, TIN):
-                from approxtree.patches.tin_points import PointTINPatch
-
-                out.append(PointTINPatch.build_rect(terrain, rect, max_points, epsilon))
             else:
                 raise UnsupportedStrategyError(
                     f"The tin strategy needs a Grid, TIN, TINPointSet or GridRefinement, got a "

@@ -1,10 +1,11 @@
 """PointTINPatch: greedy insertion over scattered data points (TIN and TINPointSet terrains).
 
-The patch starts from the convex hull of the rectangle's data points and inserts, one at a
-time, the input point of largest error |z − h_TN| (measured at the input points), keeping a
-Delaunay triangulation (scipy's incremental Qhull). Each pass re-evaluates every point, so this
-is the straightforward O(m·n) form of greedy insertion, meant for patch-sized point sets; grids
-use the O((m + n) log m) kernel.
+The patch of a rectangle is the greedy insertion TIN of the data points inside it
+(``kernels.greedy_points``: Garland & Heckbert with per-triangle buckets, a heap of candidates
+and Delaunay flips, exact orientation tests). All rectangles of a tree level are found with
+the terrain's point cell grid and built in one kernel call. The stored error is the true
+maximum of |z − h_TN| over every data point of the rectangle (vertices, bucket points and
+points sharing a vertex's position), so ε_T(N) is exact.
 """
 
 from __future__ import annotations
@@ -16,52 +17,25 @@ import numpy as np
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
 from approxtree.geometry.tin import TIN
+from approxtree.kernels.greedy_points import greedy_point_tin, greedy_point_tins
 from approxtree.patches.base import GeometryPatch, ccw_triangles
-
-
-def _errors(xy: np.ndarray, z: np.ndarray, chosen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(|z − h_TN| at every point (inf outside the mesh, 0 at vertices), triangles (m, 3))."""
-    from scipy.spatial import Delaunay, QhullError
-
-    err = np.full(len(xy), np.inf)
-    err[chosen] = 0.0
-    try:
-        tri = Delaunay(xy[chosen])
-    except (QhullError, ValueError):
-        return err, np.empty((0, 3), dtype=np.int64)
-    s = tri.find_simplex(xy)
-    inside = s >= 0
-    t = tri.transform[s[inside]]
-    bary2 = np.einsum("nij,nj->ni", t[:, :2], xy[inside] - t[:, 2])
-    bary = np.column_stack([bary2, 1.0 - bary2.sum(axis=1)])
-    zc = z[chosen][tri.simplices[s[inside]]]
-    err[inside] = np.abs(z[inside] - (bary * zc).sum(axis=1))
-    err[chosen] = 0.0
-    return err, tri.simplices.astype(np.int64)
 
 
 def greedy_points(
     xy: np.ndarray, z: np.ndarray, max_error: float, max_points: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Greedy insertion over points xy (n, 2), z (n,).
+) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """Greedy insertion over points xy (n, 2), z (n,); duplicate positions allowed.
 
-    Returns (chosen (k,) int64 point indices, triangles (m, 3) into chosen, errors (n,)).
+    max_error < 0 inserts every point (full Delaunay triangulation when positions are
+    distinct); max_points <= 0 sets no budget. Returns (chosen (k,) int64 point indices,
+    triangles (m, 3) int64 into chosen, max error and sum of squared errors over all n points).
     """
-    from scipy.spatial import ConvexHull, QhullError
-
-    n = len(xy)
-    limit = n if max_points <= 0 else min(n, max_points)
-    try:
-        chosen = ConvexHull(xy).vertices.astype(np.int64)
-    except (QhullError, ValueError):
-        chosen = np.arange(n, dtype=np.int64)
-    chosen = chosen[:limit]
-    while True:
-        err, tris = _errors(xy, z, chosen)
-        worst = int(np.argmax(err))
-        if err[worst] <= max(max_error, 0.0) or len(chosen) >= limit:
-            return chosen, tris, err
-        chosen = np.append(chosen, worst)
+    x = np.ascontiguousarray(xy[:, 0], dtype=np.float64)
+    y = np.ascontiguousarray(xy[:, 1], dtype=np.float64)
+    verts, tv, worst, sse = greedy_point_tin(
+        x, y, np.ascontiguousarray(z, dtype=np.float64), float(max_error), int(max_points)
+    )
+    return verts, tv.reshape(-1, 3).astype(np.int64), float(worst), float(sse)
 
 
 class PointTINPatch(GeometryPatch):
@@ -93,24 +67,51 @@ class PointTINPatch(GeometryPatch):
     def build_rect(
         cls, terrain: TIN, rect: Rect, max_points: int, epsilon: float = 0.0
     ) -> PointTINPatch:
+        """The patch of one rectangle (see ``build_points``)."""
+        return cls.build_points(terrain, [rect], max_points, epsilon)[0]
+
+    @classmethod
+    def build_points(
+        cls, terrain: TIN, rects: Sequence[Rect], max_points: int, epsilon: float = 0.0
+    ) -> list[PointTINPatch]:
+        """The greedy TIN of the data points in each rectangle, all rectangles in one batch.
+
+        epsilon < 0 inserts every point (up to ``max_points``; 0 or less: no budget).
+        """
+        rects = list(rects)
+        if not rects:
+            return []
+        index, starts = terrain.point_indices(rects)
         v = terrain.vertices
-        inside = np.flatnonzero(rect.contains(v[:, 0], v[:, 1]))
-        if len(inside) == 0:
-            nan = float("nan")
-            return cls(terrain, rect, inside, np.empty((0, 3)), 0.0, 0.0, (nan, nan), 0)
-        chosen, tris, err = greedy_points(v[inside, :2], v[inside, 2], epsilon, max_points)
-        z = v[inside, 2]
-        rms = float(np.sqrt(np.mean(err**2)))
-        return cls(
-            terrain,
-            rect,
-            inside[chosen],
-            tris,
-            float(err.max()),
-            rms,
-            (float(z.min()), float(z.max())),
-            len(inside),
+        x = np.ascontiguousarray(v[:, 0])
+        y = np.ascontiguousarray(v[:, 1])
+        z = np.ascontiguousarray(v[:, 2])
+        verts, vstart, tv, tstart, errors, sse = greedy_point_tins(
+            x, y, z, index, starts, float(epsilon), int(max_points)
         )
+        # z range of each rectangle's data points (NaN when it has none).
+        counts = np.diff(starts)
+        zs = z[index]
+        full = counts > 0
+        zmin = np.full(len(rects), np.nan)
+        zmax = np.full(len(rects), np.nan)
+        if full.any():
+            zmin[full] = np.minimum.reduceat(zs, starts[:-1][full])
+            zmax[full] = np.maximum.reduceat(zs, starts[:-1][full])
+        rms = np.sqrt(sse / np.maximum(counts, 1))
+        return [
+            cls(
+                terrain,
+                rect,
+                verts[vstart[k] : vstart[k + 1]],
+                tv[tstart[k] : tstart[k + 1]],
+                errors[k],
+                rms[k],
+                (zmin[k], zmax[k]),
+                counts[k],
+            )
+            for k, rect in enumerate(rects)
+        ]
 
     @classmethod
     def build_many(
