@@ -23,7 +23,12 @@ from PIL import Image
 
 from approxtree import ApproximationTree
 from approxtree.cli import main
-from approxtree.errors import EmptyTerrainError, InvalidParameterError, StoreError
+from approxtree.errors import (
+    ApproxTreeWarning,
+    EmptyTerrainError,
+    InvalidParameterError,
+    StoreError,
+)
 from approxtree.geometry import Grid
 from approxtree.render import Camera, Engine, overview_camera
 from approxtree.render.engine import EmptyFrameWarning
@@ -267,8 +272,10 @@ def test_empty_frames_say_so_in_stats_and_a_warning(folder, tmp_path):
     }
     with Engine(tree) as engine:
         for words, (eye, target) in cases.items():
-            with pytest.warns(EmptyFrameWarning, match=words):
+            # An ApproxTreeWarning, so the viewer and every CLI command print one Warning line.
+            with pytest.warns(ApproxTreeWarning, match=words) as caught:
                 frame = engine.render(Camera.look_at(eye, target), (48, 32))
+            assert all(issubclass(w.category, EmptyFrameWarning) for w in caught)
             assert frame.stats["empty"] is True and words in frame.stats["warning"]
             assert not frame.image[..., 3].any()
         frame = engine.render(overview_camera(tree.bboxes[0], engine.scale), (48, 32))

@@ -40,7 +40,12 @@ from typing import Any
 
 import numpy as np
 
-from approxtree.errors import ContextUnavailableError, EmptyTerrainError, InvalidParameterError
+from approxtree.errors import (
+    ApproxTreeWarning,
+    ContextUnavailableError,
+    EmptyTerrainError,
+    InvalidParameterError,
+)
 from approxtree.geometry.grid import Grid
 from approxtree.render.camera import Camera
 from approxtree.render.frame_state import (
@@ -118,7 +123,7 @@ def _check_drawable(tree) -> None:
         )
 
 
-class EmptyFrameWarning(UserWarning):
+class EmptyFrameWarning(ApproxTreeWarning):
     """A frame shows no terrain (camera under the ground, frustum that misses the terrain)."""
 
 
