@@ -20,6 +20,7 @@ import json
 import os
 import re
 import uuid
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,6 +29,7 @@ from affine import Affine
 
 from approxtree.errors import InvalidParameterError, StoreError
 from approxtree.io.atomic import atomic_directory
+from approxtree.kernels.rgba import halve_rgba
 from approxtree.textures.base import TextureData
 
 #: Rows handled at once while halving a level, bounding memory for huge textures.
@@ -61,13 +63,22 @@ class PyramidLevel:
 
 
 def _write_level(
-    path: Path, rgba: np.ndarray, transform: Affine, crs: str | None, build: str, level: int
+    path: Path,
+    strips: Iterable[np.ndarray],
+    shape: tuple[int, int],
+    transform: Affine,
+    crs: str | None,
+    build: str,
+    level: int,
+    halved: np.ndarray | None,
 ) -> None:
-    """Write (rows, cols, 4) uint8 as an uncompressed pixel-interleaved GeoTIFF tagged with
-    the pyramid's build id and the level number (into the pyramid's temp folder)."""
+    """Write the (rows, cols, 4) uint8 strips of a level, top to bottom, as an uncompressed
+    pixel-interleaved GeoTIFF tagged with the pyramid's build id and the level number (into
+    the pyramid's temp folder); when ``halved`` is given ((⌈rows/2⌉, ⌈cols/2⌉, 4) uint8),
+    fill it with the level's halving while each strip is at hand (strips of even height)."""
     import rasterio
 
-    rows, cols, _ = rgba.shape
+    rows, cols = shape
     profile = {
         "driver": "GTiff",
         "width": cols,
@@ -78,17 +89,33 @@ def _write_level(
         "crs": crs,
         "interleave": "pixel",
         "photometric": "RGB",
-        "alpha": "unassociated",
+        "alpha": "YES",
         "tiled": False,
         # Streamed output writes every strip in order, all-zero strips included (GDAL
         # otherwise defers empty strips to the end of the file and breaks the memory map).
         "streamable_output": "YES",
     }
+    r0 = 0
     with rasterio.open(path, "w", **profile) as ds:
-        for r0 in range(0, rows, _CHUNK_ROWS):
-            r1 = min(rows, r0 + _CHUNK_ROWS)
-            window = rasterio.windows.Window(0, r0, cols, r1 - r0)
-            ds.write(np.moveaxis(np.asarray(rgba[r0:r1]), -1, 0), window=window)
+        for strip in strips:
+            n = strip.shape[0]
+            if strip.ndim != 3 or strip.shape[1:] != (cols, 4) or strip.dtype != np.uint8:
+                raise InvalidParameterError(
+                    f"A texture must be ({rows}, {cols}, 4) uint8, got a strip of "
+                    f"{strip.shape} {strip.dtype}."
+                )
+            if r0 + n > rows or (n % 2 and r0 + n < rows):
+                raise InvalidParameterError(
+                    f"Texture strips must have an even number of rows and cover {rows} rows."
+                )
+            window = rasterio.windows.Window(0, r0, cols, n)
+            ds.write(np.moveaxis(strip, -1, 0), window=window)
+            # The halving of a strip depends on that strip only (its rows pair up).
+            if halved is not None:
+                halve_rgba(strip, halved[r0 // 2 : (r0 + n + 1) // 2])
+            r0 += n
+    if r0 != rows:
+        raise InvalidParameterError(f"The texture's strips cover {r0} of its {rows} rows.")
     # Tags go in afterwards (GDAL rewrites the directory at the end, strips stay in place):
     # set on a streamed file before its pixels, tags longer than 4 bytes shift its strips.
     with rasterio.open(path, "r+") as ds:
@@ -97,21 +124,15 @@ def _write_level(
 
 def _halve(src: np.ndarray) -> np.ndarray:
     """2 × 2 alpha-weighted box filter of (rows, cols, 4) uint8 → (⌈rows/2⌉, ⌈cols/2⌉, 4)."""
-    rows, cols, _ = src.shape
-    # Odd sizes repeat their last row or column so every output texel has four inputs.
-    a = np.asarray(src, dtype=np.float64)
-    if rows % 2:
-        a = np.concatenate([a, a[-1:]], axis=0)
-    if cols % 2:
-        a = np.concatenate([a, a[:, -1:]], axis=1)
-    quads = a.reshape(a.shape[0] // 2, 2, a.shape[1] // 2, 2, 4)
-    alpha = quads[..., 3]
-    wsum = alpha.sum(axis=(1, 3))
-    rgb = (quads[..., :3] * alpha[..., None]).sum(axis=(1, 3)) / np.maximum(wsum, 1e-12)[..., None]
-    out = np.empty((*wsum.shape, 4))
-    out[..., :3] = np.where(wsum[..., None] > 0, rgb, 0.0)
-    out[..., 3] = alpha.mean(axis=(1, 3))
-    return np.clip(np.round(out), 0, 255).astype(np.uint8)
+    out = np.empty((-(-src.shape[0] // 2), -(-src.shape[1] // 2), 4), dtype=np.uint8)
+    halve_rgba(np.ascontiguousarray(src), out)
+    return out
+
+
+def _strips(rgba: np.ndarray) -> Iterator[np.ndarray]:
+    """A (rows, cols, 4) array as strips of ``_CHUNK_ROWS`` rows for ``_write_level``."""
+    for r0 in range(0, rgba.shape[0], _CHUNK_ROWS):
+        yield rgba[r0 : r0 + _CHUNK_ROWS]
 
 
 def _level_offset(path: Path, level: PyramidLevel, build: str, k: int) -> int:
@@ -267,16 +288,23 @@ class TexturePyramid:
             raise InvalidParameterError(
                 f"max_texture_size must be a power of two, got {max_texture_size}."
             )
+        # The texture arrives in strips, so level 0 is never whole in memory; each level is
+        # halved strip by strip as it is written, and only the coarser levels (a third of
+        # level 0 at most) are held.
         if isinstance(texture, TextureData):
-            rgba, transform, crs = texture.rgba(), texture.transform, texture.crs
+            transform, crs = texture.transform, texture.crs
+            shape = tuple(texture.shape)
+            strips: Iterable[np.ndarray] = texture.rgba_strips(_CHUNK_ROWS)
         else:
             rgba = texture
             if transform is None:
                 raise InvalidParameterError("An RGBA array needs its transform.")
-        if rgba.ndim != 3 or rgba.shape[2] != 4 or rgba.dtype != np.uint8:
-            raise InvalidParameterError(
-                f"A texture must be (rows, cols, 4) uint8, got {rgba.shape} {rgba.dtype}."
-            )
+            if rgba.ndim != 3 or rgba.shape[2] != 4 or rgba.dtype != np.uint8:
+                raise InvalidParameterError(
+                    f"A texture must be (rows, cols, 4) uint8, got {rgba.shape} {rgba.dtype}."
+                )
+            shape = rgba.shape[:2]
+            strips = _strips(rgba)
         folder = Path(folder)
         check_pyramid_target(folder)
         folder.absolute().parent.mkdir(parents=True, exist_ok=True)
@@ -285,12 +313,16 @@ class TexturePyramid:
         with atomic_directory(folder) as tmp:
             levels = []
             level = 0
-            current = rgba
             t = transform
             while True:
+                rows, cols = shape
                 path = tmp / f"level{level}.tif"
-                _write_level(path, current, t, crs, build, level)
-                rows, cols = current.shape[:2]
+                # Texels exactly twice as large keep every level registered on level 0; an odd
+                # size repeats its last texel, so a coarser level may reach one finer texel
+                # further.
+                last = max(rows, cols) <= max_texture_size
+                halved = None if last else np.empty((-(-rows // 2), -(-cols // 2), 4), np.uint8)
+                _write_level(path, strips, (rows, cols), t, crs, build, level, halved)
                 levels.append(
                     {
                         "file": path.name,
@@ -300,18 +332,9 @@ class TexturePyramid:
                         "bytes": path.stat().st_size,
                     }
                 )
-                if max(rows, cols) <= max_texture_size:
+                if halved is None:
                     break
-                # Texels exactly twice as large keep every level registered on level 0; an odd
-                # size repeats its last texel, so a coarser level may reach one finer texel
-                # further.
-                entry = PyramidLevel(path, cols, rows, t)
-                offset = _level_offset(path, entry, build, level)
-                mapped = np.memmap(path, np.uint8, mode="r", offset=offset, shape=(rows, cols, 4))
-                current = np.concatenate(
-                    [_halve(mapped[r0 : r0 + _CHUNK_ROWS]) for r0 in range(0, rows, _CHUNK_ROWS)]
-                )
-                del mapped
+                strips, shape = _strips(halved), halved.shape[:2]
                 t = t @ Affine.scale(2.0)
                 level += 1
             meta = {
