@@ -33,7 +33,7 @@ from approxtree.kernels.rgba import halve_rgba
 from approxtree.textures.base import TextureData
 
 #: Rows handled at once while halving a level, bounding memory for huge textures.
-_CHUNK_ROWS = 2048
+_CHUNK_ROWS = 512
 
 #: pyramid.json format: 2 added the build id, the level tags and the level byte counts.
 PYRAMID_FORMAT = 2
@@ -112,7 +112,7 @@ def _write_level(
             ds.write(np.moveaxis(strip, -1, 0), window=window)
             # The halving of a strip depends on that strip only (its rows pair up).
             if halved is not None:
-                halve_rgba(strip, halved[r0 // 2 : (r0 + n + 1) // 2])
+                halve_rgba(np.ascontiguousarray(strip), halved[r0 // 2 : (r0 + n + 1) // 2])
             r0 += n
     if r0 != rows:
         raise InvalidParameterError(f"The texture's strips cover {r0} of its {rows} rows.")
