@@ -79,15 +79,16 @@ print(json.dumps({"import_s": t1 - t0, "bake_s": t2 - t1, "peak_bytes": int(stat
 """
 
 
-def _child(cmd: list[str], env: dict[str, str]) -> tuple[float, int, str]:
-    """(wall seconds, peak RSS bytes, stdout) of a fresh process, measured by /usr/bin/time
-    (a wait4 from this process would report this process's size at the fork)."""
+def _child(cmd: list[str], env: dict[str, str], cwd: Path) -> tuple[float, int, str]:
+    """(wall seconds, peak RSS bytes, stdout) of a fresh process run in ``cwd``, measured by
+    /usr/bin/time (a wait4 from this process would report this process's size at the fork)."""
     with tempfile.NamedTemporaryFile("r") as peak:
         t0 = time.perf_counter()
         done = subprocess.run(
             ["/usr/bin/time", "-f", "%M", "-o", peak.name, *cmd],
             stdout=subprocess.PIPE,
             env=env,
+            cwd=cwd,
             check=True,
         )
         wall = time.perf_counter() - t0
@@ -113,18 +114,23 @@ def bench_pyramid(size: int, repeats: int, baseline: str | None) -> dict:
         with rasterio.open(src, "w", driver="GTiff", transform=transform, **profile) as ds:
             ds.write(z, 1)
         del z
-        # Warm-up: compiles (or loads) each side's numba cache, excluded from the figures.
+        # Warm-up: compiles (or loads) each side's numba cache, excluded from the figures. The
+        # children run in the temp folder: ``python -c`` puts its working directory first on
+        # sys.path, which would shadow the baseline's PYTHONPATH.
         for name, env in sides.items():
-            _child([sys.executable, "-c", _BAKE_CHILD, str(src), str(tmp_path / name)], env)
+            _child(
+                [sys.executable, "-c", _BAKE_CHILD, str(src), str(tmp_path / name)], env, tmp_path
+            )
         for i in range(repeats):
             for name, env in sides.items():
                 dst = tmp_path / f"{name}{i}"
-                wall, _, out = _child([sys.executable, "-c", _BAKE_CHILD, str(src), str(dst)], env)
+                cmd = [sys.executable, "-c", _BAKE_CHILD, str(src), str(dst)]
+                wall, _, out = _child(cmd, env, tmp_path)
                 runs[name].append({"wall_s": wall, **json.loads(out)})
                 shutil.rmtree(dst)
             dst = tmp_path / f"gdal{i}.tif"
             cmd = ["gdaldem", "hillshade", "-q", str(src), str(dst)]
-            wall, peak, _ = _child(cmd, dict(os.environ))
+            wall, peak, _ = _child(cmd, dict(os.environ), tmp_path)
             runs["gdaldem"].append({"wall_s": wall, "peak_bytes": peak})
             dst.unlink()
             print(
