@@ -1,7 +1,8 @@
 """RGBA texel kernels of the texture pyramid: grey levels to RGBA, and the 2 × 2 halving.
 
-Both work on uint8 in integer arithmetic and write into a caller's array, so a pyramid is
-assembled strip by strip without float64 or full-size temporaries.
+They work on uint8 in integer arithmetic and write into a caller's array, so a pyramid is
+assembled strip by strip without float64 or full-size temporaries. The pyramid's strips are
+in band order (4, rows, cols), the layout GDAL takes without a copy.
 """
 
 from __future__ import annotations
@@ -42,9 +43,23 @@ def _round_quarter(s: int) -> int:
 
 
 @njit(cache=True, parallel=True)
-def halve_rgba(src: np.ndarray, out: np.ndarray) -> None:
-    """2 × 2 alpha-weighted box filter of (rows, cols, 4) uint8 into ``out``
-    (⌈rows/2⌉, ⌈cols/2⌉, 4) uint8.
+def grey_into_bands(grey: np.ndarray, out: np.ndarray) -> None:
+    """(rows, cols) uint8 grey levels (0 = nodata) → ``out`` (4, rows, cols) uint8 in band
+    order (R, G, B, A planes, as GDAL writes them): R = G = B = grey, A = 255 where grey > 0."""
+    rows, cols = grey.shape
+    for r in prange(rows):
+        for c in range(cols):
+            g = grey[r, c]
+            out[0, r, c] = g
+            out[1, r, c] = g
+            out[2, r, c] = g
+            out[3, r, c] = 255 if g > 0 else 0
+
+
+@njit(cache=True, parallel=True)
+def halve_bands(src: np.ndarray, out: np.ndarray) -> None:
+    """2 × 2 alpha-weighted box filter of (4, rows, cols) uint8 planes (R, G, B, A) into
+    ``out`` (4, ⌈rows/2⌉, ⌈cols/2⌉) uint8.
 
     Colour is the alpha-weighted mean of the four texels (0 where all four are transparent),
     alpha their mean, both rounded half to even. Odd sizes repeat the last row or column, so
@@ -52,44 +67,41 @@ def halve_rgba(src: np.ndarray, out: np.ndarray) -> None:
     formula: a quotient of integers below 2^53 is rounded correctly, and a non-tie lies at
     least 1/2040 from a tie.
     """
-    rows, cols = src.shape[0], src.shape[1]
-    out_rows, out_cols = out.shape[0], out.shape[1]
+    rows, cols = src.shape[1], src.shape[2]
+    out_rows, out_cols = out.shape[1], out.shape[2]
     for i in prange(out_rows):
-        # Rows as flat bytes: texel c of a row starts at byte 4 c. An odd last row or column
-        # pairs with itself.
-        top = src[2 * i].reshape(4 * cols)
-        bottom = src[min(2 * i + 1, rows - 1)].reshape(4 * cols)
-        dst = out[i].reshape(4 * out_cols)
+        # An odd last row or column pairs with itself.
+        r0 = 2 * i
+        r1 = min(r0 + 1, rows - 1)
         for j in range(out_cols):
-            p0 = 8 * j
-            p1 = p0 + 4 if 2 * j + 1 < cols else p0
-            q = 4 * j
-            a00 = np.int64(top[p0 + 3])
-            a01 = np.int64(top[p1 + 3])
-            a10 = np.int64(bottom[p0 + 3])
-            a11 = np.int64(bottom[p1 + 3])
+            c0 = 2 * j
+            c1 = min(c0 + 1, cols - 1)
+            a00 = np.int64(src[3, r0, c0])
+            a01 = np.int64(src[3, r0, c1])
+            a10 = np.int64(src[3, r1, c0])
+            a11 = np.int64(src[3, r1, c1])
             wsum = a00 + a01 + a10 + a11
             if wsum == 1020:
                 # All four opaque (most texels): equal weights, a plain mean of four.
                 for k in range(3):
                     total = (
-                        np.int64(top[p0 + k])
-                        + np.int64(top[p1 + k])
-                        + np.int64(bottom[p0 + k])
-                        + np.int64(bottom[p1 + k])
+                        np.int64(src[k, r0, c0])
+                        + np.int64(src[k, r0, c1])
+                        + np.int64(src[k, r1, c0])
+                        + np.int64(src[k, r1, c1])
                     )
-                    dst[q + k] = _round_quarter(total)
-                dst[q + 3] = 255
+                    out[k, i, j] = _round_quarter(total)
+                out[3, i, j] = 255
                 continue
             for k in range(3):
                 if wsum > 0:
                     num = (
-                        a00 * top[p0 + k]
-                        + a01 * top[p1 + k]
-                        + a10 * bottom[p0 + k]
-                        + a11 * bottom[p1 + k]
+                        a00 * src[k, r0, c0]
+                        + a01 * src[k, r0, c1]
+                        + a10 * src[k, r1, c0]
+                        + a11 * src[k, r1, c1]
                     )
-                    dst[q + k] = _round_ratio(num, wsum)
+                    out[k, i, j] = _round_ratio(num, wsum)
                 else:
-                    dst[q + k] = 0
-            dst[q + 3] = _round_quarter(wsum)
+                    out[k, i, j] = 0
+            out[3, i, j] = _round_quarter(wsum)

@@ -236,7 +236,7 @@ class _Precomputed(TextureData):
 
         return grey_to_rgba(self._shade)
 
-    def rgba_strips(self, rows: int) -> Iterator[np.ndarray]:
+    def band_strips(self, rows: int) -> Iterator[np.ndarray]:
         from approxtree.textures.base import grey_strips
 
         return grey_strips(self._shade, rows)

@@ -15,7 +15,7 @@ import numpy as np
 from affine import Affine
 
 from approxtree.geometry.rect import Rect
-from approxtree.kernels.rgba import grey_into_rgba
+from approxtree.kernels.rgba import grey_into_bands, grey_into_rgba
 
 
 class TextureData(ABC):
@@ -29,13 +29,14 @@ class TextureData(ABC):
     def rgba(self) -> np.ndarray:
         """The texture: (rows, cols, 4) uint8."""
 
-    def rgba_strips(self, rows: int) -> Iterator[np.ndarray]:
+    def band_strips(self, rows: int) -> Iterator[np.ndarray]:
         """The texture as successive strips of at most ``rows`` rows from the top, each
-        (≤ rows, cols, 4) uint8 and valid until the next is asked for; writers that stream
-        (the texture pyramid) read these. By default, slices of ``rgba()``."""
+        (4, ≤ rows, cols) uint8 in band order (R, G, B, A planes) and valid until the next is
+        asked for; writers that stream (the texture pyramid) read these. By default, slices
+        of ``rgba()``."""
         rgba = self.rgba()
         for r0 in range(0, rgba.shape[0], rows):
-            yield rgba[r0 : r0 + rows]
+            yield np.ascontiguousarray(np.moveaxis(rgba[r0 : r0 + rows], -1, 0))
 
     @cached_property
     def extent(self) -> Rect:
@@ -59,11 +60,12 @@ def grey_to_rgba(shade: np.ndarray) -> np.ndarray:
 
 
 def grey_strips(shade: np.ndarray, rows: int) -> Iterator[np.ndarray]:
-    """``grey_to_rgba(shade)`` as strips of at most ``rows`` rows (``rgba_strips``), assembled
-    in one reused (rows, cols, 4) buffer instead of a full-size RGBA array."""
+    """``grey_to_rgba(shade)`` as band-order strips of at most ``rows`` rows (``band_strips``),
+    assembled in one reused (4, rows, cols) buffer instead of a full-size RGBA array."""
     shade = np.ascontiguousarray(shade, dtype=np.uint8)
-    buffer = np.empty((min(rows, shade.shape[0]), shade.shape[1], 4), dtype=np.uint8)
+    buffer = np.empty((4, min(rows, shade.shape[0]), shade.shape[1]), dtype=np.uint8)
     for r0 in range(0, shade.shape[0], rows):
-        strip = buffer[: min(rows, shade.shape[0] - r0)]
-        grey_into_rgba(shade[r0 : r0 + rows], strip)
+        n = min(rows, shade.shape[0] - r0)
+        strip = buffer if n == buffer.shape[1] else np.empty((4, n, shade.shape[1]), np.uint8)
+        grey_into_bands(shade[r0 : r0 + n], strip)
         yield strip

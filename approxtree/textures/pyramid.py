@@ -29,7 +29,7 @@ from affine import Affine
 
 from approxtree.errors import InvalidParameterError, StoreError
 from approxtree.io.atomic import atomic_directory
-from approxtree.kernels.rgba import halve_rgba
+from approxtree.kernels.rgba import halve_bands
 from approxtree.textures.base import TextureData
 
 #: Rows handled at once while halving a level, bounding memory for huge textures.
@@ -70,12 +70,12 @@ def _write_level(
     crs: str | None,
     build: str,
     level: int,
-    halved: np.ndarray | None,
+    halved: list[np.ndarray] | None,
 ) -> None:
-    """Write the (rows, cols, 4) uint8 strips of a level, top to bottom, as an uncompressed
-    pixel-interleaved GeoTIFF tagged with the pyramid's build id and the level number (into
-    the pyramid's temp folder); when ``halved`` is given ((⌈rows/2⌉, ⌈cols/2⌉, 4) uint8),
-    fill it with the level's halving while each strip is at hand (strips of even height)."""
+    """Write the (4, rows, cols) uint8 band-order strips of a level, top to bottom, as an
+    uncompressed pixel-interleaved GeoTIFF tagged with the pyramid's build id and the level
+    number (into the pyramid's temp folder); when ``halved`` is a list, append to it the
+    strips of the level's halving, made while each strip is at hand (strips of even height)."""
     import rasterio
 
     rows, cols = shape
@@ -98,21 +98,24 @@ def _write_level(
     r0 = 0
     with rasterio.open(path, "w", **profile) as ds:
         for strip in strips:
-            n = strip.shape[0]
-            if strip.ndim != 3 or strip.shape[1:] != (cols, 4) or strip.dtype != np.uint8:
+            n = strip.shape[1] if strip.ndim == 3 else 0
+            if strip.ndim != 3 or strip.shape[::2] != (4, cols) or strip.dtype != np.uint8:
                 raise InvalidParameterError(
                     f"A texture must be ({rows}, {cols}, 4) uint8, got a strip of "
-                    f"{strip.shape} {strip.dtype}."
+                    f"{strip.shape} {strip.dtype} (bands first)."
                 )
             if r0 + n > rows or (n % 2 and r0 + n < rows):
                 raise InvalidParameterError(
                     f"Texture strips must have an even number of rows and cover {rows} rows."
                 )
-            window = rasterio.windows.Window(0, r0, cols, n)
-            ds.write(np.moveaxis(strip, -1, 0), window=window)
+            # Contiguous band-order strips go to GDAL without a copy.
+            strip = np.ascontiguousarray(strip)
+            ds.write(strip, window=rasterio.windows.Window(0, r0, cols, n))
             # The halving of a strip depends on that strip only (its rows pair up).
             if halved is not None:
-                halve_rgba(np.ascontiguousarray(strip), halved[r0 // 2 : (r0 + n + 1) // 2])
+                half = np.empty((4, (n + 1) // 2, (cols + 1) // 2), dtype=np.uint8)
+                halve_bands(strip, half)
+                halved.append(half)
             r0 += n
     if r0 != rows:
         raise InvalidParameterError(f"The texture's strips cover {r0} of its {rows} rows.")
@@ -124,15 +127,16 @@ def _write_level(
 
 def _halve(src: np.ndarray) -> np.ndarray:
     """2 × 2 alpha-weighted box filter of (rows, cols, 4) uint8 → (⌈rows/2⌉, ⌈cols/2⌉, 4)."""
-    out = np.empty((-(-src.shape[0] // 2), -(-src.shape[1] // 2), 4), dtype=np.uint8)
-    halve_rgba(np.ascontiguousarray(src), out)
-    return out
+    bands = np.ascontiguousarray(np.moveaxis(src, -1, 0))
+    out = np.empty((4, -(-src.shape[0] // 2), -(-src.shape[1] // 2)), dtype=np.uint8)
+    halve_bands(bands, out)
+    return np.moveaxis(out, 0, -1)
 
 
 def _strips(rgba: np.ndarray) -> Iterator[np.ndarray]:
-    """A (rows, cols, 4) array as strips of ``_CHUNK_ROWS`` rows for ``_write_level``."""
+    """A (rows, cols, 4) array as band-order strips of ``_CHUNK_ROWS`` rows (``_write_level``)."""
     for r0 in range(0, rgba.shape[0], _CHUNK_ROWS):
-        yield rgba[r0 : r0 + _CHUNK_ROWS]
+        yield np.ascontiguousarray(np.moveaxis(rgba[r0 : r0 + _CHUNK_ROWS], -1, 0))
 
 
 def _level_offset(path: Path, level: PyramidLevel, build: str, k: int) -> int:
@@ -294,7 +298,7 @@ class TexturePyramid:
         if isinstance(texture, TextureData):
             transform, crs = texture.transform, texture.crs
             shape = tuple(texture.shape)
-            strips: Iterable[np.ndarray] = texture.rgba_strips(_CHUNK_ROWS)
+            strips: Iterable[np.ndarray] = texture.band_strips(_CHUNK_ROWS)
         else:
             rgba = texture
             if transform is None:
@@ -321,7 +325,7 @@ class TexturePyramid:
                 # size repeats its last texel, so a coarser level may reach one finer texel
                 # further.
                 last = max(rows, cols) <= max_texture_size
-                halved = None if last else np.empty((-(-rows // 2), -(-cols // 2), 4), np.uint8)
+                halved: list[np.ndarray] | None = None if last else []
                 _write_level(path, strips, (rows, cols), t, crs, build, level, halved)
                 levels.append(
                     {
@@ -334,7 +338,7 @@ class TexturePyramid:
                 )
                 if halved is None:
                     break
-                strips, shape = _strips(halved), halved.shape[:2]
+                strips, shape = halved, (-(-rows // 2), -(-cols // 2))
                 t = t @ Affine.scale(2.0)
                 level += 1
             meta = {

@@ -57,7 +57,7 @@ class ShadingTexture(TextureData):
     def rgba(self) -> np.ndarray:
         return grey_to_rgba(self.shade())
 
-    def rgba_strips(self, rows: int) -> Iterator[np.ndarray]:
+    def band_strips(self, rows: int) -> Iterator[np.ndarray]:
         # Streamed: only the grey levels are held whole, RGBA one strip at a time.
         return grey_strips(self.shade(), rows)
 
