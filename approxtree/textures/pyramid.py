@@ -125,14 +125,6 @@ def _write_level(
         ds.update_tags(**{_TAG_BUILD: build, _TAG_LEVEL: str(level)})
 
 
-def _halve(src: np.ndarray) -> np.ndarray:
-    """2 × 2 alpha-weighted box filter of (rows, cols, 4) uint8 → (⌈rows/2⌉, ⌈cols/2⌉, 4)."""
-    bands = np.ascontiguousarray(np.moveaxis(src, -1, 0))
-    out = np.empty((4, -(-src.shape[0] // 2), -(-src.shape[1] // 2)), dtype=np.uint8)
-    halve_bands(bands, out)
-    return np.moveaxis(out, 0, -1)
-
-
 def _strips(rgba: np.ndarray) -> Iterator[np.ndarray]:
     """A (rows, cols, 4) array as band-order strips of ``_CHUNK_ROWS`` rows (``_write_level``)."""
     for r0 in range(0, rgba.shape[0], _CHUNK_ROWS):
