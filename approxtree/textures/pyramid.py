@@ -5,7 +5,9 @@ by alpha, so transparent texels do not darken their neighbours) until a level fi
 renderer's maximum texture size. Every level is an uncompressed, pixel-interleaved RGBA GeoTIFF
 covering the domain of level 0 (odd sizes add at most one texel at the east and south edges),
 opened through ``numpy.memmap``: reading a texture patch touches only its rows, so pyramids
-larger than memory work. ``pyramid.json`` lists the levels.
+larger than memory work. ``pyramid.json`` lists the levels. A build streams: the texture
+arrives in band-order strips (``TextureData.band_strips``), each written and halved at once
+(uint8 kernels, ``kernels.rgba``), so level 0 is never whole in memory.
 
 A pyramid is written all or nothing: built in a temp folder beside its folder, then swapped in
 (``atomic_directory``). Each build has an id, stored in pyramid.json and in every level's
