@@ -6,15 +6,24 @@ write a byte GeoTIFF. Our side also reports the compute step alone. Medians of -
 benchmarks/results/bake.json.
 
     python benchmarks/bench_bake.py [--size 8192] [--repeats 3]
+
+With --pyramid, the end-to-end bake into the texture pyramid (``approxtree.bake``, numpy
+shading) instead, each run a fresh process so its peak memory (VmHWM, and gdaldem's maxrss)
+is its own; --baseline DIR adds the same bake from another checkout (say, main) as a peer,
+interleaved. Results in benchmarks/results/bake_pyramid.json.
+
+    python benchmarks/bench_bake.py --pyramid [--size 8192] [--repeats 3] [--baseline DIR]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import statistics
 import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -56,13 +65,114 @@ def gdaldem_end_to_end(src: Path, dst: Path) -> float:
     return time.perf_counter() - t0
 
 
+#: Run in a fresh process: bake the DEM into a pyramid, print seconds and peak memory.
+_BAKE_CHILD = """
+import json, sys, time
+t0 = time.perf_counter()
+import approxtree as at
+from approxtree.textures.bake import bake
+t1 = time.perf_counter()
+bake(at.open_terrain(sys.argv[1]), sys.argv[2], gl=False)
+t2 = time.perf_counter()
+status = open("/proc/self/status").read().split("VmHWM:")[1].split()[0]
+print(json.dumps({"import_s": t1 - t0, "bake_s": t2 - t1, "peak_bytes": int(status) * 1024}))
+"""
+
+
+def _child(cmd: list[str], env: dict[str, str], cwd: Path) -> tuple[float, int, str]:
+    """(wall seconds, peak RSS bytes, stdout) of a fresh process run in ``cwd``, measured by
+    /usr/bin/time (a wait4 from this process would report this process's size at the fork)."""
+    with tempfile.NamedTemporaryFile("r") as peak:
+        t0 = time.perf_counter()
+        done = subprocess.run(
+            ["/usr/bin/time", "-f", "%M", "-o", peak.name, *cmd],
+            stdout=subprocess.PIPE,
+            env=env,
+            cwd=cwd,
+            check=True,
+        )
+        wall = time.perf_counter() - t0
+        kib = int(peak.read().split()[-1])
+    return wall, kib * 1024, done.stdout.decode()
+
+
+def bench_pyramid(size: int, repeats: int, baseline: str | None) -> dict:
+    """Fresh-process bakes into a pyramid (ours, the baseline's) and gdaldem, interleaved."""
+    from approxtree.datasets import fractal_heights
+
+    sides = {"ours": dict(os.environ)}
+    if baseline:
+        sides["baseline"] = dict(os.environ, PYTHONPATH=str(Path(baseline).resolve()))
+    runs: dict[str, list[dict]] = {name: [] for name in [*sides, "gdaldem"]}
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp_path = Path(tmp)
+        src = tmp_path / "dem.tif"
+        z = fractal_heights(size, seed=1).astype(np.float32)
+        dem_bytes = z.nbytes
+        transform = Affine(10, 0, 0, 0, -10, size * 10)
+        profile = {"width": size, "height": size, "count": 1, "dtype": "float32"}
+        with rasterio.open(src, "w", driver="GTiff", transform=transform, **profile) as ds:
+            ds.write(z, 1)
+        del z
+        # Warm-up: compiles (or loads) each side's numba cache, excluded from the figures. The
+        # children run in the temp folder: ``python -c`` puts its working directory first on
+        # sys.path, which would shadow the baseline's PYTHONPATH.
+        for name, env in sides.items():
+            _child(
+                [sys.executable, "-c", _BAKE_CHILD, str(src), str(tmp_path / name)], env, tmp_path
+            )
+        for i in range(repeats):
+            for name, env in sides.items():
+                dst = tmp_path / f"{name}{i}"
+                cmd = [sys.executable, "-c", _BAKE_CHILD, str(src), str(dst)]
+                wall, _, out = _child(cmd, env, tmp_path)
+                runs[name].append({"wall_s": wall, **json.loads(out)})
+                shutil.rmtree(dst)
+            dst = tmp_path / f"gdal{i}.tif"
+            cmd = ["gdaldem", "hillshade", "-q", str(src), str(dst)]
+            wall, peak, _ = _child(cmd, dict(os.environ), tmp_path)
+            runs["gdaldem"].append({"wall_s": wall, "peak_bytes": peak})
+            dst.unlink()
+            print(
+                f"run {i}: "
+                + ", ".join(
+                    f"{k} {v[-1]['wall_s']:.2f} s {v[-1]['peak_bytes'] / 1e6:.0f} MB"
+                    for k, v in runs.items()
+                ),
+                flush=True,
+            )
+    med = {
+        name: {key: statistics.median(r[key] for r in rs) for key in rs[0]}
+        for name, rs in runs.items()
+    }
+    gdal = med["gdaldem"]
+    return {
+        "benchmark": "end-to-end bake into the texture pyramid (fresh process) vs gdaldem",
+        "size": size,
+        "dem_bytes": dem_bytes,
+        "medians": med,
+        "wall_ratio_over_gdaldem": {k: v["wall_s"] / gdal["wall_s"] for k, v in med.items()},
+        "peak_over_dem_bytes": {k: v["peak_bytes"] / dem_bytes for k, v in med.items()},
+        "runs": runs,
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=8192)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--pyramid", action="store_true", help="bake into a pyramid instead")
+    parser.add_argument("--baseline", help="another checkout's root, baked as a peer")
     args = parser.parse_args()
     if shutil.which("gdaldem") is None:
         raise SystemExit("gdaldem not found: install the Debian package gdal-bin")
+    if args.pyramid:
+        RESULTS.mkdir(exist_ok=True)
+        report = bench_pyramid(args.size, args.repeats, args.baseline)
+        out = RESULTS / f"bake_pyramid_{args.size}.json"
+        out.write_text(json.dumps(report, indent=2))
+        print(json.dumps({k: v for k, v in report.items() if k != "runs"}, indent=2))
+        return
     from approxtree.datasets import fractal_heights
 
     RESULTS.mkdir(exist_ok=True)

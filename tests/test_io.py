@@ -606,3 +606,15 @@ def test_read_grid_refuses_tins(data_dir):
     """read_grid raises TerrainFormatError for a file that holds a TIN."""
     with pytest.raises(TerrainFormatError, match="not a regular grid"):
         read_grid(data_file(data_dir, "tin/9_533_383.terrain"))
+
+
+def test_read_raster_holds_the_band_once(tmp_path):
+    """A float32 band becomes the heights in the buffer GDAL read it into (NaN at nodata),
+    not in a second full-size copy."""
+    from approxtree.io._common import as_heights
+
+    band = np.ma.masked_array(np.arange(12, dtype=np.float32).reshape(3, 4), mask=False)
+    band.mask[1, 2] = True
+    heights = as_heights(band, reuse=True)
+    assert np.shares_memory(heights, band.data)
+    assert np.isnan(heights[1, 2]) and np.isfinite(np.delete(heights.ravel(), 6)).all()

@@ -72,6 +72,69 @@ def test_halving_is_an_alpha_weighted_box_filter(pyramid):
         assert coarse[r, c, 3] == np.round(w.mean())
 
 
+def test_levels_mark_band_4_as_alpha(pyramid):
+    """Every level's fourth band is an alpha band for GDAL (and viewers), not a fourth colour."""
+    from rasterio.enums import ColorInterp
+
+    for lv in pyramid.levels:
+        with rasterio.open(lv.path) as ds:
+            assert ds.colorinterp[3] == ColorInterp.alpha, (lv.path, ds.colorinterp)
+
+
+def test_bake_streams_the_texture_without_its_whole_rgba(terrain, tmp_path, monkeypatch):
+    """Level 0 is written from strips of the grey levels: the full-size RGBA array of the
+    texture (``rgba()``) is never made, and the levels equal the whole-array bake."""
+    whole = TexturePyramid.build(
+        TopographicShading(terrain).rgba(),
+        tmp_path / "whole",
+        max_texture_size=256,
+        transform=TopographicShading(terrain).transform,
+    )
+
+    def no_whole_rgba(self):
+        raise AssertionError("the pyramid asked for the whole RGBA array")
+
+    monkeypatch.setattr(TopographicShading, "rgba", no_whole_rgba)
+    streamed = TexturePyramid.build(
+        TopographicShading(terrain), tmp_path / "streamed", max_texture_size=256
+    )
+    assert len(streamed) == len(whole) == 3
+    for k in range(len(whole)):
+        np.testing.assert_array_equal(streamed.level(k), whole.level(k))
+
+
+def _halve_reference(a: np.ndarray) -> np.ndarray:
+    """The float64 alpha-weighted 2 × 2 box filter, odd sizes repeating their last texel."""
+    a = a.astype(np.float64)
+    if a.shape[0] % 2:
+        a = np.concatenate([a, a[-1:]], axis=0)
+    if a.shape[1] % 2:
+        a = np.concatenate([a, a[:, -1:]], axis=1)
+    q = a.reshape(a.shape[0] // 2, 2, a.shape[1] // 2, 2, 4)
+    w = q[..., 3].sum(axis=(1, 3))
+    rgb = (q[..., :3] * q[..., 3:]).sum(axis=(1, 3)) / np.maximum(w, 1e-12)[..., None]
+    out = np.empty((*w.shape, 4))
+    out[..., :3] = np.where(w[..., None] > 0, rgb, 0.0)
+    out[..., 3] = q[..., 3].mean(axis=(1, 3))
+    return np.round(out).astype(np.uint8)
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (2, 2), (7, 9), (64, 33), (3, 128)])
+def test_uint8_halving_equals_the_float64_filter_on_every_texel(shape):
+    """The integer kernel gives the float64 formula's texels exactly, ties and odd sizes
+    included, for any mix of opaque, transparent and partial alpha."""
+    from approxtree.kernels.rgba import halve_bands
+
+    rng = np.random.default_rng(sum(shape))
+    for _ in range(20):
+        a = rng.integers(0, 256, (*shape, 4)).astype(np.uint8)
+        a[..., 3] = rng.choice([0, 255, 255, 255, 1, 2, 3, 128, 254], size=shape)
+        want = _halve_reference(a)
+        got = np.empty((4, *want.shape[:2]), np.uint8)
+        halve_bands(np.ascontiguousarray(np.moveaxis(a, -1, 0)), got)
+        np.testing.assert_array_equal(np.moveaxis(got, 0, -1), want)
+
+
 def test_patches_cover_their_node_with_power_of_two_sizes(pyramid, terrain):
     """Per node: power-of-two size within the limit, covers D_N, finest level that fits."""
     tree = ApproximationTree.build(terrain, epsilon=2.0, max_points=33 * 33)

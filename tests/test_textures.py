@@ -254,3 +254,17 @@ def test_bad_shading_and_colour_inputs(tmp_path):
         ColourReliefFile(tmp_path / "missing.txt")
     with pytest.raises(InvalidParameterError, match="colormap"):
         ColourRamp("no-such-map")
+
+
+@pytest.mark.parametrize("algorithm", [0, 1])
+@pytest.mark.parametrize("mode", [0, 1, 2])
+def test_grey_hillshade_kernel_rounds_like_numpy(algorithm, mode):
+    """hillshade_grey (the bake's kernel, no float grid) is np.rint of the float kernel on
+    every cell, nodata holes and borders included."""
+    from approxtree.kernels import hillshade as hs
+
+    z = fractal_terrain(90, 70, seed=4, relief=300.0).heights.copy()
+    z[20:25, 30:41] = np.nan
+    args = (z, 2.0, -2.0, 1.5, 40.0, 300.0, algorithm, mode)
+    want = np.rint(hs.hillshade(*args)).astype(np.uint8)
+    np.testing.assert_array_equal(hs.hillshade_grey(*args), want)

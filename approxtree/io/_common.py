@@ -199,10 +199,12 @@ def check_number(value: object, name: str, *, nonzero: bool = False) -> float:
 # -- heights and georeference ------------------------------------------------------------------
 
 
-def as_heights(values: np.ndarray) -> np.ndarray:
+def as_heights(values: np.ndarray, reuse: bool = False) -> np.ndarray:
     """Heights as float32, or float64 when that is needed to keep the values exact.
 
     values: (rows, cols) real numbers or a masked array; masked and infinite cells become NaN.
+    reuse: the caller gives up ``values`` (a reader's own buffer), so when its dtype already
+    is the heights' the NaNs are written into it instead of into a full-size copy.
     """
     a = values
     dtype = np.dtype(a.dtype)
@@ -216,7 +218,10 @@ def as_heights(values: np.ndarray) -> np.ndarray:
             int(valid.min()) < -_FLOAT32_EXACT_LIMIT or int(valid.max()) > _FLOAT32_EXACT_LIMIT
         )
     out_type = np.float64 if wide else np.float32
-    if np.ma.isMaskedArray(a):
+    if reuse and dtype == out_type:
+        out = np.ma.getdata(a)
+        out[np.ma.getmaskarray(a)] = np.nan
+    elif np.ma.isMaskedArray(a):
         out = np.ma.filled(a.astype(out_type), np.nan)
     else:
         out = np.array(a, dtype=out_type)

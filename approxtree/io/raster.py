@@ -52,6 +52,10 @@ def rasterio_source(path: Path) -> str:
     return f"zip://{path}!{rasters[0]}"
 
 
+#: GDAL block cache (MB) while a band is read whole.
+_READ_CACHE_MB = 64
+
+
 def read_raster(
     path: str | os.PathLike,
     *,
@@ -79,8 +83,9 @@ def read_raster(
         import rasterio
         from rasterio.errors import NotGeoreferencedWarning
 
-        # A raster without georeference is fine: it gets cell size 1 below.
-        with warnings.catch_warnings():
+        # A raster without georeference is fine: it gets cell size 1 below. The band is read
+        # once, so a small block cache: GDAL's default (5 % of RAM) would hold a second copy.
+        with warnings.catch_warnings(), rasterio.Env(GDAL_CACHEMAX=_READ_CACHE_MB):
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
             with rasterio.open(source) as ds:
                 if band > ds.count:
@@ -94,7 +99,9 @@ def read_raster(
                 own = own_transform(ds)
                 file_crs = ds.crs.to_string() if ds.crs else None
                 nodata_value = ds.nodata
-    heights = as_heights(values)
+    # The band read is ours: float32 data get their NaNs in place (no second DEM in memory).
+    heights = as_heights(values, reuse=True)
+    del values
     transform = resolve_transform(own, heights.shape, cell, corner, p)
     return make_grid(heights, transform, crs or file_crs, nodata_value, policy)
 

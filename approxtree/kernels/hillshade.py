@@ -44,6 +44,70 @@ def _gradient(z, r, c, inv_ew, inv_ns, algorithm):
     return x, y
 
 
+@njit(cache=True, inline="always")
+def _shade_cell(z, r, c, inv_ew, inv_ns, algorithm, mode, consts):
+    """Shade of interior cell (r, c) in [1, 255] (float64, before float32 storage), 0 = nodata.
+
+    consts: (sin_alt, cos_alt_z, cos_az, sin_az, c225, square_z) of the light and z factor.
+    """
+    sin_alt, cos_alt_z, cos_az, sin_az, c225, square_z = consts
+    # Any nodata in the window leaves the cell nodata, as gdaldem does. Horn's gradient
+    # reads the eight neighbours, so NaN shows up in it; only the centre needs a test.
+    if np.isnan(z[r, c]):
+        return 0.0
+    if algorithm != HORN and (
+        np.isnan(z[r - 1, c - 1])
+        or np.isnan(z[r - 1, c + 1])
+        or np.isnan(z[r + 1, c - 1])
+        or np.isnan(z[r + 1, c + 1])
+    ):
+        return 0.0
+    x, y = _gradient(z, r, c, inv_ew, inv_ns, algorithm)
+    if np.isnan(x) or np.isnan(y):
+        return 0.0
+    xx_yy = x * x + y * y
+    if mode == STANDARD:
+        v = 254.0 * (sin_alt - (y * cos_az - x * sin_az)) / math.sqrt(1.0 + square_z * xx_yy)
+        return 1.0 if v <= 0.0 else 1.0 + v
+    if mode == COMBINED:
+        slope = xx_yy * square_z
+        cang = (sin_alt - (y * cos_az - x * sin_az)) / math.sqrt(1.0 + slope)
+        cang = math.acos(min(1.0, max(-1.0, cang)))
+        # Steeper cells get darker: weight the angle by the slope.
+        cang = 1.0 - cang * math.atan(math.sqrt(slope)) / (math.pi * math.pi / 4.0)
+        return 1.0 if cang <= 0.0 else 1.0 + 254.0 * cang
+    if xx_yy == 0.0:
+        return 1.0 + 254.0 * sin_alt
+    # Four lights (225°, 270°, 315°, 360°) weighted by the aspect (USGS OF 92-422).
+    v225 = max(0.0, 127.0 * (sin_alt + (x - y) * c225))
+    v270 = max(0.0, 127.0 * (sin_alt - x * cos_alt_z))
+    v315 = max(0.0, 127.0 * (sin_alt + (x + y) * c225))
+    v360 = max(0.0, 127.0 * (sin_alt - y * cos_alt_z))
+    w225 = 0.5 * xx_yy - x * y
+    w270 = x * x
+    w315 = xx_yy - w225
+    w360 = y * y
+    v = (w225 * v225 + w270 * v270 + w315 * v315 + w360 * v360) / xx_yy
+    return 1.0 + v / math.sqrt(1.0 + square_z * xx_yy)
+
+
+@njit(cache=True)
+def _light_consts(z_factor, altitude, azimuth, algorithm):
+    """(sin_alt, cos_alt_z, cos_az, sin_az, c225, square_z) for ``_shade_cell``."""
+    zf = z_factor / (8.0 if algorithm == HORN else 2.0)
+    alt = math.radians(altitude)
+    az = math.radians(azimuth)
+    cos_alt_z = math.cos(alt) * zf
+    return (
+        math.sin(alt),
+        cos_alt_z,
+        math.cos(az) * cos_alt_z,
+        math.sin(az) * cos_alt_z,
+        math.cos(math.radians(225.0)) * cos_alt_z,
+        zf * zf,
+    )
+
+
 @njit(cache=True, parallel=True)
 def hillshade(
     z: np.ndarray,
@@ -65,61 +129,38 @@ def hillshade(
     out = np.zeros((rows, cols), dtype=np.float32)
     inv_ew = 1.0 / dx
     inv_ns = 1.0 / dy
-    zf = z_factor / (8.0 if algorithm == HORN else 2.0)
-    alt = math.radians(altitude)
-    az = math.radians(azimuth)
-    sin_alt = math.sin(alt)
-    cos_alt_z = math.cos(alt) * zf
-    cos_az = math.cos(az) * cos_alt_z
-    sin_az = math.sin(az) * cos_alt_z
-    c225 = math.cos(math.radians(225.0)) * cos_alt_z
-    square_z = zf * zf
+    consts = _light_consts(z_factor, altitude, azimuth, algorithm)
     for r in prange(1, rows - 1):
         for c in range(1, cols - 1):
-            # Any nodata in the window leaves the cell nodata, as gdaldem does. Horn's gradient
-            # reads the eight neighbours, so NaN shows up in it; only the centre needs a test.
-            if np.isnan(z[r, c]):
-                continue
-            if algorithm != HORN and (
-                np.isnan(z[r - 1, c - 1])
-                or np.isnan(z[r - 1, c + 1])
-                or np.isnan(z[r + 1, c - 1])
-                or np.isnan(z[r + 1, c + 1])
-            ):
-                continue
-            x, y = _gradient(z, r, c, inv_ew, inv_ns, algorithm)
-            if np.isnan(x) or np.isnan(y):
-                continue
-            xx_yy = x * x + y * y
-            if mode == STANDARD:
-                v = (
-                    254.0
-                    * (sin_alt - (y * cos_az - x * sin_az))
-                    / math.sqrt(1.0 + square_z * xx_yy)
-                )
-                out[r, c] = 1.0 if v <= 0.0 else 1.0 + v
-            elif mode == COMBINED:
-                slope = xx_yy * square_z
-                cang = (sin_alt - (y * cos_az - x * sin_az)) / math.sqrt(1.0 + slope)
-                cang = math.acos(min(1.0, max(-1.0, cang)))
-                # Steeper cells get darker: weight the angle by the slope.
-                cang = 1.0 - cang * math.atan(math.sqrt(slope)) / (math.pi * math.pi / 4.0)
-                out[r, c] = 1.0 if cang <= 0.0 else 1.0 + 254.0 * cang
-            else:
-                if xx_yy == 0.0:
-                    out[r, c] = 1.0 + 254.0 * sin_alt
-                    continue
-                # Four lights (225°, 270°, 315°, 360°) weighted by the aspect (USGS OF 92-422).
-                v225 = max(0.0, 127.0 * (sin_alt + (x - y) * c225))
-                v270 = max(0.0, 127.0 * (sin_alt - x * cos_alt_z))
-                v315 = max(0.0, 127.0 * (sin_alt + (x + y) * c225))
-                v360 = max(0.0, 127.0 * (sin_alt - y * cos_alt_z))
-                w225 = 0.5 * xx_yy - x * y
-                w270 = x * x
-                w315 = xx_yy - w225
-                w360 = y * y
-                v = (w225 * v225 + w270 * v270 + w315 * v315 + w360 * v360) / xx_yy
-                out[r, c] = 1.0 + v / math.sqrt(1.0 + square_z * xx_yy)
+            out[r, c] = _shade_cell(z, r, c, inv_ew, inv_ns, algorithm, mode, consts)
+    return out
+
+
+@njit(cache=True, parallel=True)
+def hillshade_grey(
+    z: np.ndarray,
+    dx: float,
+    dy: float,
+    z_factor: float,
+    altitude: float,
+    azimuth: float,
+    algorithm: int,
+    mode: int,
+) -> np.ndarray:
+    """``hillshade`` rounded to grey levels in the kernel: (rows, cols) uint8, 0 = nodata.
+
+    Each value is stored as float32 and rounded half to even, as ``np.rint`` of ``hillshade``
+    would, without the (rows, cols) float32 temporary.
+    """
+    rows, cols = z.shape
+    out = np.zeros((rows, cols), dtype=np.uint8)
+    inv_ew = 1.0 / dx
+    inv_ns = 1.0 / dy
+    consts = _light_consts(z_factor, altitude, azimuth, algorithm)
+    for r in prange(1, rows - 1):
+        for c in range(1, cols - 1):
+            v = np.float32(_shade_cell(z, r, c, inv_ew, inv_ns, algorithm, mode, consts))
+            out[r, c] = np.uint8(np.rint(v))
     return out
 
 

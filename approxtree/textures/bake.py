@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -234,3 +235,8 @@ class _Precomputed(TextureData):
         from approxtree.textures.base import grey_to_rgba
 
         return grey_to_rgba(self._shade)
+
+    def band_strips(self, rows: int) -> Iterator[np.ndarray]:
+        from approxtree.textures.base import grey_strips
+
+        return grey_strips(self._shade, rows)

@@ -8,12 +8,14 @@ lattice: one texel per data point, so a texel's centre is a data point.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Iterator
 from functools import cached_property
 
 import numpy as np
 from affine import Affine
 
 from approxtree.geometry.rect import Rect
+from approxtree.kernels.rgba import grey_into_bands, grey_into_rgba
 
 
 class TextureData(ABC):
@@ -26,6 +28,15 @@ class TextureData(ABC):
     @abstractmethod
     def rgba(self) -> np.ndarray:
         """The texture: (rows, cols, 4) uint8."""
+
+    def band_strips(self, rows: int) -> Iterator[np.ndarray]:
+        """The texture as successive strips of at most ``rows`` rows from the top, each
+        (4, ≤ rows, cols) uint8 in band order (R, G, B, A planes) and valid until the next is
+        asked for; writers that stream (the texture pyramid) read these. By default, slices
+        of ``rgba()``."""
+        rgba = self.rgba()
+        for r0 in range(0, rgba.shape[0], rows):
+            yield np.ascontiguousarray(np.moveaxis(rgba[r0 : r0 + rows], -1, 0))
 
     @cached_property
     def extent(self) -> Rect:
@@ -44,6 +55,17 @@ class TextureData(ABC):
 def grey_to_rgba(shade: np.ndarray) -> np.ndarray:
     """(rows, cols) uint8 grey levels, 0 = nodata → (rows, cols, 4) RGBA with R = G = B."""
     out = np.empty((*shade.shape, 4), dtype=np.uint8)
-    out[..., :3] = shade[..., None]
-    out[..., 3] = np.where(shade > 0, 255, 0)
+    grey_into_rgba(np.ascontiguousarray(shade, dtype=np.uint8), out)
     return out
+
+
+def grey_strips(shade: np.ndarray, rows: int) -> Iterator[np.ndarray]:
+    """``grey_to_rgba(shade)`` as band-order strips of at most ``rows`` rows (``band_strips``),
+    assembled in one reused (4, rows, cols) buffer instead of a full-size RGBA array."""
+    shade = np.ascontiguousarray(shade, dtype=np.uint8)
+    buffer = np.empty((4, min(rows, shade.shape[0]), shade.shape[1]), dtype=np.uint8)
+    for r0 in range(0, shade.shape[0], rows):
+        n = min(rows, shade.shape[0] - r0)
+        strip = buffer if n == buffer.shape[1] else np.empty((4, n, shade.shape[1]), np.uint8)
+        grey_into_bands(shade[r0 : r0 + n], strip)
+        yield strip

@@ -26,8 +26,9 @@ from approxtree.errors import InvalidParameterError
 from approxtree.kernels import hillshade as hs
 from approxtree.textures.shading import ALGORITHMS, TopographicShading
 
-#: Largest tile side by default (bounds the GPU memory of one tile to about 200 MB).
-DEFAULT_TILE = 4096
+#: Largest tile side by default: a tile's heights and read-back take tens of MB, so a bake's
+#: peak memory is set by the DEM, not by the tiles (4096 held ~1 GB more at 8192² on llvmpipe).
+DEFAULT_TILE = 1024
 
 
 def max_tile_size(ctx: Any) -> int:
@@ -48,6 +49,14 @@ def gl_hillshade(
     ContextUnavailableError when none can be made). tile_size: side of the tiles drawn
     (default: DEFAULT_TILE, at most what the context allows).
     """
+    return _on_context(shading, context, tile_size, np.float32)
+
+
+def _on_context(
+    shading: TopographicShading, context: Any, tile_size: int | None, dtype: type
+) -> np.ndarray:
+    """The tiles drawn on ``context`` (None: a standalone one for the call) into a (rows, cols)
+    array of ``dtype``: float32 values, or uint8 grey levels rounded tile by tile."""
     from approxtree.render.engine import create_context
     from approxtree.render.shaders import create_program
 
@@ -56,7 +65,8 @@ def gl_hillshade(
     ctx = create_context() if context is None else context
     try:
         tile = min(tile_size or DEFAULT_TILE, max_tile_size(ctx))
-        return _draw_tiles(ctx, create_program, shading, tile)
+        out = np.zeros(shading.terrain.shape, dtype=dtype)
+        return _draw_tiles(ctx, create_program, shading, tile, out)
     finally:
         if context is None:
             ctx.release()
@@ -100,14 +110,18 @@ def _tile_heights(z: np.ndarray, offset: float, r0: int, c0: int, h: int, w: int
     return out
 
 
-def _draw_tiles(ctx: Any, create_program, shading: TopographicShading, tile: int) -> np.ndarray:
+def _draw_tiles(
+    ctx: Any, create_program, shading: TopographicShading, tile: int, out: np.ndarray
+) -> np.ndarray:
+    """Draw the shading tile by tile into ``out`` (rows, cols): float32 values as drawn, or
+    uint8 grey levels (each tile rounded half to even as it is read back)."""
     import moderngl
 
     z = shading.terrain.heights
     rows, cols = z.shape
     finite = np.isfinite(z)
     offset = float(np.min(z, where=finite, initial=np.inf)) if finite.any() else 0.0
-    out = np.zeros((rows, cols), dtype=np.float32)
+    grey = out.dtype == np.uint8
     prog = create_program(ctx, "hillshade")
     quad = ctx.buffer(np.array([-1, -1, 0, 1, -1, 0, -1, 1, 0, 1, 1, 0], dtype="f4").tobytes())
     vao = ctx.vertex_array(prog, [(quad, "3f", "in_position")])
@@ -133,7 +147,8 @@ def _draw_tiles(ctx: Any, create_program, shading: TopographicShading, tile: int
                     finally:
                         tex.release()
                     # Framebuffer row y is lattice row r0 + y: the texture rows were not flipped.
-                    out[r0 : r0 + h, c0 : c0 + w] = np.frombuffer(raw, np.float32).reshape(h, w)
+                    values = np.frombuffer(raw, np.float32).reshape(h, w)
+                    out[r0 : r0 + h, c0 : c0 + w] = np.rint(values) if grey else values
     finally:
         for obj in (vao, quad, fbo, colour, prog):
             obj.release()
@@ -156,3 +171,7 @@ class GLTopographicShading(TopographicShading):
 
     def hillshade(self) -> np.ndarray:
         return gl_hillshade(self, self.context, self.tile_size)
+
+    def _plain_grey(self) -> np.ndarray:
+        # Rounded tile by tile: no float32 grid besides the uint8 one.
+        return _on_context(self, self.context, self.tile_size, np.uint8)

@@ -5,7 +5,9 @@ by alpha, so transparent texels do not darken their neighbours) until a level fi
 renderer's maximum texture size. Every level is an uncompressed, pixel-interleaved RGBA GeoTIFF
 covering the domain of level 0 (odd sizes add at most one texel at the east and south edges),
 opened through ``numpy.memmap``: reading a texture patch touches only its rows, so pyramids
-larger than memory work. ``pyramid.json`` lists the levels.
+larger than memory work. ``pyramid.json`` lists the levels. A build streams: the texture
+arrives in band-order strips (``TextureData.band_strips``), each written and halved at once
+(uint8 kernels, ``kernels.rgba``), so level 0 is never whole in memory.
 
 A pyramid is written all or nothing: built in a temp folder beside its folder, then swapped in
 (``atomic_directory``). Each build has an id, stored in pyramid.json and in every level's
@@ -20,6 +22,7 @@ import json
 import os
 import re
 import uuid
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,10 +31,11 @@ from affine import Affine
 
 from approxtree.errors import InvalidParameterError, StoreError
 from approxtree.io.atomic import atomic_directory
+from approxtree.kernels.rgba import halve_bands
 from approxtree.textures.base import TextureData
 
 #: Rows handled at once while halving a level, bounding memory for huge textures.
-_CHUNK_ROWS = 2048
+_CHUNK_ROWS = 512
 
 #: pyramid.json format: 2 added the build id, the level tags and the level byte counts.
 PYRAMID_FORMAT = 2
@@ -61,13 +65,22 @@ class PyramidLevel:
 
 
 def _write_level(
-    path: Path, rgba: np.ndarray, transform: Affine, crs: str | None, build: str, level: int
+    path: Path,
+    strips: Iterable[np.ndarray],
+    shape: tuple[int, int],
+    transform: Affine,
+    crs: str | None,
+    build: str,
+    level: int,
+    halved: list[np.ndarray] | None,
 ) -> None:
-    """Write (rows, cols, 4) uint8 as an uncompressed pixel-interleaved GeoTIFF tagged with
-    the pyramid's build id and the level number (into the pyramid's temp folder)."""
+    """Write the (4, rows, cols) uint8 band-order strips of a level, top to bottom, as an
+    uncompressed pixel-interleaved GeoTIFF tagged with the pyramid's build id and the level
+    number (into the pyramid's temp folder); when ``halved`` is a list, append to it the
+    strips of the level's halving, made while each strip is at hand (strips of even height)."""
     import rasterio
 
-    rows, cols, _ = rgba.shape
+    rows, cols = shape
     profile = {
         "driver": "GTiff",
         "width": cols,
@@ -78,40 +91,46 @@ def _write_level(
         "crs": crs,
         "interleave": "pixel",
         "photometric": "RGB",
-        "alpha": "unassociated",
+        "alpha": "YES",
         "tiled": False,
         # Streamed output writes every strip in order, all-zero strips included (GDAL
         # otherwise defers empty strips to the end of the file and breaks the memory map).
         "streamable_output": "YES",
     }
+    r0 = 0
     with rasterio.open(path, "w", **profile) as ds:
-        for r0 in range(0, rows, _CHUNK_ROWS):
-            r1 = min(rows, r0 + _CHUNK_ROWS)
-            window = rasterio.windows.Window(0, r0, cols, r1 - r0)
-            ds.write(np.moveaxis(np.asarray(rgba[r0:r1]), -1, 0), window=window)
+        for strip in strips:
+            n = strip.shape[1] if strip.ndim == 3 else 0
+            if strip.ndim != 3 or strip.shape[::2] != (4, cols) or strip.dtype != np.uint8:
+                raise InvalidParameterError(
+                    f"A texture must be ({rows}, {cols}, 4) uint8, got a strip of "
+                    f"{strip.shape} {strip.dtype} (bands first)."
+                )
+            if r0 + n > rows or (n % 2 and r0 + n < rows):
+                raise InvalidParameterError(
+                    f"Texture strips must have an even number of rows and cover {rows} rows."
+                )
+            # Contiguous band-order strips go to GDAL without a copy.
+            strip = np.ascontiguousarray(strip)
+            ds.write(strip, window=rasterio.windows.Window(0, r0, cols, n))
+            # The halving of a strip depends on that strip only (its rows pair up).
+            if halved is not None:
+                half = np.empty((4, (n + 1) // 2, (cols + 1) // 2), dtype=np.uint8)
+                halve_bands(strip, half)
+                halved.append(half)
+            r0 += n
+    if r0 != rows:
+        raise InvalidParameterError(f"The texture's strips cover {r0} of its {rows} rows.")
     # Tags go in afterwards (GDAL rewrites the directory at the end, strips stay in place):
     # set on a streamed file before its pixels, tags longer than 4 bytes shift its strips.
     with rasterio.open(path, "r+") as ds:
         ds.update_tags(**{_TAG_BUILD: build, _TAG_LEVEL: str(level)})
 
 
-def _halve(src: np.ndarray) -> np.ndarray:
-    """2 × 2 alpha-weighted box filter of (rows, cols, 4) uint8 → (⌈rows/2⌉, ⌈cols/2⌉, 4)."""
-    rows, cols, _ = src.shape
-    # Odd sizes repeat their last row or column so every output texel has four inputs.
-    a = np.asarray(src, dtype=np.float64)
-    if rows % 2:
-        a = np.concatenate([a, a[-1:]], axis=0)
-    if cols % 2:
-        a = np.concatenate([a, a[:, -1:]], axis=1)
-    quads = a.reshape(a.shape[0] // 2, 2, a.shape[1] // 2, 2, 4)
-    alpha = quads[..., 3]
-    wsum = alpha.sum(axis=(1, 3))
-    rgb = (quads[..., :3] * alpha[..., None]).sum(axis=(1, 3)) / np.maximum(wsum, 1e-12)[..., None]
-    out = np.empty((*wsum.shape, 4))
-    out[..., :3] = np.where(wsum[..., None] > 0, rgb, 0.0)
-    out[..., 3] = alpha.mean(axis=(1, 3))
-    return np.clip(np.round(out), 0, 255).astype(np.uint8)
+def _strips(rgba: np.ndarray) -> Iterator[np.ndarray]:
+    """A (rows, cols, 4) array as band-order strips of ``_CHUNK_ROWS`` rows (``_write_level``)."""
+    for r0 in range(0, rgba.shape[0], _CHUNK_ROWS):
+        yield np.ascontiguousarray(np.moveaxis(rgba[r0 : r0 + _CHUNK_ROWS], -1, 0))
 
 
 def _level_offset(path: Path, level: PyramidLevel, build: str, k: int) -> int:
@@ -267,16 +286,23 @@ class TexturePyramid:
             raise InvalidParameterError(
                 f"max_texture_size must be a power of two, got {max_texture_size}."
             )
+        # The texture arrives in strips, so level 0 is never whole in memory; each level is
+        # halved strip by strip as it is written, and only the coarser levels (a third of
+        # level 0 at most) are held.
         if isinstance(texture, TextureData):
-            rgba, transform, crs = texture.rgba(), texture.transform, texture.crs
+            transform, crs = texture.transform, texture.crs
+            shape = tuple(texture.shape)
+            strips: Iterable[np.ndarray] = texture.band_strips(_CHUNK_ROWS)
         else:
             rgba = texture
             if transform is None:
                 raise InvalidParameterError("An RGBA array needs its transform.")
-        if rgba.ndim != 3 or rgba.shape[2] != 4 or rgba.dtype != np.uint8:
-            raise InvalidParameterError(
-                f"A texture must be (rows, cols, 4) uint8, got {rgba.shape} {rgba.dtype}."
-            )
+            if rgba.ndim != 3 or rgba.shape[2] != 4 or rgba.dtype != np.uint8:
+                raise InvalidParameterError(
+                    f"A texture must be (rows, cols, 4) uint8, got {rgba.shape} {rgba.dtype}."
+                )
+            shape = rgba.shape[:2]
+            strips = _strips(rgba)
         folder = Path(folder)
         check_pyramid_target(folder)
         folder.absolute().parent.mkdir(parents=True, exist_ok=True)
@@ -285,12 +311,16 @@ class TexturePyramid:
         with atomic_directory(folder) as tmp:
             levels = []
             level = 0
-            current = rgba
             t = transform
             while True:
+                rows, cols = shape
                 path = tmp / f"level{level}.tif"
-                _write_level(path, current, t, crs, build, level)
-                rows, cols = current.shape[:2]
+                # Texels exactly twice as large keep every level registered on level 0; an odd
+                # size repeats its last texel, so a coarser level may reach one finer texel
+                # further.
+                last = max(rows, cols) <= max_texture_size
+                halved: list[np.ndarray] | None = None if last else []
+                _write_level(path, strips, (rows, cols), t, crs, build, level, halved)
                 levels.append(
                     {
                         "file": path.name,
@@ -300,18 +330,9 @@ class TexturePyramid:
                         "bytes": path.stat().st_size,
                     }
                 )
-                if max(rows, cols) <= max_texture_size:
+                if halved is None:
                     break
-                # Texels exactly twice as large keep every level registered on level 0; an odd
-                # size repeats its last texel, so a coarser level may reach one finer texel
-                # further.
-                entry = PyramidLevel(path, cols, rows, t)
-                offset = _level_offset(path, entry, build, level)
-                mapped = np.memmap(path, np.uint8, mode="r", offset=offset, shape=(rows, cols, 4))
-                current = np.concatenate(
-                    [_halve(mapped[r0 : r0 + _CHUNK_ROWS]) for r0 in range(0, rows, _CHUNK_ROWS)]
-                )
-                del mapped
+                strips, shape = halved, (-(-rows // 2), -(-cols // 2))
                 t = t @ Affine.scale(2.0)
                 level += 1
             meta = {

@@ -7,6 +7,8 @@ included; slope and curvature weights and cast shadows refine it for cartographi
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 from affine import Affine
 
@@ -14,7 +16,7 @@ from approxtree.errors import InvalidParameterError
 from approxtree.geometry.grid import Grid
 from approxtree.kernels import hillshade as hs
 from approxtree.kernels.shadows import cast_shadows
-from approxtree.textures.base import TextureData, grey_to_rgba
+from approxtree.textures.base import TextureData, grey_strips, grey_to_rgba
 
 ALGORITHMS = {"horn": hs.HORN, "zevenbergen-thorne": hs.ZEVENBERGEN_THORNE}
 
@@ -54,6 +56,10 @@ class ShadingTexture(TextureData):
 
     def rgba(self) -> np.ndarray:
         return grey_to_rgba(self.shade())
+
+    def band_strips(self, rows: int) -> Iterator[np.ndarray]:
+        # Streamed: only the grey levels are held whole, RGBA one strip at a time.
+        return grey_strips(self.shade(), rows)
 
 
 class TopographicShading(ShadingTexture):
@@ -118,20 +124,21 @@ class TopographicShading(ShadingTexture):
 
     def hillshade(self) -> np.ndarray:
         """(rows, cols) float32 shade in [1, 255] (gdaldem before rounding), 0 = nodata."""
+        return hs.hillshade(*self._kernel_args())
+
+    def _plain_grey(self) -> np.ndarray:
+        """``np.rint(self.hillshade())`` as (rows, cols) uint8: plain gdaldem output, rounded
+        in the kernel without a float temporary of a large grid."""
+        return hs.hillshade_grey(*self._kernel_args())
+
+    def _kernel_args(self) -> tuple:
+        """Arguments of the hillshade kernels: heights, steps, z factor, light, algorithm, mode."""
         dx, dy = self._steps
         mode = hs.COMBINED if self.combined else hs.STANDARD
         if self.multidirectional:
             mode = hs.MULTIDIRECTIONAL
-        return hs.hillshade(
-            self.terrain.heights,
-            dx,
-            dy,
-            self.z_factor,
-            self.altitude,
-            self.azimuth,
-            ALGORITHMS[self.algorithm],
-            mode,
-        )
+        light = (self.z_factor, self.altitude, self.azimuth)
+        return (self.terrain.heights, dx, dy, *light, ALGORITHMS[self.algorithm], mode)
 
     def slope(self) -> np.ndarray:
         """(rows, cols) float32 slope in degrees (gdaldem slope), NaN at nodata and border."""
@@ -154,9 +161,7 @@ class TopographicShading(ShadingTexture):
 
     def shade(self) -> np.ndarray:
         if not (self.slope_weight or self.curvature_weight or self.shadows):
-            # Plain gdaldem output: round in place, no float64 copy of a large grid.
-            plain = self.hillshade()
-            return np.rint(plain, out=plain).astype(np.uint8)
+            return self._plain_grey()
         v = self.hillshade().astype(np.float64)
         valid = v > 0
         # Morphology darkens steep slopes and hollows multiplicatively, keeping nodata at 0.

@@ -1,0 +1,107 @@
+"""RGBA texel kernels of the texture pyramid: grey levels to RGBA, and the 2 × 2 halving.
+
+They work on uint8 in integer arithmetic and write into a caller's array, so a pyramid is
+assembled strip by strip without float64 or full-size temporaries. The pyramid's strips are
+in band order (4, rows, cols), the layout GDAL takes without a copy.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+
+@njit(cache=True, parallel=True)
+def grey_into_rgba(grey: np.ndarray, out: np.ndarray) -> None:
+    """(rows, cols) uint8 grey levels (0 = nodata) → ``out`` (rows, cols, 4) uint8, R = G = B,
+    alpha 255 where grey > 0 and 0 elsewhere."""
+    rows, cols = grey.shape
+    for r in prange(rows):
+        for c in range(cols):
+            g = grey[r, c]
+            out[r, c, 0] = g
+            out[r, c, 1] = g
+            out[r, c, 2] = g
+            out[r, c, 3] = 255 if g > 0 else 0
+
+
+@njit(cache=True, inline="always")
+def _round_ratio(num: int, den: int) -> int:
+    """num / den rounded half to even (numpy's round), for num ≥ 0 and den > 0."""
+    q = num // den
+    twice = 2 * (num - q * den)
+    if twice > den or (twice == den and q % 2 == 1):
+        q += 1
+    return q
+
+
+@njit(cache=True, inline="always")
+def _round_quarter(s: int) -> int:
+    """s / 4 rounded half to even, for s ≥ 0, without branches: adding 1 + (⌊s/4⌋ odd)
+    before the shift carries exactly the remainders 3, and 2 when ⌊s/4⌋ is odd."""
+    return (s + 1 + ((s >> 2) & 1)) >> 2
+
+
+@njit(cache=True, parallel=True)
+def grey_into_bands(grey: np.ndarray, out: np.ndarray) -> None:
+    """(rows, cols) uint8 grey levels (0 = nodata) → ``out`` (4, rows, cols) uint8 in band
+    order (R, G, B, A planes, as GDAL writes them): R = G = B = grey, A = 255 where grey > 0."""
+    rows, cols = grey.shape
+    for r in prange(rows):
+        for c in range(cols):
+            g = grey[r, c]
+            out[0, r, c] = g
+            out[1, r, c] = g
+            out[2, r, c] = g
+            out[3, r, c] = 255 if g > 0 else 0
+
+
+@njit(cache=True, parallel=True)
+def halve_bands(src: np.ndarray, out: np.ndarray) -> None:
+    """2 × 2 alpha-weighted box filter of (4, rows, cols) uint8 planes (R, G, B, A) into
+    ``out`` (4, ⌈rows/2⌉, ⌈cols/2⌉) uint8.
+
+    Colour is the alpha-weighted mean of the four texels (0 where all four are transparent),
+    alpha their mean, both rounded half to even. Odd sizes repeat the last row or column, so
+    every output texel has four inputs. Integer sums give exactly the values of the float64
+    formula: a quotient of integers below 2^53 is rounded correctly, and a non-tie lies at
+    least 1/2040 from a tie.
+    """
+    rows, cols = src.shape[1], src.shape[2]
+    out_rows, out_cols = out.shape[1], out.shape[2]
+    for i in prange(out_rows):
+        # An odd last row or column pairs with itself.
+        r0 = 2 * i
+        r1 = min(r0 + 1, rows - 1)
+        for j in range(out_cols):
+            c0 = 2 * j
+            c1 = min(c0 + 1, cols - 1)
+            a00 = np.int64(src[3, r0, c0])
+            a01 = np.int64(src[3, r0, c1])
+            a10 = np.int64(src[3, r1, c0])
+            a11 = np.int64(src[3, r1, c1])
+            wsum = a00 + a01 + a10 + a11
+            if wsum == 1020:
+                # All four opaque (most texels): equal weights, a plain mean of four.
+                for k in range(3):
+                    total = (
+                        np.int64(src[k, r0, c0])
+                        + np.int64(src[k, r0, c1])
+                        + np.int64(src[k, r1, c0])
+                        + np.int64(src[k, r1, c1])
+                    )
+                    out[k, i, j] = _round_quarter(total)
+                out[3, i, j] = 255
+                continue
+            for k in range(3):
+                if wsum > 0:
+                    num = (
+                        a00 * src[k, r0, c0]
+                        + a01 * src[k, r0, c1]
+                        + a10 * src[k, r1, c0]
+                        + a11 * src[k, r1, c1]
+                    )
+                    out[k, i, j] = _round_ratio(num, wsum)
+                else:
+                    out[k, i, j] = 0
+            out[3, i, j] = _round_quarter(wsum)
