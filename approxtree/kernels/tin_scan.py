@@ -162,7 +162,7 @@ def scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy):
     return best, best_y, best_x
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, _nrt=False)
 def _row_max_sse(row: np.ndarray, start: int, n: int, base: float, gx: float):
     """(max, sum of squares) of |row[start + i] − (base + gx·i)| for i < n (SIMD, no nodata)."""
     m = 0.0
@@ -195,14 +195,15 @@ def _edge_weight(ax, ay, bx, by, cx, cy, x, y, wab, wbc, wca) -> float:
     return 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def scan_triangle_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca):
     """``scan_triangle`` plus the triangle's owned sum of squared errors, no nodata.
 
     wab, wbc, wca: the share of a point on edge ab, bc, ca this triangle owns (½ when the edge
     is shared with a neighbour, 1 on the border), so the sums over a mesh's triangles count
     every non-vertex point once (up to round-off: both neighbours interpolate the same line).
-    Returns (key, candidate y, candidate x, sum of squared errors).
+    Returns (key, candidate y, candidate x, sum of squared errors). Compiled without the
+    reference-counting runtime: its row views then cost no atomic updates.
     """
     za = np.float64(heights[r0 + ay, c0 + ax])
     zb = np.float64(heights[r0 + by, c0 + bx])
@@ -264,7 +265,7 @@ def scan_triangle_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca):
     return best, best_y, best_x, max(sse, 0.0)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def scan_with_holes(heights, r0, c0, ax, ay, bx, by, cx, cy):
     """(key, candidate y, candidate x) of a triangle on a grid with nodata (NaN).
 
