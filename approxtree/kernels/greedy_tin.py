@@ -37,6 +37,7 @@ from approxtree.kernels.tin_mesh import (
 )
 from approxtree.kernels.tin_scan import (
     row_span,
+    scan_candidate,
     scan_triangle_sse,
     scan_with_holes,
     triangle_error,
@@ -79,6 +80,176 @@ def _flip_improves(heights, r0, c0, vx, vy, a, b, p, q, has_nan) -> bool:
     return e_pq < e_ab
 
 
+#: Why ``_insert_until`` returned: the run is over, or an array must grow before it resumes.
+FINISHED = 0
+GROW_MESH = 1
+GROW_STACK = 2
+GROW_HEAP = 3
+
+
+@njit(cache=True)
+def _insert_until(
+    heights,
+    r0,
+    c0,
+    cols,
+    max_error,
+    max_points,
+    max_triangles,
+    data_dependent,
+    has_nan,
+    vx,
+    vy,
+    tv,
+    he,
+    cand,
+    hpos,
+    key,
+    heap,
+    hkey,
+    pending,
+    is_pending,
+    stack,
+    changed,
+    suspects,
+    state,
+) -> int:
+    """Run greedy insertion on the given arrays until done or one of them is full.
+
+    state: (5,) int64 nv, nt, heap size, stack depth, pending count, read on entry and written
+    on return; the return value says which array to grow (see FINISHED, GROW_*). The run can be
+    resumed from any return: it only returns at the top of the flip loop, before the rescan,
+    or before an insertion. No array is reassigned in here, so the loop pays no reference
+    counting (a reassigned array variable costs atomic updates at every merge of the loop).
+    """
+    nv, nt, size, sp, n_pending = state[0], state[1], state[2], state[3], state[4]
+    done = max(max_error, 0.0)
+    while True:
+        # Restore the mesh: test every suspect edge, flipping until none is left.
+        while sp > 0:
+            if sp + 2 > stack.shape[0]:
+                state[:] = (nv, nt, size, sp, n_pending)
+                return GROW_STACK
+            sp -= 1
+            e = stack[sp]
+            f = he[e]
+            if f < 0:
+                continue
+            a = tv[e]
+            b = tv[next_edge(e)]
+            p = tv[prev_edge(e)]
+            q = tv[prev_edge(f)]
+            if data_dependent:
+                do_flip = _flip_improves(heights, r0, c0, vx, vy, a, b, p, q, has_nan)
+            else:
+                do_flip = in_circle(vx[a], vy[a], vx[b], vy[b], vx[p], vy[p], vx[q], vy[q])
+            if not do_flip:
+                continue
+            t = e // 3
+            u = f // 3
+            flip(tv, he, e)
+            # Pending triangles keep their stale heap entry until rescanned (one sift, then).
+            if not is_pending[t]:
+                is_pending[t] = True
+                pending[n_pending] = t
+                n_pending += 1
+            if not is_pending[u]:
+                is_pending[u] = True
+                pending[n_pending] = u
+                n_pending += 1
+            stack[sp] = 3 * t
+            stack[sp + 1] = 3 * u
+            sp += 2
+
+        # Rescan the changed triangles and put them back in the heap.
+        if size + n_pending > heap.shape[0]:
+            state[:] = (nv, nt, size, sp, n_pending)
+            return GROW_HEAP
+        for i in range(n_pending):
+            t = pending[i]
+            is_pending[t] = False
+            a, b, c = tv[3 * t], tv[3 * t + 1], tv[3 * t + 2]
+            if has_nan:
+                k, cy, cx = scan_with_holes(
+                    heights, r0, c0, vx[a], vy[a], vx[b], vy[b], vx[c], vy[c]
+                )
+            else:
+                k, cy, cx = scan_candidate(
+                    heights, r0, c0, vx[a], vy[a], vx[b], vy[b], vx[c], vy[c]
+                )
+            cand[t] = cy * cols + cx
+            key[t] = k
+            if k > done:
+                size = heap_update(heap, hkey, hpos, size, t, k)
+            else:
+                size = heap_remove(heap, hkey, hpos, size, t)
+        n_pending = 0
+
+        # Stopping rules: the worst candidate is good enough, or a budget is spent.
+        if size == 0 or hkey[0] <= done or 0 < max_points <= nv or 0 < max_triangles < nt + 2:
+            state[:] = (nv, nt, size, sp, n_pending)
+            return FINISHED
+        t = heap[0]
+
+        # Room for one more vertex and two more triangles.
+        if nv + 1 > vx.shape[0] or nt + 2 > key.shape[0]:
+            state[:] = (nv, nt, size, sp, n_pending)
+            return GROW_MESH
+
+        # Insert the candidate: inside t (three triangles) or on one of its edges (four, or two
+        # on the window border).
+        p = nv
+        px = cand[t] % cols
+        py = cand[t] // cols
+        vx[p] = px
+        vy[p] = py
+        nv += 1
+        on_edge = -1
+        for k3 in range(3):
+            e = 3 * t + k3
+            a = tv[e]
+            b = tv[next_edge(e)]
+            if orient(vx[a], vy[a], vx[b], vy[b], px, py) == 0:
+                on_edge = e
+        n1 = nt
+        n2 = nt + 1
+        for k4 in range(4):
+            changed[k4] = -1
+            suspects[k4] = -1
+        changed[0] = t
+        changed[1] = n1
+        if on_edge < 0:
+            split_interior(tv, he, t, n1, n2, p)
+            nt += 2
+            changed[2] = n2
+            suspects[0] = 3 * t
+            suspects[1] = 3 * n1
+            suspects[2] = 3 * n2
+        else:
+            u = he[on_edge] // 3 if he[on_edge] >= 0 else -1
+            added = split_edge(tv, he, on_edge, n1, n2, p)
+            nt += added
+            suspects[0] = 3 * t + 2
+            suspects[1] = 3 * n1 + 1
+            if added == 2:
+                changed[2] = u
+                changed[3] = n2
+                suspects[2] = 3 * u + 2
+                suspects[3] = 3 * n2 + 1
+        # Index loops, not iterators: an array iterator costs reference-count updates.
+        for k4 in range(4):
+            s = changed[k4]
+            if s >= 0 and not is_pending[s]:
+                is_pending[s] = True
+                pending[n_pending] = s
+                n_pending += 1
+        for k4 in range(4):
+            e = suspects[k4]
+            if e >= 0:
+                stack[sp] = e
+                sp += 1
+
+
 @njit(cache=True)
 def greedy_tin(
     heights: np.ndarray,
@@ -113,14 +284,12 @@ def greedy_tin(
     cand = np.full(cap_t, -1, dtype=np.int32)
     hpos = np.full(cap_t, -1, dtype=np.int32)
     key = np.zeros(cap_t, dtype=np.float64)
-    sse = np.zeros(cap_t, dtype=np.float64)
     # Only triangles still worse than the goal are in the heap (sized on its own): the others
     # are never popped, and the final maximum is taken from ``key``.
     cap_h = 128
     heap = np.empty(cap_h, dtype=np.int32)
     hkey = np.empty(cap_h, dtype=np.float64)
-    done = max(max_error, 0.0)
-    pending = np.empty(64, dtype=np.int32)
+    pending = np.empty(cap_t, dtype=np.int32)
     is_pending = np.zeros(cap_t, dtype=np.bool_)
     stack = np.empty(64, dtype=np.int32)
     changed = np.empty(4, dtype=np.int64)
@@ -151,155 +320,84 @@ def greedy_tin(
         stack[0] = 2
         sp = 1
 
+    state = np.array([nv, nt, size, sp, n_pending], dtype=np.int64)
+    # Run until finished, growing whichever array is full (by half, amortized O(1)).
     while True:
-        # Restore the mesh: test every suspect edge, flipping until none is left.
-        while sp > 0:
-            sp -= 1
-            e = stack[sp]
-            f = he[e]
-            if f < 0:
-                continue
-            a = tv[e]
-            b = tv[next_edge(e)]
-            p = tv[prev_edge(e)]
-            q = tv[prev_edge(f)]
-            if data_dependent:
-                do_flip = _flip_improves(heights, r0, c0, vx, vy, a, b, p, q, has_nan)
-            else:
-                do_flip = in_circle(vx[a], vy[a], vx[b], vy[b], vx[p], vy[p], vx[q], vy[q])
-            if not do_flip:
-                continue
-            t = e // 3
-            u = f // 3
-            flip(tv, he, e)
-            # Pending triangles keep their stale heap entry until rescanned (one sift, then).
-            if n_pending + 2 > pending.shape[0]:
-                pending = grow(pending, 2 * pending.shape[0], 0)
-            for s in (t, u):
-                if not is_pending[s]:
-                    is_pending[s] = True
-                    pending[n_pending] = s
-                    n_pending += 1
-            if sp + 2 > stack.shape[0]:
-                stack = grow(stack, 2 * stack.shape[0], 0)
-            stack[sp] = 3 * t
-            stack[sp + 1] = 3 * u
-            sp += 2
-
-        # Rescan the changed triangles and put them back in the heap.
-        for i in range(n_pending):
-            t = pending[i]
-            is_pending[t] = False
-            a, b, c = tv[3 * t], tv[3 * t + 1], tv[3 * t + 2]
-            if has_nan:
-                k, cy, cx = scan_with_holes(
-                    heights, r0, c0, vx[a], vy[a], vx[b], vy[b], vx[c], vy[c]
-                )
-            else:
-                # An edge point is half this triangle's when the edge is shared.
-                k, cy, cx, sse[t] = scan_triangle_sse(
-                    heights,
-                    r0,
-                    c0,
-                    vx[a],
-                    vy[a],
-                    vx[b],
-                    vy[b],
-                    vx[c],
-                    vy[c],
-                    0.5 if he[3 * t] >= 0 else 1.0,
-                    0.5 if he[3 * t + 1] >= 0 else 1.0,
-                    0.5 if he[3 * t + 2] >= 0 else 1.0,
-                )
-            cand[t] = cy * cols + cx
-            key[t] = k
-            if k > done:
-                if size + 1 > cap_h:
-                    cap_h += cap_h // 2
-                    heap = grow(heap, cap_h, 0)
-                    hkey = grow(hkey, cap_h, 0.0)
-                size = heap_update(heap, hkey, hpos, size, t, k)
-            else:
-                size = heap_remove(heap, hkey, hpos, size, t)
-        n_pending = 0
-
-        # Stopping rules: the worst candidate is good enough, or a budget is spent.
-        if size == 0:
+        status = _insert_until(
+            heights,
+            r0,
+            c0,
+            cols,
+            max_error,
+            max_points,
+            max_triangles,
+            data_dependent,
+            has_nan,
+            vx,
+            vy,
+            tv,
+            he,
+            cand,
+            hpos,
+            key,
+            heap,
+            hkey,
+            pending,
+            is_pending,
+            stack,
+            changed,
+            suspects,
+            state,
+        )
+        if status == FINISHED:
             break
-        t = heap[0]
-        worst = hkey[0]
-        if worst <= max(max_error, 0.0):
-            break
-        if 0 < max_points <= nv:
-            break
-        if 0 < max_triangles < nt + 2:
-            break
-
-        # Room for one more vertex and two more triangles.
-        if nv + 1 > cap_v:
-            cap_v += cap_v // 2
-            vx = grow(vx, cap_v, 0)
-            vy = grow(vy, cap_v, 0)
-        if nt + 2 > cap_t:
-            cap_t += cap_t // 2
-            tv = grow(tv, 3 * cap_t, 0)
-            he = grow(he, 3 * cap_t, -1)
-            key = grow(key, cap_t, 0.0)
-            sse = grow(sse, cap_t, 0.0)
-            cand = grow(cand, cap_t, -1)
-            hpos = grow(hpos, cap_t, -1)
-            is_pending = grow(is_pending, cap_t, False)
-
-        # Insert the candidate: inside t (three triangles) or on one of its edges (four, or two
-        # on the window border).
-        p = nv
-        px = cand[t] % cols
-        py = cand[t] // cols
-        vx[p] = px
-        vy[p] = py
-        nv += 1
-        on_edge = -1
-        for k3 in range(3):
-            e = 3 * t + k3
-            a = tv[e]
-            b = tv[next_edge(e)]
-            if orient(vx[a], vy[a], vx[b], vy[b], px, py) == 0:
-                on_edge = e
-        n1 = nt
-        n2 = nt + 1
-        changed[:] = -1
-        suspects[:] = -1
-        changed[0] = t
-        changed[1] = n1
-        if on_edge < 0:
-            split_interior(tv, he, t, n1, n2, p)
-            nt += 2
-            changed[2] = n2
-            suspects[0] = 3 * t
-            suspects[1] = 3 * n1
-            suspects[2] = 3 * n2
+        if status == GROW_STACK:
+            stack = grow(stack, 2 * stack.shape[0], 0)
+        elif status == GROW_HEAP:
+            cap_h = max(cap_h + cap_h // 2, int(state[2] + state[4]))
+            heap = grow(heap, cap_h, 0)
+            hkey = grow(hkey, cap_h, 0.0)
         else:
-            u = he[on_edge] // 3 if he[on_edge] >= 0 else -1
-            added = split_edge(tv, he, on_edge, n1, n2, p)
-            nt += added
-            suspects[0] = 3 * t + 2
-            suspects[1] = 3 * n1 + 1
-            if added == 2:
-                changed[2] = u
-                changed[3] = n2
-                suspects[2] = 3 * u + 2
-                suspects[3] = 3 * n2 + 1
-        for s in changed:
-            if s >= 0 and not is_pending[s]:
-                is_pending[s] = True
-                pending[n_pending] = s
-                n_pending += 1
-        for e in suspects:
-            if e >= 0:
-                stack[sp] = e
-                sp += 1
+            if state[0] + 1 > cap_v:
+                cap_v += cap_v // 2
+                vx = grow(vx, cap_v, 0)
+                vy = grow(vy, cap_v, 0)
+            if state[1] + 2 > cap_t:
+                cap_t += cap_t // 2
+                tv = grow(tv, 3 * cap_t, 0)
+                he = grow(he, 3 * cap_t, -1)
+                key = grow(key, cap_t, 0.0)
+                cand = grow(cand, cap_t, -1)
+                hpos = grow(hpos, cap_t, -1)
+                is_pending = grow(is_pending, cap_t, False)
+                # At most every triangle is pending at once.
+                pending = grow(pending, cap_t, 0)
+    nv = int(state[0])
+    nt = int(state[1])
 
     worst = max(key[:nt].max(), 0.0)
+    # The squared errors are summed once over the final mesh, not at every rescan: the same
+    # per-triangle figures (a triangle's edges keep their border or shared status while it
+    # lives), for a fraction of the work.
+    sse = np.zeros(nt, dtype=np.float64)
+    if not has_nan:
+        for t in range(nt):
+            a, b, c = tv[3 * t], tv[3 * t + 1], tv[3 * t + 2]
+            # An edge point is half this triangle's when the edge is shared.
+            sse[t] = scan_triangle_sse(
+                heights,
+                r0,
+                c0,
+                vx[a],
+                vy[a],
+                vx[b],
+                vy[b],
+                vx[c],
+                vy[c],
+                0.5 if he[3 * t] >= 0 else 1.0,
+                0.5 if he[3 * t + 1] >= 0 else 1.0,
+                0.5 if he[3 * t + 2] >= 0 else 1.0,
+            )[3]
     # Views, not copies: the work arrays are freed on return, so the peak stays lower.
     return (
         vx[:nv],

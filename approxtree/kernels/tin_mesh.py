@@ -4,6 +4,9 @@ A triangle t owns the half-edges 3t, 3t+1, 3t+2; half-edge e runs from ``tv[e]``
 ``tv[next(e)]`` and ``he[e]`` is its twin in the neighbouring triangle (−1 on the border).
 Vertices are integer lattice points (column x, row y), so orientation and in-circle tests are
 exact in int64 for grids up to about 2^15 points a side. Every triangle has orient(a, b, c) > 0.
+The mesh operations allocate nothing and are compiled without numba's reference-counting
+runtime (``_nrt=False``): a call then costs no atomic reference-count updates on its arrays,
+which would outweigh the operation itself.
 """
 
 from __future__ import annotations
@@ -44,7 +47,7 @@ def in_circle(ax, ay, bx, by, cx, cy, dx, dy) -> bool:
     return det > 0
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def set_triangle(tv, he, t, a, b, c, hab, hbc, hca) -> None:
     """Write triangle t = (a, b, c) and link its three half-edges with their twins."""
     e = 3 * t
@@ -62,7 +65,7 @@ def set_triangle(tv, he, t, a, b, c, hab, hbc, hca) -> None:
         he[hca] = e + 2
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def split_interior(tv, he, t, n1, n2, p) -> None:
     """Split triangle t = (a, b, c) at interior vertex p into (a,b,p), (b,c,p) = n1, (c,a,p) = n2.
 
@@ -76,7 +79,7 @@ def split_interior(tv, he, t, n1, n2, p) -> None:
     set_triangle(tv, he, n2, c, a, p, hca, 3 * t + 2, 3 * n1 + 1)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def split_edge(tv, he, e, n1, n2, p) -> int:
     """Split half-edge e = a→b (and its twin b→a, if any) at vertex p lying on it.
 
@@ -107,7 +110,7 @@ def split_edge(tv, he, e, n1, n2, p) -> int:
     return 2
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def flip(tv, he, e) -> None:
     """Swap the diagonal of the quadrilateral around half-edge e (p is opposite e in t).
 

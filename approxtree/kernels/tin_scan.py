@@ -112,7 +112,57 @@ def scan_triangle(heights, r0, c0, ax, ay, bx, by, cx, cy):
     return best, best_y, best_x
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, _nrt=False)
+def _grid_row_max(heights: np.ndarray, r: int, start: int, n: int, base: float, gx: float):
+    """``_row_max`` of heights[r, start:start + n], indexed in place (no row view to count)."""
+    m = 0.0
+    for i in range(n):
+        m = max(m, abs(heights[r, start + i] - (base + gx * i)))
+    return m
+
+
+@njit(cache=True, _nrt=False)
+def scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy):
+    """``scan_triangle`` for the greedy loop: the same key and candidate, the grid indexed in
+    place and compiled without the reference-counting runtime: row views, or reference counts on
+    the arguments, would cost atomic updates per row and per call, which dominate on the small
+    triangles of a fine mesh.
+    """
+    za = np.float64(heights[r0 + ay, c0 + ax])
+    zb = np.float64(heights[r0 + by, c0 + bx])
+    zc = np.float64(heights[r0 + cy, c0 + cx])
+    gx, gy = plane(za, zb, zc, ax, ay, bx, by, cx, cy)
+    best = NO_CANDIDATE
+    best_x = -1
+    best_y = -1
+    y0 = min(ay, min(by, cy))
+    y1 = max(ay, max(by, cy))
+    for y in range(y0, y1 + 1):
+        lo, hi = row_span(ax, ay, bx, by, cx, cy, y)
+        if lo > hi:
+            continue
+        n = hi - lo + 1
+        base = za + gy * (y - ay) + gx * (lo - ax)
+        r = r0 + y
+        start = c0 + lo
+        # Long rows: a vectorized maximum first (with slack for its fused arithmetic), the
+        # position searched only when it may beat the best so far.
+        if n >= 16 and _grid_row_max(heights, r, start, n, base, gx) + 1e-9 <= best:
+            continue
+        for i in range(n):
+            e = abs(heights[r, start + i] - (base + gx * i))
+            if e > best:
+                x = lo + i
+                # Corners are reproduced exactly; round-off must not make them candidates.
+                if (x == ax and y == ay) or (x == bx and y == by) or (x == cx and y == cy):
+                    continue
+                best = e
+                best_x = x
+                best_y = y
+    return best, best_y, best_x
+
+
+@njit(cache=True, fastmath=True, _nrt=False)
 def _row_max_sse(row: np.ndarray, start: int, n: int, base: float, gx: float):
     """(max, sum of squares) of |row[start + i] − (base + gx·i)| for i < n (SIMD, no nodata)."""
     m = 0.0
@@ -145,14 +195,15 @@ def _edge_weight(ax, ay, bx, by, cx, cy, x, y, wab, wbc, wca) -> float:
     return 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def scan_triangle_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca):
     """``scan_triangle`` plus the triangle's owned sum of squared errors, no nodata.
 
     wab, wbc, wca: the share of a point on edge ab, bc, ca this triangle owns (½ when the edge
     is shared with a neighbour, 1 on the border), so the sums over a mesh's triangles count
     every non-vertex point once (up to round-off: both neighbours interpolate the same line).
-    Returns (key, candidate y, candidate x, sum of squared errors).
+    Returns (key, candidate y, candidate x, sum of squared errors). Compiled without the
+    reference-counting runtime: its row views then cost no atomic updates.
     """
     za = np.float64(heights[r0 + ay, c0 + ax])
     zb = np.float64(heights[r0 + by, c0 + bx])
@@ -214,7 +265,7 @@ def scan_triangle_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca):
     return best, best_y, best_x, max(sse, 0.0)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def scan_with_holes(heights, r0, c0, ax, ay, bx, by, cx, cy):
     """(key, candidate y, candidate x) of a triangle on a grid with nodata (NaN).
 

@@ -3,7 +3,9 @@
 ``heap[i]`` is a triangle id and ``hkey[i]`` its key, side by side so that sifting walks
 contiguous memory; ``pos[t]`` is the slot of triangle t (−1 when absent), so a triangle changed
 by an insertion is taken out in O(log m) without lazy tombstones. Functions return the new heap
-size; the arrays must be large enough for every triangle id.
+size; the arrays must be large enough for every triangle id. They allocate nothing and are
+compiled without numba's reference-counting runtime (``_nrt=False``): a call then costs no
+atomic reference-count updates on its array arguments, which would outweigh a small sift.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ def _place(heap, hkey, pos, i, t, k) -> None:
     pos[t] = i
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _sift_up(heap, hkey, pos, i, t, k) -> None:
     """Move entry (t, k) up from slot i to where it belongs."""
     while i > 0:
@@ -31,7 +33,7 @@ def _sift_up(heap, hkey, pos, i, t, k) -> None:
     _place(heap, hkey, pos, i, t, k)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _sift_down(heap, hkey, pos, i, t, k, size) -> None:
     """Move entry (t, k) down from slot i to where it belongs."""
     while True:
@@ -47,14 +49,14 @@ def _sift_down(heap, hkey, pos, i, t, k, size) -> None:
     _place(heap, hkey, pos, i, t, k)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def heap_push(heap: np.ndarray, hkey: np.ndarray, pos: np.ndarray, size: int, t: int, k: float):
     """Add triangle t (not yet in the heap) with key k."""
     _sift_up(heap, hkey, pos, size, t, k)
     return size + 1
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def heap_remove(heap: np.ndarray, hkey: np.ndarray, pos: np.ndarray, size: int, t: int):
     """Take triangle t out of the heap if it is there."""
     i = pos[t]
@@ -73,7 +75,7 @@ def heap_remove(heap: np.ndarray, hkey: np.ndarray, pos: np.ndarray, size: int, 
     return last
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def heap_update(heap: np.ndarray, hkey: np.ndarray, pos: np.ndarray, size: int, t: int, k: float):
     """Give triangle t key k: pushed when absent, else moved up or down in place (one sift)."""
     i = pos[t]
