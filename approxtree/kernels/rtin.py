@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit, prange
 
 from approxtree.kernels.tin_mesh import orient
-from approxtree.kernels.tin_scan import row_span, scan_triangle, scan_with_holes
+from approxtree.kernels.tin_scan import plane, row_span, scan_with_holes
 
 
 @njit(cache=True, inline="always")
@@ -61,9 +61,8 @@ def _tri_error(heights, r0, c0, rows, cols, ax, ay, bx, by, cx, cy, has_nan) -> 
             )
         if has_nan:
             k, _, _ = scan_with_holes(heights, r0, c0, ax, ay, bx, by, cx, cy)
-        else:
-            k, _, _ = scan_triangle(heights, r0, c0, ax, ay, bx, by, cx, cy)
-        return max(k, 0.0)
+            return max(k, 0.0)
+        return _scan_right(heights, r0, c0, ax, ay, bx, by, cx, cy)
     # Partly or wholly outside the window: split while it reaches window points other than
     # those on its own edges along the window's far border.
     y0 = min(ay, min(by, cy))
@@ -94,6 +93,63 @@ def _tri_error(heights, r0, c0, rows, cols, ax, ay, bx, by, cx, cy, has_nan) -> 
                     continue
             return np.inf
     return 0.0
+
+
+@njit(cache=True, inline="always")
+def _edge_x(ux, uy, vx, vy, y, lo, hi):
+    """Widen [lo, hi] by the columns of edge u–v on row y (edges are axis-parallel or 45°)."""
+    if y < min(uy, vy) or y > max(uy, vy):
+        return lo, hi
+    if uy == vy:
+        return min(lo, min(ux, vx)), max(hi, max(ux, vx))
+    x = ux
+    if vx != ux:
+        x = ux + (y - uy) if (vx > ux) == (vy > uy) else ux - (y - uy)
+    return min(lo, x), max(hi, x)
+
+
+@njit(cache=True, fastmath=True)
+def _row_max2(heights: np.ndarray, r: int, start: int, n: int, base: float, gx: float) -> float:
+    """max |heights[r, start + i] − (base + gx·i)| for i < n, no nodata (SIMD under fastmath)."""
+    m = 0.0
+    for i in range(n):
+        m = max(m, abs(heights[r, start + i] - (base + gx * i)))
+    return m
+
+
+@njit(cache=True)
+def _scan_right(heights, r0, c0, ax, ay, bx, by, cx, cy) -> float:
+    """Exact max |z − plane| over the non-corner points of a hierarchy triangle, no nodata.
+
+    The same arithmetic as ``tin_scan.scan_triangle`` (so the same value to the last bit), but
+    row spans come from the edges directly, which are axis-parallel or diagonal: no divisions.
+    """
+    za = np.float64(heights[r0 + ay, c0 + ax])
+    zb = np.float64(heights[r0 + by, c0 + bx])
+    zc = np.float64(heights[r0 + cy, c0 + cx])
+    gx, gy = plane(za, zb, zc, ax, ay, bx, by, cx, cy)
+    best = 0.0
+    big = max(ax, max(bx, cx)) + 1
+    for y in range(min(ay, min(by, cy)), max(ay, max(by, cy)) + 1):
+        lo, hi = _edge_x(ax, ay, bx, by, y, big, -1)
+        lo, hi = _edge_x(bx, by, cx, cy, y, lo, hi)
+        lo, hi = _edge_x(cx, cy, ax, ay, y, lo, hi)
+        base = za + gy * (y - ay) + gx * (lo - ax)
+        n = hi - lo + 1
+        # Long rows: a vectorized maximum first (slack for its fused arithmetic); the exact
+        # values are recomputed only where the row may beat the best so far. No row views:
+        # each would cost a reference count.
+        if n > 16 and _row_max2(heights, r0 + y, c0 + lo, n, base, gx) + 1e-9 <= best:
+            continue
+        for i in range(n):
+            x = lo + i
+            e = abs(heights[r0 + y, c0 + x] - (base + gx * i))
+            if e > best:
+                # Corners are reproduced exactly; round-off must not count there.
+                if (x == ax and y == ay) or (x == bx and y == by) or (x == cx and y == cy):
+                    continue
+                best = e
+    return best
 
 
 @njit(cache=True, inline="always")
