@@ -261,6 +261,103 @@ def vertex_errors(
 
 
 @njit(cache=True)
+def _walk(
+    err: np.ndarray,
+    threshold: float,
+    heights: np.ndarray,
+    r0: int,
+    c0: int,
+    rows: int,
+    cols: int,
+    mark: np.ndarray,
+    vx: np.ndarray,
+    vy: np.ndarray,
+    tv: np.ndarray,
+    store: bool,
+):
+    """(triangle count, vertex count) of the mesh at threshold; with store, fills vx, vy, tv.
+
+    mark: (rows·cols,) int64, −1 where no vertex yet; on return the index of each vertex.
+    Written without helpers taking arrays and without reassigning arrays: either costs
+    reference counting per leaf, several times the work of the leaf itself.
+    """
+    size = err.shape[0] - 1
+    # Depth-first, a stack of (apex, l, r); every split pops one and pushes two, so the depth
+    # stays under two entries per level (64 levels hold any lattice).
+    stack = np.empty((130, 6), dtype=np.int64)
+    stack[0, 0], stack[0, 1], stack[0, 2], stack[0, 3], stack[0, 4], stack[0, 5] = (
+        size, 0, 0, 0, size, size,
+    )  # fmt: skip
+    stack[1, 0], stack[1, 1], stack[1, 2], stack[1, 3], stack[1, 4], stack[1, 5] = (
+        0, size, size, size, 0, 0,
+    )  # fmt: skip
+    sp = 2
+    nt = 0
+    nv = 0
+    w1 = cols - 1
+    h1 = rows - 1
+    while sp > 0:
+        sp -= 1
+        ax = stack[sp, 0]
+        ay = stack[sp, 1]
+        lx = stack[sp, 2]
+        ly = stack[sp, 3]
+        rx = stack[sp, 4]
+        ry = stack[sp, 5]
+        sx = lx + rx
+        sy = ly + ry
+        if (sx | sy) & 1 == 0:
+            mx = sx >> 1
+            my = sy >> 1
+            if err[my, mx] > threshold:
+                # Children (m, l, apex) below (m, apex, r): the latter is visited first.
+                stack[sp, 0] = mx
+                stack[sp, 1] = my
+                stack[sp, 2] = lx
+                stack[sp, 3] = ly
+                stack[sp, 4] = ax
+                stack[sp, 5] = ay
+                stack[sp + 1, 0] = mx
+                stack[sp + 1, 1] = my
+                stack[sp + 1, 2] = ax
+                stack[sp + 1, 3] = ay
+                stack[sp + 1, 4] = rx
+                stack[sp + 1, 5] = ry
+                sp += 2
+                continue
+        # A leaf: drawn when inside the window with valid corners.
+        if max(ax, max(lx, rx)) > w1 or max(ay, max(ly, ry)) > h1:
+            continue
+        if orient(ax, ay, lx, ly, rx, ry) < 0:
+            lx, ly, rx, ry = rx, ry, lx, ly
+        # A leaf with a nodata corner is not drawn, but its valid corners are vertices.
+        hole = False
+        for k in range(3):
+            if k == 0:
+                px, py = ax, ay
+            elif k == 1:
+                px, py = lx, ly
+            else:
+                px, py = rx, ry
+            key = py * cols + px
+            if np.isnan(heights[r0 + py, c0 + px]):
+                hole = True
+            elif mark[key] < 0:
+                mark[key] = nv
+                if store:
+                    vx[nv] = px
+                    vy[nv] = py
+                nv += 1
+        if not hole:
+            if store:
+                tv[3 * nt] = mark[ay * cols + ax]
+                tv[3 * nt + 1] = mark[ly * cols + lx]
+                tv[3 * nt + 2] = mark[ry * cols + rx]
+            nt += 1
+    return nt, nv
+
+
+@njit(cache=True)
 def extract(
     err: np.ndarray,
     threshold: float,
@@ -278,87 +375,17 @@ def extract(
     Returns (triangle count, vertex count, vx (n,), vy (n,) int64, tv (3m,) int32); with
     count_only the arrays are empty.
     """
-    size = err.shape[0] - 1
     mark = np.full(rows * cols, -1, dtype=np.int64)
-    stack = np.empty((64 * 6,), dtype=np.int64)
-    cap = 1024
-    tv = np.empty(3 * cap if not count_only else 0, dtype=np.int32)
-    vx = np.empty(cap if not count_only else 0, dtype=np.int64)
-    vy = np.empty(cap if not count_only else 0, dtype=np.int64)
-    nt = 0
-    nv = 0
-    # Roots: the two triangles of the main diagonal (apex, l, r).
-    sp = 0
-    roots = (size, 0, 0, 0, size, size, 0, size, size, size, 0, 0)
-    for k in range(12):
-        stack[k] = roots[k]
-    sp = 2
-    while sp > 0:
-        sp -= 1
-        b = 6 * sp
-        ax, ay, lx, ly, rx, ry = (
-            stack[b],
-            stack[b + 1],
-            stack[b + 2],
-            stack[b + 3],
-            stack[b + 4],
-            stack[b + 5],
-        )
-        sx = lx + rx
-        sy = ly + ry
-        if sx % 2 == 0 and sy % 2 == 0:
-            mx = sx // 2
-            my = sy // 2
-            if err[my, mx] > threshold:
-                if 6 * (sp + 2) > stack.shape[0]:
-                    bigger = np.empty(2 * stack.shape[0], dtype=np.int64)
-                    bigger[: stack.shape[0]] = stack
-                    stack = bigger
-                c = (mx, my, lx, ly, ax, ay, mx, my, ax, ay, rx, ry)
-                for k in range(12):
-                    stack[b + k] = c[k]
-                sp += 2
-                continue
-        # A leaf: drawn when inside the window with valid corners.
-        if max(ax, max(lx, rx)) > cols - 1 or max(ay, max(ly, ry)) > rows - 1:
-            continue
-        # A leaf with a nodata corner is not drawn, but its valid corners are vertices.
-        hole = (
-            np.isnan(heights[r0 + ay, c0 + ax])
-            or np.isnan(heights[r0 + ly, c0 + lx])
-            or np.isnan(heights[r0 + ry, c0 + rx])
-        )
-        if orient(ax, ay, lx, ly, rx, ry) < 0:
-            lx, ly, rx, ry = rx, ry, lx, ly
-        if not count_only and max(nt, nv) + 3 > cap:
-            cap *= 2
-            tv2 = np.empty(3 * cap, dtype=np.int32)
-            tv2[: tv.shape[0]] = tv
-            tv = tv2
-            vx2 = np.empty(cap, dtype=np.int64)
-            vy2 = np.empty(cap, dtype=np.int64)
-            vx2[: vx.shape[0]] = vx
-            vy2[: vy.shape[0]] = vy
-            vx = vx2
-            vy = vy2
-        for k in range(3):
-            if k == 0:
-                px, py = ax, ay
-            elif k == 1:
-                px, py = lx, ly
-            else:
-                px, py = rx, ry
-            key = py * cols + px
-            if mark[key] < 0 and not np.isnan(heights[r0 + py, c0 + px]):
-                mark[key] = nv
-                if not count_only:
-                    vx[nv] = px
-                    vy[nv] = py
-                nv += 1
-            if not count_only and not hole:
-                tv[3 * nt + k] = mark[key]
-        if not hole:
-            nt += 1
+    vx = np.empty(0, dtype=np.int64)
+    vy = np.empty(0, dtype=np.int64)
+    tv = np.empty(0, dtype=np.int32)
+    nt, nv = _walk(err, threshold, heights, r0, c0, rows, cols, mark, vx, vy, tv, False)
     if count_only:
         return nt, nv, vx, vy, tv
-    return nt, nv, vx[:nv].copy(), vy[:nv].copy(), tv[: 3 * nt].copy()
+    # A second walk fills arrays of the exact sizes (cheaper than growing them).
+    mark[:] = -1
+    vx = np.empty(nv, dtype=np.int64)
+    vy = np.empty(nv, dtype=np.int64)
+    tv = np.empty(3 * nt, dtype=np.int32)
+    _walk(err, threshold, heights, r0, c0, rows, cols, mark, vx, vy, tv, True)
+    return nt, nv, vx, vy, tv
