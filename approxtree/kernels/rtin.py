@@ -108,13 +108,31 @@ def _edge_x(ux, uy, vx, vy, y, lo, hi):
     return min(lo, x), max(hi, x)
 
 
-@njit(cache=True, fastmath=True)
-def _row_max2(heights: np.ndarray, r: int, start: int, n: int, base: float, gx: float) -> float:
-    """max |heights[r, start + i] − (base + gx·i)| for i < n, no nodata (SIMD under fastmath)."""
-    m = 0.0
-    for i in range(n):
-        m = max(m, abs(heights[r, start + i] - (base + gx * i)))
-    return m
+@njit(cache=True)
+def _row_max(heights: np.ndarray, r: int, start: int, n: int, base: float, gx: float) -> float:
+    """max |heights[r, start + i] − (base + gx·i)| for i < n, no nodata, in plain arithmetic.
+
+    Four running maxima: one would chain every step on the latency of the previous max.
+    """
+    m0 = 0.0
+    m1 = 0.0
+    m2 = 0.0
+    m3 = 0.0
+    # Unsigned indices: no wrap-around test per element.
+    ur = np.uint64(r)
+    us = np.uint64(start)
+    i = 0
+    while i + 4 <= n:
+        u = us + np.uint64(i)
+        m0 = max(m0, abs(heights[ur, u] - (base + gx * i)))
+        m1 = max(m1, abs(heights[ur, u + np.uint64(1)] - (base + gx * (i + 1))))
+        m2 = max(m2, abs(heights[ur, u + np.uint64(2)] - (base + gx * (i + 2))))
+        m3 = max(m3, abs(heights[ur, u + np.uint64(3)] - (base + gx * (i + 3))))
+        i += 4
+    while i < n:
+        m0 = max(m0, abs(heights[ur, us + np.uint64(i)] - (base + gx * i)))
+        i += 1
+    return max(max(m0, m1), max(m2, m3))
 
 
 @njit(cache=True)
@@ -136,16 +154,15 @@ def _scan_right(heights, r0, c0, ax, ay, bx, by, cx, cy) -> float:
         lo, hi = _edge_x(cx, cy, ax, ay, y, lo, hi)
         base = za + gy * (y - ay) + gx * (lo - ax)
         n = hi - lo + 1
-        # Long rows: a vectorized maximum first (slack for its fused arithmetic); the exact
-        # values are recomputed only where the row may beat the best so far. No row views:
-        # each would cost a reference count.
-        if n > 16 and _row_max2(heights, r0 + y, c0 + lo, n, base, gx) + 1e-9 <= best:
+        # Rows through a corner: the corner's round-off must not count. Other rows: one
+        # vectorized, exact maximum.
+        if y != ay and y != by and y != cy:
+            best = max(best, _row_max(heights, r0 + y, c0 + lo, n, base, gx))
             continue
         for i in range(n):
             x = lo + i
             e = abs(heights[r0 + y, c0 + x] - (base + gx * i))
             if e > best:
-                # Corners are reproduced exactly; round-off must not count there.
                 if (x == ax and y == ay) or (x == bx and y == by) or (x == cx and y == cy):
                     continue
                 best = e
