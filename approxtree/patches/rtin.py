@@ -19,10 +19,10 @@ import numpy as np
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
-from approxtree.kernels.rtin import extract, vertex_errors
+from approxtree.kernels.rtin import extract, twins, vertex_errors
 from approxtree.kernels.rtin_greedy import greedy_rtin
 from approxtree.patches.base import GeometryPatch
-from approxtree.patches.lattice import LatticePatch, Window, grid_window, require_grid, twins
+from approxtree.patches.lattice import LatticePatch, Window, grid_window, require_grid
 
 
 def lattice_size(rows: int, cols: int) -> int:
@@ -114,12 +114,12 @@ def rtin_patch(
         _, _, vx, vy, tv = extract(
             split, 0.5, grid.heights, win.r0, win.c0, win.rows, win.cols, False
         )
-        he = twins(tv.reshape(-1, 3))
+        he = twins(vx, vy, tv)
         return RTINPatch.from_window_mesh(grid, rect, win, vx, vy, tv, he)  # type: ignore[return-value]
     err = _vertex_errors(grid, win, size)
     t = _threshold(err, grid, win, max_error, max_points, max_triangles)
     _, _, vx, vy, tv = extract(err, t, grid.heights, win.r0, win.c0, win.rows, win.cols, False)
-    he = twins(tv.reshape(-1, 3))
+    he = twins(vx, vy, tv)
     return RTINPatch.from_window_mesh(grid, rect, win, vx, vy, tv, he)  # type: ignore[return-value]
 
 
