@@ -393,19 +393,19 @@ def extract(
     count_only the arrays are empty.
     """
     mark = np.full(rows * cols, -1, dtype=np.int64)
-    vx = np.empty(0, dtype=np.int64)
-    vy = np.empty(0, dtype=np.int64)
-    tv = np.empty(0, dtype=np.int32)
-    nt, nv = _walk(err, threshold, heights, r0, c0, rows, cols, mark, vx, vy, tv, False)
     if count_only:
+        vx = np.empty(0, dtype=np.int64)
+        vy = np.empty(0, dtype=np.int64)
+        tv = np.empty(0, dtype=np.int32)
+        nt, nv = _walk(err, threshold, heights, r0, c0, rows, cols, mark, vx, vy, tv, False)
         return nt, nv, vx, vy, tv
-    # A second walk fills arrays of the exact sizes (cheaper than growing them).
-    mark[:] = -1
-    vx = np.empty(nv, dtype=np.int64)
-    vy = np.empty(nv, dtype=np.int64)
-    tv = np.empty(3 * nt, dtype=np.int32)
-    _walk(err, threshold, heights, r0, c0, rows, cols, mark, vx, vy, tv, True)
-    return nt, nv, vx, vy, tv
+    # Room for the finest mesh (drawn triangles have area >= 1/2 and do not overlap): pages
+    # are touched only as far as they are filled, and the result is copied out compact.
+    vx = np.empty(rows * cols, dtype=np.int64)
+    vy = np.empty(rows * cols, dtype=np.int64)
+    tv = np.empty(6 * max(rows - 1, 0) * max(cols - 1, 0), dtype=np.int32)
+    nt, nv = _walk(err, threshold, heights, r0, c0, rows, cols, mark, vx, vy, tv, True)
+    return nt, nv, vx[:nv].copy(), vy[:nv].copy(), tv[: 3 * nt].copy()
 
 
 @njit(cache=True)
@@ -422,7 +422,7 @@ def twins(vx: np.ndarray, vy: np.ndarray, tv: np.ndarray) -> np.ndarray:
     slot = np.full(4 * vx.shape[0], -1, dtype=np.int32)
     for e in range(ne):
         u = tv[e]
-        # The next corner of the same triangle (no modulo: e − 2 closes the triangle).
+        # The next corner of the same triangle.
         v = tv[e + 1] if (e + 1) % 3 else tv[e - 2]
         dx = vx[v] - vx[u]
         dy = vy[v] - vy[u]
