@@ -195,6 +195,12 @@ def vertex_errors(
     n = size + 1
     err = np.zeros((n, n), dtype=np.float32)
     big = size
+    w1 = cols - 1
+    h1 = rows - 1
+    # L = 2 inside the window without nodata (fast): every triangle's only non-corner points
+    # are edge midpoints, so D(2) stores its side's midpoint error and A(2) the diagonal's,
+    # maxed with its sides (the same values as the generic path: max is exact).
+    fine = not has_nan
     L = 2
     while L <= big:
         h = L // 2
@@ -205,6 +211,9 @@ def vertex_errors(
             y = j * L
             for i in range(m):
                 x0 = i * L
+                if L == 2 and fine and x0 + 2 <= w1 and min(y + 1, big) <= h1:
+                    err[y, x0 + 1] = _store(_mid_error(heights, r0, c0, x0, y, x0 + 2, y))
+                    continue
                 e = 0.0
                 if j < m:
                     e = max(
@@ -230,6 +239,9 @@ def vertex_errors(
             x = i * L
             for j in range(m):
                 y0 = j * L
+                if L == 2 and fine and y0 + 2 <= h1 and min(x + 1, big) <= w1:
+                    err[y0 + 1, x] = _store(_mid_error(heights, r0, c0, x, y0, x, y0 + 2))
+                    continue
                 e = 0.0
                 if i < m:
                     e = max(
@@ -255,6 +267,15 @@ def vertex_errors(
             y0 = j * L
             for i in range(m):
                 x0 = i * L
+                if L == 2 and fine and x0 + 2 <= w1 and y0 + 2 <= h1:
+                    if (i + j) % 2 == 0:
+                        e = _mid_error(heights, r0, c0, x0, y0, x0 + 2, y0 + 2)
+                    else:
+                        e = _mid_error(heights, r0, c0, x0 + 2, y0, x0, y0 + 2)
+                    e = max(e, err[y0, x0 + 1], err[y0 + 2, x0 + 1])
+                    e = max(e, err[y0 + 1, x0], err[y0 + 1, x0 + 2])
+                    err[y0 + 1, x0 + 1] = _store(e)
+                    continue
                 if (i + j) % 2 == 0:
                     e1 = _tri_error(
                         heights, r0, c0, rows, cols, x0 + L, y0, x0, y0, x0 + L, y0 + L, has_nan
