@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit, prange
 
 from approxtree.kernels.tin_mesh import orient
-from approxtree.kernels.tin_scan import row_span, scan_triangle, scan_with_holes
+from approxtree.kernels.tin_scan import plane, row_span, scan_with_holes
 
 
 @njit(cache=True, inline="always")
@@ -61,9 +61,8 @@ def _tri_error(heights, r0, c0, rows, cols, ax, ay, bx, by, cx, cy, has_nan) -> 
             )
         if has_nan:
             k, _, _ = scan_with_holes(heights, r0, c0, ax, ay, bx, by, cx, cy)
-        else:
-            k, _, _ = scan_triangle(heights, r0, c0, ax, ay, bx, by, cx, cy)
-        return max(k, 0.0)
+            return max(k, 0.0)
+        return _scan_right(heights, r0, c0, ax, ay, bx, by, cx, cy)
     # Partly or wholly outside the window: split while it reaches window points other than
     # those on its own edges along the window's far border.
     y0 = min(ay, min(by, cy))
@@ -97,6 +96,80 @@ def _tri_error(heights, r0, c0, rows, cols, ax, ay, bx, by, cx, cy, has_nan) -> 
 
 
 @njit(cache=True, inline="always")
+def _edge_x(ux, uy, vx, vy, y, lo, hi):
+    """Widen [lo, hi] by the columns of edge u–v on row y (edges are axis-parallel or 45°)."""
+    if y < min(uy, vy) or y > max(uy, vy):
+        return lo, hi
+    if uy == vy:
+        return min(lo, min(ux, vx)), max(hi, max(ux, vx))
+    x = ux
+    if vx != ux:
+        x = ux + (y - uy) if (vx > ux) == (vy > uy) else ux - (y - uy)
+    return min(lo, x), max(hi, x)
+
+
+@njit(cache=True)
+def _row_max(heights: np.ndarray, r: int, start: int, n: int, base: float, gx: float) -> float:
+    """max |heights[r, start + i] − (base + gx·i)| for i < n, no nodata, in plain arithmetic.
+
+    Four running maxima: one would chain every step on the latency of the previous max.
+    """
+    m0 = 0.0
+    m1 = 0.0
+    m2 = 0.0
+    m3 = 0.0
+    # Unsigned indices: no wrap-around test per element.
+    ur = np.uint64(r)
+    us = np.uint64(start)
+    i = 0
+    while i + 4 <= n:
+        u = us + np.uint64(i)
+        m0 = max(m0, abs(heights[ur, u] - (base + gx * i)))
+        m1 = max(m1, abs(heights[ur, u + np.uint64(1)] - (base + gx * (i + 1))))
+        m2 = max(m2, abs(heights[ur, u + np.uint64(2)] - (base + gx * (i + 2))))
+        m3 = max(m3, abs(heights[ur, u + np.uint64(3)] - (base + gx * (i + 3))))
+        i += 4
+    while i < n:
+        m0 = max(m0, abs(heights[ur, us + np.uint64(i)] - (base + gx * i)))
+        i += 1
+    return max(max(m0, m1), max(m2, m3))
+
+
+@njit(cache=True)
+def _scan_right(heights, r0, c0, ax, ay, bx, by, cx, cy) -> float:
+    """Exact max |z − plane| over the non-corner points of a hierarchy triangle, no nodata.
+
+    The same arithmetic as ``tin_scan.scan_triangle`` (so the same value to the last bit), but
+    row spans come from the edges directly, which are axis-parallel or diagonal: no divisions.
+    """
+    za = np.float64(heights[r0 + ay, c0 + ax])
+    zb = np.float64(heights[r0 + by, c0 + bx])
+    zc = np.float64(heights[r0 + cy, c0 + cx])
+    gx, gy = plane(za, zb, zc, ax, ay, bx, by, cx, cy)
+    best = 0.0
+    big = max(ax, max(bx, cx)) + 1
+    for y in range(min(ay, min(by, cy)), max(ay, max(by, cy)) + 1):
+        lo, hi = _edge_x(ax, ay, bx, by, y, big, -1)
+        lo, hi = _edge_x(bx, by, cx, cy, y, lo, hi)
+        lo, hi = _edge_x(cx, cy, ax, ay, y, lo, hi)
+        base = za + gy * (y - ay) + gx * (lo - ax)
+        n = hi - lo + 1
+        # Rows through a corner: the corner's round-off must not count. Other rows: one
+        # vectorized, exact maximum.
+        if y != ay and y != by and y != cy:
+            best = max(best, _row_max(heights, r0 + y, c0 + lo, n, base, gx))
+            continue
+        for i in range(n):
+            x = lo + i
+            e = abs(heights[r0 + y, c0 + x] - (base + gx * i))
+            if e > best:
+                if (x == ax and y == ay) or (x == bx and y == by) or (x == cx and y == cy):
+                    continue
+                best = e
+    return best
+
+
+@njit(cache=True, inline="always")
 def _along_border(ux, uy, vx, vy, x, y, w1, h1) -> bool:
     """True when edge u–v lies on the far border line (x = w1 or y = h1) through (x, y)."""
     return (ux == vx == x == w1) or (uy == vy == y == h1)
@@ -122,6 +195,12 @@ def vertex_errors(
     n = size + 1
     err = np.zeros((n, n), dtype=np.float32)
     big = size
+    w1 = cols - 1
+    h1 = rows - 1
+    # L = 2 inside the window without nodata (fast): every triangle's only non-corner points
+    # are edge midpoints, so D(2) stores its side's midpoint error and A(2) the diagonal's,
+    # maxed with its sides (the same values as the generic path: max is exact).
+    fine = not has_nan
     L = 2
     while L <= big:
         h = L // 2
@@ -132,6 +211,9 @@ def vertex_errors(
             y = j * L
             for i in range(m):
                 x0 = i * L
+                if L == 2 and fine and x0 + 2 <= w1 and min(y + 1, big) <= h1:
+                    err[y, x0 + 1] = _store(_mid_error(heights, r0, c0, x0, y, x0 + 2, y))
+                    continue
                 e = 0.0
                 if j < m:
                     e = max(
@@ -157,6 +239,9 @@ def vertex_errors(
             x = i * L
             for j in range(m):
                 y0 = j * L
+                if L == 2 and fine and y0 + 2 <= h1 and min(x + 1, big) <= w1:
+                    err[y0 + 1, x] = _store(_mid_error(heights, r0, c0, x, y0, x, y0 + 2))
+                    continue
                 e = 0.0
                 if i < m:
                     e = max(
@@ -182,6 +267,15 @@ def vertex_errors(
             y0 = j * L
             for i in range(m):
                 x0 = i * L
+                if L == 2 and fine and x0 + 2 <= w1 and y0 + 2 <= h1:
+                    if (i + j) % 2 == 0:
+                        e = _mid_error(heights, r0, c0, x0, y0, x0 + 2, y0 + 2)
+                    else:
+                        e = _mid_error(heights, r0, c0, x0 + 2, y0, x0, y0 + 2)
+                    e = max(e, err[y0, x0 + 1], err[y0 + 2, x0 + 1])
+                    e = max(e, err[y0 + 1, x0], err[y0 + 1, x0 + 2])
+                    err[y0 + 1, x0 + 1] = _store(e)
+                    continue
                 if (i + j) % 2 == 0:
                     e1 = _tri_error(
                         heights, r0, c0, rows, cols, x0 + L, y0, x0, y0, x0 + L, y0 + L, has_nan
@@ -205,6 +299,103 @@ def vertex_errors(
 
 
 @njit(cache=True)
+def _walk(
+    err: np.ndarray,
+    threshold: float,
+    heights: np.ndarray,
+    r0: int,
+    c0: int,
+    rows: int,
+    cols: int,
+    mark: np.ndarray,
+    vx: np.ndarray,
+    vy: np.ndarray,
+    tv: np.ndarray,
+    store: bool,
+):
+    """(triangle count, vertex count) of the mesh at threshold; with store, fills vx, vy, tv.
+
+    mark: (rows·cols,) int64, −1 where no vertex yet; on return the index of each vertex.
+    Written without helpers taking arrays and without reassigning arrays: either costs
+    reference counting per leaf, several times the work of the leaf itself.
+    """
+    size = err.shape[0] - 1
+    # Depth-first, a stack of (apex, l, r); every split pops one and pushes two, so the depth
+    # stays under two entries per level (64 levels hold any lattice).
+    stack = np.empty((130, 6), dtype=np.int64)
+    stack[0, 0], stack[0, 1], stack[0, 2], stack[0, 3], stack[0, 4], stack[0, 5] = (
+        size, 0, 0, 0, size, size,
+    )  # fmt: skip
+    stack[1, 0], stack[1, 1], stack[1, 2], stack[1, 3], stack[1, 4], stack[1, 5] = (
+        0, size, size, size, 0, 0,
+    )  # fmt: skip
+    sp = 2
+    nt = 0
+    nv = 0
+    w1 = cols - 1
+    h1 = rows - 1
+    while sp > 0:
+        sp -= 1
+        ax = stack[sp, 0]
+        ay = stack[sp, 1]
+        lx = stack[sp, 2]
+        ly = stack[sp, 3]
+        rx = stack[sp, 4]
+        ry = stack[sp, 5]
+        sx = lx + rx
+        sy = ly + ry
+        if (sx | sy) & 1 == 0:
+            mx = sx >> 1
+            my = sy >> 1
+            if err[my, mx] > threshold:
+                # Children (m, l, apex) below (m, apex, r): the latter is visited first.
+                stack[sp, 0] = mx
+                stack[sp, 1] = my
+                stack[sp, 2] = lx
+                stack[sp, 3] = ly
+                stack[sp, 4] = ax
+                stack[sp, 5] = ay
+                stack[sp + 1, 0] = mx
+                stack[sp + 1, 1] = my
+                stack[sp + 1, 2] = ax
+                stack[sp + 1, 3] = ay
+                stack[sp + 1, 4] = rx
+                stack[sp + 1, 5] = ry
+                sp += 2
+                continue
+        # A leaf: drawn when inside the window with valid corners.
+        if max(ax, max(lx, rx)) > w1 or max(ay, max(ly, ry)) > h1:
+            continue
+        if orient(ax, ay, lx, ly, rx, ry) < 0:
+            lx, ly, rx, ry = rx, ry, lx, ly
+        # A leaf with a nodata corner is not drawn, but its valid corners are vertices.
+        hole = False
+        for k in range(3):
+            if k == 0:
+                px, py = ax, ay
+            elif k == 1:
+                px, py = lx, ly
+            else:
+                px, py = rx, ry
+            key = py * cols + px
+            if np.isnan(heights[r0 + py, c0 + px]):
+                hole = True
+            elif mark[key] < 0:
+                mark[key] = nv
+                if store:
+                    vx[nv] = px
+                    vy[nv] = py
+                nv += 1
+        if not hole:
+            if store:
+                tv[3 * nt] = mark[ay * cols + ax]
+                tv[3 * nt + 1] = mark[ly * cols + lx]
+                tv[3 * nt + 2] = mark[ry * cols + rx]
+            nt += 1
+    return nt, nv
+
+
+@njit(cache=True)
 def extract(
     err: np.ndarray,
     threshold: float,
@@ -222,87 +413,59 @@ def extract(
     Returns (triangle count, vertex count, vx (n,), vy (n,) int64, tv (3m,) int32); with
     count_only the arrays are empty.
     """
-    size = err.shape[0] - 1
     mark = np.full(rows * cols, -1, dtype=np.int64)
-    stack = np.empty((64 * 6,), dtype=np.int64)
-    cap = 1024
-    tv = np.empty(3 * cap if not count_only else 0, dtype=np.int32)
-    vx = np.empty(cap if not count_only else 0, dtype=np.int64)
-    vy = np.empty(cap if not count_only else 0, dtype=np.int64)
-    nt = 0
-    nv = 0
-    # Roots: the two triangles of the main diagonal (apex, l, r).
-    sp = 0
-    roots = (size, 0, 0, 0, size, size, 0, size, size, size, 0, 0)
-    for k in range(12):
-        stack[k] = roots[k]
-    sp = 2
-    while sp > 0:
-        sp -= 1
-        b = 6 * sp
-        ax, ay, lx, ly, rx, ry = (
-            stack[b],
-            stack[b + 1],
-            stack[b + 2],
-            stack[b + 3],
-            stack[b + 4],
-            stack[b + 5],
-        )
-        sx = lx + rx
-        sy = ly + ry
-        if sx % 2 == 0 and sy % 2 == 0:
-            mx = sx // 2
-            my = sy // 2
-            if err[my, mx] > threshold:
-                if 6 * (sp + 2) > stack.shape[0]:
-                    bigger = np.empty(2 * stack.shape[0], dtype=np.int64)
-                    bigger[: stack.shape[0]] = stack
-                    stack = bigger
-                c = (mx, my, lx, ly, ax, ay, mx, my, ax, ay, rx, ry)
-                for k in range(12):
-                    stack[b + k] = c[k]
-                sp += 2
-                continue
-        # A leaf: drawn when inside the window with valid corners.
-        if max(ax, max(lx, rx)) > cols - 1 or max(ay, max(ly, ry)) > rows - 1:
-            continue
-        # A leaf with a nodata corner is not drawn, but its valid corners are vertices.
-        hole = (
-            np.isnan(heights[r0 + ay, c0 + ax])
-            or np.isnan(heights[r0 + ly, c0 + lx])
-            or np.isnan(heights[r0 + ry, c0 + rx])
-        )
-        if orient(ax, ay, lx, ly, rx, ry) < 0:
-            lx, ly, rx, ry = rx, ry, lx, ly
-        if not count_only and max(nt, nv) + 3 > cap:
-            cap *= 2
-            tv2 = np.empty(3 * cap, dtype=np.int32)
-            tv2[: tv.shape[0]] = tv
-            tv = tv2
-            vx2 = np.empty(cap, dtype=np.int64)
-            vy2 = np.empty(cap, dtype=np.int64)
-            vx2[: vx.shape[0]] = vx
-            vy2[: vy.shape[0]] = vy
-            vx = vx2
-            vy = vy2
-        for k in range(3):
-            if k == 0:
-                px, py = ax, ay
-            elif k == 1:
-                px, py = lx, ly
-            else:
-                px, py = rx, ry
-            key = py * cols + px
-            if mark[key] < 0 and not np.isnan(heights[r0 + py, c0 + px]):
-                mark[key] = nv
-                if not count_only:
-                    vx[nv] = px
-                    vy[nv] = py
-                nv += 1
-            if not count_only and not hole:
-                tv[3 * nt + k] = mark[key]
-        if not hole:
-            nt += 1
     if count_only:
+        vx = np.empty(0, dtype=np.int64)
+        vy = np.empty(0, dtype=np.int64)
+        tv = np.empty(0, dtype=np.int32)
+        nt, nv = _walk(err, threshold, heights, r0, c0, rows, cols, mark, vx, vy, tv, False)
         return nt, nv, vx, vy, tv
+    # Room for the finest mesh (drawn triangles have area >= 1/2 and do not overlap): pages
+    # are touched only as far as they are filled, and the result is copied out compact.
+    vx = np.empty(rows * cols, dtype=np.int64)
+    vy = np.empty(rows * cols, dtype=np.int64)
+    tv = np.empty(6 * max(rows - 1, 0) * max(cols - 1, 0), dtype=np.int32)
+    nt, nv = _walk(err, threshold, heights, r0, c0, rows, cols, mark, vx, vy, tv, True)
     return nt, nv, vx[:nv].copy(), vy[:nv].copy(), tv[: 3 * nt].copy()
+
+
+@njit(cache=True)
+def twins(vx: np.ndarray, vy: np.ndarray, tv: np.ndarray) -> np.ndarray:
+    """(3m,) int32 twin half-edge of each half-edge of an RTIN mesh tv (3m,), −1 on the border.
+
+    Same result as ``tin_mesh.half_edge_twins``, in one pass: RTIN edges run in one of four
+    directions from their first endpoint in (row, column) order (east, south-east, south,
+    south-west), and a conforming mesh has at most one edge per direction at a vertex, so a
+    slot per (vertex, direction) pairs the two half-edges of an edge.
+    """
+    ne = tv.shape[0]
+    out = np.full(ne, -1, dtype=np.int32)
+    slot = np.full(4 * vx.shape[0], -1, dtype=np.int32)
+    for e in range(ne):
+        u = tv[e]
+        # The next corner of the same triangle.
+        v = tv[e + 1] if (e + 1) % 3 else tv[e - 2]
+        dx = vx[v] - vx[u]
+        dy = vy[v] - vy[u]
+        p = u
+        if dy < 0 or (dy == 0 and dx < 0):
+            p = v
+            dx = -dx
+            dy = -dy
+        # East, south-east, south, south-west (dy >= 0 now, dx > 0 when dy == 0).
+        if dy == 0:
+            k = 0
+        elif dx > 0:
+            k = 1
+        elif dx == 0:
+            k = 2
+        else:
+            k = 3
+        s = 4 * p + k
+        f = slot[s]
+        if f < 0:
+            slot[s] = e
+        else:
+            out[e] = f
+            out[f] = e
+    return out

@@ -19,10 +19,10 @@ import numpy as np
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
-from approxtree.kernels.rtin import extract, vertex_errors
+from approxtree.kernels.rtin import extract, twins, vertex_errors
 from approxtree.kernels.rtin_greedy import greedy_rtin
 from approxtree.patches.base import GeometryPatch
-from approxtree.patches.lattice import LatticePatch, Window, grid_window, require_grid, twins
+from approxtree.patches.lattice import LatticePatch, Window, grid_window, measure, require_grid
 
 
 def lattice_size(rows: int, cols: int) -> int:
@@ -114,12 +114,12 @@ def rtin_patch(
         _, _, vx, vy, tv = extract(
             split, 0.5, grid.heights, win.r0, win.c0, win.rows, win.cols, False
         )
-        he = twins(tv.reshape(-1, 3))
+        he = twins(vx, vy, tv)
         return RTINPatch.from_window_mesh(grid, rect, win, vx, vy, tv, he)  # type: ignore[return-value]
     err = _vertex_errors(grid, win, size)
     t = _threshold(err, grid, win, max_error, max_points, max_triangles)
     _, _, vx, vy, tv = extract(err, t, grid.heights, win.r0, win.c0, win.rows, win.cols, False)
-    he = twins(tv.reshape(-1, 3))
+    he = twins(vx, vy, tv)
     return RTINPatch.from_window_mesh(grid, rect, win, vx, vy, tv, he)  # type: ignore[return-value]
 
 
@@ -127,6 +127,30 @@ class RTINPatch(LatticePatch):
     """RTIN of a Grid window: stores (row, col) vertex indices and triangles."""
 
     kind = "rtin"
+
+    @classmethod
+    def from_window_mesh(
+        cls,
+        grid: Grid,
+        rect: Rect,
+        win: Window,
+        vx: np.ndarray,
+        vy: np.ndarray,
+        tv: np.ndarray,
+        he: np.ndarray,
+    ) -> LatticePatch:
+        """``LatticePatch.from_window_mesh`` of an ``extract`` mesh, without filtering copies.
+
+        extract emits valid vertices and drawn triangles only, so the arrays are kept as they
+        are: (row, col) int32 built in place, triangles a view of tv.
+        """
+        m = measure(grid, win, vx, vy, tv, he)
+        if not m.drawn.all():
+            return super().from_window_mesh(grid, rect, win, vx, vy, tv, he)
+        ij = np.empty((len(vx), 2), dtype=np.int32)
+        np.add(vy, win.r0, out=ij[:, 0], casting="unsafe")
+        np.add(vx, win.c0, out=ij[:, 1], casting="unsafe")
+        return cls(grid, rect, ij, tv.reshape(-1, 3), m.error, m.rms, win.z_range, win.count)
 
     @classmethod
     def build_many(
