@@ -212,14 +212,7 @@ class Engine:
         # Bad textures and a tree with nothing to draw fail before any GPU object exists.
         _check_drawable(tree)
         textures = _as_pyramid(textures, tree.terrain)
-        if not (isinstance(cache_bytes, int) and cache_bytes > 0):
-            raise InvalidParameterError(f"cache_bytes must be an int > 0, got {cache_bytes!r}.")
-        self.tree = tree
-        self.owns_context = context is None
-        self.offscreen = self.owns_context if offscreen is None else bool(offscreen)
-        self.skirts = bool(skirts)
-        self.ctx = create_context() if context is None else context
-        self.scale = display_scale(tree.terrain)
+        self._open_gpu(tree, context, cache_bytes, offscreen, skirts)
         # Per-node figures used every frame, computed once.
         self._data_texels = texel_sizes(tree)
         self.texels = self._data_texels
@@ -231,6 +224,27 @@ class Engine:
         self.skirt_base = skirt_base(tree.errors, tree.terrain.z_range, extents)
         d = tree.terrain.domain
         self._domain = (d.xmin, d.ymin, d.xmax, d.ymax)
+        self.set_textures(textures)
+        # Load the compiled selection kernels now, so select_ms of the first frame is honest.
+        warm = overview_camera(tree.bboxes[0], self.scale)
+        warm_selection = select(tree, self.frame_state(warm, (2, 2)), 1.0, 2.0, self.texels)
+        texture_nodes(tree.parents, warm_selection, 2.0)
+
+    def _open_gpu(
+        self, tree: Any, context: Any, cache_bytes: int, offscreen: bool | None, skirts: bool
+    ) -> None:
+        """The GL state every engine owns: context, programs, GPU cache, normal map.
+
+        Shared by the engines of every tree kind; a bad cache size fails before any GL object.
+        """
+        if not (isinstance(cache_bytes, int) and cache_bytes > 0):
+            raise InvalidParameterError(f"cache_bytes must be an int > 0, got {cache_bytes!r}.")
+        self.tree = tree
+        self.owns_context = context is None
+        self.offscreen = self.owns_context if offscreen is None else bool(offscreen)
+        self.skirts = bool(skirts)
+        self.ctx = create_context() if context is None else context
+        self.scale = display_scale(tree.terrain)
         self._full_chunks: list[tuple[Any, np.ndarray]] | None = None
         self._targets: dict[tuple[str, int, int], Any] = {}
         self._released = False
@@ -243,11 +257,6 @@ class Engine:
         self.normal_map, self._normal_uv = self._make_normal_map()
         self.pyramid = None
         self._texture_patches: dict[tuple[str, int], Any] = {}
-        self.set_textures(textures)
-        # Load the compiled selection kernels now, so select_ms of the first frame is honest.
-        warm = overview_camera(tree.bboxes[0], self.scale)
-        warm_selection = select(tree, self.frame_state(warm, (2, 2)), 1.0, 2.0, self.texels)
-        texture_nodes(tree.parents, warm_selection, 2.0)
 
     # -- public -----------------------------------------------------------------------------
 

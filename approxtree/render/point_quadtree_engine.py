@@ -37,12 +37,10 @@ from typing import Any
 import numpy as np
 
 from approxtree.errors import InvalidParameterError
-from approxtree.render.engine import DEFAULT_CACHE_BYTES, Engine, create_context
-from approxtree.render.frame_state import FrameState, display_scale
+from approxtree.render.engine import DEFAULT_CACHE_BYTES, Engine
+from approxtree.render.frame_state import FrameState
 from approxtree.render.frustum import boxes_in_frustum
-from approxtree.render.gpu_cache import GpuCache
 from approxtree.render.selector import Selection, eye_below_ground
-from approxtree.render.shaders import create_program
 
 
 def pixels_per_radian(fs: FrameState) -> float:
@@ -70,27 +68,8 @@ class PointQuadtreeEngine(Engine):
     ) -> None:
         # Bad arguments fail before any GPU object exists.
         _no_textures(textures)
-        if not (isinstance(cache_bytes, int) and cache_bytes > 0):
-            raise InvalidParameterError(f"cache_bytes must be an int > 0, got {cache_bytes!r}.")
-        self.tree = tree
-        self.owns_context = context is None
-        self.offscreen = self.owns_context if offscreen is None else bool(offscreen)
-        self.skirts = bool(skirts)
-        self.ctx = create_context() if context is None else context
-        self.scale = display_scale(tree.terrain)
+        self._open_gpu(tree, context, cache_bytes, offscreen, skirts)
         self._data_texels = self.texels = np.zeros((len(tree), 2))
-        self._full_chunks = None
-        self._targets: dict[tuple[str, int, int], Any] = {}
-        self._released = False
-        self.programs = {
-            "terrain": create_program(self.ctx, "terrain"),
-            "position": create_program(self.ctx, "position"),
-            "textured": create_program(self.ctx, "textured"),
-        }
-        self.cache = GpuCache(self.ctx, cache_bytes)
-        self.normal_map, self._normal_uv = self._make_normal_map()
-        self.pyramid = None
-        self._texture_patches: dict[tuple[str, int], Any] = {}
         #: The LODCut of the last frame (None before the first).
         self.last_cut = None
         self._frame_keys: list[tuple] = []
