@@ -139,7 +139,7 @@ def _row_max(heights: np.ndarray, r: int, start: int, n: int, base: float, gx: f
 def _scan_right(heights, r0, c0, ax, ay, bx, by, cx, cy) -> float:
     """Exact max |z − plane| over the non-corner points of a hierarchy triangle, no nodata.
 
-    The same arithmetic as ``tin_scan.scan_triangle`` (so the same value to the last bit), but
+    The same arithmetic as ``tin_scan.scan_candidate`` (so the same value to the last bit), but
     row spans come from the edges directly, which are axis-parallel or diagonal: no divisions.
     """
     za = np.float64(heights[r0 + ay, c0 + ax])

@@ -68,50 +68,6 @@ def plane(za, zb, zc, ax, ay, bx, by, cx, cy):
     return gx, gy
 
 
-@njit(cache=True, fastmath=True)
-def _row_max(row: np.ndarray, start: int, n: int, base: float, gx: float) -> float:
-    """max |row[start + i] − (base + gx·i)| for i < n, no nodata (SIMD under fastmath)."""
-    m = 0.0
-    for i in range(n):
-        m = max(m, abs(row[start + i] - (base + gx * i)))
-    return m
-
-
-@njit(cache=True)
-def scan_triangle(heights, r0, c0, ax, ay, bx, by, cx, cy):
-    """(key, candidate y, candidate x) of a triangle on a grid without nodata."""
-    za = np.float64(heights[r0 + ay, c0 + ax])
-    zb = np.float64(heights[r0 + by, c0 + bx])
-    zc = np.float64(heights[r0 + cy, c0 + cx])
-    gx, gy = plane(za, zb, zc, ax, ay, bx, by, cx, cy)
-    best = NO_CANDIDATE
-    best_x = -1
-    best_y = -1
-    y0 = min(ay, min(by, cy))
-    y1 = max(ay, max(by, cy))
-    for y in range(y0, y1 + 1):
-        lo, hi = row_span(ax, ay, bx, by, cx, cy, y)
-        if lo > hi:
-            continue
-        base = za + gy * (y - ay) + gx * (lo - ax)
-        row = heights[r0 + y]
-        # A vectorized row maximum first (with slack for its fused arithmetic); the position is
-        # searched only when it may beat the best so far.
-        if _row_max(row, c0 + lo, hi - lo + 1, base, gx) + 1e-9 <= best:
-            continue
-        for i in range(hi - lo + 1):
-            x = lo + i
-            e = abs(row[c0 + x] - (base + gx * i))
-            if e > best:
-                # Corners are reproduced exactly; round-off must not make them candidates.
-                if (x == ax and y == ay) or (x == bx and y == by) or (x == cx and y == cy):
-                    continue
-                best = e
-                best_x = x
-                best_y = y
-    return best, best_y, best_x
-
-
 @njit(cache=True, fastmath=True, _nrt=False)
 def _grid_row_max(heights: np.ndarray, r: int, start: int, n: int, base: float, gx: float):
     """``_row_max`` of heights[r, start:start + n], indexed in place (no row view to count)."""
@@ -123,10 +79,11 @@ def _grid_row_max(heights: np.ndarray, r: int, start: int, n: int, base: float, 
 
 @njit(cache=True, _nrt=False)
 def scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy):
-    """``scan_triangle`` for the greedy loop: the same key and candidate, the grid indexed in
-    place and compiled without the reference-counting runtime: row views, or reference counts on
-    the arguments, would cost atomic updates per row and per call, which dominate on the small
-    triangles of a fine mesh.
+    """(key, candidate y, candidate x) of a triangle on a grid without nodata.
+
+    The grid is indexed in place and the kernel compiled without the reference-counting
+    runtime: row views, or reference counts on the arguments, would cost atomic updates per row
+    and per call, which dominate on the small triangles of a fine mesh.
     """
     za = np.float64(heights[r0 + ay, c0 + ax])
     zb = np.float64(heights[r0 + by, c0 + bx])
@@ -197,7 +154,7 @@ def _edge_weight(ax, ay, bx, by, cx, cy, x, y, wab, wbc, wca) -> float:
 
 @njit(cache=True, _nrt=False)
 def scan_triangle_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca):
-    """``scan_triangle`` plus the triangle's owned sum of squared errors, no nodata.
+    """``scan_candidate`` plus the triangle's owned sum of squared errors, no nodata.
 
     wab, wbc, wca: the share of a point on edge ab, bc, ca this triangle owns (½ when the edge
     is shared with a neighbour, 1 on the border), so the sums over a mesh's triangles count
@@ -330,5 +287,5 @@ def triangle_error(heights, r0, c0, ax, ay, bx, by, cx, cy, has_nan) -> float:
     if has_nan:
         k, _, _ = scan_with_holes(heights, r0, c0, ax, ay, bx, by, cx, cy)
     else:
-        k, _, _ = scan_triangle(heights, r0, c0, ax, ay, bx, by, cx, cy)
+        k, _, _ = scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy)
     return max(k, 0.0)
