@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 from affine import Affine
 
-from approxtree.errors import EmptyTerrainError, TerrainFormatError
+from approxtree.errors import EmptyTerrainError, InvalidParameterError, TerrainFormatError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
 from approxtree.kernels.grid_interp import grid_height_at
@@ -68,6 +68,8 @@ class Grid(GeometryData):
         transform: Affine | None = None,
         crs: str | None = None,
         nodata: float | None = None,
+        index_offset: tuple[int, int] = (0, 0),
+        allow_empty: bool = False,
     ) -> None:
         h = _as_heights(heights)
         if h.ndim != 2:
@@ -80,7 +82,7 @@ class Grid(GeometryData):
             )
         valid = np.isfinite(h)
         n_valid = int(np.count_nonzero(valid))
-        if n_valid == 0:
+        if n_valid == 0 and not allow_empty:
             raise EmptyTerrainError(
                 f"The grid of {rows} × {cols} points has no valid elevation (all nodata or NaN). "
                 "Check the nodata value of the file or choose another file."
@@ -104,6 +106,10 @@ class Grid(GeometryData):
         self.crs = crs
         self.nodata = nodata
         self._n_valid = n_valid
+        #: (row, col) in the full raster of this grid's row 0, column 0: a window of a larger
+        #: raster keeps the full raster's transform and numbers its own rows and columns from 0,
+        #: so its data points have bit-identical coordinates to the same points of the full grid.
+        self.index_offset = (int(index_offset[0]), int(index_offset[1]))
 
     # -- shape and coordinates ---------------------------------------------------------------
 
@@ -129,13 +135,13 @@ class Grid(GeometryData):
     def x_coords(self) -> np.ndarray:
         """(cols,) float64 x of the data points of each column."""
         t = self.transform
-        return t.c + (np.arange(self.width) + 0.5) * t.a
+        return t.c + (np.arange(self.width) + self.index_offset[1] + 0.5) * t.a
 
     @cached_property
     def y_coords(self) -> np.ndarray:
         """(rows,) float64 y of the data points of each row."""
         t = self.transform
-        return t.f + (np.arange(self.height) + 0.5) * t.e
+        return t.f + (np.arange(self.height) + self.index_offset[0] + 0.5) * t.e
 
     @property
     def valid(self) -> np.ndarray:
@@ -151,6 +157,9 @@ class Grid(GeometryData):
         t = self.transform
         fc = (np.asarray(x, dtype=np.float64) - t.c) / t.a - 0.5
         fr = (np.asarray(y, dtype=np.float64) - t.f) / t.e - 0.5
+        r_off, c_off = self.index_offset
+        if r_off or c_off:
+            fr, fc = fr - r_off, fc - c_off
         return fr, fc
 
     def index_range(self, rect: Rect) -> tuple[int, int, int, int]:
@@ -171,6 +180,32 @@ class Grid(GeometryData):
         c0 = max(int(np.ceil(min(fc_a, fc_b) - eps)), 0)
         c1 = min(int(np.floor(max(fc_a, fc_b) + eps)), self.width - 1)
         return r0, r1, c0, c1
+
+    def window(self, r0: int, r1: int, c0: int, c1: int) -> Grid:
+        """The sub-grid of the inclusive index range rows r0..r1, columns c0..c1.
+
+        Its heights are (r1 − r0 + 1, c1 − c0 + 1), a copy; its data points have the very same
+        world coordinates (bit for bit) as in this grid, so a tree built on a window equals the
+        same part of a tree built on the whole. Indices of the window are its own (row 0 is
+        row r0 here); ``index_offset`` maps them back. A window of nodata only is allowed.
+        """
+        if not (0 <= r0 <= r1 < self.height and 0 <= c0 <= c1 < self.width):
+            raise InvalidParameterError(
+                f"Window rows {r0}..{r1}, columns {c0}..{c1} is not inside the grid of "
+                f"{self.height} × {self.width} points."
+            )
+        heights = np.array(self.heights[r0 : r1 + 1, c0 : c1 + 1], copy=True)
+        r_off, c_off = self.index_offset
+        sub = Grid(
+            heights,
+            self.transform,
+            self.crs,
+            self.nodata,
+            index_offset=(r_off + r0, c_off + c0),
+            allow_empty=True,
+        )
+        sub.nodata_policy = self.nodata_policy
+        return sub
 
     def rect_of(self, r0: int, r1: int, c0: int, c1: int) -> Rect:
         """The world rectangle spanned by the data points of an inclusive index range."""
@@ -207,6 +242,9 @@ class Grid(GeometryData):
 
     @cached_property
     def z_range(self) -> tuple[float, float]:
+        # A window of nodata only (allow_empty) has no range.
+        if self._n_valid == 0:
+            return (float("nan"), float("nan"))
         return (float(np.nanmin(self.heights)), float(np.nanmax(self.heights)))
 
     @property
@@ -215,11 +253,20 @@ class Grid(GeometryData):
 
     def to_record(self) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
         attrs = {"transform": list(self.transform)[:6], "crs": self.crs, "nodata": self.nodata}
+        if self.index_offset != (0, 0):
+            attrs["index_offset"] = list(self.index_offset)
         return attrs, {"heights": self.heights}
 
     @classmethod
     def from_record(cls, attrs: dict[str, Any], arrays: dict[str, np.ndarray]) -> Grid:
-        return cls(arrays["heights"], Affine(*attrs["transform"]), attrs["crs"], attrs["nodata"])
+        offset = tuple(attrs.get("index_offset", (0, 0)))
+        return cls(
+            arrays["heights"],
+            Affine(*attrs["transform"]),
+            attrs["crs"],
+            attrs["nodata"],
+            index_offset=offset,  # type: ignore[arg-type]
+        )
 
     def split_position(self, rect: Rect, axis: int) -> float | None:
         r0, r1, c0, c1 = self.index_range(rect)
