@@ -30,6 +30,14 @@ class StoreError(ApproxTreeError):
     """A tree file is corrupted, truncated, of another format version, or cannot be written."""
 
 
+class WholeBandError(ApproxTreeError):
+    """An operation needs the whole height band of a windowed terrain, and it is too large.
+
+    The message names the operation and what to do instead (work on a window, or open the
+    raster in memory).
+    """
+
+
 class ContextUnavailableError(ApproxTreeError):
     """No OpenGL context can be created (headless EGL or a window)."""
 

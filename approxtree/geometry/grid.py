@@ -3,6 +3,11 @@
 Data points sit at cell centres (rasters are pixel-is-area): the point of row r, column c is
 ``transform @ (c + 0.5, r + 0.5)``. Row 0 is the first row of the file (north for north-up
 rasters). Nodata cells hold NaN in ``heights`` and are never data points.
+
+``heights`` is either a numpy array or a ``WindowedHeights`` (a raster read by windows through
+a bounded block cache): a *windowed* grid answers domain, points(rect), height_at, z range and
+point count reading only the blocks they need; an operation that needs the whole band reads it
+only when it is small (``WHOLE_BAND_LIMIT_BYTES``), else raises WholeBandError.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ from affine import Affine
 from approxtree.errors import EmptyTerrainError, InvalidParameterError, TerrainFormatError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
+from approxtree.geometry.windowed import WindowedHeights, band_statistics, check_whole_band
 from approxtree.kernels.grid_interp import grid_height_at
 
 
@@ -52,10 +58,22 @@ def _check_resolution(transform: Affine, rows: int, cols: int) -> None:
         )
 
 
+def _check_not_empty(n_valid: int, shape: tuple[int, int], allow_empty: bool | None) -> None:
+    """EmptyTerrainError for a grid without a valid elevation, unless it may be empty."""
+    if n_valid == 0 and not allow_empty:
+        rows, cols = shape
+        raise EmptyTerrainError(
+            f"The grid of {rows} × {cols} points has no valid elevation (all nodata or NaN). "
+            "Check the nodata value of the file or choose another file."
+        )
+
+
 class Grid(GeometryData):
     """A regular grid of heights with an affine georeference.
 
-    heights: (rows, cols) float32 or float64, NaN where there is no data.
+    heights: (rows, cols) float32 or float64, NaN where there is no data; or a WindowedHeights
+        (float32/float64 source), which makes a windowed grid read by blocks and never scanned
+        at construction (point count and z range are computed blockwise when first asked).
     transform: affine map from (col, row) pixel-corner coordinates to world (x, y); rotation and
         shear are not supported. Defaults to cell size 1 with row 0 at the top (y = rows).
     crs: EPSG code or WKT of x and y, or None.
@@ -71,7 +89,10 @@ class Grid(GeometryData):
         index_offset: tuple[int, int] = (0, 0),
         allow_empty: bool = False,
     ) -> None:
-        h = _as_heights(heights)
+        windowed = isinstance(heights, WindowedHeights)
+        h = heights if windowed else _as_heights(heights)
+        if windowed and h.dtype not in (np.float32, np.float64):
+            raise TerrainFormatError(f"Windowed heights must be float32 or float64, got {h.dtype}.")
         if h.ndim != 2:
             raise TerrainFormatError(f"A grid needs a 2-D height array, got shape {h.shape}.")
         rows, cols = h.shape
@@ -80,13 +101,13 @@ class Grid(GeometryData):
                 f"A grid needs at least 2 × 2 points to form a surface, got {rows} × {cols} "
                 "(rows × columns). Use a larger raster or read it as scattered points."
             )
-        valid = np.isfinite(h)
-        n_valid = int(np.count_nonzero(valid))
-        if n_valid == 0 and not allow_empty:
-            raise EmptyTerrainError(
-                f"The grid of {rows} × {cols} points has no valid elevation (all nodata or NaN). "
-                "Check the nodata value of the file or choose another file."
-            )
+        # A windowed grid is not scanned here (a 64k² raster opens at once): its point count
+        # and emptiness are found blockwise by the first question that needs them.
+        self._allow_empty = allow_empty
+        if not windowed:
+            n_valid = int(np.count_nonzero(np.isfinite(h)))
+            _check_not_empty(n_valid, h.shape, allow_empty)
+            self._n_valid = n_valid
         if transform is None:
             transform = Affine(1.0, 0.0, 0.0, 0.0, -1.0, float(rows))
         if transform.b != 0.0 or transform.d != 0.0:
@@ -105,11 +126,61 @@ class Grid(GeometryData):
         self.filled_count = 0
         self.crs = crs
         self.nodata = nodata
-        self._n_valid = n_valid
         #: (row, col) in the full raster of this grid's row 0, column 0: a window of a larger
         #: raster keeps the full raster's transform and numbers its own rows and columns from 0,
         #: so its data points have bit-identical coordinates to the same points of the full grid.
         self.index_offset = (int(index_offset[0]), int(index_offset[1]))
+
+    def __getattr__(self, name: str) -> Any:
+        # The valid count of a windowed grid: one blockwise scan, the first time it is needed.
+        if name == "_n_valid" and isinstance(self.__dict__.get("heights"), WindowedHeights):
+            n_valid, zmin, zmax = band_statistics(self.heights)
+            _check_not_empty(n_valid, self.heights.shape, self.__dict__.get("_allow_empty"))
+            self.__dict__["_n_valid"] = n_valid
+            self.__dict__["_z_range_blockwise"] = (zmin, zmax)
+            return n_valid
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    def __getstate__(self) -> dict[str, Any]:
+        # A windowed grid pickles by its source's arguments: drop the coordinate vectors and
+        # any band read whole (they are rebuilt on demand).
+        state = dict(self.__dict__)
+        if self.is_windowed:
+            for key in ("x_coords", "y_coords", "_whole_heights"):
+                state.pop(key, None)
+        return state
+
+    def __repr__(self) -> str:
+        if self.is_windowed and "_n_valid" not in self.__dict__:
+            d = self.domain
+            return (
+                f"Grid(windowed {self.height} × {self.width}, "
+                f"domain=({d.xmin:g}, {d.ymin:g}, {d.xmax:g}, {d.ymax:g}), crs={self.crs!r})"
+            )
+        return super().__repr__()
+
+    # -- windowed or in memory ---------------------------------------------------------------
+
+    @property
+    def is_windowed(self) -> bool:
+        """True when the heights are read by windows (a WindowedHeights), not held in memory."""
+        return isinstance(self.heights, WindowedHeights)
+
+    def heights_array(self, operation: str) -> np.ndarray:
+        """The whole (rows, cols) height band as a numpy array, for ``operation``.
+
+        In memory: ``heights`` itself. Windowed: read whole (and kept) when the band is at most
+        WHOLE_BAND_LIMIT_BYTES; else WholeBandError naming the operation and what to do.
+        """
+        if not self.is_windowed:
+            return self.heights
+        whole = self.__dict__.get("_whole_heights")
+        if whole is None:
+            check_whole_band(self.shape, self.heights.dtype, operation)
+            whole = self.heights[:, :]
+            whole.flags.writeable = False
+            self.__dict__["_whole_heights"] = whole
+        return whole
 
     # -- shape and coordinates ---------------------------------------------------------------
 
@@ -146,7 +217,7 @@ class Grid(GeometryData):
     @property
     def valid(self) -> np.ndarray:
         """(rows, cols) bool, True where the cell holds a data point."""
-        return np.isfinite(self.heights)
+        return np.isfinite(self.heights_array("Grid.valid (the mask of every cell)"))
 
     @property
     def nodata_count(self) -> int:
@@ -194,7 +265,9 @@ class Grid(GeometryData):
                 f"Window rows {r0}..{r1}, columns {c0}..{c1} is not inside the grid of "
                 f"{self.height} × {self.width} points."
             )
-        heights = np.array(self.heights[r0 : r1 + 1, c0 : c1 + 1], copy=True)
+        block = self.heights[r0 : r1 + 1, c0 : c1 + 1]
+        # A windowed read is a fresh array already; a slice of an in-memory band is a view.
+        heights = block if self.is_windowed else np.array(block, copy=True)
         r_off, c_off = self.index_offset
         sub = Grid(
             heights,
@@ -222,6 +295,8 @@ class Grid(GeometryData):
     def points(self, rect: Rect | None = None) -> np.ndarray:
         if rect is None:
             r0, r1, c0, c1 = 0, self.height - 1, 0, self.width - 1
+            if self.is_windowed:
+                check_whole_band(self.shape, self.heights.dtype, "Grid.points() of every cell")
         else:
             r0, r1, c0, c1 = self.index_range(rect)
             if r1 < r0 or c1 < c0:
@@ -237,24 +312,83 @@ class Grid(GeometryData):
         y = np.asarray(y, dtype=np.float64)
         shape = np.broadcast_shapes(x.shape, y.shape)
         fr, fc = self.fractional_index(np.broadcast_to(x, shape), np.broadcast_to(y, shape))
-        out = grid_height_at(self.heights, fr.ravel().copy(), fc.ravel().copy())
-        return out.reshape(shape)
+        fr, fc = fr.ravel().copy(), fc.ravel().copy()
+        if self.is_windowed:
+            return self._windowed_height_at(fr, fc).reshape(shape)
+        return grid_height_at(self.heights, fr, fc).reshape(shape)
 
-    @cached_property
+    def _windowed_height_at(self, fr: np.ndarray, fc: np.ndarray) -> np.ndarray:
+        """h_T at (n,) fractional indices on a windowed grid, one read per block of cells.
+
+        Each point is interpolated in its cell (r, c)–(r+1, c+1); points are grouped by the
+        block of their cell and each group is interpolated by the same kernel on that block
+        plus one row and column beyond it, so the values equal the in-memory ones bit for bit
+        (integer offsets subtract exactly). Peak memory: the points plus one block.
+        """
+        rows, cols = self.shape
+        out = np.full(fr.shape, np.nan)
+        inside = np.flatnonzero((fr >= 0.0) & (fr <= rows - 1) & (fc >= 0.0) & (fc <= cols - 1))
+        if inside.size == 0:
+            return out
+        # The cell of each point, as the kernel picks it (the last line belongs to the cell
+        # before it), and the block that cell lies in.
+        cr = np.minimum(fr[inside].astype(np.int64), rows - 2)
+        cc = np.minimum(fc[inside].astype(np.int64), cols - 2)
+        br, bc = self.heights.block_shape
+        nbc = -(-cols // bc)
+        ids = (cr // br) * nbc + cc // bc
+        order = np.argsort(ids, kind="stable")
+        sorted_ids = ids[order]
+        cuts = np.flatnonzero(np.diff(sorted_ids)) + 1
+        for s, e in zip(
+            np.concatenate([[0], cuts]).tolist(),
+            np.concatenate([cuts, [order.size]]).tolist(),
+            strict=True,
+        ):
+            bi, bj = divmod(int(sorted_ids[s]), nbc)
+            r0, c0 = bi * br, bj * bc
+            r1, c1 = min(r0 + br, rows - 1), min(c0 + bc, cols - 1)
+            z = self.heights[r0 : r1 + 1, c0 : c1 + 1]
+            sel = inside[order[s:e]]
+            out[sel] = grid_height_at(z, fr[sel] - r0, fc[sel] - c0)
+        return out
+
+    @property
     def z_range(self) -> tuple[float, float]:
-        # A window of nodata only (allow_empty) has no range.
-        if self._n_valid == 0:
-            return (float("nan"), float("nan"))
-        return (float(np.nanmin(self.heights)), float(np.nanmax(self.heights)))
+        cached = self.__dict__.get("_z_range")
+        if cached is not None:
+            return cached
+        if self.is_windowed:
+            # One blockwise scan gives count and range together.
+            _ = self._n_valid
+            result = self.__dict__["_z_range_blockwise"]
+        elif self._n_valid == 0:
+            # A window of nodata only (allow_empty) has no range.
+            result = (float("nan"), float("nan"))
+        else:
+            result = (float(np.nanmin(self.heights)), float(np.nanmax(self.heights)))
+        self.__dict__["_z_range"] = result
+        return result
 
     @property
     def point_count(self) -> int:
         return self._n_valid
 
     def to_record(self) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+        """(attrs, {"heights": heights}).
+
+        On a windowed grid ``heights`` is the WindowedHeights itself, never the band read
+        whole: a store writes it block by block with ``heights.iter_blocks()`` (yields half-open
+        (r0, r1, c0, c1, block)) or slices ``heights[r0:r1, c0:c1]``; ``heights.source`` is the
+        HeightSource (picklable by its arguments) for a store that references rather than
+        copies. ``np.asarray`` of it reads the band only under WHOLE_BAND_LIMIT_BYTES, else
+        raises WholeBandError. ``attrs["windowed"]`` is True then.
+        """
         attrs = {"transform": list(self.transform)[:6], "crs": self.crs, "nodata": self.nodata}
         if self.index_offset != (0, 0):
             attrs["index_offset"] = list(self.index_offset)
+        if self.is_windowed:
+            attrs["windowed"] = True
         return attrs, {"heights": self.heights}
 
     @classmethod
