@@ -2,11 +2,16 @@
 
 The grid keeps the dataset's affine transform and CRS. Cells that rasterio masks (the nodata
 value, NaN, an internal or alpha mask) become NaN and are never data points.
+
+A raster too large to hold (more than ``WINDOWED_BYTES`` of heights, or ``windowed=True``) is
+opened *windowed*: the Grid's heights are a WindowedHeights over a ``RasterSource`` that reads
+rasterio windows on demand, one dataset handle per thread, through a bounded GDAL cache.
 """
 
 from __future__ import annotations
 
 import os
+import threading
 import warnings
 import zipfile
 from pathlib import Path
@@ -15,6 +20,7 @@ import numpy as np
 
 from approxtree.errors import InvalidParameterError, TerrainFormatError
 from approxtree.geometry import Grid
+from approxtree.geometry.windowed import DEFAULT_CACHE_BYTES, WindowedHeights
 from approxtree.io._common import (
     as_heights,
     check_cell_size,
@@ -52,8 +58,105 @@ def rasterio_source(path: Path) -> str:
     return f"zip://{path}!{rasters[0]}"
 
 
-#: GDAL block cache (MB) while a band is read whole.
+#: GDAL block cache (MB) while a band is read whole, and while a windowed raster is read.
 _READ_CACHE_MB = 64
+
+#: Rasters whose heights would take more bytes than this are opened windowed by default
+#: (``windowed=None``); the environment variable APPROXTREE_WINDOWED_BYTES overrides it.
+WINDOWED_BYTES = 2**30
+
+
+def windowed_threshold() -> int:
+    """Bytes of heights above which a raster opens windowed: APPROXTREE_WINDOWED_BYTES or 1 GiB."""
+    text = os.environ.get("APPROXTREE_WINDOWED_BYTES")
+    if text is None:
+        return WINDOWED_BYTES
+    try:
+        return int(float(text))
+    except ValueError:
+        raise InvalidParameterError(
+            f"APPROXTREE_WINDOWED_BYTES must be a number of bytes, got {text!r}."
+        ) from None
+
+
+def heights_dtype(band_dtype: str | np.dtype) -> np.dtype:
+    """The dtype a windowed raster's heights get, decided from the band's type alone.
+
+    float64 for float64 and for integers of 4 bytes or more (they may leave float32's exact
+    range, and a windowed raster is not scanned to find out; the values are the same), float32
+    otherwise (an in-memory read narrows wide integers to float32 when they all fit).
+    """
+    dtype = np.dtype(band_dtype)
+    if dtype.kind not in "iuf":
+        raise TerrainFormatError(f"Heights must be real numbers, got a band of {dtype}.")
+    wide = dtype == np.float64 or (dtype.kind in "iu" and dtype.itemsize >= 4)
+    return np.dtype(np.float64 if wide else np.float32)
+
+
+class RasterSource:
+    """A HeightSource over one band of a GDAL raster, read by rasterio windows.
+
+    name: what rasterio opens (a path, ``zip://...!member``, a VRT, ``NETCDF:file:var``).
+    band: 1-based band. cache_mb: GDAL's block cache while reading (GDAL_CACHEMAX).
+    Each thread opens its own dataset handle (GDAL handles are not thread-safe). Cells that
+    rasterio masks (nodata, NaN, internal or alpha masks) and infinite values read as NaN,
+    exactly as ``read_raster`` reads them in memory. Pickles by (name, band, cache_mb).
+    """
+
+    def __init__(self, name: str, band: int = 1, cache_mb: int = _READ_CACHE_MB) -> None:
+        self.name = str(name)
+        self.band = int(band)
+        self.cache_mb = int(cache_mb)
+        self._local = threading.local()
+        ds = self._dataset()
+        if self.band > ds.count:
+            raise InvalidParameterError(
+                f"band {self.band} does not exist: {self.name} has {ds.count} band(s)."
+            )
+        self.shape = (int(ds.height), int(ds.width))
+        self.band_dtype = np.dtype(ds.dtypes[self.band - 1])
+        self.dtype = heights_dtype(self.band_dtype)
+        self.block_shape = tuple(int(b) for b in ds.block_shapes[self.band - 1])
+        self.nodata = ds.nodata
+        self.crs = ds.crs.to_string() if ds.crs else None
+        self.own_transform = own_transform(ds)
+
+    def __reduce__(self):
+        return (RasterSource, (self.name, self.band, self.cache_mb))
+
+    def __repr__(self) -> str:
+        return f"RasterSource({self.name!r}, band={self.band})"
+
+    def _dataset(self):
+        """This thread's open dataset (opened on first use)."""
+        ds = getattr(self._local, "dataset", None)
+        if ds is None:
+            import rasterio
+            from rasterio.errors import NotGeoreferencedWarning
+
+            with (
+                reading(self.name, "a GDAL raster"),
+                warnings.catch_warnings(),
+                rasterio.Env(GDAL_CACHEMAX=self.cache_mb),
+            ):
+                warnings.simplefilter("ignore", NotGeoreferencedWarning)
+                ds = rasterio.open(self.name)
+            self._local.dataset = ds
+        return ds
+
+    def read(self, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
+        """Rows [r0, r1), columns [c0, c1) as (r1 − r0, c1 − c0) heights, NaN for nodata."""
+        import rasterio
+        from rasterio.windows import Window
+
+        ds = self._dataset()
+        window = Window(c0, r0, c1 - c0, r1 - r0)
+        with reading(self.name, "a GDAL raster"), rasterio.Env(GDAL_CACHEMAX=self.cache_mb):
+            values = ds.read(self.band, window=window, masked=True)
+        out = np.ma.getdata(values).astype(self.dtype, copy=True)
+        out[np.ma.getmaskarray(values)] = np.nan
+        out[np.isinf(out)] = np.nan
+        return out
 
 
 def read_raster(
@@ -64,12 +167,16 @@ def read_raster(
     crs: str | None = None,
     cell_size: float | tuple[float, float] | None = None,
     origin: tuple[float, float] | None = None,
+    windowed: bool | None = None,
 ) -> Grid:
     """Read one band of a GDAL raster as a Grid.
 
     band: 1-based band number. nodata: "mask" or "fill". crs: replaces the file's CRS.
     cell_size, origin: georeference for a raster without one (cell size 1, row 0 at the top
-    otherwise). Returns a Grid with heights (rows, cols) float32 (float64 for float64 data).
+    otherwise). windowed: True opens it windowed (heights read by windows on demand, nothing
+    read now), False reads the band into memory, None (default) opens windowed when the heights
+    would exceed ``windowed_threshold()`` bytes. Returns a Grid with heights (rows, cols)
+    float32 (float64 for float64 data) or, windowed, a WindowedHeights of them.
     """
     p = existing_file(path)
     policy = check_nodata_policy(nodata)
@@ -78,7 +185,13 @@ def read_raster(
     corner = check_origin(origin)
     if isinstance(band, bool) or not isinstance(band, int | np.integer) or band < 1:
         raise InvalidParameterError(f"band must be a band number ≥ 1, got {band!r}.")
+    if windowed is not None and not isinstance(windowed, bool | np.bool_):
+        raise InvalidParameterError(f"windowed must be True, False or None, got {windowed!r}.")
     source = rasterio_source(p)
+    if windowed is not False:
+        grid = _open_windowed(p, source, int(band), policy, crs, cell, corner, windowed)
+        if grid is not None:
+            return grid
     with reading(p, "a GDAL raster (GeoTIFF, ASCII grid, SRTM, USGS DEM, netCDF, ...)"):
         import rasterio
         from rasterio.errors import NotGeoreferencedWarning
@@ -104,6 +217,41 @@ def read_raster(
     del values
     transform = resolve_transform(own, heights.shape, cell, corner, p)
     return make_grid(heights, transform, crs or file_crs, nodata_value, policy)
+
+
+def _open_windowed(
+    p: Path,
+    source: str,
+    band: int,
+    policy: str,
+    crs: str | None,
+    cell: tuple[float, float] | None,
+    corner: tuple[float, float] | None,
+    windowed: bool | None,
+) -> Grid | None:
+    """A windowed Grid over the raster, or None when ``windowed`` is None and it is small."""
+    what = "a GDAL raster (GeoTIFF, ASCII grid, SRTM, USGS DEM, netCDF, ...)"
+    with reading(p, what):
+        heights = RasterSource(source, band)
+    nbytes = heights.shape[0] * heights.shape[1] * heights.dtype.itemsize
+    if windowed is None and nbytes <= windowed_threshold():
+        return None
+    if policy == "fill":
+        raise InvalidParameterError(
+            f"nodata='fill' needs the whole band of {p} ({heights.shape[0]} × "
+            f"{heights.shape[1]} cells) in memory, but it is opened windowed. Fill the holes "
+            "beforehand (gdal_fillnodata.py), use nodata='mask', or read it in memory with "
+            "windowed=False (--windowed off) on a machine with the memory."
+        )
+    transform = resolve_transform(heights.own_transform, heights.shape, cell, corner, p)
+    grid = Grid(
+        WindowedHeights(heights, cache_bytes=DEFAULT_CACHE_BYTES),
+        transform,
+        crs=crs or heights.crs,
+        nodata=heights.nodata,
+    )
+    grid.nodata_policy = policy
+    return grid
 
 
 def is_gdal_raster(path: Path) -> bool:
