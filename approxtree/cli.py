@@ -87,7 +87,22 @@ def reader_options(fn: Callable[..., Any]) -> Callable[..., Any]:
     fn = click.option(
         "--height-scale", type=float, help="16-bit grayscale PNG: metres per grey level."
     )(fn)
+    # Kept in the click context (not a parameter of every command): _open reads it.
+    fn = click.option(
+        "--windowed",
+        type=click.Choice(["auto", "on", "off"]),
+        default=None,
+        expose_value=False,
+        callback=_remember_windowed,
+        help="GDAL rasters: read by windows on demand (on), into memory (off), or windowed when "
+        "the band exceeds 1 GiB (auto; APPROXTREE_WINDOWED_BYTES overrides) [default: auto].",
+    )(fn)
     return fn
+
+
+def _remember_windowed(ctx: click.Context, _param: click.Parameter, value: str | None) -> None:
+    """Keep --windowed in the context for _open (None when not given)."""
+    ctx.meta["approxtree.windowed"] = value
 
 
 def _open(
@@ -105,6 +120,11 @@ def _open(
     from approxtree.io import open_terrain
 
     options = _given_reader_options(encoding, nodata_policy, ground_only, height_scale)
+    ctx = click.get_current_context(silent=True)
+    windowed = ctx.meta.get("approxtree.windowed") if ctx is not None else None
+    # "auto" is the reader's default: it is passed on only as an explicit on or off.
+    if windowed in ("on", "off"):
+        options["windowed"] = windowed == "on"
     _check_reader_flags(path, options)
     return open_terrain(path, **options)
 
@@ -115,6 +135,7 @@ _READER_FLAGS = {
     "nodata": "--nodata",
     "ground_only": "--ground-only",
     "height_scale": "--height-scale",
+    "windowed": "--windowed",
 }
 
 
@@ -203,6 +224,8 @@ def terrain_figures(terrain) -> dict[str, Any]:
             z_min=z_min,
             z_max=z_max,
             nodata_count=terrain.nodata_count,
+            # A windowed raster's z range and counts come from one blockwise scan.
+            windowed=terrain.is_windowed,
         )
     else:
         figures.update(

@@ -17,6 +17,7 @@ from approxtree.errors import UnsupportedStrategyError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
+from approxtree.geometry.windowed import check_whole_band
 from approxtree.kernels.grid_patch import grid_patch_errors, grid_patch_mesh
 from approxtree.kernels.row_column import coarsest_uniform_step, lattice_error
 from approxtree.patches.base import GeometryPatch
@@ -103,7 +104,9 @@ class GridPatch(GeometryPatch):
                 [grid_steps(c1 - c0 + 1, k) for _, _, c0, c1 in ranges],
             ]
         ).astype(np.int64)
-        error, zmin, zmax, count = grid_patch_errors(grid.heights, ranges, steps)
+        error, zmin, zmax, count = grid_patch_errors(
+            grid.heights_array("building grid patches"), ranges, steps
+        )
         patches: list[GeometryPatch] = [
             cls(grid, rect, (*ranges[i], *steps[i]), error[i], (zmin[i], zmax[i]), count[i])
             for i, rect in enumerate(rects)
@@ -135,13 +138,27 @@ class GridPatch(GeometryPatch):
     def rms_error(self) -> float:
         """Exact RMS of |h_T − h_TN| over the rectangle's valid data points (measured on demand)."""
         rows, cols = self.lines
-        _, sumsq, count, _, _ = lattice_error(self.grid.heights, rows, cols)
+        g = self.grid
+        if g.is_windowed:
+            # Only the patch's own window is read (the error needs every data point in it).
+            r0, r1, c0, c1 = self.index[:4]
+            check_whole_band((r1 - r0 + 1, c1 - c0 + 1), g.heights.dtype, "GridPatch.rms_error")
+            z = g.heights[r0 : r1 + 1, c0 : c1 + 1]
+            _, sumsq, count, _, _ = lattice_error(z, rows - r0, cols - c0)
+        else:
+            _, sumsq, count, _, _ = lattice_error(g.heights, rows, cols)
         return float(np.sqrt(sumsq / max(count, 1)))
 
     def _build_mesh(self) -> tuple[np.ndarray, np.ndarray]:
         g = self.grid
         r0, r1, c0, c1, sr, sc = self.index
-        rows, cols, tris = grid_patch_mesh(g.heights, r0, r1, c0, c1, sr, sc)
+        if g.is_windowed:
+            # A windowed grid reads only the sampled lattice; the kernel sees it with steps 1.
+            rows, cols = self.lines
+            z = g.heights[rows[:, None], cols[None, :]]
+            _, _, tris = grid_patch_mesh(z, 0, len(rows) - 1, 0, len(cols) - 1, 1, 1)
+        else:
+            rows, cols, tris = grid_patch_mesh(g.heights, r0, r1, c0, c1, sr, sc)
         return lattice_world_mesh(g, rows, cols, tris)
 
     @property
@@ -211,7 +228,8 @@ def uniform_step(
             ):
                 return step
         return longest
-    return int(coarsest_uniform_step(grid.heights, float(max_error)))
+    z = grid.heights_array("the uniform grid approximation")
+    return int(coarsest_uniform_step(z, float(max_error)))
 
 
 def approximate_grid(
@@ -226,7 +244,9 @@ def approximate_grid(
     rows, cols = grid.shape
     index = np.array([[0, rows - 1, 0, cols - 1]], dtype=np.int64)
     error, zmin, zmax, count = grid_patch_errors(
-        grid.heights, index, np.array([[step, step]], dtype=np.int64)
+        grid.heights_array("the uniform grid approximation"),
+        index,
+        np.array([[step, step]], dtype=np.int64),
     )
     return GridPatch(
         grid,

@@ -97,7 +97,15 @@ def measure(
     vx, vy: (n,) int64 window-local column and row; tv, he: (3m,) int32 triangles and twins.
     """
     vmax, sumsq, count, drawn = mesh_error(
-        grid.heights, win.r0, win.c0, win.rows, win.cols, vx, vy, tv, he
+        grid.heights_array("measuring lattice patch errors"),
+        win.r0,
+        win.c0,
+        win.rows,
+        win.cols,
+        vx,
+        vy,
+        tv,
+        he,
     )
     valid_vertices = int(np.count_nonzero(np.isfinite(grid.heights[win.r0 + vy, win.c0 + vx])))
     # Every valid point is either a vertex (exact) or counted once in a drawn triangle.

@@ -30,6 +30,11 @@ def lattice_mesh(grid: Grid, rows: np.ndarray, cols: np.ndarray) -> tuple[np.nda
 
     Nodata vertices are left out (with the triangles touching them).
     """
+    if grid.is_windowed:
+        # A windowed grid reads only the lattice; the kernel sees it with consecutive lines.
+        z = grid.heights[rows[:, None], cols[None, :]]
+        kr, kc = np.arange(len(rows)), np.arange(len(cols))
+        return lattice_world_mesh(grid, rows, cols, lattice_triangles(z, kr, kc))
     return lattice_world_mesh(grid, rows, cols, lattice_triangles(grid.heights, rows, cols))
 
 
@@ -65,7 +70,13 @@ def refine_windows(
         cap_r = min(cap_r, max_cells + 1)
         cap_c = min(cap_c, max_cells + 1)
     rows, nrows, cols, ncols, _ = refine_lattices(
-        grid.heights, ranges, float(epsilon), int(max_points), int(max_cells), cap_r, cap_c
+        grid.heights_array("building non-regular grid patches"),
+        ranges,
+        float(epsilon),
+        int(max_points),
+        int(max_cells),
+        cap_r,
+        cap_c,
     )
     return [(rows[k, : nrows[k]], cols[k, : ncols[k]]) for k in range(len(ranges))]
 
@@ -115,7 +126,9 @@ class NonRegularGridPatch(GeometryPatch):
         for k, (r, c) in enumerate(lines):
             rows[k, : len(r)] = r
             cols[k, : len(c)] = c
-        error, sumsq, count, zmin, zmax = lattice_errors(grid.heights, rows, nrows, cols, ncols)
+        error, sumsq, count, zmin, zmax = lattice_errors(
+            grid.heights_array("building non-regular grid patches"), rows, nrows, cols, ncols
+        )
         rms = np.sqrt(sumsq / np.maximum(count, 1))
         return [
             cls(grid, rect, r, c, error[k], rms[k], (zmin[k], zmax[k]), count[k])

@@ -45,7 +45,8 @@ def _threshold(
     base = 0.0 if max_error is None else float(max_error)
 
     def fits(t: float) -> bool:
-        nt, nv, _, _, _ = extract(err, t, grid.heights, win.r0, win.c0, win.rows, win.cols, True)
+        z = grid.heights_array("building RTIN patches")
+        nt, nv, _, _, _ = extract(err, t, z, win.r0, win.c0, win.rows, win.cols, True)
         return (max_points is None or nv <= max_points) and (
             max_triangles is None or nt <= max_triangles
         )
@@ -77,7 +78,8 @@ def _vertex_errors(grid: Grid, win: Window, size: int) -> np.ndarray:
     if (size + 1) ** 2 < PARALLEL_MIN_POINTS:
         numba.set_num_threads(1)
     try:
-        return vertex_errors(grid.heights, win.r0, win.c0, win.rows, win.cols, size, win.has_nan)
+        z = grid.heights_array("building RTIN patches")
+        return vertex_errors(z, win.r0, win.c0, win.rows, win.cols, size, win.has_nan)
     finally:
         numba.set_num_threads(threads)
 
@@ -100,7 +102,7 @@ def rtin_patch(
     if greedy and (max_points is not None or max_triangles is not None):
         # A budget: greedy refinement by badness (worst leaf first, forced splits included).
         split = greedy_rtin(
-            grid.heights,
+            grid.heights_array("building RTIN patches"),
             win.r0,
             win.c0,
             win.rows,
@@ -112,13 +114,21 @@ def rtin_patch(
             win.has_nan,
         )
         _, _, vx, vy, tv = extract(
-            split, 0.5, grid.heights, win.r0, win.c0, win.rows, win.cols, False
+            split,
+            0.5,
+            grid.heights_array("building RTIN patches"),
+            win.r0,
+            win.c0,
+            win.rows,
+            win.cols,
+            False,
         )
         he = twins(vx, vy, tv)
         return RTINPatch.from_window_mesh(grid, rect, win, vx, vy, tv, he)  # type: ignore[return-value]
     err = _vertex_errors(grid, win, size)
     t = _threshold(err, grid, win, max_error, max_points, max_triangles)
-    _, _, vx, vy, tv = extract(err, t, grid.heights, win.r0, win.c0, win.rows, win.cols, False)
+    z = grid.heights_array("building RTIN patches")
+    _, _, vx, vy, tv = extract(err, t, z, win.r0, win.c0, win.rows, win.cols, False)
     he = twins(vx, vy, tv)
     return RTINPatch.from_window_mesh(grid, rect, win, vx, vy, tv, he)  # type: ignore[return-value]
 

@@ -41,7 +41,7 @@ def grid_tin(
             f"A TIN needs a window of at least 2 × 2 grid points, got {win.rows} × {win.cols}."
         )
     return greedy_tin(
-        grid.heights,
+        grid.heights_array("building TIN patches"),
         win.r0,
         win.c0,
         win.rows,
