@@ -107,7 +107,7 @@ class GridRefinement(GeometryData):
 
     @cached_property
     def z_range(self) -> tuple[float, float]:
-        gz = self.grid.heights[self.grid_outside]
+        gz = self.grid.heights_array("GridRefinement.z_range")[self.grid_outside]
         tz = self.combined.z_range
         lo = min(float(gz.min()) if gz.size else np.inf, tz[0])
         hi = max(float(gz.max()) if gz.size else -np.inf, tz[1])

@@ -73,7 +73,7 @@ def _bicubic_heights(grid: Grid, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     from scipy.ndimage import map_coordinates
 
     fr, fc = grid.fractional_index(x, y)
-    z = grid.heights.astype(np.float64)
+    z = grid.heights_array("resampling heights for microstructures").astype(np.float64)
     valid = np.isfinite(z)
     filled = np.where(valid, z, np.nanmean(z))
     out = map_coordinates(filled, [fr, fc], order=3, mode="nearest")

@@ -10,6 +10,7 @@ import numpy as np
 
 from approxtree.errors import InvalidParameterError
 from approxtree.geometry.grid import Grid
+from approxtree.geometry.windowed import check_whole_band
 from approxtree.kernels import bintree_rd as kr
 
 
@@ -19,7 +20,8 @@ def lattice_heights(terrain: Grid | np.ndarray, size: int | None = None) -> np.n
     size None: the largest 2^k + 1 that fits. Raises InvalidParameterError when size is not
     2^k + 1, does not fit, or the window holds nodata.
     """
-    h = np.asarray(terrain.heights if isinstance(terrain, Grid) else terrain, dtype=np.float64)
+    # A windowed grid is read only in the window (below), never whole.
+    h = terrain.heights if isinstance(terrain, Grid) else np.asarray(terrain, dtype=np.float64)
     if h.ndim != 2:
         raise InvalidParameterError(f"Expected a 2-D height array, got shape {h.shape}.")
     rows, cols = h.shape
@@ -37,7 +39,9 @@ def lattice_heights(terrain: Grid | np.ndarray, size: int | None = None) -> np.n
         )
     r0 = (rows - size) // 2
     c0 = (cols - size) // 2
-    win = np.ascontiguousarray(h[r0 : r0 + size, c0 : c0 + size])
+    if isinstance(terrain, Grid) and terrain.is_windowed:
+        check_whole_band((size, size), np.dtype(np.float64), "the binary tree (rd)")
+    win = np.ascontiguousarray(h[r0 : r0 + size, c0 : c0 + size], dtype=np.float64)
     if not np.isfinite(win).all():
         raise InvalidParameterError(
             f"The {size} × {size} window at row {r0}, column {c0} holds nodata; the binary tree "

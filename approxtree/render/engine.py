@@ -712,16 +712,14 @@ class Engine:
         terrain = self.tree.terrain
         limit = min(NORMAL_MAP_MAX, int(self.ctx.info.get("GL_MAX_TEXTURE_SIZE", 4096)))
         if isinstance(terrain, Grid):
-            # Ascending x and y so that texture rows run south to north.
-            z = terrain.heights
+            # Ascending x and y so that texture rows run south to north; one strided read
+            # (a windowed grid reads only the sampled cells, block by block).
             xs, ys = terrain.x_coords, terrain.y_coords
-            if xs[0] > xs[-1]:
-                z, xs = z[:, ::-1], xs[::-1]
-            if ys[0] > ys[-1]:
-                z, ys = z[::-1], ys[::-1]
-            stride = max(1, math.ceil(max(z.shape) / limit))
-            z = np.asarray(z[::stride, ::stride], dtype=np.float64)
-            xs, ys = xs[::stride], ys[::stride]
+            stride = max(1, math.ceil(max(terrain.shape) / limit))
+            cs = -stride if xs[0] > xs[-1] else stride
+            rs = -stride if ys[0] > ys[-1] else stride
+            z = np.asarray(terrain.heights[::rs, ::cs], dtype=np.float64)
+            xs, ys = xs[::cs], ys[::rs]
         else:
             d = terrain.domain
             n = min(limit, 1024)

@@ -117,7 +117,7 @@ def _draw_tiles(
     uint8 grey levels (each tile rounded half to even as it is read back)."""
     import moderngl
 
-    z = shading.terrain.heights
+    z = shading.terrain.heights_array("baking the shading texture")
     rows, cols = z.shape
     finite = np.isfinite(z)
     offset = float(np.min(z, where=finite, initial=np.inf)) if finite.any() else 0.0

@@ -131,6 +131,11 @@ class TopographicShading(ShadingTexture):
         in the kernel without a float temporary of a large grid."""
         return hs.hillshade_grey(*self._kernel_args())
 
+    def _heights(self) -> np.ndarray:
+        """The whole (rows, cols) band the shading kernels read (WholeBandError if windowed
+        and too large)."""
+        return self.terrain.heights_array("topographic shading")
+
     def _kernel_args(self) -> tuple:
         """Arguments of the hillshade kernels: heights, steps, z factor, light, algorithm, mode."""
         dx, dy = self._steps
@@ -138,26 +143,22 @@ class TopographicShading(ShadingTexture):
         if self.multidirectional:
             mode = hs.MULTIDIRECTIONAL
         light = (self.z_factor, self.altitude, self.azimuth)
-        return (self.terrain.heights, dx, dy, *light, ALGORITHMS[self.algorithm], mode)
+        return (self._heights(), dx, dy, *light, ALGORITHMS[self.algorithm], mode)
 
     def slope(self) -> np.ndarray:
         """(rows, cols) float32 slope in degrees (gdaldem slope), NaN at nodata and border."""
         dx, dy = self._steps
-        return hs.slope_degrees(
-            self.terrain.heights, dx, dy, self.z_factor, ALGORITHMS[self.algorithm]
-        )
+        return hs.slope_degrees(self._heights(), dx, dy, self.z_factor, ALGORITHMS[self.algorithm])
 
     def curvature(self) -> np.ndarray:
         """(rows, cols) float32 Laplacian of height (1/z units): > 0 hollows, < 0 ridges."""
         dx, dy = self._steps
-        return hs.profile_curvature(self.terrain.heights * self.z_factor, dx, abs(dy))
+        return hs.profile_curvature(self._heights() * self.z_factor, dx, abs(dy))
 
     def shadow_mask(self) -> np.ndarray:
         """(rows, cols) bool: cells that the light cannot see."""
         dx, dy = self._steps
-        return cast_shadows(
-            self.terrain.heights * self.z_factor, dx, dy, self.azimuth, self.altitude
-        )
+        return cast_shadows(self._heights() * self.z_factor, dx, dy, self.azimuth, self.altitude)
 
     def shade(self) -> np.ndarray:
         if not (self.slope_weight or self.curvature_weight or self.shadows):
@@ -230,7 +231,7 @@ class _LitShading(ShadingTexture):
 
     def vertex_normals(self) -> np.ndarray:
         """(rows, cols, 3) unit normals at the data points (central differences), NaN at holes."""
-        z = self.terrain.heights.astype(np.float64) * self.z_factor
+        z = self.terrain.heights_array("vertex normals").astype(np.float64) * self.z_factor
         t = self.terrain.transform
         dx, dy = t.a * self.scale, t.e * self.scale
         gx = np.full(z.shape, np.nan)
