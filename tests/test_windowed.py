@@ -413,3 +413,16 @@ def test_cli_info_on_a_windowed_raster(tmp_path):
     g = read_raster(tif)
     assert figures["windowed"] is True
     assert figures["points"] == g.point_count and figures["z_min"] == g.z_range[0]
+
+
+def test_raster_source_read_from_many_threads(tmp_path):
+    z = _synthetic(530, 470)
+    tif = _write_tif(tmp_path / "dem.tif", z)
+    h = WindowedHeights(RasterSource(str(tif)), cache_bytes=2 * 256 * 256 * 4)
+    rng = np.random.default_rng(4)
+    keys = [(rng.integers(0, 530, 300), rng.integers(0, 470, 300)) for _ in range(48)]
+    # Each thread opens its own dataset handle; values equal the array's.
+    with ThreadPoolExecutor(6) as pool:
+        results = list(pool.map(lambda k: h[k], keys))
+    for k, got in zip(keys, results, strict=True):
+        np.testing.assert_array_equal(got, z[k])
