@@ -93,6 +93,12 @@ def heights_dtype(band_dtype: str | np.dtype) -> np.dtype:
     return np.dtype(np.float64 if wide else np.float32)
 
 
+def _heights_itemsize(band_dtype: str) -> int:
+    """Bytes a cell of this band takes as heights (8 for float64 and wide integers, else 4)."""
+    dtype = np.dtype(band_dtype)
+    return 8 if dtype == np.float64 or (dtype.kind in "iu" and dtype.itemsize >= 4) else 4
+
+
 class RasterSource:
     """A HeightSource over one band of a GDAL raster, read by rasterio windows.
 
@@ -188,10 +194,8 @@ def read_raster(
     if windowed is not None and not isinstance(windowed, bool | np.bool_):
         raise InvalidParameterError(f"windowed must be True, False or None, got {windowed!r}.")
     source = rasterio_source(p)
-    if windowed is not False:
-        grid = _open_windowed(p, source, int(band), policy, crs, cell, corner, windowed)
-        if grid is not None:
-            return grid
+    if windowed:
+        return _open_windowed(p, source, int(band), policy, crs, cell, corner)
     with reading(p, "a GDAL raster (GeoTIFF, ASCII grid, SRTM, USGS DEM, netCDF, ...)"):
         import rasterio
         from rasterio.errors import NotGeoreferencedWarning
@@ -205,13 +209,20 @@ def read_raster(
                     raise InvalidParameterError(
                         f"band {band} does not exist: {p} has {ds.count} band(s)."
                     )
-                # The band, its mask and the float heights: about 3 × 8 bytes a cell.
+                # By default a band whose heights exceed the threshold is read by windows.
                 cells = ds.width * ds.height
-                check_claimed_bytes(p, cells * 24, None, f"{ds.width} × {ds.height} cells")
-                values = ds.read(int(band), masked=True)
-                own = own_transform(ds)
-                file_crs = ds.crs.to_string() if ds.crs else None
-                nodata_value = ds.nodata
+                itemsize = _heights_itemsize(ds.dtypes[int(band) - 1])
+                if windowed is None and cells * itemsize > windowed_threshold():
+                    windowed = True
+                else:
+                    # The band, its mask and the float heights: about 3 × 8 bytes a cell.
+                    check_claimed_bytes(p, cells * 24, None, f"{ds.width} × {ds.height} cells")
+                    values = ds.read(int(band), masked=True)
+                    own = own_transform(ds)
+                    file_crs = ds.crs.to_string() if ds.crs else None
+                    nodata_value = ds.nodata
+    if windowed:
+        return _open_windowed(p, source, int(band), policy, crs, cell, corner)
     # The band read is ours: float32 data get their NaNs in place (no second DEM in memory).
     heights = as_heights(values, reuse=True)
     del values
@@ -227,15 +238,11 @@ def _open_windowed(
     crs: str | None,
     cell: tuple[float, float] | None,
     corner: tuple[float, float] | None,
-    windowed: bool | None,
-) -> Grid | None:
-    """A windowed Grid over the raster, or None when ``windowed`` is None and it is small."""
+) -> Grid:
+    """A windowed Grid over the raster: nothing of the band is read here."""
     what = "a GDAL raster (GeoTIFF, ASCII grid, SRTM, USGS DEM, netCDF, ...)"
     with reading(p, what):
         heights = RasterSource(source, band)
-    nbytes = heights.shape[0] * heights.shape[1] * heights.dtype.itemsize
-    if windowed is None and nbytes <= windowed_threshold():
-        return None
     if policy == "fill":
         raise InvalidParameterError(
             f"nodata='fill' needs the whole band of {p} ({heights.shape[0]} × "
