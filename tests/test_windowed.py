@@ -353,6 +353,7 @@ def test_peak_memory_bounded_by_blocks(tmp_path):
 
 def test_whole_band_operations_fail_clearly(tmp_path, monkeypatch):
     from approxtree import ApproximationTree
+    from approxtree.rd.bintree import lattice_heights
     from approxtree.textures.shading import TopographicShading
 
     tif = _write_tif(tmp_path / "dem.tif", _synthetic(200, 180))
@@ -362,10 +363,13 @@ def test_whole_band_operations_fail_clearly(tmp_path, monkeypatch):
         _ = g.valid
     with pytest.raises(WholeBandError, match="window"):
         np.asarray(g.heights)
-    with pytest.raises(WholeBandError, match="building"):
-        ApproximationTree.build(g, epsilon=1.0, policy="grid")
+    for policy in ("grid", "rtin", "tin", "nonregular"):
+        with pytest.raises(WholeBandError, match="building"):
+            ApproximationTree.build(g, epsilon=1.0, policy=policy)
     with pytest.raises(WholeBandError, match="shading"):
         TopographicShading(g).hillshade()
+    with pytest.raises(WholeBandError, match="binary tree"):
+        lattice_heights(g)
     # Questions that read only their windows still work.
     assert g.point_count == read_raster(tif).point_count
 
@@ -426,3 +430,17 @@ def test_raster_source_read_from_many_threads(tmp_path):
         results = list(pool.map(lambda k: h[k], keys))
     for k, got in zip(keys, results, strict=True):
         np.testing.assert_array_equal(got, z[k])
+
+
+@pytest.mark.parametrize("policy", ["grid", "rtin", "tin", "nonregular"])
+def test_too_large_build_fails_before_reading_the_band(monkeypatch, policy):
+    from approxtree import ApproximationTree
+
+    z = _synthetic(200, 180)
+    source = ArraySource(z)
+    g = Grid(WindowedHeights(source, cache_bytes=64 * 1024, block_shape=(64, 64)))
+    monkeypatch.setattr(windowed_module, "WHOLE_BAND_LIMIT_BYTES", 10_000)
+    with pytest.raises(WholeBandError, match="building"):
+        ApproximationTree.build(g, epsilon=1.0, policy=policy)
+    # Only the blockwise z range scan touched every cell; nothing read the band whole.
+    assert source.cells_read <= z.size

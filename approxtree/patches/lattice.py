@@ -58,7 +58,8 @@ class Window:
 def grid_window(grid: Grid, rect: Rect) -> Window:
     """The window of ``rect`` with its count of valid data points and their z range."""
     r0, r1, c0, c1 = grid.index_range(rect)
-    z = grid.heights[r0 : r1 + 1, c0 : c1 + 1]
+    # Lattice builds read the whole band (checked once on a windowed grid, never a huge read).
+    z = grid.heights_array("building lattice (TIN, RTIN) patches")[r0 : r1 + 1, c0 : c1 + 1]
     valid = np.isfinite(z)
     count = int(np.count_nonzero(valid))
     if count:
