@@ -22,7 +22,7 @@ from approxtree.errors import EmptyTerrainError, InvalidParameterError, TerrainF
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
 from approxtree.geometry.windowed import WindowedHeights, band_statistics, check_whole_band
-from approxtree.kernels.grid_interp import grid_height_at
+from approxtree.kernels.grid_interp import cell_height_at, grid_height_at
 
 
 def _as_heights(heights: np.ndarray) -> np.ndarray:
@@ -318,39 +318,27 @@ class Grid(GeometryData):
         return grid_height_at(self.heights, fr, fc).reshape(shape)
 
     def _windowed_height_at(self, fr: np.ndarray, fc: np.ndarray) -> np.ndarray:
-        """h_T at (n,) fractional indices on a windowed grid, one read per block of cells.
+        """h_T at (n,) fractional indices on a windowed grid, reading only the blocks touched.
 
-        Each point is interpolated in its cell (r, c)–(r+1, c+1); points are grouped by the
-        block of their cell and each group is interpolated by the same kernel on that block
-        plus one row and column beyond it, so the values equal the in-memory ones bit for bit
-        (integer offsets subtract exactly). Peak memory: the points plus one block.
+        The four corners of each point's cell are read in one grouped-by-block index read
+        and interpolated by the kernel grid_height_at uses, so the values equal the in-memory
+        ones bit for bit (integer cell indices subtract exactly). Peak memory: the points
+        and the cached blocks, never the bounding box of the points.
         """
         rows, cols = self.shape
         out = np.full(fr.shape, np.nan)
         inside = np.flatnonzero((fr >= 0.0) & (fr <= rows - 1) & (fc >= 0.0) & (fc <= cols - 1))
         if inside.size == 0:
             return out
-        # The cell of each point, as the kernel picks it (the last line belongs to the cell
-        # before it), and the block that cell lies in.
-        cr = np.minimum(fr[inside].astype(np.int64), rows - 2)
-        cc = np.minimum(fc[inside].astype(np.int64), cols - 2)
-        br, bc = self.heights.block_shape
-        nbc = -(-cols // bc)
-        ids = (cr // br) * nbc + cc // bc
-        order = np.argsort(ids, kind="stable")
-        sorted_ids = ids[order]
-        cuts = np.flatnonzero(np.diff(sorted_ids)) + 1
-        for s, e in zip(
-            np.concatenate([[0], cuts]).tolist(),
-            np.concatenate([cuts, [order.size]]).tolist(),
-            strict=True,
-        ):
-            bi, bj = divmod(int(sorted_ids[s]), nbc)
-            r0, c0 = bi * br, bj * bc
-            r1, c1 = min(r0 + br, rows - 1), min(c0 + bc, cols - 1)
-            z = self.heights[r0 : r1 + 1, c0 : c1 + 1]
-            sel = inside[order[s:e]]
-            out[sel] = grid_height_at(z, fr[sel] - r0, fc[sel] - c0)
+        # The cell of each point as the kernel picks it: the last line belongs to the cell
+        # before it.
+        fr_in, fc_in = fr[inside], fc[inside]
+        cr = np.minimum(fr_in.astype(np.int64), rows - 2)
+        cc = np.minimum(fc_in.astype(np.int64), cols - 2)
+        corners = self.heights[
+            np.concatenate([cr, cr, cr + 1, cr + 1]), np.concatenate([cc, cc + 1, cc, cc + 1])
+        ].reshape(4, -1)
+        out[inside] = cell_height_at(*corners, fr_in - cr, fc_in - cc)
         return out
 
     @property

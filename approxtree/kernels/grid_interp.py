@@ -48,3 +48,24 @@ def grid_height_at(heights: np.ndarray, fr: np.ndarray, fc: np.ndarray) -> np.nd
             heights[r0, c0], heights[r0, c1], heights[r1, c0], heights[r1, c1], r - r0, c - c0
         )
     return out
+
+
+@njit(cache=True, parallel=True)
+def cell_height_at(
+    z00: np.ndarray,
+    z01: np.ndarray,
+    z10: np.ndarray,
+    z11: np.ndarray,
+    dr: np.ndarray,
+    dc: np.ndarray,
+) -> np.ndarray:
+    """h_T from the corners of each point's cell (for heights read by windows).
+
+    z00, z01, z10, z11: (n,) corner heights (r, c), (r, c+1), (r+1, c), (r+1, c+1); dr, dc: (n,)
+    float64 offsets in the cell. Returns (n,) float64, equal bit for bit to grid_height_at.
+    """
+    n = dr.shape[0]
+    out = np.empty(n, dtype=np.float64)
+    for i in prange(n):
+        out[i] = interpolate_cell(z00[i], z01[i], z10[i], z11[i], dr[i], dc[i])
+    return out
