@@ -143,7 +143,9 @@ def open_terrain(path: str | os.PathLike, **options: object) -> GeometryData:
     """Read a terrain file with the reader its extension (or content) calls for.
 
     Options (None means "not given"): nodata ("mask" | "fill"), band, encoding ("terrain-rgb" |
-    "terrarium"), height_scale, height_offset, ground_only, cell_size, origin, crs, key, bounds.
+    "terrarium"), height_scale, height_offset, ground_only, cell_size, origin, crs, key, bounds,
+    windowed (GDAL rasters: True reads by windows on demand, False into memory, None/absent
+    windowed above ``approxtree.io.raster.windowed_threshold()`` bytes of heights).
     Returns a Grid for rasters, images and arrays, a TINPointSet for point clouds and a TIN for
     quantized-mesh tiles.
     """
