@@ -446,3 +446,21 @@ def test_too_large_build_fails_before_reading_the_band(monkeypatch, policy):
         ApproximationTree.build(g, epsilon=1.0, policy=policy)
     # Only the blockwise z range scan touched every cell; nothing read the band whole.
     assert source.cells_read <= z.size
+
+
+def test_header_claiming_more_cells_fails_at_open(tmp_path):
+    import struct
+
+    from approxtree.errors import TerrainFormatError
+
+    path = _write_tif(tmp_path / "dem.tif", _synthetic(64, 64), tile=16)
+    data = bytearray(path.read_bytes())
+    ifd = struct.unpack_from("<I", data, 4)[0]
+    for i in range(struct.unpack_from("<H", data, ifd)[0]):
+        entry = ifd + 2 + 12 * i
+        if struct.unpack_from("<H", data, entry)[0] in (256, 257):  # ImageWidth, ImageLength
+            struct.pack_into("<HIHH", data, entry + 2, 3, 1, 60000, 0)
+    path.write_bytes(bytes(data))
+    # Windowed, nothing of the band is read but one block: that block already fails.
+    with pytest.raises(TerrainFormatError, match="60000 × 60000"):
+        read_raster(path, windowed=True)

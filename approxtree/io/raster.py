@@ -251,8 +251,20 @@ def _open_windowed(
             "windowed=False (--windowed off) on a machine with the memory."
         )
     transform = resolve_transform(heights.own_transform, heights.shape, cell, corner, p)
+    windowed = WindowedHeights(heights, cache_bytes=DEFAULT_CACHE_BYTES)
+    # One block read now (kept in the cache): a header claiming more cells than the file
+    # holds fails here, as it fails an in-memory read, not in the middle of a computation.
+    last = windowed.block_count()
+    try:
+        windowed.block(last[0] - 1, last[1] - 1)
+    except TerrainFormatError as exc:
+        rows, cols = heights.shape
+        raise TerrainFormatError(
+            f"{p} is truncated or corrupt: its header claims {cols} × {rows} cells, but its last "
+            f"block cannot be read. {exc}"
+        ) from exc
     grid = Grid(
-        WindowedHeights(heights, cache_bytes=DEFAULT_CACHE_BYTES),
+        windowed,
         transform,
         crs=crs or heights.crs,
         nodata=heights.nodata,
