@@ -464,3 +464,18 @@ def test_header_claiming_more_cells_fails_at_open(tmp_path):
     # Windowed, nothing of the band is read but one block: that block already fails.
     with pytest.raises(TerrainFormatError, match="60000 × 60000"):
         read_raster(path, windowed=True)
+
+
+def test_cli_build_on_a_too_large_windowed_raster_is_one_error_line(tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    from approxtree.cli import main
+
+    tif = _write_tif(tmp_path / "dem.tif", _synthetic(90, 70))
+    monkeypatch.setattr(windowed_module, "WHOLE_BAND_LIMIT_BYTES", 1000)
+    out = tmp_path / "t.atree"
+    args = ["build", str(tif), "--out", str(out), "--windowed", "on"]
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 2
+    assert result.output.startswith("Error: ") and "windowed=False" in result.output
+    assert "Traceback" not in result.output and not out.exists()
