@@ -479,3 +479,39 @@ def test_cli_build_on_a_too_large_windowed_raster_is_one_error_line(tmp_path, mo
     assert result.exit_code == 2
     assert result.output.startswith("Error: ") and "windowed=False" in result.output
     assert "Traceback" not in result.output and not out.exists()
+
+
+def test_render_of_a_windowed_tree_equals_in_memory(monkeypatch):
+    """Full resolution, the LOD cut and a strided normal map draw the same pixels."""
+    from approxtree import ApproximationTree
+    from approxtree.datasets import fractal_terrain
+    from approxtree.render import Engine, overview_camera
+    from approxtree.render import engine as engine_module
+    from approxtree.render.engine import create_context
+
+    base = fractal_terrain(129, seed=7, relief=200.0)
+    z = np.array(base.heights, dtype=np.float32)
+    z[40:52, 60:75] = np.nan
+    t = base.transform
+    g = Grid(z, t, base.crs)
+    w = Grid(WindowedHeights(ArraySource(z), cache_bytes=64 * 1024, block_shape=(32, 32)), t)
+    # A normal map smaller than the grid: rows and columns are read with a stride.
+    monkeypatch.setattr(engine_module, "NORMAL_MAP_MAX", 50)
+    ctx = create_context()
+    images = []
+    try:
+        for terrain in (g, w):
+            tree = ApproximationTree.build(terrain, epsilon=0.5, max_points=17 * 17, progress=False)
+            eng = Engine(tree, context=ctx, offscreen=True)
+            try:
+                cam = overview_camera(tree.bboxes[0], eng.scale)
+                full = eng.render(cam, (160, 120), full_resolution=True).image
+                lod = eng.render(cam, (160, 120), alpha=1.0).image
+            finally:
+                eng.release()
+            images.append((full, lod))
+    finally:
+        ctx.release()
+    assert images[0][0][..., 3].any()
+    np.testing.assert_array_equal(images[0][0], images[1][0])
+    np.testing.assert_array_equal(images[0][1], images[1][1])
