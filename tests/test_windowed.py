@@ -377,7 +377,7 @@ def test_whole_band_operations_fail_clearly(tmp_path, monkeypatch):
 
 
 def test_small_windowed_grid_builds_the_same_tree(tmp_path):
-    from approxtree import ApproximationTree
+    from approxtree import ApproximationTree, load_tree
 
     tif = _write_tif(tmp_path / "dem.tif", _synthetic(150, 130))
     g, w = read_raster(tif, windowed=False), read_raster(tif, windowed=True)
@@ -389,6 +389,11 @@ def test_small_windowed_grid_builds_the_same_tree(tmp_path):
         for i in range(len(a)):
             np.testing.assert_array_equal(a.patch(i).vertices, b.patch(i).vertices)
             np.testing.assert_array_equal(a.patch(i).triangles, b.patch(i).triangles)
+    # A small windowed terrain saves whole (np.asarray of its heights) and loads in memory.
+    b.save(tmp_path / "t.atree")
+    back = load_tree(tmp_path / "t.atree")
+    assert not back.terrain.is_windowed
+    np.testing.assert_array_equal(back.terrain.heights, g.heights)
 
 
 def test_grid_patch_mesh_reads_only_its_lattice(tmp_path, monkeypatch):
