@@ -12,9 +12,11 @@ Grid to workers that then read their own windows.
 
 from __future__ import annotations
 
+import os
 import threading
 from collections import OrderedDict
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -64,9 +66,14 @@ class ArraySource:
         self.block_shape = block_shape
         #: Windows read so far (rows × cols summed), so tests can check what was read.
         self.cells_read = 0
+        self._count_lock = threading.Lock()
+
+    def __reduce__(self):
+        return (ArraySource, (self.array, self.block_shape))
 
     def read(self, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
-        self.cells_read += (r1 - r0) * (c1 - c0)
+        with self._count_lock:
+            self.cells_read += (r1 - r0) * (c1 - c0)
         return np.array(self.array[r0:r1, c0:c1], copy=True)
 
 
@@ -329,20 +336,34 @@ def check_whole_band(shape: tuple[int, int], dtype: np.dtype, operation: str) ->
         )
 
 
-def band_statistics(heights: WindowedHeights) -> tuple[int, float, float]:
+def band_statistics(
+    heights: WindowedHeights, workers: int | None = None
+) -> tuple[int, float, float]:
     """(valid count, z min, z max) of a windowed band, read block by block (none kept).
 
-    Peak memory is a few blocks. z min/max are NaN when no cell is valid.
+    Rows of blocks are reduced by ``workers`` threads (default: the CPU count; sources are
+    thread-safe and reads release the GIL). Peak memory: one block per thread. z min/max are
+    NaN when no cell is valid.
     """
-    count = 0
-    zmin, zmax = np.inf, -np.inf
-    for *_, block in heights.iter_blocks():
-        finite = np.isfinite(block)
-        n = int(np.count_nonzero(finite))
-        if n:
-            count += n
-            zmin = min(zmin, float(np.min(block, where=finite, initial=np.inf)))
-            zmax = max(zmax, float(np.max(block, where=finite, initial=-np.inf)))
+    nbr, nbc = heights.block_count()
+
+    def reduce_row(bi: int) -> tuple[int, float, float]:
+        count, lo, hi = 0, np.inf, -np.inf
+        for bj in range(nbc):
+            r0, r1, c0, c1 = heights.block_bounds(bi, bj)
+            block = np.asarray(heights.source.read(r0, r1, c0, c1), dtype=heights.dtype)
+            finite = np.isfinite(block)
+            n = int(np.count_nonzero(finite))
+            if n:
+                count += n
+                lo = min(lo, float(np.min(block, where=finite, initial=np.inf)))
+                hi = max(hi, float(np.max(block, where=finite, initial=-np.inf)))
+        return count, lo, hi
+
+    n_workers = max(1, min(workers or os.cpu_count() or 1, nbr))
+    with ThreadPoolExecutor(n_workers) as pool:
+        rows = list(pool.map(reduce_row, range(nbr)))
+    count = sum(r[0] for r in rows)
     if count == 0:
         return 0, float("nan"), float("nan")
-    return count, zmin, zmax
+    return count, min(r[1] for r in rows), max(r[2] for r in rows)
