@@ -520,3 +520,21 @@ def test_render_of_a_windowed_tree_equals_in_memory(monkeypatch):
     assert images[0][0][..., 3].any()
     np.testing.assert_array_equal(images[0][0], images[1][0])
     np.testing.assert_array_equal(images[0][1], images[1][1])
+
+
+def _window_in_child(grid: Grid) -> tuple[tuple[float, float], np.ndarray]:
+    """Run in another process: the z range and one window of a shipped windowed grid."""
+    return grid.z_range, grid.window(10, 40, 20, 60).heights
+
+
+def test_windowed_grid_ships_to_another_process(tmp_path):
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    tif = _write_tif(tmp_path / "dem.tif", _synthetic(300, 280))
+    g, w = read_raster(tif, windowed=False), read_raster(tif, windowed=True)
+    # As dask ships it: by pickle, to a fresh interpreter that opens the file itself.
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        z_range, heights = pool.submit(_window_in_child, w).result(timeout=300)
+    assert z_range == g.z_range
+    np.testing.assert_array_equal(heights, g.window(10, 40, 20, 60).heights)
