@@ -26,8 +26,11 @@ from approxtree.errors import WholeBandError
 #: Bytes of decoded blocks a WindowedHeights keeps by default.
 DEFAULT_CACHE_BYTES = 128 * 2**20
 
-#: Block (rows, cols) used when the source has no natural block shape (or a strip-shaped one).
-DEFAULT_BLOCK_SHAPE = (512, 512)
+#: Side (cells) of a cache block; the blocks are whole tiles or strips of the source.
+BLOCK_SIDE = 512
+
+#: Block (rows, cols) used when the source has no usable natural block shape.
+DEFAULT_BLOCK_SHAPE = (BLOCK_SIDE, BLOCK_SIDE)
 
 #: Largest band (bytes of heights) an operation that needs the whole band reads on a windowed
 #: terrain; beyond it the operation raises WholeBandError.
@@ -102,7 +105,7 @@ class WindowedHeights:
     source: the HeightSource. cache_bytes: the most bytes of decoded blocks kept (least
     recently used evicted first; the blocks one request needs are read even when they exceed
     it, but not kept). block_shape: (rows, cols) of a block; by default the source's own when
-    it is tile-like, else DEFAULT_BLOCK_SHAPE. Thread-safe.
+    it has one (whole tiles or strips), else DEFAULT_BLOCK_SHAPE. Thread-safe.
 
     Indexing follows numpy: ``h[r0:r1, c0:c1]`` and strided slices return a (copied) array
     of the selection; ``h[rr, cc]`` with integer arrays (broadcast together) returns the values
@@ -125,15 +128,25 @@ class WindowedHeights:
         self._lock = threading.Lock()
 
     def _choose_block_shape(self, block_shape: tuple[int, int] | None) -> tuple[int, int]:
-        """The given block shape, the source's if tile-like (64..4096 each side), or the default."""
+        """The block shape: the given one, else one fitted to the source's own blocks.
+
+        Tiles (16..4096 a side, a GeoTIFF's or a VRT's) are grouped into blocks of about
+        BLOCK_SIDE a side, whole tiles each; strips (rows spanning the width) into blocks of
+        whole strips of about BLOCK_SIDE² cells; anything else gets DEFAULT_BLOCK_SHAPE.
+        """
+        rows, cols = self.shape
         if block_shape is None:
+            block_shape = DEFAULT_BLOCK_SHAPE
             natural = getattr(self.source, "block_shape", None)
-            if natural is not None and all(64 <= int(b) <= 4096 for b in natural):
-                block_shape = (int(natural[0]), int(natural[1]))
-            else:
-                block_shape = DEFAULT_BLOCK_SHAPE
+            if natural is not None:
+                br, bc = (max(1, int(b)) for b in natural)
+                if 16 <= br <= 4096 and 16 <= bc <= 4096:
+                    block_shape = (br * max(1, BLOCK_SIDE // br), bc * max(1, BLOCK_SIDE // bc))
+                elif bc >= cols and cols <= 16 * BLOCK_SIDE:
+                    strip_rows = -(-(BLOCK_SIDE * BLOCK_SIDE) // cols)
+                    block_shape = (br * max(1, -(-strip_rows // br)), cols)
         br, bc = (max(1, int(b)) for b in block_shape)
-        return (min(br, self.shape[0]), min(bc, self.shape[1]))
+        return (min(br, rows), min(bc, cols))
 
     # -- array-like attributes ------------------------------------------------------------------
 

@@ -89,11 +89,10 @@ def heights_dtype(band_dtype: str | np.dtype) -> np.dtype:
     dtype = np.dtype(band_dtype)
     if dtype.kind not in "iuf":
         raise TerrainFormatError(f"Heights must be real numbers, got a band of {dtype}.")
-    wide = dtype == np.float64 or (dtype.kind in "iu" and dtype.itemsize >= 4)
-    return np.dtype(np.float64 if wide else np.float32)
+    return np.dtype(np.float64 if _heights_itemsize(dtype) == 8 else np.float32)
 
 
-def _heights_itemsize(band_dtype: str) -> int:
+def _heights_itemsize(band_dtype: str | np.dtype) -> int:
     """Bytes a cell of this band takes as heights (8 for float64 and wide integers, else 4)."""
     dtype = np.dtype(band_dtype)
     return 8 if dtype == np.float64 or (dtype.kind in "iu" and dtype.itemsize >= 4) else 4
