@@ -10,6 +10,7 @@ from approxtree.errors import (
     TerrainDataWarning,
     TerrainFormatError,
     UnsupportedStrategyError,
+    WholeBandError,
 )
 from approxtree.geometry import (
     TIN,
@@ -65,6 +66,7 @@ __all__ = [
     "TerrainDataWarning",
     "TerrainFormatError",
     "UnsupportedStrategyError",
+    "WholeBandError",
     "__version__",
     "load_tree",
     "open_terrain",

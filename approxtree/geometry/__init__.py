@@ -6,6 +6,7 @@ from approxtree.geometry.nonregular import NonRegularGrid
 from approxtree.geometry.rect import Rect
 from approxtree.geometry.refinement import GridRefinement
 from approxtree.geometry.tin import TIN, TINPointSet
+from approxtree.geometry.windowed import ArraySource, HeightSource, WindowedHeights
 
 #: Terrain kind (as stored in tree files) → class. A new data type is one new subclass here.
 TERRAIN_TYPES: dict[str, type[GeometryData]] = {
@@ -15,10 +16,13 @@ TERRAIN_TYPES: dict[str, type[GeometryData]] = {
 __all__ = [
     "TERRAIN_TYPES",
     "TIN",
+    "ArraySource",
     "GeometryData",
     "Grid",
     "GridRefinement",
+    "HeightSource",
     "NonRegularGrid",
     "Rect",
     "TINPointSet",
+    "WindowedHeights",
 ]
