@@ -541,3 +541,37 @@ def test_windowed_grid_ships_to_another_process(tmp_path):
         z_range, heights = pool.submit(_window_in_child, w).result(timeout=300)
     assert z_range == g.z_range
     np.testing.assert_array_equal(heights, g.window(10, 40, 20, 60).heights)
+
+
+def test_a_65536_squared_vrt_opens_windowed_by_default(tmp_path):
+    """A 17 GB (as float32) VRT mosaic opens at once and answers from the one tile it holds."""
+    z = _synthetic(300, 260)
+    _write_tif(tmp_path / "tile.tif", z)
+    n, r_off, c_off = 65536, 40000, 51234
+    (tmp_path / "big.vrt").write_text(
+        f"""<VRTDataset rasterXSize="{n}" rasterYSize="{n}">
+  <SRS>EPSG:32610</SRS>
+  <GeoTransform>400000.0, 2.0, 0.0, 4300000.0, 0.0, -2.0</GeoTransform>
+  <VRTRasterBand dataType="Float32" band="1">
+    <NoDataValue>-9999</NoDataValue>
+    <SimpleSource>
+      <SourceFilename relativeToVRT="1">tile.tif</SourceFilename><SourceBand>1</SourceBand>
+      <SrcRect xOff="0" yOff="0" xSize="260" ySize="300"/>
+      <DstRect xOff="{c_off}" yOff="{r_off}" xSize="260" ySize="300"/>
+    </SimpleSource>
+  </VRTRasterBand>
+</VRTDataset>"""
+    )
+    g = read_raster(tmp_path / "big.vrt")
+    assert g.is_windowed and g.shape == (n, n)
+    assert "_n_valid" not in g.__dict__
+    assert g.heights.cached_bytes <= 512 * 512 * 4
+    # The in-memory window holding the tile (same coordinates bit for bit) is the reference.
+    tile = g.window(r_off, r_off + 299, c_off, c_off + 259)
+    np.testing.assert_array_equal(tile.heights, z)
+    rect = g.rect_of(r_off - 5, r_off + 120, c_off + 17, c_off + 300)
+    pts = g.points(rect)
+    assert len(pts) > 20000
+    np.testing.assert_array_equal(pts, tile.points(rect))
+    x, y = pts[:, 0] + 0.7, pts[:, 1] - 0.3
+    np.testing.assert_array_equal(g.height_at(x, y), tile.height_at(x, y))
