@@ -289,8 +289,6 @@ def test_windowed_default_follows_threshold(tmp_path, monkeypatch):
     assert not read_raster(tif).is_windowed
     with pytest.raises(InvalidParameterError, match="windowed"):
         read_raster(tif, windowed="yes")  # type: ignore[arg-type]
-    with pytest.raises(InvalidParameterError, match="gdal_fillnodata"):
-        read_raster(tif, windowed=True, nodata="fill")
 
 
 def test_pickle_ships_no_data(tmp_path):
@@ -575,3 +573,19 @@ def test_a_65536_squared_vrt_opens_windowed_by_default(tmp_path):
     np.testing.assert_array_equal(pts, tile.points(rect))
     x, y = pts[:, 0] + 0.7, pts[:, 1] - 0.3
     np.testing.assert_array_equal(g.height_at(x, y), tile.height_at(x, y))
+
+
+@pytest.mark.parametrize(
+    "relative", ["edge/nz_elev.tif", "srtm/N22W160v2.3a.hgt.zip", "edge/SainteHelens.dem"]
+)
+def test_windowed_fill_equals_the_whole_band_fill(data_dir, relative):
+    path = data_file(data_dir, relative)
+    g = read_raster(path, nodata="fill", windowed=False)
+    w = read_raster(path, nodata="fill", windowed=True)
+    assert g.filled_count > 0 and w.nodata_policy == "fill"
+    assert_same_grid(w, g)
+    # Blocks far smaller than the fill's reach: each is filled from its halo alone.
+    small = WindowedHeights(w.heights.source, cache_bytes=64 << 20, block_shape=(61, 89))
+    rows, cols = g.shape
+    assert rows * cols * 4 <= small.cache_bytes // 4  # read block by block, not in one go
+    np.testing.assert_array_equal(small[:, :], g.heights)

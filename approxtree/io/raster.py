@@ -22,6 +22,7 @@ from approxtree.errors import InvalidParameterError, TerrainFormatError
 from approxtree.geometry import Grid
 from approxtree.geometry.windowed import DEFAULT_CACHE_BYTES, WindowedHeights
 from approxtree.io._common import (
+    FILL_SEARCH_DISTANCE,
     as_heights,
     check_cell_size,
     check_claimed_bytes,
@@ -29,6 +30,7 @@ from approxtree.io._common import (
     check_nodata_policy,
     check_origin,
     existing_file,
+    fill_holes,
     make_grid,
     own_transform,
     reading,
@@ -229,6 +231,38 @@ def read_raster(
     return make_grid(heights, transform, crs or file_crs, nodata_value, policy)
 
 
+class FilledSource:
+    """A HeightSource whose holes are filled as ``nodata="fill"`` fills a band read whole.
+
+    GDAL's fill (inverse distance, no smoothing) looks at most FILL_SEARCH_DISTANCE cells
+    away, so each window is filled from itself plus a halo of twice that distance and gives
+    the very values a fill of the whole band gives (tests compare them on real DEMs).
+    """
+
+    #: Cells read around each window (the fill's reach, with a margin for its diagonals).
+    HALO = 2 * int(FILL_SEARCH_DISTANCE) + 2
+
+    def __init__(self, source: RasterSource) -> None:
+        self.source = source
+        self.shape = source.shape
+        self.dtype = source.dtype
+        self.block_shape = source.block_shape
+
+    def __reduce__(self):
+        return (FilledSource, (self.source,))
+
+    def __repr__(self) -> str:
+        return f"FilledSource({self.source!r})"
+
+    def read(self, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
+        """Rows [r0, r1), columns [c0, c1), holes within reach of data filled."""
+        rows, cols = self.shape
+        a0, a1 = max(0, r0 - self.HALO), min(rows, r1 + self.HALO)
+        b0, b1 = max(0, c0 - self.HALO), min(cols, c1 + self.HALO)
+        filled, _ = fill_holes(self.source.read(a0, a1, b0, b1))
+        return np.array(filled[r0 - a0 : r1 - a0, c0 - b0 : c1 - b0], copy=True)
+
+
 def _open_windowed(
     p: Path,
     source: str,
@@ -242,15 +276,10 @@ def _open_windowed(
     what = "a GDAL raster (GeoTIFF, ASCII grid, SRTM, USGS DEM, netCDF, ...)"
     with reading(p, what):
         heights = RasterSource(source, band)
-    if policy == "fill":
-        raise InvalidParameterError(
-            f"nodata='fill' needs the whole band of {p} ({heights.shape[0]} × "
-            f"{heights.shape[1]} cells) in memory, but it is opened windowed. Fill the holes "
-            "beforehand (gdal_fillnodata.py), use nodata='mask', or read it in memory with "
-            "windowed=False (--windowed off) on a machine with the memory."
-        )
     transform = resolve_transform(heights.own_transform, heights.shape, cell, corner, p)
-    windowed = WindowedHeights(heights, cache_bytes=DEFAULT_CACHE_BYTES)
+    # The fill policy fills each window from a halo around it (as a whole-band fill would).
+    source = FilledSource(heights) if policy == "fill" else heights
+    windowed = WindowedHeights(source, cache_bytes=DEFAULT_CACHE_BYTES)
     # One block read now (kept in the cache): a header claiming more cells than the file
     # holds fails here, as it fails an in-memory read, not in the middle of a computation.
     last = windowed.block_count()
@@ -269,6 +298,8 @@ def _open_windowed(
         nodata=heights.nodata,
     )
     grid.nodata_policy = policy
+    # How many cells a windowed fill filled is not known without a scan of the band.
+    grid.filled_count = None if policy == "fill" else 0
     return grid
 
 
