@@ -22,8 +22,8 @@ from approxtree.geometry.rect import Rect
 from approxtree.kernels.row_column import lattice_errors, lattice_triangles, refine_lattices
 from approxtree.patches.base import GeometryPatch
 from approxtree.patches.grid import lattice_world_mesh
-from approxtree.patches.records import Batch, fixed, interleave
 from approxtree.patches.lattice import require_grid
+from approxtree.patches.records import Batch, fixed, interleave
 
 
 def lattice_mesh(grid: Grid, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -359,7 +359,7 @@ def store_info(path: str | os.PathLike) -> dict[str, Any]:
         counts = np.bincount(strategies, minlength=len(names))
         out.update(
             {
-                "nodes": int(len(levels)),
+                "nodes": len(levels),
                 "levels": int(levels.max()) + 1 if len(levels) else 0,
                 "strategies": {n: int(c) for n, c in zip(names, counts, strict=True)},
                 "params": meta.get("params"),
