@@ -367,7 +367,7 @@ def store_info(path: str | os.PathLike) -> dict[str, Any]:
             }
         )
     layout = {}
-    for p in reader.arrays():
+    for p in sorted(reader.arrays()):
         arr = reader.node(p)
         layout[p] = {
             "shape": list(arr.shape),
