@@ -247,14 +247,7 @@ def _tree_info(path: str) -> dict[str, Any]:
     from approxtree.tree.tree_store import store_info
 
     if not is_legacy_file(path):
-        figures = store_info(path)
-        # One line per array in the plain listing: "shape in chunks × n".
-        figures["chunks"] = {
-            name: f"{'×'.join(map(str, a['shape']))} in {'×'.join(map(str, a['chunks']))} "
-            f"chunks ({a['nchunks']})"
-            for name, a in figures["chunks"].items()
-        }
-        return figures
+        return store_info(path)
     from approxtree.tree import load_tree
     from approxtree.tree.store import FORMAT_VERSION
 
@@ -300,9 +293,10 @@ def info(dem: str, encoding, nodata_policy, ground_only, height_scale, as_json: 
         figures = _tree_info(dem)
         chunks = figures.pop("chunks", {}) if not as_json else {}
         _emit(figures, as_json)
-        # The chunk layout, one array a line, under the figures.
-        for name, text in chunks.items():
-            click.echo(f"  {name}: {text}")
+        # The chunk layout, one array a line under the figures: "shape in chunk chunks (n)".
+        for name, a in chunks.items():
+            shape, chunk = "×".join(map(str, a["shape"])), "×".join(map(str, a["chunks"]))
+            click.echo(f"  {name}: {shape} in {chunk} chunks ({a['nchunks']})")
         return
     terrain = _open(dem, encoding, nodata_policy, ground_only, height_scale)
     _emit(terrain_figures(terrain), as_json)
