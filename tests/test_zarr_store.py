@@ -75,7 +75,7 @@ def test_round_trip_every_strategy(grid, policy, tmp_path):
 def test_records_many_equals_to_record(grid):
     """Each strategy's batched records hold exactly every patch's to_record, raveled."""
     tree = ApproximationTree.build(grid, epsilon=0.3, max_points=25, policy="auto")
-    for s, name in enumerate(tree.strategy_names):
+    for s in range(len(tree.strategy_names)):
         patches = [tree.patch(i) for i in np.flatnonzero(tree.strategies == s)]
         batch = type(patches[0]).records_many(patches)
         # Every strategy gathers its attributes (no fallback to per-patch to_record).
@@ -159,9 +159,7 @@ def test_subtree_patches_are_contiguous(tmp_path):
     for root in np.flatnonzero(tree.levels == level)[:20]:
         members, frontier = [root], [root]
         while frontier:
-            kids = [
-                c for n in frontier for c in range(tree.child_start[n], tree.child_start[n] + tree.child_count[n])
-            ]
+            kids = [c for n in frontier for c in tree.child_start[n] + np.arange(tree.child_count[n])]
             members += kids
             frontier = kids
         s = np.sort(slot[members])
@@ -208,7 +206,8 @@ def chunk_files(store: Path) -> list[Path]:
 
 def test_flipped_byte_in_every_chunk_is_a_store_error(tmp_path):
     """For each chunk file in turn: one flipped byte → StoreError when loaded (verify) or read."""
-    tree = ApproximationTree.build(fractal_terrain(33, seed=1), epsilon=0.3, max_points=16, policy="auto")
+    terrain = fractal_terrain(33, seed=1)
+    tree = ApproximationTree.build(terrain, epsilon=0.3, max_points=16, policy="auto")
     good = tmp_path / "good.zarr"
     tree.save(good)
     files = chunk_files(good)
@@ -218,8 +217,8 @@ def test_flipped_byte_in_every_chunk_is_a_store_error(tmp_path):
         data[len(data) // 2] ^= 0x10
         f.write_bytes(bytes(data))
         with pytest.raises(StoreError, match="corrupted") as info:
-            t = load_tree(good)  # verify=True checks every chunk but the terrain's...
-            t.terrain  # ...whose chunks were read (checked) to build it
+            # verify=True reads every chunk but the terrain's, which building it reads.
+            load_tree(good)
         assert str(good) in str(info.value) and "Rebuild" in str(info.value)
         data[len(data) // 2] ^= 0x10
         f.write_bytes(bytes(data))
