@@ -159,7 +159,9 @@ def test_subtree_patches_are_contiguous(tmp_path):
     for root in np.flatnonzero(tree.levels == level)[:20]:
         members, frontier = [root], [root]
         while frontier:
-            kids = [c for n in frontier for c in tree.child_start[n] + np.arange(tree.child_count[n])]
+            kids = [
+                c for n in frontier for c in tree.child_start[n] + np.arange(tree.child_count[n])
+            ]
             members += kids
             frontier = kids
         s = np.sort(slot[members])

@@ -192,15 +192,14 @@ def is_legacy_path(path: str | os.PathLike) -> bool:
 
 
 def is_legacy_file(path: str | os.PathLike) -> bool:
-    """Whether ``path`` is a file starting with the .atree magic bytes (or a missing .atree
-    path, so that the legacy reader reports it)."""
+    """Whether ``path`` is read by this module: any file but a zip (tree stores are folders,
+    zips and URLs), or a missing .atree path (so that the legacy reader reports it)."""
     if "://" in str(path):
         return False
     p = Path(path)
-    if not p.is_file():
-        return is_legacy_path(path) and not p.exists()
-    with open(p, "rb") as f:
-        return f.read(len(MAGIC)) == MAGIC
+    if p.is_file():
+        return not str(path).lower().endswith(".zip")
+    return is_legacy_path(path) and not p.exists()
 
 
 class TreeFile:

@@ -63,10 +63,18 @@ def is_zip(path: str | os.PathLike) -> bool:
 
 
 def is_store(path: str | os.PathLike) -> bool:
-    """Whether ``path`` names a tree store (rather than a legacy ``.atree`` file)."""
+    """Whether ``path`` names a tree store (rather than a legacy ``.atree`` file or a terrain
+    file): a URL, a ``.zarr`` path, a folder with a zarr.json, or a zip holding a zarr.json
+    (other zips, such as zipped SRTM tiles, are terrain files)."""
     text = str(path).rstrip("/")
-    if is_url(text) or text.lower().endswith((".zarr", ".zip")):
+    if is_url(text) or text.lower().endswith(".zarr"):
         return True
+    if is_zip(text) and Path(text).is_file():
+        try:
+            with zipfile.ZipFile(text) as z:
+                return "zarr.json" in z.namelist()
+        except (OSError, zipfile.BadZipFile):
+            return False
     return Path(text).is_dir() and (Path(text) / "zarr.json").is_file()
 
 
