@@ -20,7 +20,7 @@ from approxtree.geometry.rect import Rect
 from approxtree.kernels.grid_patch import grid_patch_errors, grid_patch_mesh
 from approxtree.kernels.row_column import coarsest_uniform_step, lattice_error
 from approxtree.patches.base import GeometryPatch
-from approxtree.patches.records import Batch, fixed
+from approxtree.patches.records import Batch, gather
 
 
 def grid_steps(n_lines: int, max_lines: int) -> int:
@@ -176,11 +176,12 @@ class GridPatch(GeometryPatch):
     def records_many(cls, patches: Sequence[GeometryPatch]) -> Batch:
         # Fixed-width records: one (k, 6) and one (k, 4) table gathered from the attributes.
         ps: list[GridPatch] = list(patches)  # type: ignore[arg-type]
-        index = np.array([p.index for p in ps], dtype="<i8").reshape(-1, 6)
-        stats = np.array(
-            [(p.error, p.z_range[0], p.z_range[1], p.data_count) for p in ps], dtype="<f8"
-        ).reshape(-1, 4)
-        return {"index": fixed(index, "<i8"), "stats": fixed(stats, "<f8")}
+        k = len(ps)
+        stats = ((p.error, *p.z_range, p.data_count) for p in ps)
+        return {
+            "index": gather((p.index for p in ps), k, 6, "<i8"),
+            "stats": gather(stats, k, 4, "<f8"),
+        }
 
     @classmethod
     def from_record(

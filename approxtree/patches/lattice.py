@@ -22,7 +22,7 @@ from approxtree.geometry.rect import Rect
 from approxtree.kernels.greedy_tin import mesh_error
 from approxtree.kernels.tin_mesh import half_edge_twins
 from approxtree.patches.base import GeometryPatch
-from approxtree.patches.records import Batch, fixed, interleave
+from approxtree.patches.records import Batch, gather, interleave
 
 
 def require_grid(terrain: GeometryData, strategy: str) -> Grid:
@@ -214,8 +214,8 @@ class LatticePatch(GeometryPatch):
         tris = np.concatenate([p.tris.reshape(-1) for p in ps]) if k else np.zeros(0, np.int32)
         head = (np.stack([ns, ms], axis=1).reshape(-1), np.full(k, 2))
         mesh = interleave([head, (ij, 2 * ns), (tris, 3 * ms)], "<i4")
-        stats = [(p.error, p.rms_error, p.z_range[0], p.z_range[1], p.data_count) for p in ps]
-        return {"mesh": mesh, "stats": fixed(np.array(stats).reshape(-1, 5), "<f8")}
+        stats = ((p.error, p.rms_error, *p.z_range, p.data_count) for p in ps)
+        return {"mesh": mesh, "stats": gather(stats, k, 5, "<f8")}
 
     @classmethod
     def from_record(

@@ -23,7 +23,7 @@ from approxtree.kernels.row_column import lattice_errors, lattice_triangles, ref
 from approxtree.patches.base import GeometryPatch
 from approxtree.patches.grid import lattice_world_mesh
 from approxtree.patches.lattice import require_grid
-from approxtree.patches.records import Batch, fixed, interleave
+from approxtree.patches.records import Batch, gather, interleave
 
 
 def lattice_mesh(grid: Grid, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -183,8 +183,8 @@ class NonRegularGridPatch(GeometryPatch):
         cols = np.concatenate([p.cols for p in ps]) if k else np.zeros(0, np.int32)
         head = (np.stack([kr, kc], axis=1).reshape(-1), np.full(k, 2))
         lines = interleave([head, (rows, kr), (cols, kc)], "<i4")
-        stats = [(p.error, p.rms_error, p.z_range[0], p.z_range[1], p.data_count) for p in ps]
-        return {"lines": lines, "stats": fixed(np.array(stats).reshape(-1, 5), "<f8")}
+        stats = ((p.error, p.rms_error, *p.z_range, p.data_count) for p in ps)
+        return {"lines": lines, "stats": gather(stats, k, 5, "<f8")}
 
     @classmethod
     def from_record(

@@ -11,7 +11,8 @@ does is gathering each patch's arrays into a list for ``np.concatenate``.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
+from itertools import chain
 
 import numpy as np
 
@@ -54,6 +55,15 @@ def fixed(rows: np.ndarray, dtype: str) -> tuple[np.ndarray, np.ndarray]:
     """(flat, offsets) of k records of the same length: rows (k, w)."""
     r = np.ascontiguousarray(np.asarray(rows, dtype=dtype)).reshape(len(rows), -1)
     return r.reshape(-1), np.arange(len(r) + 1, dtype=np.int64) * r.shape[1]
+
+
+def gather(
+    rows: Iterable[Iterable[float]], k: int, width: int, dtype: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """(flat, offsets) of k fixed-width records from an iterable of k rows of ``width`` numbers
+    (np.fromiter over the chained rows: no intermediate tuple-of-tuples conversion)."""
+    flat = np.fromiter(chain.from_iterable(rows), dtype=dtype, count=k * width)
+    return flat, np.arange(k + 1, dtype=np.int64) * width
 
 
 def concat_records(records: Sequence[dict[str, np.ndarray]]) -> Batch:

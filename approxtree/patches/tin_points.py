@@ -19,7 +19,7 @@ from approxtree.geometry.rect import Rect
 from approxtree.geometry.tin import TIN
 from approxtree.kernels.greedy_points import greedy_point_tin, greedy_point_tins
 from approxtree.patches.base import GeometryPatch, ccw_triangles
-from approxtree.patches.records import Batch, fixed, interleave
+from approxtree.patches.records import Batch, gather, interleave
 
 
 def greedy_points(
@@ -161,8 +161,8 @@ class PointTINPatch(GeometryPatch):
         tris = np.concatenate([p.tris.reshape(-1) for p in ps]) if k else np.zeros(0, np.int64)
         head = (np.stack([ns, ms], axis=1).reshape(-1), np.full(k, 2))
         mesh = interleave([head, (index, ns), (tris, 3 * ms)], "<i8")
-        stats = [(p.error, p.rms_error, p.z_range[0], p.z_range[1], p.data_count) for p in ps]
-        return {"mesh": mesh, "stats": fixed(np.array(stats).reshape(-1, 5), "<f8")}
+        stats = ((p.error, p.rms_error, *p.z_range, p.data_count) for p in ps)
+        return {"mesh": mesh, "stats": gather(stats, k, 5, "<f8")}
 
     @classmethod
     def from_record(
