@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -23,6 +23,9 @@ from approxtree.tree.builder import build_levels
 from approxtree.tree.node import Node
 from approxtree.tree.policy import StrategyPolicy
 from approxtree.tree.store import TreeFile, is_legacy_file, is_legacy_path, write_tree_file
+
+if TYPE_CHECKING:
+    from approxtree.tree.tree_store import TreeStoreSource
 
 
 def with_microstructures(
@@ -69,7 +72,7 @@ class ApproximationTree:
         strategy_names: list[str],
         params: dict[str, Any],
         patches: list[GeometryPatch | None],
-        source: TreeFile | None = None,
+        source: TreeFile | TreeStoreSource | None = None,
     ) -> None:
         self.terrain = terrain
         self.rects = rects

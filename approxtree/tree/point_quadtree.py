@@ -27,7 +27,8 @@ cut (render/point_quadtree_engine.py).
 (with or without each side's midpoint); a drawn leaf's error is measured for its actual
 boundary (``leaf_errors``), so every drawn node's ρ is a measured bound, never an estimate.
 
-Storage: ``save`` writes the project's ``.atree`` tree file (tree kind "point_quadtree",
+Storage: ``save`` writes a tree store (``tree.tree_store``: terrain plus the "quadtree"
+arrays) or, for a ``.atree`` path, the project's legacy tree file (tree kind "point_quadtree",
 sections "terrain" and "quadtree", checksummed like every section); ``load`` reads it (and
 refuses the ``.npz`` files of earlier versions with a StoreError saying to rebuild).
 """

@@ -28,6 +28,7 @@ import json
 import math
 import os
 import shutil
+import threading
 import zipfile
 from collections import OrderedDict
 from collections.abc import Iterator
@@ -266,6 +267,8 @@ class StoreReader:
         self._nodes: dict[str, Any] = {}
         self._cache: OrderedDict[tuple[str, int], np.ndarray] = OrderedDict()
         self._cache_bytes = 0
+        # Background loaders (the paging renderer) read patches from several threads.
+        self._lock = threading.Lock()
 
     def node(self, path: str) -> Any:
         """The zarr array or group at ``path``, its metadata checksum verified."""
@@ -315,19 +318,24 @@ class StoreReader:
         parts = []
         for c in range(first, last + 1):
             key = (path, c)
-            chunk = self._cache.get(key)
+            with self._lock:
+                chunk = self._cache.get(key)
+                if chunk is not None:
+                    self._cache.move_to_end(key)
             if chunk is None:
                 chunk = self.read(path, slice(c * rows, (c + 1) * rows))
-                self._cache[key] = chunk
-                self._cache_bytes += chunk.nbytes
-                while self._cache_bytes > CHUNK_CACHE_BYTES and len(self._cache) > 1:
-                    _, old = self._cache.popitem(last=False)
-                    self._cache_bytes -= old.nbytes
-            else:
-                self._cache.move_to_end(key)
+                chunk.flags.writeable = False
+                with self._lock:
+                    if key not in self._cache:
+                        self._cache[key] = chunk
+                        self._cache_bytes += chunk.nbytes
+                    while self._cache_bytes > CHUNK_CACHE_BYTES and len(self._cache) > 1:
+                        _, old = self._cache.popitem(last=False)
+                        self._cache_bytes -= old.nbytes
             parts.append(chunk)
         block = parts[0] if len(parts) == 1 else np.concatenate(parts)
-        return block[start - first * rows : stop - first * rows]
+        # A copy: a patch must not keep a whole cached chunk alive.
+        return block[start - first * rows : stop - first * rows].copy()
 
     def arrays(self) -> list[str]:
         """Paths of every array in the store."""
