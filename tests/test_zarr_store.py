@@ -381,3 +381,29 @@ def test_build_defaults_to_a_store_and_render_reads_it(grid, tmp_path, monkeypat
     res = CliRunner().invoke(main, ["build", "dem.npy", "--epsilon", "2", "--out", "dem.zarr"])
     assert res.exit_code == 0, res.output
     assert load_tree("dem.zarr").epsilon == 2.0
+
+
+def test_render_and_bake_read_a_store(grid, tmp_path):
+    """render draws the same image from a store as from the .atree; bake takes a store."""
+    from PIL import Image
+
+    pytest.importorskip("moderngl")
+    tree = ApproximationTree.build(grid, epsilon=0.3, max_points=25, policy="auto")
+    tree.save(tmp_path / "t.atree")
+    tree.save(tmp_path / "t.zarr")
+    assert (tmp_path / "t.zarr" / "zarr.json").is_file()
+    images = []
+    for name in ("t.atree", "t.zarr"):
+        png = tmp_path / f"{name}.png"
+        args = ["render", str(tmp_path / name), "--out", str(png), "--size", "160x120"]
+        res = CliRunner().invoke(main, args)
+        if res.exit_code == 2 and "context" in res.output.lower():
+            pytest.skip(f"no OpenGL context: {res.output.strip()}")
+        assert res.exit_code == 0, res.output
+        images.append(np.asarray(Image.open(png)))
+    assert images[0].any()
+    np.testing.assert_array_equal(images[0], images[1])
+    out = tmp_path / "tex"
+    res = CliRunner().invoke(main, ["bake", str(tmp_path / "t.zarr"), "--out", str(out), "--no-gl"])
+    assert res.exit_code == 0, res.output
+    assert (out / "pyramid.json").is_file()
