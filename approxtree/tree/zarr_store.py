@@ -189,6 +189,8 @@ def writing(path: str | os.PathLike, meta: dict[str, Any]) -> Iterator[Any]:
             _commit(root, meta)
         elif is_zip(text):
             target = Path(os.path.realpath(text))
+            if not target.parent.is_dir():
+                raise StoreError(f"Cannot write {text}: the folder {target.parent} does not exist.")
             tmp = _temp_path(target)
             with _registered(tmp):
                 try:
@@ -207,7 +209,7 @@ def writing(path: str | os.PathLike, meta: dict[str, Any]) -> Iterator[Any]:
                 _commit(root, meta)
     except StoreError:
         raise
-    except (OSError, ValueError, TypeError) as exc:
+    except OSError as exc:  # a full disk, a read-only folder, an unreachable URL...
         raise StoreError(f"Cannot write the tree store {text}: {exc}.") from exc
 
 
