@@ -34,11 +34,13 @@ def same_tree(a: ApproximationTree, b: ApproximationTree) -> None:
     """Identical node arrays, terrain records and patch meshes (every node)."""
     for name in NODE_FIELDS:
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+        assert getattr(a, name).dtype == getattr(b, name).dtype, name
     assert a.strategy_names == b.strategy_names and a.params == b.params
     ta, tb = a.terrain.to_record(), b.terrain.to_record()
     assert type(a.terrain) is type(b.terrain) and ta[0] == tb[0]
     for name in ta[1]:
         np.testing.assert_array_equal(ta[1][name], tb[1][name], err_msg=name)
+        assert np.asarray(ta[1][name]).dtype == np.asarray(tb[1][name]).dtype, name
     for i in range(len(a)):
         pa, pb = a.patch(i), b.patch(i)
         assert type(pa) is type(pb), i
