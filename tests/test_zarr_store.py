@@ -128,7 +128,12 @@ def test_point_quadtree_round_trip(tmp_path):
     q = PointQuadtree(at.TINPointSet(np.column_stack([xy, z])), max_points=20)
     path = tmp_path / "q.zarr"
     q.save(path)
-    for back in (load_tree(path), PointQuadtree.load(path)):
+    assert (path / "quadtree" / "orders" / "zarr.json").is_file()
+    q.save(tmp_path / "q.atree")
+    res = CliRunner().invoke(main, ["convert", str(tmp_path / "q.atree"), str(tmp_path / "c.zip")])
+    assert res.exit_code == 0, res.output
+    trees = (load_tree(path), PointQuadtree.load(path), load_tree(tmp_path / "c.zip"))
+    for back in trees:
         assert isinstance(back, PointQuadtree)
         assert back.children == q.children and back.errors == q.errors
         for leaf in q.leaves:
