@@ -414,3 +414,17 @@ def test_render_and_bake_read_a_store(grid, tmp_path):
     res = CliRunner().invoke(main, ["bake", str(tmp_path / "t.zarr"), "--out", str(out), "--no-gl"])
     assert res.exit_code == 0, res.output
     assert (out / "pyramid.json").is_file()
+
+
+def test_store_to_store_copy_follows_the_storage_order(grid, tmp_path, monkeypatch):
+    """Re-saving a loaded store under another subtree level reorders its records right."""
+    import approxtree.tree.tree_store as ts
+
+    tree = ApproximationTree.build(grid, epsilon=0.3, max_points=25, policy="auto")
+    tree.save(tmp_path / "a.zarr")
+    loaded = load_tree(tmp_path / "a.zarr")
+    monkeypatch.setattr(ts, "SUBTREE_ROOTS", 4)
+    loaded.save(tmp_path / "b.zarr")
+    assert StoreReader(tmp_path / "b.zarr").meta["ancestor_level"] == 1
+    assert StoreReader(tmp_path / "a.zarr").meta["ancestor_level"] > 1
+    same_tree(tree, load_tree(tmp_path / "b.zarr"))

@@ -78,6 +78,18 @@ def concat_records(records: Sequence[dict[str, np.ndarray]]) -> Batch:
     return out
 
 
+def take(batch: Batch, index: np.ndarray) -> Batch:
+    """The batch of records ``index`` (k',) of ``batch``, in that order (vectorized)."""
+    idx = np.asarray(index, dtype=np.int64)
+    out: Batch = {}
+    for name, (flat, offsets) in batch.items():
+        counts = np.diff(offsets)[idx]
+        new = offsets_of(counts)
+        pos = np.repeat(offsets[idx] - new[:-1], counts) + np.arange(int(new[-1]), dtype=np.int64)
+        out[name] = (np.asarray(flat)[pos], new)
+    return out
+
+
 def record_at(batch: Batch, i: int) -> dict[str, np.ndarray]:
     """Record i of a batch (views into its flat arrays)."""
     return {name: flat[offsets[i] : offsets[i + 1]] for name, (flat, offsets) in batch.items()}

@@ -35,7 +35,7 @@ import numpy as np
 from approxtree import __version__
 from approxtree.errors import StoreError
 from approxtree.patches import STRATEGIES
-from approxtree.patches.records import Batch, concat_records
+from approxtree.patches.records import Batch, concat_records, take
 from approxtree.tree.zarr_store import (
     HEIGHT_CHUNK,
     StoreReader,
@@ -156,8 +156,11 @@ def _tree_batch(tree: ApproximationTree, nodes: np.ndarray, strategy: str) -> Ba
             return classes.pop().records_many(loaded)  # type: ignore[arg-type]
         return concat_records([p.to_record() for p in loaded])  # type: ignore[union-attr]
     if isinstance(source, TreeStoreSource):
-        # Same node table, same storage order: the stored batch is the batch.
-        return source.batch(strategy)
+        # A store's batch, whole; reordered only if its storage order differs from this one.
+        batch = source.batch(strategy)
+        slots = source.slot[nodes]
+        same = np.array_equal(slots, np.arange(len(nodes)))
+        return batch if same else take(batch, slots)
     # A legacy .atree: decode its records (one per node; conversion only).
     return concat_records([source.patch_record(int(i))[1] for i in nodes])  # type: ignore[union-attr]
 
