@@ -9,6 +9,7 @@ from __future__ import annotations
 import functools
 import json
 import math
+import os
 import sys
 import time
 import warnings
@@ -177,14 +178,35 @@ def _check_reader_flags(path: str, options: dict[str, Any]) -> None:
             )
 
 
+def _is_tree(path: str) -> bool:
+    """Whether ``path`` names a saved tree: a tree store (.zarr, .zip, URL, store folder) or a
+    legacy .atree file."""
+    from approxtree.tree.zarr_store import is_store
+
+    return Path(path).suffix.lower() == ".atree" or is_store(path)
+
+
+def _check_tree_output(out: str) -> None:
+    """StoreError now, before any work, when the tree cannot be written at ``out``."""
+    from approxtree.io.output_path import check_output_file, check_output_folder
+    from approxtree.tree.zarr_store import is_url, is_zip
+
+    if is_url(out):
+        return
+    if is_zip(out) or Path(out).suffix.lower() == ".atree":
+        check_output_file(out, "tree file")
+    else:
+        check_output_folder(out, "tree store")
+
+
 def _no_reader_flags_for_tree(path: str, options: dict[str, Any]) -> None:
-    """InvalidParameterError when reader options are given with a tree file (.atree)."""
+    """InvalidParameterError when reader options are given with a saved tree."""
     from approxtree.errors import InvalidParameterError
 
     if options:
         flags = ", ".join(_READER_FLAGS[name] for name in options)
         raise InvalidParameterError(
-            f"{flags} choose how a terrain file is read; {path} is a tree file (.atree), "
+            f"{flags} choose how a terrain file is read; {path} is a saved tree, "
             "already built. Leave them out."
         )
 
@@ -242,6 +264,23 @@ def terrain_figures(terrain) -> dict[str, Any]:
     return figures
 
 
+def _tree_info(path: str) -> dict[str, Any]:
+    """Figures of a saved tree: a store's layout, or a legacy .atree's tree statistics."""
+    from approxtree.tree.store import is_legacy_file
+    from approxtree.tree.tree_store import store_info
+
+    if not is_legacy_file(path):
+        return store_info(path)
+    from approxtree.tree import load_tree
+    from approxtree.tree.store import FORMAT_VERSION
+
+    tree = load_tree(path)
+    figures = {"tree_file": path, "format": f"atree {FORMAT_VERSION}"}
+    figures.update(tree.stats())
+    figures["bytes"] = Path(path).stat().st_size
+    return figures
+
+
 def tree_figures(tree, seconds: float, nbytes: int) -> dict[str, Any]:
     """The figures of ``approxtree build`` for a built tree."""
     stats = tree.stats()
@@ -263,12 +302,25 @@ def main() -> None:
 
 
 @main.command()
-@click.argument("dem", type=click.Path(dir_okay=False))
+@click.argument("dem", type=click.Path())
 @reader_options
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
 @_reports_errors
 def info(dem: str, encoding, nodata_policy, ground_only, height_scale, as_json: bool) -> None:
-    """Size, CRS, cell size, z range and nodata count of a terrain file."""
+    """Size, CRS, cell size, z range and nodata count of a terrain file; of a tree store:
+    format version, nodes, levels, strategies, chunk layout and bytes (stored vs raw)."""
+    if _is_tree(dem):
+        _no_reader_flags_for_tree(
+            dem, _given_reader_options(encoding, nodata_policy, ground_only, height_scale)
+        )
+        figures = _tree_info(dem)
+        chunks = figures.pop("chunks", {}) if not as_json else {}
+        _emit(figures, as_json)
+        # The chunk layout, one array a line under the figures: "shape in chunk chunks (n)".
+        for name, a in chunks.items():
+            shape, chunk = "×".join(map(str, a["shape"])), "×".join(map(str, a["chunks"]))
+            click.echo(f"  {name}: {shape} in {chunk} chunks ({a['nchunks']})")
+        return
     terrain = _open(dem, encoding, nodata_policy, ground_only, height_scale)
     _emit(terrain_figures(terrain), as_json)
 
@@ -278,9 +330,10 @@ def info(dem: str, encoding, nodata_policy, ground_only, height_scale, as_json: 
 @click.option(
     "--out",
     "out",
-    required=True,
-    type=click.Path(dir_okay=False),
-    help="Tree file to write (.atree).",
+    default=None,
+    type=click.Path(),
+    help="Tree store to write: a folder NAME.zarr, a single file NAME.zarr.zip, an fsspec URL, "
+    "or a legacy NAME.atree file [default: the DEM's name with .zarr, here].",
 )
 @click.option(
     "--epsilon",
@@ -357,7 +410,7 @@ def info(dem: str, encoding, nodata_policy, ground_only, height_scale, as_json: 
 @_reports_errors
 def build(
     dem: str,
-    out: str,
+    out: str | None,
     epsilon: float,
     max_points: int,
     fanout: str,
@@ -375,10 +428,11 @@ def build(
     as_json: bool,
 ) -> None:
     """Build the approximation tree of a terrain file and save it."""
-    from approxtree.io.output_path import check_output_file
     from approxtree.tree import ApproximationTree
 
-    check_output_file(out, "tree file")
+    if out is None:
+        out = Path(dem).stem + ".zarr"
+    _check_tree_output(out)
     terrain = _open(dem, encoding, nodata_policy, ground_only, height_scale)
     if kind == "point-quadtree":
         given = click.get_current_context().get_parameter_source("max_points")
@@ -424,8 +478,8 @@ def _build_point_quadtree(path: str, terrain, delta: int | None, out: str) -> di
 @main.command()
 @click.option(
     "--out",
-    type=click.Path(dir_okay=False),
-    default="demo.atree",
+    type=click.Path(),
+    default="demo.zarr",
     show_default=True,
     help="Where to save the tree of the sample terrain.",
 )
@@ -449,7 +503,7 @@ def demo(out: str, epsilon: float, png: str | None, as_json: bool) -> None:
 
     png_path = Path(png) if png else Path(out).with_suffix(".png")
     folder = Path(out).with_name(Path(out).stem + "_textures")
-    check_output_file(out, "tree file")
+    _check_tree_output(out)
     check_output_file(png_path, "image")
     check_output_folder(folder, "texture pyramid folder")
     terrain = sample_terrain()
@@ -565,7 +619,7 @@ def _render_to_png(
 
 
 @main.command()
-@click.argument("tree_file", type=click.Path(exists=True, dir_okay=False))
+@click.argument("tree_file", type=click.Path())
 @click.option("--eye", callback=_xyz, help="Camera position X,Y,Z in world units.")
 @click.option("--target", callback=_xyz, help="Point looked at X,Y,Z [default: tree centre].")
 @click.option(
@@ -612,7 +666,8 @@ def render(
     no_lighting: bool,
     as_json: bool,
 ) -> None:
-    """Render a tree file to a PNG (alpha 0 where no terrain is drawn) and print the stats."""
+    """Render a saved tree (store or .atree) to a PNG (alpha 0 where no terrain is drawn) and
+    print the stats."""
     from approxtree.io.output_path import check_output_file
     from approxtree.tree import load_tree
 
@@ -712,7 +767,7 @@ def _check_mesh_strategy(path: str, terrain, strategy: str) -> None:
 
 
 @main.command("bake")
-@click.argument("source", type=click.Path(exists=True, dir_okay=False))
+@click.argument("source", type=click.Path())
 @click.option(
     "--shading",
     type=click.Choice(["topographic", "phong", "gouraud", "none"]),
@@ -788,7 +843,7 @@ def bake_command(
     height_scale,
     as_json: bool,
 ) -> None:
-    """Bake a terrain's textures (DEM file or .atree tree) into a pyramid folder.
+    """Bake a terrain's textures (DEM file or saved tree) into a pyramid folder.
 
     A point cloud or TIN is shaded from its heights sampled on a lattice (--texel, default its
     mean point spacing).
@@ -801,7 +856,7 @@ def bake_command(
     from approxtree.textures.bake import bake
 
     check_output_folder(out, "texture pyramid folder")
-    if source.endswith(".atree"):
+    if _is_tree(source):
         from approxtree.tree import ApproximationTree
 
         _no_reader_flags_for_tree(
@@ -838,20 +893,20 @@ def bake_command(
 
 
 def _open_tree(path: str, epsilon: float, reader: dict[str, Any]):
-    """A tree file (.atree) as saved, or any terrain file built into a tree now.
+    """A saved tree (store or .atree), or any terrain file built into a tree now.
 
     reader: the reader options given (encoding, nodata_policy, ground_only, height_scale).
     """
     from approxtree.tree import ApproximationTree, load_tree
 
-    if Path(path).suffix.lower() == ".atree":
+    if _is_tree(path):
         _no_reader_flags_for_tree(path, _given_reader_options(**reader))
         return load_tree(path)
     return ApproximationTree.build(_open(path, **reader), epsilon=epsilon, progress=False)
 
 
 @main.command()
-@click.argument("source", type=click.Path(exists=True, dir_okay=False))
+@click.argument("source", type=click.Path())
 @click.option(
     "--textures",
     "textures",
@@ -963,6 +1018,39 @@ def view(
         drawn = viewer.run(script, presses, stats_path, screenshots, max_frames=frames)
     if script is not None:
         click.echo(json.dumps({"frames": drawn, "stats": stats_path, "screenshots": screenshots}))
+
+
+@main.command()
+@click.argument("source", type=click.Path())
+@click.argument("target", type=click.Path())
+@click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
+@_reports_errors
+def convert(source: str, target: str, as_json: bool) -> None:
+    """Copy a saved tree into another form: a legacy OLD.atree into a store NEW.zarr, a store
+    folder into a single-file NEW.zarr.zip (or back), or to/from an fsspec URL. The source is
+    verified (every checksum) first; the target is written atomically."""
+    from approxtree.errors import InvalidParameterError
+    from approxtree.tree import load_tree
+
+    if not _is_tree(source):
+        raise InvalidParameterError(
+            f"{source} is not a saved tree (.atree, .zarr, .zip or a URL); build one with "
+            "`approxtree build`."
+        )
+    if os.path.realpath(source) == os.path.realpath(target):
+        raise InvalidParameterError(f"convert writes a new tree: {target} is {source} itself.")
+    _check_tree_output(target)
+    t0 = time.perf_counter()
+    tree = load_tree(source)
+    nbytes = tree.save(target)
+    figures = {
+        "source": source,
+        "target": target,
+        "nodes": len(tree),
+        "bytes": nbytes,
+        "seconds": round(time.perf_counter() - t0, 4),
+    }
+    _emit(figures, as_json)
 
 
 def _rates(ctx: click.Context, param: click.Parameter, value: str) -> list[int]:

@@ -16,6 +16,7 @@ import numpy as np
 
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
+from approxtree.patches.records import Batch, concat_records
 
 
 def ccw_triangles(vertices: np.ndarray, tris: np.ndarray) -> np.ndarray:
@@ -100,8 +101,16 @@ class GeometryPatch(ABC):
         """The patch as named little-endian arrays, for the tree file."""
 
     @classmethod
+    def records_many(cls, patches: Sequence[GeometryPatch]) -> Batch:
+        """The records of many patches as flat arrays plus (k + 1,) offsets (see
+        ``patches.records``); record i equals ``patches[i].to_record()`` raveled. Strategies
+        override it with a gather of their attributes (no per-patch ``to_record``)."""
+        return concat_records([p.to_record() for p in patches])
+
+    @classmethod
     @abstractmethod
     def from_record(
         cls, terrain: GeometryData, rect: Rect, record: dict[str, np.ndarray]
     ) -> GeometryPatch:
-        """Rebuild a patch from ``to_record``'s arrays, referencing the shared terrain."""
+        """Rebuild a patch from ``to_record``'s arrays (or their raveled copies, as
+        ``records_many`` stores them), referencing the shared terrain."""

@@ -21,6 +21,7 @@ from approxtree.geometry.windowed import check_whole_band
 from approxtree.kernels.grid_patch import grid_patch_errors, grid_patch_mesh
 from approxtree.kernels.row_column import coarsest_uniform_step, lattice_error
 from approxtree.patches.base import GeometryPatch
+from approxtree.patches.records import Batch, gather
 
 
 def grid_steps(n_lines: int, max_lines: int) -> int:
@@ -186,6 +187,17 @@ class GridPatch(GeometryPatch):
         return {
             "index": np.array(self.index, dtype="<i8"),
             "stats": np.array([self.error, *self.z_range, self.data_count], dtype="<f8"),
+        }
+
+    @classmethod
+    def records_many(cls, patches: Sequence[GeometryPatch]) -> Batch:
+        # Fixed-width records: one (k, 6) and one (k, 4) table gathered from the attributes.
+        ps: list[GridPatch] = list(patches)  # type: ignore[arg-type]
+        k = len(ps)
+        stats = ((p.error, *p.z_range, p.data_count) for p in ps)
+        return {
+            "index": gather((p.index for p in ps), k, 6, "<i8"),
+            "stats": gather(stats, k, 4, "<f8"),
         }
 
     @classmethod

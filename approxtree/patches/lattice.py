@@ -10,6 +10,7 @@ drawn triangle as an infinite error too (the mesh would cover a hole).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,6 +22,7 @@ from approxtree.geometry.rect import Rect
 from approxtree.kernels.greedy_tin import mesh_error
 from approxtree.kernels.tin_mesh import half_edge_twins
 from approxtree.patches.base import GeometryPatch
+from approxtree.patches.records import Batch, gather, interleave
 
 
 def require_grid(terrain: GeometryData, strategy: str) -> Grid:
@@ -209,6 +211,20 @@ class LatticePatch(GeometryPatch):
         ).astype("<i4")
         stats = [self.error, self.rms_error, *self.z_range, self.data_count]
         return {"mesh": mesh, "stats": np.array(stats, dtype="<f8")}
+
+    @classmethod
+    def records_many(cls, patches: Sequence[GeometryPatch]) -> Batch:
+        # The to_record layout [n, m, ij..., tris...] assembled for all patches at once.
+        ps: list[LatticePatch] = list(patches)  # type: ignore[arg-type]
+        k = len(ps)
+        ns = np.fromiter((len(p.ij) for p in ps), dtype=np.int64, count=k)
+        ms = np.fromiter((len(p.tris) for p in ps), dtype=np.int64, count=k)
+        ij = np.concatenate([p.ij.reshape(-1) for p in ps]) if k else np.zeros(0, np.int32)
+        tris = np.concatenate([p.tris.reshape(-1) for p in ps]) if k else np.zeros(0, np.int32)
+        head = (np.stack([ns, ms], axis=1).reshape(-1), np.full(k, 2))
+        mesh = interleave([head, (ij, 2 * ns), (tris, 3 * ms)], "<i4")
+        stats = ((p.error, p.rms_error, *p.z_range, p.data_count) for p in ps)
+        return {"mesh": mesh, "stats": gather(stats, k, 5, "<f8")}
 
     @classmethod
     def from_record(

@@ -23,6 +23,7 @@ from approxtree.kernels.row_column import lattice_errors, lattice_triangles, ref
 from approxtree.patches.base import GeometryPatch
 from approxtree.patches.grid import lattice_world_mesh
 from approxtree.patches.lattice import require_grid
+from approxtree.patches.records import Batch, gather, interleave
 
 
 def lattice_mesh(grid: Grid, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -183,6 +184,20 @@ class NonRegularGridPatch(GeometryPatch):
         lines = np.concatenate([[len(self.rows), len(self.cols)], self.rows, self.cols])
         stats = [self.error, self.rms_error, *self.z_range, self.data_count]
         return {"lines": lines.astype("<i4"), "stats": np.array(stats, dtype="<f8")}
+
+    @classmethod
+    def records_many(cls, patches: Sequence[GeometryPatch]) -> Batch:
+        # The to_record layout [kr, kc, rows..., cols...] assembled for all patches at once.
+        ps: list[NonRegularGridPatch] = list(patches)  # type: ignore[arg-type]
+        k = len(ps)
+        kr = np.fromiter((len(p.rows) for p in ps), dtype=np.int64, count=k)
+        kc = np.fromiter((len(p.cols) for p in ps), dtype=np.int64, count=k)
+        rows = np.concatenate([p.rows for p in ps]) if k else np.zeros(0, np.int32)
+        cols = np.concatenate([p.cols for p in ps]) if k else np.zeros(0, np.int32)
+        head = (np.stack([kr, kc], axis=1).reshape(-1), np.full(k, 2))
+        lines = interleave([head, (rows, kr), (cols, kc)], "<i4")
+        stats = ((p.error, p.rms_error, *p.z_range, p.data_count) for p in ps)
+        return {"lines": lines, "stats": gather(stats, k, 5, "<f8")}
 
     @classmethod
     def from_record(

@@ -19,6 +19,7 @@ from approxtree.geometry.rect import Rect
 from approxtree.geometry.tin import TIN
 from approxtree.kernels.greedy_points import greedy_point_tin, greedy_point_tins
 from approxtree.patches.base import GeometryPatch, ccw_triangles
+from approxtree.patches.records import Batch, gather, interleave
 
 
 def greedy_points(
@@ -148,6 +149,20 @@ class PointTINPatch(GeometryPatch):
         ).astype("<i8")
         stats = [self.error, self.rms_error, *self.z_range, self.data_count]
         return {"mesh": mesh, "stats": np.array(stats, dtype="<f8")}
+
+    @classmethod
+    def records_many(cls, patches: Sequence[GeometryPatch]) -> Batch:
+        # The to_record layout [n, m, index..., tris...] assembled for all patches at once.
+        ps: list[PointTINPatch] = list(patches)  # type: ignore[arg-type]
+        k = len(ps)
+        ns = np.fromiter((len(p.index) for p in ps), dtype=np.int64, count=k)
+        ms = np.fromiter((len(p.tris) for p in ps), dtype=np.int64, count=k)
+        index = np.concatenate([p.index for p in ps]) if k else np.zeros(0, np.int64)
+        tris = np.concatenate([p.tris.reshape(-1) for p in ps]) if k else np.zeros(0, np.int64)
+        head = (np.stack([ns, ms], axis=1).reshape(-1), np.full(k, 2))
+        mesh = interleave([head, (index, ns), (tris, 3 * ms)], "<i8")
+        stats = ((p.error, p.rms_error, *p.z_range, p.data_count) for p in ps)
+        return {"mesh": mesh, "stats": gather(stats, k, 5, "<f8")}
 
     @classmethod
     def from_record(

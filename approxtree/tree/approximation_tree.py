@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -22,7 +22,10 @@ from approxtree.patches import STRATEGIES, GeometryPatch
 from approxtree.tree.builder import build_levels
 from approxtree.tree.node import Node
 from approxtree.tree.policy import StrategyPolicy
-from approxtree.tree.store import TreeFile, write_tree_file
+from approxtree.tree.store import TreeFile, is_legacy_file, is_legacy_path, write_tree_file
+
+if TYPE_CHECKING:
+    from approxtree.tree.tree_store import TreeStoreSource
 
 
 def with_microstructures(
@@ -69,7 +72,7 @@ class ApproximationTree:
         strategy_names: list[str],
         params: dict[str, Any],
         patches: list[GeometryPatch | None],
-        source: TreeFile | None = None,
+        source: TreeFile | TreeStoreSource | None = None,
     ) -> None:
         self.terrain = terrain
         self.rects = rects
@@ -208,7 +211,16 @@ class ApproximationTree:
     # -- storage -------------------------------------------------------------------------------
 
     def save(self, path: str | os.PathLike) -> int:
-        """Write the tree (terrain included) atomically to ``path``; returns the file size."""
+        """Write the tree (terrain included) atomically to ``path``; returns its size in bytes.
+
+        A ``.atree`` path gets the legacy single file (``tree.store``); any other path a tree
+        store (``tree.tree_store``): a folder (``NAME.zarr``), a zip (``NAME.zarr.zip``) or an
+        fsspec URL.
+        """
+        if not is_legacy_path(path):
+            from approxtree.tree.tree_store import save_tree
+
+            return save_tree(self, path)
         tattrs, tarrays = self.terrain.to_record()
         meta = {
             "library": f"approxtree {__version__}",
@@ -237,11 +249,15 @@ class ApproximationTree:
 
     @classmethod
     def load(cls, path: str | os.PathLike, verify: bool = True) -> ApproximationTree:
-        """Open a tree file; patches load on first access.
+        """Open a tree store or a legacy .atree file; patches load on first access.
 
         verify: check the checksum of every patch now (sections are always checked), so a
         corrupted file fails here rather than at render time.
         """
+        if not is_legacy_file(path):
+            from approxtree.tree.tree_store import load_tree_store
+
+            return load_tree_store(path, verify=verify)
         f = TreeFile(path)
         meta = f.meta
         if meta.get("tree_kind", "approximation_tree") != "approximation_tree":

@@ -27,7 +27,8 @@ cut (render/point_quadtree_engine.py).
 (with or without each side's midpoint); a drawn leaf's error is measured for its actual
 boundary (``leaf_errors``), so every drawn node's ρ is a measured bound, never an estimate.
 
-Storage: ``save`` writes the project's ``.atree`` tree file (tree kind "point_quadtree",
+Storage: ``save`` writes a tree store (``tree.tree_store``: terrain plus the "quadtree"
+arrays) or, for a ``.atree`` path, the project's legacy tree file (tree kind "point_quadtree",
 sections "terrain" and "quadtree", checksummed like every section); ``load`` reads it (and
 refuses the ``.npz`` files of earlier versions with a StoreError saying to rebuild).
 """
@@ -660,10 +661,22 @@ class PointQuadtree:
     # -- storage -------------------------------------------------------------------------------
 
     def save(self, path: str | os.PathLike) -> int:
-        """Write the quadtree (terrain, nodes, heights, insertion orders) atomically as a
-        ``.atree`` tree file of kind "point_quadtree"; returns the file size."""
+        """Write the quadtree (terrain, nodes, heights, insertion orders) atomically: a tree
+        store (any path but ``.atree``) or a legacy ``.atree`` tree file of kind
+        "point_quadtree"; returns its size in bytes."""
+        from approxtree.tree.store import is_legacy_path, write_tree_file
+
+        if not is_legacy_path(path):
+            from approxtree.tree.tree_store import save_quadtree
+
+            return save_quadtree(self, path)
+        meta, arrays = self.to_sections()
+        sections = {"terrain": self.terrain.to_record(), "quadtree": ({}, arrays)}
+        return write_tree_file(path, meta, sections, [], np.zeros(0, dtype=np.uint8))
+
+    def to_sections(self) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+        """(meta, arrays) of the quadtree for a tree file or store (terrain apart)."""
         from approxtree import __version__
-        from approxtree.tree.store import write_tree_file
 
         leaves = [self.node_keys[r] for r in np.flatnonzero(~self.internal)]
         lattice = sorted(self.lattice.items())
@@ -686,14 +699,18 @@ class PointQuadtree:
             "section_version": SECTION_VERSION,
             "terrain_kind": self.terrain.kind,
         }
-        sections = {"terrain": self.terrain.to_record(), "quadtree": ({}, arrays)}
-        return write_tree_file(path, meta, sections, [], np.zeros(0, dtype=np.uint8))
+        return meta, arrays
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> PointQuadtree:
         """Read a quadtree written by ``save`` (every section's checksum verified)."""
         from approxtree.geometry import TERRAIN_TYPES
-        from approxtree.tree.store import TreeFile
+        from approxtree.tree.store import TreeFile, is_legacy_file
+
+        if not is_legacy_file(path) and not str(path).lower().endswith(".npz"):
+            from approxtree.tree.tree_store import load_quadtree_store
+
+            return load_quadtree_store(path)
 
         try:
             with open(path, "rb") as fh:
@@ -712,16 +729,28 @@ class PointQuadtree:
                 f"{path} holds an approximation tree, not a point quadtree; open it with "
                 "ApproximationTree.load or approxtree.load_tree."
             )
-        if meta.get("section_version") != SECTION_VERSION:
-            raise StoreError(
-                f"{path} has point quadtree layout {meta.get('section_version')!r}; this "
-                f"approxtree reads {SECTION_VERSION}. Rebuild it with this version."
-            )
         kind = meta.get("terrain_kind")
         if kind not in TERRAIN_TYPES:
             raise StoreError(f"{path} holds an unknown terrain kind {kind!r}.")
         terrain = TERRAIN_TYPES[kind].from_record(*f.section("terrain"))
         _, raw = f.section("quadtree")
+        return cls.from_sections(meta, terrain, raw, str(path))
+
+    @classmethod
+    def from_sections(
+        cls, meta: dict[str, Any], terrain: TIN, raw: dict[str, np.ndarray], path: str
+    ) -> PointQuadtree:
+        """The quadtree of ``to_sections``'s meta and arrays over ``terrain``."""
+        if meta.get("tree_kind") != TREE_KIND:
+            raise StoreError(
+                f"{path} holds an approximation tree, not a point quadtree; open it with "
+                "ApproximationTree.load or approxtree.load_tree."
+            )
+        if meta.get("section_version") != SECTION_VERSION:
+            raise StoreError(
+                f"{path} has point quadtree layout {meta.get('section_version')!r}; this "
+                f"approxtree reads {SECTION_VERSION}. Rebuild it with this version."
+            )
         a = {k: np.array(v) for k, v in raw.items()}
         try:
             return cls._from_arrays(terrain, a)

@@ -186,6 +186,22 @@ def write_tree_file(
     return file_size
 
 
+def is_legacy_path(path: str | os.PathLike) -> bool:
+    """Whether a tree written to ``path`` is a legacy .atree file (by its suffix)."""
+    return "://" not in str(path) and str(path).lower().endswith(".atree")
+
+
+def is_legacy_file(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is read by this module: any file but a zip (tree stores are folders,
+    zips and URLs), or a missing .atree path (so that the legacy reader reports it)."""
+    if "://" in str(path):
+        return False
+    p = Path(path)
+    if p.is_file():
+        return not str(path).lower().endswith(".zip")
+    return is_legacy_path(path) and not p.exists()
+
+
 class TreeFile:
     """A tree file opened read-only through a memory map; sections and patches on demand."""
 
@@ -211,7 +227,9 @@ class TreeFile:
         if version not in READ_VERSIONS:
             raise StoreError(
                 f"{self.path} has tree format version {version}; this approxtree reads versions "
-                f"{', '.join(map(str, READ_VERSIONS))}. Rebuild the tree with this version."
+                f"{', '.join(map(str, READ_VERSIONS))}. Convert it to a tree store with "
+                "`approxtree convert OLD.atree NEW.zarr` (using the approxtree that wrote it), "
+                "or rebuild the tree with this version."
             )
         raw = self.buf[_PREFIX.size : _PREFIX.size + hlen]
         prefix = self.buf[: _PREFIX.size]

@@ -1,0 +1,385 @@
+"""Trees in a tree store (``zarr_store``): the layout of an ApproximationTree or PointQuadtree.
+
+Layout (format version 1)::
+
+    zarr.json                root attributes: format, format_version, metadata_crc32c, meta =
+                             {library, tree_kind, terrain_kind, params, strategy_names,
+                              ancestor_level, nodes}
+    terrain/                 attributes {kind, attrs}: the terrain's ``to_record``
+      heights                (rows, cols) in 512 × 512 chunks (Grid, GridRefinement)
+      <other arrays>         chunked along axis 0 (TIN vertices, point sets, ...)
+    nodes/                   the node table, (n, ...) arrays chunked along axis 0:
+      rects errors bboxes levels parents child_start child_count strategies
+      patch_slot             (n,) int64: the node's position in its strategy's patch arrays
+    patches/<strategy>/      attributes {count, fields: {name: width or null}}
+      node                   (k,) int64: the node of each slot
+      <field>                (k, width) when every record has the same length, else
+      <field>_data           (total,) the records raveled one after the other and
+      <field>_offsets        (k + 1,) int64: slot s is data[offsets[s]:offsets[s + 1]]
+    quadtree/                (point quadtrees) the arrays of ``PointQuadtree.to_sections``
+
+Patch order: slots follow the *storage order*: nodes above the ancestor level L first (in
+breadth-first order), then the subtrees of the level-L nodes one after the other (each in
+breadth-first order). L is the shallowest level with at least ``SUBTREE_ROOTS`` nodes, so a
+chunk of patch data holds whole subtrees (or a part of one) and the patches a renderer pages
+in together are stored together.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from approxtree import __version__
+from approxtree.errors import StoreError
+from approxtree.patches import STRATEGIES
+from approxtree.patches.records import Batch, concat_records, take
+from approxtree.tree.zarr_store import (
+    HEIGHT_CHUNK,
+    StoreReader,
+    ZarrHeightSource,
+    write_array,
+    writing,
+)
+
+if TYPE_CHECKING:
+    from approxtree.geometry.base import GeometryData
+    from approxtree.tree.approximation_tree import ApproximationTree
+    from approxtree.tree.point_quadtree import PointQuadtree
+
+NODE_ARRAYS = (
+    "rects",
+    "errors",
+    "bboxes",
+    "levels",
+    "parents",
+    "child_start",
+    "child_count",
+    "strategies",
+)
+#: The ancestor level L is the shallowest level holding at least this many nodes.
+SUBTREE_ROOTS = 64
+
+
+# -- order -------------------------------------------------------------------------------------
+
+
+def ancestor_level(levels: np.ndarray) -> int:
+    """L: the shallowest level with at least SUBTREE_ROOTS nodes (else the deepest)."""
+    counts = np.bincount(np.asarray(levels, dtype=np.int64))
+    wide = np.flatnonzero(counts >= SUBTREE_ROOTS)
+    return int(wide[0]) if len(wide) else len(counts) - 1
+
+
+def storage_order(levels: np.ndarray, parents: np.ndarray, level: int) -> np.ndarray:
+    """(n,) node indices in storage order: levels < ``level`` first, then subtree by subtree
+    of the level-``level`` nodes (breadth-first inside each)."""
+    n = len(levels)
+    anc = np.arange(n, dtype=np.int64)
+    # Climb every node to its level-L ancestor, one vectorized step per level.
+    for _ in range(int(levels.max(initial=0)) - level):
+        deep = levels[anc] > level
+        if not deep.any():
+            break
+        anc = np.where(deep, parents[anc], anc)
+    key = np.where(levels < level, -1, anc)
+    return np.lexsort((np.arange(n), key))
+
+
+# -- terrain -----------------------------------------------------------------------------------
+
+
+def _write_terrain(root: Any, terrain: GeometryData) -> None:
+    attrs, arrays = terrain.to_record()
+    group = root.create_group("terrain", attributes={"kind": terrain.kind, "attrs": attrs})
+    for name, a in arrays.items():
+        if name == "heights":
+            write_array(group, name, a, chunks=(HEIGHT_CHUNK, HEIGHT_CHUNK))
+        else:
+            write_array(group, name, np.asarray(a))
+
+
+def _read_terrain(reader: StoreReader) -> GeometryData:
+    from approxtree.geometry import TERRAIN_TYPES
+
+    tattrs = reader.attrs("terrain")
+    kind = tattrs.get("kind")
+    if kind not in TERRAIN_TYPES:
+        raise StoreError(f"{reader.location} holds an unknown terrain kind {kind!r}.")
+    arrays = {}
+    for name in reader.children("terrain"):
+        path = f"terrain/{name}"
+        if name == "heights":
+            source = ZarrHeightSource(reader.location, path, reader=reader)
+            # LEAD: wrap in WindowedHeights once geometry/windowed.py lands
+            arrays[name] = source.read(0, source.shape[0], 0, source.shape[1])
+        else:
+            arrays[name] = reader.read(path)
+    try:
+        return TERRAIN_TYPES[kind].from_record(tattrs["attrs"], arrays)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise StoreError(
+            f"{reader.location} holds a malformed terrain ({exc}); rebuild it."
+        ) from exc
+
+
+# -- patches -----------------------------------------------------------------------------------
+
+
+def _write_batch(group: Any, batch: Batch) -> dict[str, int | None]:
+    """Each field as a (k, width) table when fixed-width, else flat data plus offsets."""
+    fields: dict[str, int | None] = {}
+    for name, (flat, offsets) in batch.items():
+        lengths = np.diff(offsets)
+        k = len(lengths)
+        if k and (lengths == lengths[0]).all() and lengths[0] > 0:
+            width = int(lengths[0])
+            write_array(group, name, np.asarray(flat).reshape(k, width))
+            fields[name] = width
+        else:
+            write_array(group, f"{name}_data", np.asarray(flat))
+            write_array(group, f"{name}_offsets", np.asarray(offsets, dtype="<i8"))
+            fields[name] = None
+    return fields
+
+
+def _tree_batch(tree: ApproximationTree, nodes: np.ndarray, strategy: str) -> Batch:
+    """The records of ``nodes`` (one strategy, storage order), from wherever they are."""
+    source = tree._source
+    loaded = [tree._patches[i] for i in nodes]
+    if all(p is not None for p in loaded):
+        # One patch class per strategy and terrain: its batched gather; else record by record.
+        classes = {type(p) for p in loaded}
+        if len(classes) == 1:
+            return classes.pop().records_many(loaded)  # type: ignore[arg-type]
+        return concat_records([p.to_record() for p in loaded])  # type: ignore[union-attr]
+    if isinstance(source, TreeStoreSource):
+        # A store's batch, whole; reordered only if its storage order differs from this one.
+        batch = source.batch(strategy)
+        slots = source.slot[nodes]
+        same = np.array_equal(slots, np.arange(len(nodes)))
+        return batch if same else take(batch, slots)
+    # A legacy .atree: decode its records (one per node; conversion only).
+    return concat_records([source.patch_record(int(i))[1] for i in nodes])  # type: ignore[union-attr]
+
+
+def save_tree(tree: ApproximationTree, path: str | os.PathLike) -> int:
+    """Write ``tree`` as a tree store at ``path`` atomically; returns the stored bytes."""
+    n = len(tree)
+    level = ancestor_level(tree.levels)
+    order = storage_order(tree.levels, tree.parents, level)
+    meta = {
+        "library": f"approxtree {__version__}",
+        "tree_kind": "approximation_tree",
+        "terrain_kind": tree.terrain.kind,
+        "params": tree.params,
+        "strategy_names": list(tree.strategy_names),
+        "ancestor_level": level,
+        "nodes": n,
+    }
+    slot = np.empty(n, dtype=np.int64)
+    with writing(path, meta) as root:
+        _write_terrain(root, tree.terrain)
+        patches = root.create_group("patches")
+        for s, name in enumerate(tree.strategy_names):
+            nodes = order[tree.strategies[order] == s]
+            slot[nodes] = np.arange(len(nodes))
+            group = patches.create_group(name)
+            write_array(group, "node", nodes.astype("<i8"))
+            fields = _write_batch(group, _tree_batch(tree, nodes, name))
+            group.attrs.update({"count": len(nodes), "fields": fields})
+        group = root.create_group("nodes")
+        for name in NODE_ARRAYS:
+            write_array(group, name, np.asarray(getattr(tree, name)))
+        write_array(group, "patch_slot", slot)
+    return store_bytes(path)
+
+
+def store_bytes(path: str | os.PathLike) -> int:
+    """Bytes a store takes (a zip's file size; a folder's or URL's chunks and metadata)."""
+    from approxtree.tree.zarr_store import is_url, is_zip
+
+    if is_zip(path):
+        return os.path.getsize(path)
+    if not is_url(path):
+        return sum(
+            os.path.getsize(os.path.join(d, f)) for d, _, files in os.walk(path) for f in files
+        )
+    return StoreReader(path).sizes()["stored"]
+
+
+class TreeStoreSource:
+    """Node patches read on demand from a store (only node i's slice of each field)."""
+
+    def __init__(
+        self,
+        reader: StoreReader,
+        strategy_names: list[str],
+        strategies: np.ndarray,
+        slot: np.ndarray,
+    ) -> None:
+        self.reader = reader
+        self.strategy_names = strategy_names
+        self.strategies = strategies
+        self.slot = slot
+        self._fields: dict[str, dict[str, int | None]] = {}
+        self._offsets: dict[str, np.ndarray] = {}
+
+    def fields(self, strategy: str) -> dict[str, int | None]:
+        if strategy not in self._fields:
+            raw = self.reader.attrs(f"patches/{strategy}").get("fields")
+            if not isinstance(raw, dict):
+                raise StoreError(f"{self.reader.location} lacks the patch fields of {strategy!r}.")
+            self._fields[strategy] = raw
+        return self._fields[strategy]
+
+    def _offsets_of(self, path: str) -> np.ndarray:
+        if path not in self._offsets:
+            self._offsets[path] = self.reader.read(path).astype(np.int64)
+        return self._offsets[path]
+
+    def patch_record(self, i: int) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+        """({}, arrays) of node i's patch, like ``TreeFile.patch_record``."""
+        strategy = self.strategy_names[int(self.strategies[i])]
+        s = int(self.slot[i])
+        base = f"patches/{strategy}"
+        out = {}
+        for name, width in self.fields(strategy).items():
+            if width is not None:
+                out[name] = self.reader.read_rows(f"{base}/{name}", s, s + 1)[0]
+            else:
+                off = self._offsets_of(f"{base}/{name}_offsets")
+                out[name] = self.reader.read_rows(
+                    f"{base}/{name}_data", int(off[s]), int(off[s + 1])
+                )
+        return {}, out
+
+    def batch(self, strategy: str) -> Batch:
+        """Every record of one strategy, in slot order."""
+        base = f"patches/{strategy}"
+        out: Batch = {}
+        for name, width in self.fields(strategy).items():
+            if width is not None:
+                rows = self.reader.read(f"{base}/{name}")
+                out[name] = (rows.reshape(-1), np.arange(len(rows) + 1, dtype=np.int64) * width)
+            else:
+                off = self._offsets_of(f"{base}/{name}_offsets")
+                out[name] = (self.reader.read(f"{base}/{name}_data"), off)
+        return out
+
+
+def _check_meta(reader: StoreReader) -> dict[str, Any]:
+    from approxtree.geometry import TERRAIN_TYPES
+
+    meta = reader.meta
+    if meta.get("terrain_kind") not in TERRAIN_TYPES:
+        raise StoreError(
+            f"{reader.location} holds an unknown terrain kind {meta.get('terrain_kind')!r}."
+        )
+    return meta
+
+
+def load_tree_store(path: str | os.PathLike, verify: bool = True) -> ApproximationTree:
+    """The ApproximationTree of a store; patches are read on first access.
+
+    verify: check now that every chunk is present and read every array but the terrain's
+    (the terrain's chunks are checked as they are read), so corruption fails here."""
+    from approxtree.tree.approximation_tree import ApproximationTree
+
+    reader = StoreReader(path)
+    meta = _check_meta(reader)
+    if meta.get("tree_kind") != "approximation_tree":
+        raise StoreError(
+            f"{path} holds a {meta.get('tree_kind')!r} tree, not an approximation tree; open it "
+            "with approxtree.load_tree."
+        )
+    names = list(meta.get("strategy_names", []))
+    unknown = set(names) - set(STRATEGIES)
+    if unknown:
+        raise StoreError(f"{path} uses strategies unknown to this version: {sorted(unknown)}.")
+    if verify:
+        reader.verify(read_skip=("terrain/",))
+    terrain = _read_terrain(reader)
+    nodes = {name: reader.read(f"nodes/{name}") for name in NODE_ARRAYS}
+    slot = reader.read("nodes/patch_slot")
+    n = len(nodes["errors"])
+    if any(len(a) != n for a in (*nodes.values(), slot)):
+        raise StoreError(f"{path} has node arrays of different lengths; rebuild it.")
+    source = TreeStoreSource(reader, names, nodes["strategies"], slot)
+    return ApproximationTree(
+        terrain,
+        **nodes,
+        strategy_names=names,
+        params=dict(meta["params"]),
+        patches=[None] * n,
+        source=source,  # type: ignore[arg-type]
+    )
+
+
+# -- point quadtrees ---------------------------------------------------------------------------
+
+
+def save_quadtree(tree: PointQuadtree, path: str | os.PathLike) -> int:
+    """Write a PointQuadtree as a tree store (terrain + "quadtree" arrays); returns bytes."""
+    meta, arrays = tree.to_sections()
+    with writing(path, meta) as root:
+        _write_terrain(root, tree.terrain)
+        group = root.create_group("quadtree")
+        for name, a in arrays.items():
+            write_array(group, name, np.asarray(a))
+    return store_bytes(path)
+
+
+def load_quadtree_store(path: str | os.PathLike) -> PointQuadtree:
+    """The PointQuadtree of a store (every chunk read, so every checksum checked)."""
+    from approxtree.tree.point_quadtree import PointQuadtree
+
+    reader = StoreReader(path)
+    meta = _check_meta(reader)
+    reader.verify()
+    terrain = _read_terrain(reader)
+    arrays = {name: reader.read(f"quadtree/{name}") for name in reader.children("quadtree")}
+    return PointQuadtree.from_sections(meta, terrain, arrays, str(path))
+
+
+def store_info(path: str | os.PathLike) -> dict[str, Any]:
+    """Figures of a store: format version, tree kind, nodes, levels, strategies, chunk
+    layout (chunk shape and count of the main arrays) and bytes (stored vs raw)."""
+    reader = StoreReader(path)
+    meta = reader.meta
+    out: dict[str, Any] = {
+        "store": str(path),
+        "format_version": reader.root.attrs.get("format_version"),
+        "tree_kind": meta.get("tree_kind"),
+        "terrain_kind": meta.get("terrain_kind"),
+    }
+    if meta.get("tree_kind") == "approximation_tree":
+        levels = reader.read("nodes/levels")
+        strategies = reader.read("nodes/strategies")
+        names = meta["strategy_names"]
+        counts = np.bincount(strategies, minlength=len(names))
+        out.update(
+            {
+                "nodes": len(levels),
+                "levels": int(levels.max()) + 1 if len(levels) else 0,
+                "strategies": {n: int(c) for n, c in zip(names, counts, strict=True)},
+                "params": meta.get("params"),
+                "ancestor_level": meta.get("ancestor_level"),
+            }
+        )
+    layout = {}
+    for p in sorted(reader.arrays()):
+        arr = reader.node(p)
+        layout[p] = {
+            "shape": list(arr.shape),
+            "chunks": list(arr.chunks),
+            "nchunks": int(arr.nchunks),
+        }
+    out["chunks"] = layout
+    sizes = reader.sizes()
+    out["bytes_stored"] = sizes["stored"]
+    out["bytes_raw"] = sizes["raw"]
+    out["ratio"] = round(sizes["stored"] / sizes["raw"], 4) if sizes["raw"] else None
+    return out

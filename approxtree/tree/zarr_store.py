@@ -1,0 +1,437 @@
+"""The tree store: one zarr v3 hierarchy holding a tree, its patches and its terrain.
+
+Locations: a folder ``NAME.zarr`` (directory store), a single file ``NAME.zarr.zip`` /
+``NAME.zip`` (zip store, entries stored uncompressed: the chunks are compressed already), or
+an fsspec URL (``memory://...``, ``s3://...``; anything with ``://``).
+
+Every array is chunked and encoded as blosc(zstd, shuffle) then a crc32c checksum
+(``zarr.codecs.Crc32cCodec``), so a flipped byte in any chunk fails its read. Every chunk is
+written (``write_empty_chunks``), so a missing chunk file is found by ``verify``. The root
+group's attributes hold the format name and version, the tree's meta data (JSON, no pickle)
+and a CRC-32C of every array's and group's metadata document (``zarr.json``), checked when
+it is opened. Any error of zarr or numcodecs reading a store becomes a StoreError naming the
+store and what to do.
+
+Atomic writes (``writing``): a folder store is written into a hidden temp folder beside the
+target (``.NAME.PID.TOKEN.tmp``, ``io.atomic``) and renamed into place, replacing an
+existing store only once the new one is complete; a zip store is written as such a folder,
+then zipped into a temp file renamed over the target. A URL cannot be renamed: there the
+root ``zarr.json`` is written without the format name first and rewritten with it last, as
+the commit marker; a store whose root lacks it does not open ("incomplete"). Writing to a
+URL removes what was there first (object stores cannot swap prefixes).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import shutil
+import threading
+import zipfile
+from collections import OrderedDict
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from approxtree.errors import StoreError
+
+#: Name and version in the root attributes; a reader opens only the versions it knows.
+FORMAT = "approxtree-tree-store"
+FORMAT_VERSION = 1
+#: Terrain heights chunk (rows, cols); written block by block, never as a whole band.
+HEIGHT_CHUNK = 512
+#: Column blocks written per call when copying heights in (one band of 512 × 4096 at most).
+_HEIGHT_BLOCK_COLS = HEIGHT_CHUNK * 8
+#: Target raw bytes of one chunk of a 1-D (or row-chunked) array.
+CHUNK_BYTES = 1 << 18
+#: Decoded chunks kept by a reader for patch reads (bytes).
+CHUNK_CACHE_BYTES = 64 << 20
+
+
+# -- locations ---------------------------------------------------------------------------------
+
+
+def is_url(path: str | os.PathLike) -> bool:
+    return "://" in str(path)
+
+
+def is_zip(path: str | os.PathLike) -> bool:
+    return not is_url(path) and str(path).lower().endswith(".zip")
+
+
+def is_store(path: str | os.PathLike) -> bool:
+    """Whether ``path`` names a tree store (rather than a legacy ``.atree`` file or a terrain
+    file): a URL, a ``.zarr`` path, a folder with a zarr.json, or a zip holding a zarr.json
+    (other zips, such as zipped SRTM tiles, are terrain files)."""
+    text = str(path).rstrip("/")
+    if is_url(text) or text.lower().endswith(".zarr"):
+        return True
+    if is_zip(text) and Path(text).is_file():
+        try:
+            with zipfile.ZipFile(text) as z:
+                return "zarr.json" in z.namelist()
+        except (OSError, zipfile.BadZipFile):
+            return False
+    return Path(text).is_dir() and (Path(text) / "zarr.json").is_file()
+
+
+def _open_zarr_store(path: str | os.PathLike, read_only: bool) -> Any:
+    """The zarr Store object of a location (StoreError when it cannot be opened)."""
+    from zarr.storage import FsspecStore, LocalStore, ZipStore
+
+    text = str(path)
+    try:
+        if is_url(text):
+            return FsspecStore.from_url(text, read_only=read_only)
+        if is_zip(text):
+            if not Path(text).is_file():
+                raise FileNotFoundError(text)
+            return ZipStore(text, mode="r")
+        if not Path(text).is_dir():
+            raise FileNotFoundError(text)
+        return LocalStore(text, read_only=read_only)
+    except FileNotFoundError as exc:
+        raise StoreError(f"Tree store {text} does not exist.") from exc
+    except (OSError, ValueError, ImportError, zipfile.BadZipFile) as exc:
+        raise StoreError(f"Cannot open the tree store {text}: {exc}.") from exc
+
+
+# -- encoding ----------------------------------------------------------------------------------
+
+
+def codecs(dtype: np.dtype) -> list[Any]:
+    """Compression then the crc32c checksum (the checksum covers the compressed bytes)."""
+    from zarr.codecs import BloscCodec, Crc32cCodec
+
+    shuffle = "bitshuffle" if np.dtype(dtype).itemsize == 1 else "shuffle"
+    return [BloscCodec(cname="zstd", clevel=5, shuffle=shuffle), Crc32cCodec()]
+
+
+def _row_chunks(shape: tuple[int, ...], itemsize: int) -> tuple[int, ...]:
+    """Chunks of an array split along axis 0 into about CHUNK_BYTES each."""
+    row = max(1, math.prod(shape[1:])) * itemsize
+    rows = max(1, min(max(shape[0], 1), CHUNK_BYTES // row))
+    return (rows, *shape[1:]) if len(shape) else ()
+
+
+def write_array(group: Any, name: str, data: Any, chunks: tuple[int, ...] | None = None) -> Any:
+    """Create ``group/name`` and fill it from ``data`` (an ndarray, or any 2-D array-like with
+    ``shape``, ``dtype`` and slicing when ``chunks`` is given: then written block by block)."""
+    shape = tuple(int(s) for s in data.shape)
+    dtype = np.dtype(data.dtype).newbyteorder("<")
+    if chunks is None:
+        data = np.asarray(data)
+        chunks = _row_chunks(shape, dtype.itemsize)
+    arr = group.create_array(
+        name,
+        shape=shape,
+        chunks=tuple(max(1, c) for c in chunks) if shape else None,
+        dtype=dtype,
+        compressors=codecs(dtype),
+        fill_value=0,
+        config={"write_empty_chunks": True},
+    )
+    if not math.prod(shape):
+        return arr
+    if isinstance(data, np.ndarray) or len(shape) != 2:
+        arr[...] = np.asarray(data)
+        return arr
+    # Block by block: the source may be a lazy windowed array that never holds the band.
+    rows, cols = shape
+    rstep = chunks[0]
+    cstep = max(chunks[1], (_HEIGHT_BLOCK_COLS // chunks[1]) * chunks[1])
+    for r0 in range(0, rows, rstep):
+        r1 = min(rows, r0 + rstep)
+        for c0 in range(0, cols, cstep):
+            c1 = min(cols, c0 + cstep)
+            arr[r0:r1, c0:c1] = np.asarray(data[r0:r1, c0:c1])
+    return arr
+
+
+def _metadata_crc(node: Any) -> int:
+    """CRC-32C of a node's metadata document as zarr parsed it (key order normalised)."""
+    import crc32c
+
+    doc = json.dumps(node.metadata.to_dict(), sort_keys=True, default=str)
+    return crc32c.crc32c(doc.encode())
+
+
+def _commit(root: Any, meta: dict[str, Any]) -> None:
+    """Write the root attributes last: format, version, meta, metadata checksums."""
+    sums = {path: _metadata_crc(node) for path, node in root.members(max_depth=None)}
+    root.attrs.update(
+        {"format": FORMAT, "format_version": FORMAT_VERSION, "meta": meta, "metadata_crc32c": sums}
+    )
+
+
+# -- atomic writing ----------------------------------------------------------------------------
+
+
+@contextlib.contextmanager
+def writing(path: str | os.PathLike, meta: dict[str, Any]) -> Iterator[Any]:
+    """The root group of a new store at ``path``, committed (root attributes written, then
+    the store renamed into place) when the block finishes cleanly; see the module docstring."""
+    import zarr
+    from zarr.storage import LocalStore
+
+    from approxtree.io.atomic import _registered, _temp_path, atomic_directory, atomic_write
+
+    text = str(path)
+    try:
+        if is_url(text):
+            store = _open_zarr_store(text, read_only=False)
+            root = zarr.open_group(store, mode="w")
+            yield root
+            _commit(root, meta)
+        elif is_zip(text):
+            target = Path(os.path.realpath(text))
+            if not target.parent.is_dir():
+                raise StoreError(f"Cannot write {text}: the folder {target.parent} does not exist.")
+            tmp = _temp_path(target)
+            with _registered(tmp):
+                try:
+                    os.mkdir(tmp)
+                    root = zarr.open_group(LocalStore(str(tmp)), mode="w")
+                    yield root
+                    _commit(root, meta)
+                    with atomic_write(target) as f:
+                        _zip_folder(tmp, f)
+                finally:
+                    shutil.rmtree(tmp, ignore_errors=True)
+        else:
+            with atomic_directory(text) as tmp:
+                root = zarr.open_group(LocalStore(str(tmp)), mode="w")
+                yield root
+                _commit(root, meta)
+    except StoreError:
+        raise
+    except OSError as exc:  # a full disk, a read-only folder, an unreachable URL...
+        raise StoreError(f"Cannot write the tree store {text}: {exc}.") from exc
+
+
+def _zip_folder(folder: Path, f: Any) -> None:
+    """Every file below ``folder`` into the zip file object ``f`` (stored, not deflated)."""
+    with zipfile.ZipFile(f, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as z:
+        for dirpath, _, files in os.walk(folder):
+            for name in sorted(files):
+                full = Path(dirpath) / name
+                z.write(full, full.relative_to(folder).as_posix())
+
+
+# -- reading -----------------------------------------------------------------------------------
+
+
+def _wrap(location: str, what: str, exc: BaseException) -> StoreError:
+    return StoreError(
+        f"Tree store {location} is corrupted or incomplete ({what}: {exc}). Rebuild it with "
+        "`approxtree build`, or restore it from a copy."
+    )
+
+
+class StoreReader:
+    """A tree store opened read-only: checked root attributes, arrays on demand.
+
+    Every read goes through the crc32c codec; zarr's and numcodecs' errors become
+    StoreErrors naming the store.
+    """
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        import zarr
+
+        self.location = str(path)
+        self._store = _open_zarr_store(self.location, read_only=True)
+        try:
+            self.root = zarr.open_group(self._store, mode="r")
+            attrs = dict(self.root.attrs)
+        except Exception as exc:  # zarr raises many kinds: JSON, KeyError, NodeNotFound...
+            raise _wrap(self.location, "root zarr.json", exc) from exc
+        if attrs.get("format") != FORMAT:
+            raise StoreError(
+                f"{self.location} is not a complete approxtree tree store (its root attributes "
+                "lack the format name: an interrupted write, or another zarr store). Rebuild it "
+                "with `approxtree build`."
+            )
+        version = attrs.get("format_version")
+        if version != FORMAT_VERSION:
+            raise StoreError(
+                f"{self.location} has tree store version {version!r}; this approxtree reads "
+                f"version {FORMAT_VERSION}. Rebuild it with this version."
+            )
+        try:
+            self.meta: dict[str, Any] = dict(attrs["meta"])
+            self._sums: dict[str, int] = {k: int(v) for k, v in attrs["metadata_crc32c"].items()}
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise _wrap(self.location, "root attributes", exc) from exc
+        self._nodes: dict[str, Any] = {}
+        self._cache: OrderedDict[tuple[str, int], np.ndarray] = OrderedDict()
+        self._cache_bytes = 0
+        # Background loaders (the paging renderer) read patches from several threads.
+        self._lock = threading.Lock()
+
+    def node(self, path: str) -> Any:
+        """The zarr array or group at ``path``, its metadata checksum verified."""
+        found = self._nodes.get(path)
+        if found is not None:
+            return found
+        if path not in self._sums:
+            raise StoreError(f"Tree store {self.location} has no {path!r}; rebuild it.")
+        try:
+            found = self.root[path]
+            ok = _metadata_crc(found) == self._sums[path]
+        except Exception as exc:
+            raise _wrap(self.location, f"{path}/zarr.json", exc) from exc
+        if not ok:
+            raise StoreError(
+                f"Tree store {self.location} is corrupted: {path}/zarr.json does not match its "
+                "checksum. Rebuild it with `approxtree build`, or restore it from a copy."
+            )
+        self._nodes[path] = found
+        return found
+
+    def has(self, path: str) -> bool:
+        return path in self._sums
+
+    def attrs(self, path: str) -> dict[str, Any]:
+        return dict(self.node(path).attrs)
+
+    def children(self, path: str) -> list[str]:
+        """Names of the direct members of group ``path`` (from the checksum table)."""
+        prefix = f"{path}/"
+        return sorted({p[len(prefix) :].split("/")[0] for p in self._sums if p.startswith(prefix)})
+
+    def read(self, path: str, selection: Any = Ellipsis) -> np.ndarray:
+        """``array[selection]`` of the array at ``path`` (checksummed chunks)."""
+        arr = self.node(path)
+        try:
+            return np.asarray(arr[selection])
+        except Exception as exc:
+            raise _wrap(self.location, f"chunk of {path}", exc) from exc
+
+    def read_rows(self, path: str, start: int, stop: int) -> np.ndarray:
+        """Rows start..stop of a row-chunked array through a small LRU cache of decoded
+        chunks, so patch reads of one subtree decode each chunk once."""
+        arr = self.node(path)
+        rows = int(arr.chunks[0])
+        first, last = start // rows, max(start, stop - 1) // rows
+        parts = []
+        for c in range(first, last + 1):
+            key = (path, c)
+            with self._lock:
+                chunk = self._cache.get(key)
+                if chunk is not None:
+                    self._cache.move_to_end(key)
+            if chunk is None:
+                chunk = self.read(path, slice(c * rows, (c + 1) * rows))
+                chunk.flags.writeable = False
+                with self._lock:
+                    if key not in self._cache:
+                        self._cache[key] = chunk
+                        self._cache_bytes += chunk.nbytes
+                    while self._cache_bytes > CHUNK_CACHE_BYTES and len(self._cache) > 1:
+                        _, old = self._cache.popitem(last=False)
+                        self._cache_bytes -= old.nbytes
+            parts.append(chunk)
+        block = parts[0] if len(parts) == 1 else np.concatenate(parts)
+        # A copy: a patch must not keep a whole cached chunk alive.
+        return block[start - first * rows : stop - first * rows].copy()
+
+    def arrays(self) -> list[str]:
+        """Paths of every array in the store."""
+        return [p for p in self._sums if self._is_array(p)]
+
+    def _is_array(self, path: str) -> bool:
+        import zarr
+
+        return isinstance(self.node(path), zarr.Array)
+
+    def verify(self, read_skip: tuple[str, ...] = ()) -> None:
+        """Check that every chunk of every array is present, and each one's checksum by
+        reading it (except arrays under the ``read_skip`` path prefixes)."""
+        for path in self.arrays():
+            arr = self.node(path)
+            try:
+                present = arr.nchunks_initialized
+            except Exception as exc:
+                raise _wrap(self.location, f"chunks of {path}", exc) from exc
+            if present != arr.nchunks:
+                raise StoreError(
+                    f"Tree store {self.location} is incomplete: {path} has "
+                    f"{present} of {arr.nchunks} chunks. Rebuild it with `approxtree build`, "
+                    "or restore it from a copy."
+                )
+            if path.startswith(read_skip):
+                continue
+            for block in _blocks(arr.shape, arr.chunks):
+                self.read(path, block)
+
+    def sizes(self) -> dict[str, int]:
+        """Bytes of the store: "stored" (chunks and metadata as written) and "raw" (arrays
+        decoded)."""
+        from zarr.core.sync import sync
+
+        async def total() -> int:
+            n = 0
+            async for key in self._store.list():
+                n += await self._store.getsize(key)
+            return n
+
+        try:
+            stored = int(sync(total()))
+        except Exception as exc:
+            raise _wrap(self.location, "listing", exc) from exc
+        raw = sum(int(self.node(p).nbytes) for p in self.arrays())
+        return {"stored": stored, "raw": raw}
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self._store.close()
+
+
+def _blocks(shape: tuple[int, ...], chunks: tuple[int, ...]) -> Iterator[tuple[slice, ...]]:
+    """Selections of a few chunks at a time along axis 0 (bounded memory when verifying)."""
+    if not shape or not math.prod(shape):
+        yield tuple(slice(None) for _ in shape)
+        return
+    step = chunks[0] * max(1, (16 << 20) // max(1, math.prod(chunks[1:]) * chunks[0] * 8))
+    for r0 in range(0, shape[0], step):
+        yield (slice(r0, r0 + step), *(slice(None) for _ in shape[1:]))
+
+
+class ZarrHeightSource:
+    """A HeightSource over the terrain heights of a tree store: ``read(r0, r1, c0, c1)`` reads
+    the half-open window [r0, r1) × [c0, c1) as float (NaN = nodata), chunk by chunk.
+
+    Pickles by location and path (the array is reopened on first read), never by the data.
+    """
+
+    def __init__(
+        self, location: str, path: str = "terrain/heights", reader: StoreReader | None = None
+    ) -> None:
+        self.location = location
+        self.path = path
+        self._reader = reader
+        arr = self._open().node(path)
+        self.shape: tuple[int, int] = (int(arr.shape[0]), int(arr.shape[1]))
+        self.dtype = np.dtype(arr.dtype).newbyteorder("=")
+
+    def _open(self) -> StoreReader:
+        if self._reader is None:
+            self._reader = StoreReader(self.location)
+        return self._reader
+
+    def read(self, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
+        """(r1 − r0, c1 − c0) heights of the window (native byte order)."""
+        out = self._open().read(self.path, (slice(r0, r1), slice(c0, c1)))
+        return out.astype(self.dtype, copy=False)
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = dict(self.__dict__)
+        state["_reader"] = None
+        return state
+
+    def __repr__(self) -> str:
+        return f"ZarrHeightSource({self.location!r}, {self.path!r}, shape={self.shape})"
