@@ -166,8 +166,12 @@ class GridPatch(GeometryPatch):
         return 6 * 8
 
     def to_record(self) -> dict[str, np.ndarray]:
+        # Records hold the full raster's indices, whether the patch was built on it or a window.
+        r_off, c_off = self.grid.index_offset
+        r0, r1, c0, c1, sr, sc = self.index
+        index = (r0 + r_off, r1 + r_off, c0 + c_off, c1 + c_off, sr, sc)
         return {
-            "index": np.array(self.index, dtype="<i8"),
+            "index": np.array(index, dtype="<i8"),
             "stats": np.array([self.error, *self.z_range, self.data_count], dtype="<f8"),
         }
 
@@ -176,7 +180,9 @@ class GridPatch(GeometryPatch):
         cls, terrain: GeometryData, rect: Rect, record: dict[str, np.ndarray]
     ) -> GridPatch:
         grid = cls._require_grid(terrain)
-        index = tuple(int(v) for v in record["index"])
+        r0, r1, c0, c1, sr, sc = (int(v) for v in record["index"])
+        r_off, c_off = grid.index_offset
+        index = (r0 - r_off, r1 - r_off, c0 - c_off, c1 - c_off, sr, sc)
         error, zmin, zmax, count = (float(v) for v in record["stats"])
         return cls(grid, rect, index, error, (zmin, zmax), int(count))
 
