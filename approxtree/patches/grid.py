@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import numba
 import numpy as np
 
 from approxtree.errors import UnsupportedStrategyError
@@ -103,7 +104,14 @@ class GridPatch(GeometryPatch):
                 [grid_steps(c1 - c0 + 1, k) for _, _, c0, c1 in ranges],
             ]
         ).astype(np.int64)
-        error, zmin, zmax, count = grid_patch_errors(grid.heights, ranges, steps)
+        # No more threads than nodes: an idle thread still costs a hand-off per call, which
+        # dominates when a small subtree (a block of a blocked build) is built level by level.
+        threads = numba.get_num_threads()
+        numba.set_num_threads(max(1, min(threads, len(ranges))))
+        try:
+            error, zmin, zmax, count = grid_patch_errors(grid.heights, ranges, steps)
+        finally:
+            numba.set_num_threads(threads)
         patches: list[GeometryPatch] = [
             cls(grid, rect, (*ranges[i], *steps[i]), error[i], (zmin[i], zmax[i]), count[i])
             for i, rect in enumerate(rects)
