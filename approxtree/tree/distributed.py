@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -98,10 +99,14 @@ def dask_runner(
             # One thread per task: the cluster's processes are the parallelism.
             for t in tasks:
                 t.threads = 1
+            # Keys unique to this build: a key reused on a shared cluster could return the
+            # result of another build's task still held there.
+            build_id = uuid.uuid4().hex[:12]
             futures = [
-                cl.submit(run_block, t, key=f"approxtree-block-{t.block}", pure=False)  # type: ignore[attr-defined]
+                cl.submit(run_block, t, key=f"approxtree-{build_id}-block-{t.block}")  # type: ignore[attr-defined]
                 for t in tasks
             ]
+            block_of = {f.key: t.block for f, t in zip(futures, tasks, strict=True)}
             results: list[BlockResult] = []
             bar = tqdm(total=len(futures), unit="block", desc="blocks", disable=not progress)
             try:
@@ -111,7 +116,7 @@ def dask_runner(
                     except ApproxTreeError:
                         raise
                     except Exception as exc:
-                        block = str(fut.key).rsplit("-", 1)[-1]
+                        block = block_of[fut.key]
                         raise ApproxTreeError(
                             f"Block {block} of the build failed on a dask worker: "
                             f"{type(exc).__name__}: {exc}. Check the workers' memory and logs "
