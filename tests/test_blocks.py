@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 
 import numpy as np
@@ -192,3 +193,31 @@ def test_windowed_grid_tasks_read_their_own_windows():
     # Without workers a windowed grid builds block by block in this process.
     serial = ApproximationTree.build(g, 0.5, 81, 4, progress=False)
     assert_same_tree(ApproximationTree.build(w, 0.5, 81, 4, progress=False), serial)
+
+
+@pytest.mark.parametrize("nodata", [0.0, 0.3])
+@pytest.mark.parametrize("steps", [(1, 1), (3, 5), (7, 4), (40, 40)])
+def test_patch_parts_reduce_to_the_patch_error(steps, nodata):
+    from approxtree.kernels.grid_patch import grid_patch_errors
+    from approxtree.tree.blocks import Ancestor, lattice_part, measure_ancestors
+
+    rng = np.random.default_rng(sum(steps))
+    z = rng.normal(size=(61, 75)).astype(np.float32)
+    # Scattered nodata reaches every edge case of the kernel (and makes the error infinite).
+    z[rng.random(z.shape) < nodata] = np.nan
+    g = Grid(z)
+    index = (3, 58, 2, 70, *steps)
+    err, zmin, zmax, count = grid_patch_errors(g.heights, np.array([index[:4]]), np.array([steps]))
+    # Parts tiling the patch, sharing border lines like the blocks of a blocked build.
+    rows, cols = [3, 17, 18, 40, 58], [2, 9, 33, 34, 70]
+    figures = []
+    for r0, r1 in itertools.pairwise(rows):
+        for c0, c1 in itertools.pairwise(cols):
+            anc = Ancestor(0, index, *lattice_part(g.heights, index, (r0, r1, c0, c1)))
+            figures.append(measure_ancestors(g.window(r0, r1, c0, c1), (r0, r1, c0, c1), [anc]))
+    f = np.concatenate(figures)
+    assert np.isinf(err[0]) == (nodata > 0 and steps != (1, 1))
+    assert (err[0] > 0) == (steps != (1, 1))
+    assert f[:, 0].max() == err[0]
+    assert np.nanmin(f[:, 1]) == zmin[0] and np.nanmax(f[:, 2]) == zmax[0]
+    assert f[:, 3].sum() == count[0]
