@@ -83,8 +83,11 @@ class BlockResult:
 
     rects: (n, 4) float64; levels: (n,) int32 (global levels); parents, child_start,
     child_count: (n,) int64 local (−1 for the block root); kinds, records: each node's patch
-    as ``to_record`` (full-raster indices). ancestors: (a, 4) float64 (error, zmin, zmax,
-    count) of each ancestor's grid patch over the block's own points, root first.
+    as ``to_record`` (full-raster indices), except grid patches, whose record is None and whose
+    figures are rows of ``grid_index`` (k, 6) int64 (full-raster indices and steps) and
+    ``grid_stats`` (k, 4) float64 (error, zmin, zmax, count), in node order.
+    ancestors: (a, 4) float64 (error, zmin, zmax, count) of each ancestor's grid patch over the
+    block's own points, root first.
     """
 
     block: int
@@ -94,7 +97,9 @@ class BlockResult:
     child_start: np.ndarray
     child_count: np.ndarray
     kinds: list[str]
-    records: list[dict[str, np.ndarray]]
+    records: list[dict[str, np.ndarray] | None]
+    grid_index: np.ndarray
+    grid_stats: np.ndarray
     ancestors: np.ndarray
     seconds: float
     points: int
@@ -300,6 +305,15 @@ def run_block(task: BlockTask) -> BlockResult:
     finally:
         numba.set_num_threads(threads)
     n = len(built.patches)
+    # Grid patches (most nodes) travel as two arrays rather than one record each.
+    is_grid = [type(p) is GridPatch for p in built.patches]
+    grid_patches = [p for p, g in zip(built.patches, is_grid, strict=True) if g]
+    offset = np.array(grid.index_offset, dtype=np.int64).repeat(2)  # r, r, c, c
+    grid_index = np.array([p.index for p in grid_patches], dtype=np.int64).reshape(-1, 6)
+    grid_index[:, :4] += offset
+    grid_stats = np.array(
+        [(p.error, *p.z_range, p.data_count) for p in grid_patches], dtype=np.float64
+    ).reshape(-1, 4)
     return BlockResult(
         block=task.block,
         rects=np.array([r.as_tuple() for r in built.rects], dtype=np.float64).reshape(n, 4),
@@ -308,7 +322,9 @@ def run_block(task: BlockTask) -> BlockResult:
         child_start=np.array(built.child_start, dtype=np.int64),
         child_count=np.array(built.child_count, dtype=np.int64),
         kinds=[p.kind for p in built.patches],
-        records=[p.to_record() for p in built.patches],
+        records=[None if g else p.to_record() for p, g in zip(built.patches, is_grid, strict=True)],
+        grid_index=grid_index,
+        grid_stats=grid_stats,
         ancestors=stats,
         seconds=time.perf_counter() - t0,
         points=(r1 - r0 + 1) * (c1 - c0 + 1),
@@ -458,10 +474,19 @@ def assemble(
         has = res.child_count > 0
         child_start[ids[has]] = ids[res.child_start[has]]
         child_count[ids] = res.child_count
-        for i, g in enumerate(ids):
-            rect = Rect(*(float(v) for v in res.rects[i]))
+        gi = res.grid_index.copy()
+        gi[:, :4] -= np.array(grid.index_offset, dtype=np.int64).repeat(2)
+        grid_rows = iter(zip(gi.tolist(), res.grid_stats.tolist(), strict=True))
+        for g, box, kind, record in zip(
+            ids.tolist(), res.rects.tolist(), res.kinds, res.records, strict=True
+        ):
+            rect = Rect(*box)
             rects[g] = rect
-            patches[g] = STRATEGIES[res.kinds[i]].from_record(grid, rect, res.records[i])
+            if record is None:
+                index, (error, lo, hi, cnt) = next(grid_rows)
+                patches[g] = GridPatch(grid, rect, index, error, (lo, hi), int(cnt))
+            else:
+                patches[g] = STRATEGIES[kind].from_record(grid, rect, record)
     out = BuiltLevels()
     out.rects = rects  # type: ignore[assignment]
     out.patches = patches  # type: ignore[assignment]
