@@ -345,9 +345,10 @@ def info(dem: str, encoding, nodata_policy, ground_only, height_scale, as_json: 
 )
 @click.option(
     "--block-size",
-    type=click.IntRange(min=2),
+    type=click.IntRange(min=1),
     default=None,
-    help="Points per block side of a blocked build [default: 2048].",
+    help="Cells per block side of a blocked build (its window reads one line more) "
+    "[default: 2048].",
 )
 @click.option(
     "--report",

@@ -70,13 +70,13 @@ def test_block_build_in_process_equals_serial(fanout, policy):
 
 
 def test_block_level_as_deep_as_the_grid_allows():
-    # Blocks of 2 points per side: plan leaves that cannot be cut stop above the block level.
+    # Blocks of 1 cell per side: plan leaves that cannot be cut stop above the block level.
     z = np.random.default_rng(2).normal(size=(2, 10)).astype(np.float32)
     g = Grid(z)
-    plan = plan_blocks(g, 4, 2)
+    plan = plan_blocks(g, 4, 1)
     assert {plan.levels[b] for b in plan.blocks} == {plan.block_level - 1, plan.block_level}
     serial = ApproximationTree.build(g, 0.0, 4, 4, progress=False)
-    assert_same_tree(ApproximationTree.build(g, 0.0, 4, 4, block_size=2), serial)
+    assert_same_tree(ApproximationTree.build(g, 0.0, 4, 4, block_size=1), serial)
 
 
 def test_policy_with_other_upper_strategies_is_refused():
@@ -86,7 +86,7 @@ def test_policy_with_other_upper_strategies_is_refused():
     with pytest.raises(InvalidParameterError, match="report"):
         ApproximationTree.build(g, 0.5, 81, 4, block_size=80, report="r.html")
     with pytest.raises(InvalidParameterError, match="block_size"):
-        ApproximationTree.build(g, 0.5, 81, 4, block_size=1)
+        ApproximationTree.build(g, 0.5, 81, 4, block_size=0)
 
 
 @pytest.fixture(scope="module")

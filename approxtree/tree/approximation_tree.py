@@ -112,7 +112,7 @@ class ApproximationTree:
 
         Blocked builds (same tree, node for node; Grid terrains): ``workers`` N builds the
         blocks on a dask LocalCluster of N processes, ``scheduler`` "tcp://host:8786" on an
-        existing cluster; ``block_size`` (points per block side, default 2048) alone builds
+        existing cluster; ``block_size`` (cells per block side, default 2048) alone builds
         block by block in this process, as does a windowed grid without workers; ``report``
         writes a dask performance report (HTML) of a cluster build.
         """

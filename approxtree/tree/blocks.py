@@ -35,7 +35,7 @@ from approxtree.tree.builder import BuiltLevels, build_levels, validate_paramete
 from approxtree.tree.policy import StrategyPolicy
 from approxtree.tree.subdivision import subdivide
 
-#: Points per block side when none is given: a 2049² float32 window is 16 MB.
+#: Cells per block side when none is given: a block's window of 2049² float32 heights is 16 MB.
 DEFAULT_BLOCK_SIZE = 2048
 
 
@@ -134,8 +134,9 @@ class BlockPlan:
 
 
 def _side(index: tuple[int, int, int, int]) -> int:
+    """Cells along the longer side of an index range (its points are one more)."""
     r0, r1, c0, c1 = index
-    return max(r1 - r0 + 1, c1 - c0 + 1)
+    return max(r1 - r0, c1 - c0)
 
 
 def plan_blocks(
@@ -145,14 +146,15 @@ def plan_blocks(
     block_level: int | None = None,
 ) -> BlockPlan:
     """The complete subdivision down to level L: the given ``block_level``, or the first level
-    whose rectangles have at most ``block_size`` points per side (default 2048)."""
+    whose rectangles have at most ``block_size`` cells per side (default 2048; a block's window
+    holds one line more, the border it shares with its neighbour)."""
     if block_level is not None and (not isinstance(block_level, int) or block_level < 0):
         raise InvalidParameterError(f"block_level must be an integer >= 0, got {block_level!r}.")
     if block_size is None:
         block_size = DEFAULT_BLOCK_SIZE
-    if not isinstance(block_size, int | np.integer) or block_size < 2:
+    if not isinstance(block_size, int | np.integer) or block_size < 1:
         raise InvalidParameterError(
-            f"block_size must be an integer >= 2 (points per block side), got {block_size!r}."
+            f"block_size must be an integer >= 1 (cells per block side), got {block_size!r}."
         )
     plan = BlockPlan(block_level=0)
     root = grid.domain
