@@ -87,6 +87,8 @@ def case(size: int, epsilon: float, block_size: int, report_dir: Path) -> dict:
     row["block_level"] = plan.block_level
     row["plan_blocks"] = len(plan.blocks)
 
+    # The machine may be shared: its load puts the timings in context.
+    row["load_average_before"] = os.getloadavg()[0]
     t0 = time.perf_counter()
     serial = build_levels(grid, epsilon, 33 * 33, 4, policy, progress=False)
     row["serial_seconds"] = time.perf_counter() - t0
@@ -129,6 +131,7 @@ def case(size: int, epsilon: float, block_size: int, report_dir: Path) -> dict:
         finally:
             client.close()
             cluster.close()
+    row["load_average_after"] = os.getloadavg()[0]
     row["speedup_workers2_over_workers1"] = row["workers1_seconds"] / row["workers2_seconds"]
     row["speedup_workers2_over_serial"] = row["serial_seconds"] / row["workers2_seconds"]
     return row
@@ -152,7 +155,7 @@ def main() -> None:
             f"(×{row['speedup_workers2_over_workers1']:.2f}); {row['nodes']} nodes, "
             f"{row['plan_blocks']} blocks, "
             f"{row['workers1']['block_seconds_per_million_points_median']:.2f} s per M points "
-            "per block (1 thread)",
+            f"per block (1 thread); load average {row['load_average_before']:.1f}",
             flush=True,
         )
     report = {

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from approxtree.errors import InvalidParameterError
 from approxtree.geometry.grid import Grid
@@ -508,11 +509,12 @@ def build_blocked(
     block_size: int | None = None,
     block_level: int | None = None,
     run: Any = None,
+    progress: bool = False,
 ) -> BuiltLevels:
     """The serial build's nodes, built block by block.
 
     run: callable(tasks) -> results (``tree.distributed`` passes a dask runner); None runs the
-    tasks here, one after the other.
+    tasks here, one after the other (a tqdm bar of blocks done when ``progress``).
     """
     validate_parameters(epsilon, max_points, fanout)
     if not isinstance(grid, Grid):
@@ -524,7 +526,11 @@ def build_blocked(
     plan = plan_blocks(grid, fanout, block_size, block_level)
     check_policy(grid, plan, policy)
     tasks = make_tasks(grid, plan, epsilon, max_points, fanout, policy)
-    results = [run_block(t) for t in tasks] if run is None else run(tasks)
+    if run is None:
+        bar = tqdm(tasks, unit="block", desc="blocks", disable=not progress, leave=False)
+        results = [run_block(t) for t in bar]
+    else:
+        results = run(tasks)
     out = assemble(grid, plan, results, epsilon, max_points)
     out.seconds = time.perf_counter() - t0
     return out
