@@ -284,7 +284,7 @@ def run_block(task: BlockTask) -> BlockResult:
         r0, r1, c0, c1 = task.index
         grid = task.grid
         ancestors = task.ancestors
-        if grid.index_offset != (r0, c0) or grid.shape != (r1 - r0 + 1, c1 - c0 + 1):
+        if getattr(grid, "is_windowed", False):
             # A windowed terrain: read the patch vertices around the block, then the window.
             ancestors = [
                 Ancestor(a.node, a.index, *lattice_part(grid.heights, a.index, task.index))
