@@ -10,7 +10,9 @@ run and one process:
   thread each (cluster started and warmed up before the clock starts; its start time is
   reported apart). The 2-worker run writes the dask performance report (task stream).
 
-Each blocked tree is checked against the serial one (node count, errors). Per-block cost is
+Each blocked tree is checked against the serial one (node count, errors). The machine's load
+and the cores it gives at the time (two pure-Python loops at once vs one alone) are recorded
+before and after: on a shared machine they bound the speed-up. Per-block cost is
 the task's own seconds (build + ancestor measures), per million points. Results go to
 benchmarks/results/blocks.json and blocks-report-<size>.html.
 
@@ -45,6 +47,27 @@ def _run_block(task):
     from approxtree.tree.blocks import run_block
 
     return run_block(task)
+
+
+def _spin(_: int) -> float:
+    """Seconds of a fixed pure-Python loop (CPU only)."""
+    t0 = time.perf_counter()
+    s = 0
+    for i in range(5_000_000):
+        s += i
+    return time.perf_counter() - t0
+
+
+def available_cores(processes: int = 2) -> float:
+    """Cores this machine gives now: ``processes`` × (time of one loop alone ÷ time of each of
+    ``processes`` loops at once). A shared machine under load gives fewer than it has, which
+    bounds any speed-up measured in the same run."""
+    import multiprocessing as mp
+
+    with mp.get_context("spawn").Pool(processes) as pool:
+        alone = min(pool.map(_spin, [0]) for _ in range(2))[0]
+        together = statistics.mean(pool.map(_spin, range(processes), chunksize=1))
+    return processes * alone / together
 
 
 def _same(a, b) -> bool:
@@ -89,6 +112,7 @@ def case(size: int, epsilon: float, block_size: int, report_dir: Path) -> dict:
 
     # The machine may be shared: its load puts the timings in context.
     row["load_average_before"] = os.getloadavg()[0]
+    row["available_cores_before"] = available_cores()
     t0 = time.perf_counter()
     serial = build_levels(grid, epsilon, 33 * 33, 4, policy, progress=False)
     row["serial_seconds"] = time.perf_counter() - t0
@@ -132,6 +156,7 @@ def case(size: int, epsilon: float, block_size: int, report_dir: Path) -> dict:
             client.close()
             cluster.close()
     row["load_average_after"] = os.getloadavg()[0]
+    row["available_cores_after"] = available_cores()
     row["speedup_workers2_over_workers1"] = row["workers1_seconds"] / row["workers2_seconds"]
     row["speedup_workers2_over_serial"] = row["serial_seconds"] / row["workers2_seconds"]
     return row
@@ -155,7 +180,8 @@ def main() -> None:
             f"(×{row['speedup_workers2_over_workers1']:.2f}); {row['nodes']} nodes, "
             f"{row['plan_blocks']} blocks, "
             f"{row['workers1']['block_seconds_per_million_points_median']:.2f} s per M points "
-            f"per block (1 thread); load average {row['load_average_before']:.1f}",
+            f"per block (1 thread); load average {row['load_average_before']:.1f}, "
+            f"available cores {row['available_cores_before']:.2f}",
             flush=True,
         )
     report = {
