@@ -132,7 +132,7 @@ def test_failed_block_task_is_an_approxtree_error(cluster):
     g = _terrain()
     plan = plan_blocks(g, 4, 80)
     tasks = make_tasks(g, plan, 0.5, 81, 4, StrategyPolicy("type"))
-    tasks[3].grid = None  # the task cannot read its window
+    tasks[3].index = None  # the task fails (a TypeError on the worker)
     with Client(cluster) as client, pytest.raises(ApproxTreeError, match="Block 3"):
         dask_runner(client=client, progress=False)(tasks)
 
