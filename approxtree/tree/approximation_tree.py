@@ -114,7 +114,9 @@ class ApproximationTree:
         blocks on a dask LocalCluster of N processes, ``scheduler`` "tcp://host:8786" on an
         existing cluster; ``block_size`` (cells per block side, default 2048) alone builds
         block by block in this process, as does a windowed grid without workers; ``report``
-        writes a dask performance report (HTML) of a cluster build.
+        writes a dask performance report (HTML) of a cluster build. A script passing ``workers``
+        runs its build under ``if __name__ == "__main__":`` (the cluster starts processes that
+        import the main module).
         """
         policy_obj = StrategyPolicy.resolve(policy)
         if microstructures:
