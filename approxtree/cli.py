@@ -405,6 +405,32 @@ def info(dem: str, encoding, nodata_policy, ground_only, height_scale, as_json: 
     help="Tree to build: the approximation tree, or the point quadtree of scattered points "
     "(seed 003; --max-points is its δ, default 50; ε, fanout and policy do not apply).",
 )
+@click.option(
+    "--workers",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Build the blocks on a local dask cluster of N processes [default: in this process "
+    "for terrains read whole, the core count for windowed ones].",
+)
+@click.option(
+    "--scheduler",
+    default=None,
+    help="Build the blocks on an existing dask cluster: its scheduler address "
+    "(e.g. tcp://host:8786).",
+)
+@click.option(
+    "--block-size",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Cells per block side of a blocked build (its window reads one line more) "
+    "[default: 2048].",
+)
+@click.option(
+    "--report",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Write the dask performance report (task stream of the blocks) to this HTML file.",
+)
 @reader_options
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
 @_reports_errors
@@ -421,6 +447,10 @@ def build(
     microstructure_profile: str,
     microstructure_spacing: float | None,
     kind: str,
+    workers: int | None,
+    scheduler: str | None,
+    block_size: int | None,
+    report: str | None,
     encoding,
     nodata_policy,
     ground_only,
@@ -448,9 +478,20 @@ def build(
             microstructure_profile,
             microstructure_spacing,
         )
+    if workers is None and scheduler is None and getattr(terrain, "is_windowed", False):
+        # A windowed terrain is large: build its blocks on every core.
+        workers = os.cpu_count() or 1
     t0 = time.perf_counter()
     tree = ApproximationTree.build(
-        terrain, epsilon=epsilon, max_points=max_points, fanout=int(fanout), policy=policy
+        terrain,
+        epsilon=epsilon,
+        max_points=max_points,
+        fanout=int(fanout),
+        policy=policy,
+        workers=workers,
+        scheduler=scheduler,
+        block_size=block_size,
+        report=report,
     )
     seconds = time.perf_counter() - t0
     nbytes = tree.save(out)

@@ -197,3 +197,105 @@ def grid_patch_mesh(
                 tris[m, 2] = c
                 m += 1
     return rows, cols, tris[:m]
+
+
+@njit(cache=True)
+def _lattice_edge_value(lattice, i, j, dr, dc, hr, wc, kr, kc):
+    """``_edge_value`` with the patch's vertices read from a lattice (see grid_patch_part)."""
+    z00 = lattice[i, j]
+    z11 = lattice[i + 1, j + 1]
+    if dc * hr == dr * wc and not np.isnan(lattice[i + 1, j]):
+        return z00 + (dr / hr) * (z11 - z00)
+    if dr == 0 and kr > 0 and not np.isnan(lattice[i - 1, j]):
+        z01 = lattice[i, j + 1]
+        p = z00 + (dc / wc) * (z01 - z00)
+        if not np.isnan(p):
+            return p
+    if dc == 0 and kc > 0 and not np.isnan(lattice[i, j - 1]):
+        z10 = lattice[i + 1, j]
+        return z00 + (dr / hr) * (z10 - z00)
+    return np.nan
+
+
+@njit(cache=True)
+def grid_patch_part(
+    heights: np.ndarray,
+    wr0: int,
+    wc0: int,
+    a0: int,
+    a1: int,
+    b0: int,
+    b1: int,
+    lattice: np.ndarray,
+    k_lo: int,
+    j_lo: int,
+    r0: int,
+    r1: int,
+    c0: int,
+    c1: int,
+    sr: int,
+    sc: int,
+) -> tuple[float, float, float, int]:
+    """(error, zmin, zmax, count) of one grid patch over a part of its points only.
+
+    The patch is (r0, r1, c0, c1, sr, sc) in global indices, as in ``_patch_error``; the part is
+    the global rows a0..a1 × columns b0..b1 (inclusive, inside the patch), whose heights are
+    ``heights`` (a window whose row 0, column 0 is global (wr0, wc0)). The patch's vertices
+    come from ``lattice``: the heights of the sampled rows k_lo.. × sampled columns j_lo.. (k-th
+    sampled row r0 + k·sr, the last one r1), one beyond the part's cells on each side where
+    they exist, in the dtype of ``heights``. Each point is evaluated exactly as
+    ``_patch_error`` does, so the maxima and sums over parts that tile the patch equal the
+    patch's figures bit for bit (a block of a blocked build measures its ancestors this way).
+    """
+    err = 0.0
+    zmin = np.inf
+    zmax = -np.inf
+    count = 0
+    nbr = _block_count(r0, r1, sr)
+    nbc = _block_count(c0, c1, sc)
+    for r in range(a0, a1 + 1):
+        # Interior blocks leave their last row to the next block, as in _patch_error.
+        kr = min((r - r0) // sr, nbr - 1)
+        rb = r0 + kr * sr
+        re = min(rb + sr, r1)
+        hr = re - rb
+        dr = r - rb
+        i = kr - k_lo
+        for c in range(b0, b1 + 1):
+            kc = min((c - c0) // sc, nbc - 1)
+            cb = c0 + kc * sc
+            ce = min(cb + sc, c1)
+            wc = ce - cb
+            dc = c - cb
+            j = kc - j_lo
+            z = heights[r - wr0, c - wc0]
+            valid = not np.isnan(z)
+            if valid:
+                count += 1
+                if z < zmin:
+                    zmin = z
+                if z > zmax:
+                    zmax = z
+            if (dr == 0 or r == re) and (dc == 0 or c == ce):
+                continue
+            z00 = lattice[i, j]
+            z01 = lattice[i, j + 1]
+            z10 = lattice[i + 1, j]
+            z11 = lattice[i + 1, j + 1]
+            if dc * hr >= dr * wc:
+                p = z00 + (dc / wc) * (z01 - z00) + (dr / hr) * (z11 - z01)
+            else:
+                p = z00 + (dr / hr) * (z10 - z00) + (dc / wc) * (z11 - z10)
+            if np.isnan(p):
+                p = _lattice_edge_value(lattice, i, j, dr, dc, hr, wc, kr, kc)
+            if not valid:
+                if not np.isnan(p):
+                    err = np.inf
+                continue
+            if np.isnan(p):
+                err = np.inf
+            else:
+                e = abs(z - p)
+                if e > err:
+                    err = e
+    return err, zmin, zmax, count

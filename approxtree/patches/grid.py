@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import numba
 import numpy as np
 
 from approxtree.errors import UnsupportedStrategyError
@@ -105,9 +106,15 @@ class GridPatch(GeometryPatch):
                 [grid_steps(c1 - c0 + 1, k) for _, _, c0, c1 in ranges],
             ]
         ).astype(np.int64)
-        error, zmin, zmax, count = grid_patch_errors(
-            grid.heights_array("building grid patches"), ranges, steps
-        )
+        heights = grid.heights_array("building grid patches")
+        # No more threads than nodes: an idle thread still costs a hand-off per call, which
+        # dominates when a small subtree (a block of a blocked build) is built level by level.
+        threads = numba.get_num_threads()
+        numba.set_num_threads(max(1, min(threads, len(ranges))))
+        try:
+            error, zmin, zmax, count = grid_patch_errors(heights, ranges, steps)
+        finally:
+            numba.set_num_threads(threads)
         patches: list[GeometryPatch] = [
             cls(grid, rect, (*ranges[i], *steps[i]), error[i], (zmin[i], zmax[i]), count[i])
             for i, rect in enumerate(rects)
@@ -184,8 +191,12 @@ class GridPatch(GeometryPatch):
         return 6 * 8
 
     def to_record(self) -> dict[str, np.ndarray]:
+        # Records hold the full raster's indices, whether the patch was built on it or a window.
+        r_off, c_off = self.grid.index_offset
+        r0, r1, c0, c1, sr, sc = self.index
+        index = (r0 + r_off, r1 + r_off, c0 + c_off, c1 + c_off, sr, sc)
         return {
-            "index": np.array(self.index, dtype="<i8"),
+            "index": np.array(index, dtype="<i8"),
             "stats": np.array([self.error, *self.z_range, self.data_count], dtype="<f8"),
         }
 
@@ -205,7 +216,9 @@ class GridPatch(GeometryPatch):
         cls, terrain: GeometryData, rect: Rect, record: dict[str, np.ndarray]
     ) -> GridPatch:
         grid = cls._require_grid(terrain)
-        index = tuple(int(v) for v in record["index"])
+        r0, r1, c0, c1, sr, sc = (int(v) for v in record["index"])
+        r_off, c_off = grid.index_offset
+        index = (r0 - r_off, r1 - r_off, c0 - c_off, c1 - c_off, sr, sc)
         error, zmin, zmax, count = (float(v) for v in record["stats"])
         return cls(grid, rect, index, error, (zmin, zmax), int(count))
 

@@ -123,7 +123,8 @@ def measure(
 class LatticePatch(GeometryPatch):
     """A patch of grid-point vertices: stores (row, col) indices and triangles, int32.
 
-    ``ij``: (n, 2) int32 global (row, col) of the vertices (all valid data points);
+    ``ij``: (n, 2) int32 (row, col) of the vertices in the grid's own indices (all valid data
+    points; a window's are its own, records hold the full raster's, see ``to_record``);
     ``tris``: (m, 3) int32 triangles, orient > 0 in (column, row) index space.
     """
 
@@ -205,10 +206,12 @@ class LatticePatch(GeometryPatch):
         return self.ij.nbytes + self.tris.nbytes + 5 * 8
 
     def to_record(self) -> dict[str, np.ndarray]:
-        # One never-empty array: [n, m, n × (row, col), m × 3 corners].
-        mesh = np.concatenate(
-            [[len(self.ij), len(self.tris)], self.ij.ravel(), self.tris.ravel()]
-        ).astype("<i4")
+        # One never-empty array: [n, m, n × (row, col), m × 3 corners], (row, col) in the full
+        # raster's indices.
+        ij = self.ij + np.array(self.grid.index_offset, dtype=np.int32)
+        mesh = np.concatenate([[len(ij), len(self.tris)], ij.ravel(), self.tris.ravel()]).astype(
+            "<i4"
+        )
         stats = [self.error, self.rms_error, *self.z_range, self.data_count]
         return {"mesh": mesh, "stats": np.array(stats, dtype="<f8")}
 
@@ -234,6 +237,6 @@ class LatticePatch(GeometryPatch):
         error, rms, zmin, zmax, count = (float(v) for v in record["stats"])
         mesh = np.asarray(record["mesh"], dtype=np.int32)
         n, m = int(mesh[0]), int(mesh[1])
-        ij = mesh[2 : 2 + 2 * n]
+        ij = mesh[2 : 2 + 2 * n].reshape(-1, 2) - np.array(grid.index_offset, dtype=np.int32)
         tris = mesh[2 + 2 * n : 2 + 2 * n + 3 * m]
         return cls(grid, rect, ij, tris, error, rms, (zmin, zmax), int(count))

@@ -85,7 +85,8 @@ def refine_windows(
 class NonRegularGridPatch(GeometryPatch):
     """Irregularly chosen rows and columns of a Grid.
 
-    rows: (kr,) int32 sorted global row indices, first and last = the rectangle's border rows;
+    rows: (kr,) int32 sorted row indices of the grid (a window's own; records hold the full
+    raster's), first and last = the rectangle's border rows;
     cols: (kc,) int32 likewise; error, rms_error: exact over the rectangle's data points.
     """
 
@@ -180,8 +181,11 @@ class NonRegularGridPatch(GeometryPatch):
         return self.rows.nbytes + self.cols.nbytes
 
     def to_record(self) -> dict[str, np.ndarray]:
-        # One never-empty array: [kr, kc, rows..., cols...].
-        lines = np.concatenate([[len(self.rows), len(self.cols)], self.rows, self.cols])
+        # One never-empty array: [kr, kc, rows..., cols...], in the full raster's indices.
+        r_off, c_off = self.grid.index_offset
+        rows = self.rows.astype(np.int64) + r_off
+        cols = self.cols.astype(np.int64) + c_off
+        lines = np.concatenate([[len(rows), len(cols)], rows, cols])
         stats = [self.error, self.rms_error, *self.z_range, self.data_count]
         return {"lines": lines.astype("<i4"), "stats": np.array(stats, dtype="<f8")}
 
@@ -207,8 +211,9 @@ class NonRegularGridPatch(GeometryPatch):
         lines = np.asarray(record["lines"], dtype=np.int32)
         kr, kc = int(lines[0]), int(lines[1])
         error, rms, zmin, zmax, count = (float(v) for v in record["stats"])
-        rows = lines[2 : 2 + kr]
-        cols = lines[2 + kr : 2 + kr + kc]
+        r_off, c_off = grid.index_offset
+        rows = lines[2 : 2 + kr] - r_off
+        cols = lines[2 + kr : 2 + kr + kc] - c_off
         return cls(grid, rect, rows, cols, error, rms, (zmin, zmax), int(count))
 
 

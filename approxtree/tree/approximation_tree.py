@@ -103,16 +103,57 @@ class ApproximationTree:
         policy: str | StrategyPolicy = "type",
         progress: bool | None = None,
         microstructures: Sequence[TIN | str | os.PathLike] | None = None,
+        workers: int | None = None,
+        scheduler: str | None = None,
+        block_size: int | None = None,
+        report: str | os.PathLike | None = None,
     ) -> ApproximationTree:
         """Build A(s,d)(T): split nodes while ε_T(N) > epsilon, patches of at most s points.
 
         epsilon: threshold ε in z units (>= 0); max_points: s (>= 4); fanout: d (4 quadtree,
         2 k-d tree); policy: strategy name or "auto"; progress: tqdm bar (None = when large).
+
+        Blocked builds (same tree, node for node; Grid terrains): ``workers`` N builds the
+        blocks on a dask LocalCluster of N processes, ``scheduler`` "tcp://host:8786" on an
+        existing cluster; ``block_size`` (cells per block side, default 2048) alone builds
+        block by block in this process, as does a windowed grid without workers; ``report``
+        writes a dask performance report (HTML) of a cluster build. A script passing ``workers``
+        runs its build under ``if __name__ == "__main__":`` (the cluster starts processes that
+        import the main module).
         """
         policy_obj = StrategyPolicy.resolve(policy)
         if microstructures:
             terrain = with_microstructures(terrain, microstructures)
-        built = build_levels(terrain, epsilon, max_points, fanout, policy_obj, progress)
+        blocked = (
+            workers is not None
+            or scheduler is not None
+            or block_size is not None
+            or bool(getattr(terrain, "is_windowed", False))
+        )
+        if report is not None and workers is None and scheduler is None:
+            raise InvalidParameterError(
+                "A performance report records a dask build: give workers or a scheduler too."
+            )
+        if blocked:
+            from approxtree.tree.blocks import build_blocked
+
+            run = None
+            if workers is not None or scheduler is not None:
+                from approxtree.tree.distributed import dask_runner
+
+                show = terrain.point_count > 1_000_000 if progress is None else progress
+                run = dask_runner(workers, scheduler, report, show)
+            built = build_blocked(
+                terrain,
+                epsilon,
+                max_points,
+                fanout,
+                policy_obj,
+                block_size,
+                run=run,  # type: ignore[arg-type]
+            )
+        else:
+            built = build_levels(terrain, epsilon, max_points, fanout, policy_obj, progress)
         n = len(built.patches)
         names = list(dict.fromkeys(p.kind for p in built.patches))
         bboxes = np.empty((n, 6))

@@ -94,14 +94,22 @@ def build_levels(
     fanout: int,
     policy: StrategyPolicy,
     progress: bool | None = None,
+    root: Rect | None = None,
+    root_level: int = 0,
 ) -> BuiltLevels:
-    """Build the nodes level by level; ``progress`` None shows a bar only for large terrains."""
+    """Build the nodes level by level; ``progress`` None shows a bar only for large terrains.
+
+    root: the rectangle of the first node (default the terrain's domain) and root_level its
+    level, so that a subtree of a larger tree can be built on its own (a block of a blocked
+    build, on the window of its rectangle); ``levels`` then count from root_level.
+    """
     validate_parameters(epsilon, max_points, fanout)
     t0 = time.perf_counter()
     out = BuiltLevels()
     show = terrain.point_count > 1_000_000 if progress is None else progress
     # Progress is the share of the domain's area already covered by finished leaves.
-    domain_area = terrain.domain.area or 1.0
+    root = terrain.domain if root is None else root
+    domain_area = root.area or 1.0
     bar = tqdm(
         total=100.0,
         unit="%",
@@ -111,8 +119,8 @@ def build_levels(
         bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f}% [{elapsed}<{remaining}]",
     )
     # Each entry of the frontier: (rect, parent index); the root has no parent.
-    frontier: list[tuple[Rect, int]] = [(terrain.domain, -1)]
-    level = 0
+    frontier: list[tuple[Rect, int]] = [(root, -1)]
+    level = int(root_level)
     while frontier:
         patches = _build_level(terrain, policy, level, frontier, max_points, epsilon)
         first = len(out.rects)

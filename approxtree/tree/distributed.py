@@ -1,0 +1,132 @@
+"""Block tasks on dask.distributed: a LocalCluster of N processes, or an existing scheduler.
+
+``dask_runner`` returns the ``run`` callable of ``tree.blocks.build_blocked``: it submits one
+task per block, shows a tqdm bar of blocks done (as they complete), optionally records a dask
+performance report (an HTML file with the task stream: where the time goes), and turns a
+failed task or a lost worker into an ApproxTreeError naming the block.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import uuid
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+from tqdm.auto import tqdm
+
+from approxtree.errors import ApproxTreeError, InvalidParameterError
+from approxtree.tree.blocks import BlockResult, BlockTask, run_block
+
+
+def check_cluster_options(workers: int | None, scheduler: str | None) -> None:
+    """InvalidParameterError for a bad worker count or both options at once."""
+    if workers is not None and scheduler is not None:
+        raise InvalidParameterError(
+            "Give either workers (a local cluster) or scheduler (an existing one), not both."
+        )
+    if workers is not None and (not isinstance(workers, int) or workers < 1):
+        raise InvalidParameterError(f"workers must be an integer >= 1, got {workers!r}.")
+    if scheduler is not None and not str(scheduler).strip():
+        raise InvalidParameterError("scheduler must be an address such as tcp://host:8786.")
+
+
+@contextlib.contextmanager
+def dask_client(workers: int | None, scheduler: str | None) -> Iterator[object]:
+    """A distributed Client: of ``scheduler``, or of a LocalCluster of ``workers`` processes
+    (one thread each), closed on exit."""
+    from distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        try:
+            client = Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError) as exc:
+            raise ApproxTreeError(
+                f"Cannot reach the dask scheduler at {scheduler!r} ({exc}); check the address "
+                "(e.g. tcp://host:8786) and that the scheduler runs."
+            ) from None
+        try:
+            yield client
+        finally:
+            client.close()
+        return
+    cluster = LocalCluster(
+        n_workers=workers or os.cpu_count() or 1,
+        threads_per_worker=1,
+        processes=True,
+        dashboard_address=":0",
+    )
+    client = Client(cluster)
+    try:
+        yield client
+    finally:
+        client.close()
+        cluster.close()
+
+
+def _report_context(client: object, report: str | os.PathLike | None):
+    """distributed.performance_report writing ``report`` (needs bokeh), or a null context."""
+    if report is None:
+        return contextlib.nullcontext()
+    try:
+        import bokeh  # noqa: F401
+    except ImportError:
+        raise InvalidParameterError(
+            "A dask performance report needs bokeh: pip install 'approxtree[bench]' (or bokeh)."
+        ) from None
+    from distributed import performance_report
+
+    return performance_report(filename=str(Path(report)))
+
+
+def dask_runner(
+    workers: int | None = None,
+    scheduler: str | None = None,
+    report: str | os.PathLike | None = None,
+    progress: bool | None = True,
+    client: object | None = None,
+) -> Callable[[list[BlockTask]], list[BlockResult]]:
+    """The ``run`` of ``build_blocked`` on dask (an existing ``client``, else one made from
+    ``workers`` / ``scheduler`` for the duration of the build)."""
+    check_cluster_options(workers, scheduler)
+
+    def run(tasks: list[BlockTask]) -> list[BlockResult]:
+        from distributed import as_completed
+
+        own = contextlib.nullcontext(client) if client is not None else None
+        with own or dask_client(workers, scheduler) as cl, _report_context(cl, report):
+            # One thread per task: the cluster's processes are the parallelism.
+            for t in tasks:
+                t.threads = 1
+            # Keys unique to this build: a key reused on a shared cluster could return the
+            # result of another build's task still held there.
+            build_id = uuid.uuid4().hex[:12]
+            futures = [
+                cl.submit(run_block, t, key=f"approxtree-{build_id}-block-{t.block}")  # type: ignore[attr-defined]
+                for t in tasks
+            ]
+            block_of = {f.key: t.block for f, t in zip(futures, tasks, strict=True)}
+            results: list[BlockResult] = []
+            bar = tqdm(total=len(futures), unit="block", desc="blocks", disable=not progress)
+            try:
+                for fut in as_completed(futures):
+                    try:
+                        results.append(fut.result())
+                    except ApproxTreeError:
+                        raise
+                    except Exception as exc:
+                        block = block_of[fut.key]
+                        raise ApproxTreeError(
+                            f"Block {block} of the build failed on a dask worker: "
+                            f"{type(exc).__name__}: {exc}. Check the workers' memory and logs "
+                            "(a smaller --block-size needs less memory per task)."
+                        ) from exc
+                    bar.update(1)
+            finally:
+                bar.close()
+                for fut in futures:
+                    fut.release()
+            return results
+
+    return run
