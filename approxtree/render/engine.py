@@ -56,10 +56,12 @@ from approxtree.render.frame_state import (
 )
 from approxtree.render.frustum import boxes_in_frustum
 from approxtree.render.gpu_cache import GpuCache
+from approxtree.render.provider import DEFAULT_CPU_CACHE_BYTES, Payload, PayloadProvider
 from approxtree.render.selector import Selection, check_thresholds, eye_below_ground, select
 from approxtree.render.shaders import create_program
 from approxtree.render.skirts import add_skirts, patches_reach_rect, skirt_base, skirt_depths
 from approxtree.render.texture_sharing import texture_nodes
+from approxtree.render.traversal import Cut, plan_frame
 from approxtree.render.visual_error import texel_sizes
 
 #: Default GPU cache budget (bytes).
@@ -82,6 +84,10 @@ STAT_KEYS = (
     "gpu_bytes",
     "texture_patches",
     "texture_switches",
+    "stand_ins",
+    "pending",
+    "uploads",
+    "cpu_bytes",
     "empty",
     "warning",
 )
@@ -190,6 +196,15 @@ class Engine:
     "when the engine created the context" (an embedded engine draws into the host's
     framebuffer bound in ``context``).
     skirts: hang skirts below patch borders (off only to show what they close).
+    cpu_cache_bytes: budget of the provider's CPU cache of node payloads (meshes with skirts,
+    texture patches); loader_threads: its background threads.
+
+    Paging (DESIGN.md, "Renderer roles"): the provider (render/provider.py) loads payloads on
+    background threads into its CPU cache, the traversal (render/traversal.py) plans each
+    frame, the GpuCache holds what was uploaded. ``render(..., wait=True)`` (a single image)
+    blocks until every payload of the cut is drawn; ``wait=False`` (interactive frames) never
+    blocks on the store except for the root: missing nodes are requested coarsest first and
+    their nearest resident ancestors are drawn meanwhile.
     """
 
     def __new__(cls, tree: Any, *args: Any, **kwargs: Any) -> Engine:
@@ -208,11 +223,15 @@ class Engine:
         cache_bytes: int = DEFAULT_CACHE_BYTES,
         offscreen: bool | None = None,
         skirts: bool = True,
+        cpu_cache_bytes: int = DEFAULT_CPU_CACHE_BYTES,
+        loader_threads: int = 2,
     ) -> None:
         # Bad textures and a tree with nothing to draw fail before any GPU object exists.
         _check_drawable(tree)
         textures = _as_pyramid(textures, tree.terrain)
+        provider = PayloadProvider(self._load_payload, cpu_cache_bytes, loader_threads)
         self._open_gpu(tree, context, cache_bytes, offscreen, skirts)
+        self.provider = provider
         # Per-node figures used every frame, computed once.
         self._data_texels = texel_sizes(tree)
         self.texels = self._data_texels
@@ -257,6 +276,8 @@ class Engine:
         self.normal_map, self._normal_uv = self._make_normal_map()
         self.pyramid = None
         self._texture_patches: dict[tuple[str, int], Any] = {}
+        #: The PayloadProvider (None for engines that build their meshes per frame).
+        self.provider: PayloadProvider | None = None
 
     # -- public -----------------------------------------------------------------------------
 
@@ -271,6 +292,8 @@ class Engine:
 
         textures = _as_pyramid(textures, self.tree.terrain)
         self.cache.drop(lambda key: key[0] == "tex")
+        if self.provider is not None:
+            self.provider.drop(lambda key: key[0] == "tex")
         self._texture_patches.clear()
         self.pyramid = textures
         self.texels = (
@@ -306,7 +329,7 @@ class Engine:
         self,
         camera: Camera,
         size: tuple[int, int] = (1280, 720),
-        alpha: float = 1.0,
+        alpha: float | Cut = 1.0,
         gamma: float = 2.0,
         wireframe: bool = False,
         full_resolution: bool = False,
@@ -316,10 +339,14 @@ class Engine:
         lighting: bool = True,
         share_textures: bool = True,
         max_triangles: int | None = None,
+        wait: bool = True,
+        max_uploads: int | None = None,
+        upload_ms: float | None = None,
     ) -> Frame:
         """Draw one frame; see the module docstring for the steps.
 
-        camera: Camera; size: (w, h) pixels; alpha: α threshold (px, > 0); gamma: γ threshold
+        camera: Camera; size: (w, h) pixels; alpha: α threshold (px, > 0), or a Cut
+        (traversal.py) that gives alpha, gamma, max_triangles and full_resolution; gamma: γ threshold
         (px², > 0, inf ignores it); wireframe: draw triangle edges instead of filled
         triangles; full_resolution: draw the unsimplified terrain (reference).
         target: framebuffer to draw into; None draws into the engine's own offscreen
@@ -332,8 +359,18 @@ class Engine:
         max_triangles: triangle budget instead of the alpha threshold: draw the cut of
         smallest largest α with at most this many triangles, skirts included (``budget``);
         stats["max_alpha"] is the α reached.
+        wait: draw the settled cut, loading every payload it needs (a single image); False
+        draws an interactive frame that never waits for the store except for the root: the
+        nodes not yet loaded are requested in the background and their nearest resident
+        ancestors drawn meanwhile (stats "stand_ins", "pending"). max_uploads, upload_ms:
+        such a frame's upload budget (meshes, milliseconds after the first; None: no limit).
         """
         self._check_alive()
+        # A Cut object (DESIGN.md) in place of alpha sets every cut option at once.
+        if isinstance(alpha, Cut):
+            cut = alpha
+            alpha, gamma = cut.alpha, cut.gamma
+            max_triangles, full_resolution = cut.max_triangles, cut.full_resolution
         alpha, gamma = check_thresholds(alpha, gamma)
         fs = self.frame_state(camera, size)
         w, h = fs.viewport
@@ -346,6 +383,12 @@ class Engine:
         else:
             selection = self._select(fs, alpha, gamma)
         select_ms = (time.perf_counter() - t0) * 1e3
+        # 2b. Paging: what is drawn while the cut loads (the traversal's plan).
+        t0 = time.perf_counter()
+        paging = {"stand_ins": 0, "pending": 0, "uploads": 0}
+        if not wait and not full_resolution and self.provider is not None:
+            selection, paging = self._page(selection, fs, max_uploads, upload_ms)
+        page_ms = (time.perf_counter() - t0) * 1e3
         keys = self._mesh_keys(selection, full_resolution)
         # 3. Texture patch of each mesh, and the meshes grouped by texture patch.
         tex_nodes = tex_gammas = None
@@ -365,7 +408,7 @@ class Engine:
         # 4. Upload what the cache lacks; a frame larger than the budget is drawn in parts.
         t0 = time.perf_counter()
         resident = self._upload(groups)
-        upload_ms = (time.perf_counter() - t0) * 1e3
+        upload_ms = (time.perf_counter() - t0) * 1e3 + page_ms
         # 4. Draw.
         own = target is None and self.offscreen
         if target is None:
@@ -396,6 +439,8 @@ class Engine:
             "gpu_bytes": int(self.cache.nbytes),
             "texture_patches": sum(1 for tex, _ in groups if tex is not None),
             "texture_switches": int(switches),
+            **paging,
+            "cpu_bytes": int(self.provider.nbytes) if self.provider is not None else 0,
         }
         # 7. A frame without terrain says so (stats and a warning) instead of a silent blank.
         reason = empty_frame_reason(selection, triangles, image)
@@ -411,6 +456,49 @@ class Engine:
         if self.selection_filter is not None:
             selection = self.selection_filter(selection, fs)
         return selection
+
+    def _page(
+        self,
+        wanted: Selection,
+        fs: FrameState,
+        max_uploads: int | None,
+        upload_ms: float | None,
+    ) -> tuple[Selection, dict[str, int]]:
+        """The drawn cut of an interactive frame and its paging figures (traversal.py).
+
+        Uploads the wanted nodes whose payload is in the CPU cache (coarsest first, within
+        the budget), requests the others from the provider (replacing the previous frame's
+        request), and returns the nearest resident ancestors of what is still missing. The
+        root counts as resident: the draw loads it when it is not (the one blocking read).
+        """
+        provider = self.provider
+        t0 = time.perf_counter()
+        plan = plan_frame(
+            wanted, fs, self.tree, self.texels, self._on_gpu, self._on_cpu, max_uploads
+        )
+        provider.request([("node", int(i)) for i in plan.request])
+        uploads = 0
+        for node in plan.upload.tolist():
+            elapsed = (time.perf_counter() - t0) * 1e3
+            if upload_ms is not None and uploads > 0 and elapsed >= upload_ms:
+                break
+            uploads += int(self.upload(node))
+        # What is drawable now (uploads may have evicted older meshes from a small cache).
+        drawn = plan_frame(wanted, fs, self.tree, self.texels, self._on_gpu, self._on_cpu, 0)
+        return drawn.drawn, {
+            "stand_ins": drawn.stand_ins,
+            "pending": drawn.pending,
+            "uploads": uploads,
+        }
+
+    def _on_gpu(self, nodes: np.ndarray) -> np.ndarray:
+        """(k,) bool: node meshes in the GPU cache; the root always counts (see ``_page``)."""
+        nodes = np.asarray(nodes)
+        return self.resident(nodes) | (nodes == 0)
+
+    def _on_cpu(self, nodes: np.ndarray) -> np.ndarray:
+        """(k,) bool: node payloads in the provider's CPU cache."""
+        return self.provider.is_resident([("node", int(i)) for i in np.asarray(nodes)])
 
     def _mesh_keys(self, selection: Selection, full_resolution: bool) -> list[tuple]:
         """GPU cache keys of the meshes to draw for ``selection`` (``_mesh_data`` builds them)."""
@@ -430,6 +518,8 @@ class Engine:
         if self._released:
             return
         self._released = True
+        if self.provider is not None:
+            self.provider.close()
         self.cache.release()
         for fbo in self._targets.values():
             for att in (*fbo.color_attachments, fbo.depth_attachment):
@@ -490,10 +580,10 @@ class Engine:
         return patch
 
     def _texture_data(self, tex_key: tuple) -> np.ndarray:
-        from approxtree.textures.patch import TexturePatch
-
-        _, level, c0, r0, w, h = tex_key
-        return TexturePatch(self.pyramid, level, c0, r0, w, h).texels()
+        """(h, w, 4) uint8 texels of a texture window (through the provider's CPU cache)."""
+        if self.provider is not None:
+            return self.provider.load(tex_key).texels
+        return self._load_payload(tex_key).texels
 
     def _texture_uv(self, tex_key: tuple) -> tuple[float, float, float, float]:
         """uv = local.xy * t[:2] + t[2:] of a texture window (u along columns, v along rows,
@@ -617,18 +707,38 @@ class Engine:
     # -- geometry ---------------------------------------------------------------------------
 
     def _mesh_data(self, key: tuple[str, int]) -> tuple[np.ndarray, np.ndarray]:
-        """(vertex data (n, 4) float32: local x, y, z and skirt flag; triangles (m, 3) uint32)."""
+        """(vertex data (n, 4) float32: local x, y, z and skirt flag; triangles (m, 3) uint32).
+
+        Node meshes come through the provider's CPU cache (loaded now when missing).
+        """
+        if key[0] == "node" and self.provider is not None:
+            payload = self.provider.load(key)
+            return payload.vertices, payload.triangles
+        payload = self._load_payload(key)
+        return payload.vertices, payload.triangles
+
+    def _load_payload(self, key: tuple) -> Payload:
+        """The payload of ``key``: ("node", i) or ("full", chunk) mesh arrays, or a texture
+        window's texels (("tex", level, col0, row0, w, h)). Runs on the provider's threads:
+        it reads the tree's store without keeping the patch (``read_patch``)."""
+        if key[0] == "tex":
+            from approxtree.textures.patch import TexturePatch
+
+            _, level, c0, r0, w, h = key
+            texels = TexturePatch(self.pyramid, level, c0, r0, w, h).texels()
+            return Payload(texels=np.ascontiguousarray(texels, dtype=np.uint8))
         kind, i = key
+        skirts = self.skirts
         if kind == "full":
             patch = self._full_resolution_chunks()[i][0]
             verts, tris = patch.vertices, patch.triangles
             flags = np.zeros(len(verts), dtype=np.float32)
-        elif not self.skirts:
-            patch = self.tree.patch(i)
+        elif not skirts:
+            patch = _read_patch(self.tree, i)
             verts, tris = patch.vertices, patch.triangles
             flags = np.zeros(len(verts), dtype=np.float32)
         else:
-            patch = self.tree.patch(i)
+            patch = _read_patch(self.tree, i)
             verts, tris, flags = add_skirts(
                 patch.vertices,
                 patch.triangles,
@@ -640,7 +750,7 @@ class Engine:
         data = np.empty((len(verts), 4), dtype=np.float32)
         data[:, :3] = verts - self.tree.origin
         data[:, 3] = flags
-        return data, np.asarray(tris, dtype=np.uint32)
+        return Payload(data, np.ascontiguousarray(tris, dtype=np.uint32).reshape(-1, 3))
 
     def _full_resolution_chunks(self) -> list[tuple[Any, np.ndarray]]:
         """(patch, bbox (6,)) of the unsimplified terrain.
@@ -780,6 +890,8 @@ class Engine:
         if skirts != self.skirts:
             self.skirts = skirts
             self.cache.release()
+            if self.provider is not None:
+                self.provider.drop(lambda key: key[0] == "node")
 
     def set_vertical_exaggeration(self, factor: float) -> None:
         """Draw z times ``factor`` (> 0): α, the normals and near/far follow the new scale."""
@@ -791,6 +903,12 @@ class Engine:
         self.scale = display_scale(self.tree.terrain) * np.array([1.0, 1.0, float(factor)])
         self.normal_map.release()
         self.normal_map, self._normal_uv = self._make_normal_map()
+
+
+def _read_patch(tree, i: int) -> Any:
+    """T_N of node i, read without being kept by the tree when it can be (bounded memory)."""
+    reader = getattr(tree, "read_patch", None)
+    return reader(i) if reader is not None else tree.patch(i)
 
 
 def _normals(z: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
