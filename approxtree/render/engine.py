@@ -346,8 +346,8 @@ class Engine:
         """Draw one frame; see the module docstring for the steps.
 
         camera: Camera; size: (w, h) pixels; alpha: α threshold (px, > 0), or a Cut
-        (traversal.py) that gives alpha, gamma, max_triangles and full_resolution; gamma: γ threshold
-        (px², > 0, inf ignores it); wireframe: draw triangle edges instead of filled
+        (traversal.py) that gives alpha, gamma, max_triangles and full_resolution; gamma: γ
+        threshold (px², > 0, inf ignores it); wireframe: draw triangle edges instead of filled
         triangles; full_resolution: draw the unsimplified terrain (reference).
         target: framebuffer to draw into; None draws into the engine's own offscreen
         framebuffer, or, for an engine made with context=, into the framebuffer bound there.

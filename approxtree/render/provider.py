@@ -58,9 +58,7 @@ class PayloadProvider:
         self, loader: Callable[[Hashable], Payload], cache_bytes: int, threads: int = 2
     ) -> None:
         if not (isinstance(cache_bytes, int) and cache_bytes > 0):
-            raise InvalidParameterError(
-                f"cpu_cache_bytes must be an int > 0, got {cache_bytes!r}."
-            )
+            raise InvalidParameterError(f"cpu_cache_bytes must be an int > 0, got {cache_bytes!r}.")
         if not (isinstance(threads, int) and threads > 0):
             raise InvalidParameterError(f"loader threads must be an int > 0, got {threads!r}.")
         self.loader = loader
