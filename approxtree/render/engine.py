@@ -57,8 +57,8 @@ from approxtree.render.frame_state import (
 from approxtree.render.frustum import boxes_in_frustum
 from approxtree.render.gpu_cache import GpuCache
 from approxtree.render.provider import DEFAULT_CPU_CACHE_BYTES, Payload, PayloadProvider
+from approxtree.render.renderer import Renderer
 from approxtree.render.selector import Selection, check_thresholds, eye_below_ground, select
-from approxtree.render.shaders import create_program
 from approxtree.render.skirts import add_skirts, patches_reach_rect, skirt_base, skirt_depths
 from approxtree.render.texture_sharing import texture_nodes
 from approxtree.render.traversal import Cut, plan_frame
@@ -265,15 +265,12 @@ class Engine:
         self.ctx = create_context() if context is None else context
         self.scale = display_scale(tree.terrain)
         self._full_chunks: list[tuple[Any, np.ndarray]] | None = None
-        self._targets: dict[tuple[str, int, int], Any] = {}
         self._released = False
-        self.programs = {
-            "terrain": create_program(self.ctx, "terrain"),
-            "position": create_program(self.ctx, "position"),
-            "textured": create_program(self.ctx, "textured"),
-        }
-        self.cache = GpuCache(self.ctx, cache_bytes)
-        self.normal_map, self._normal_uv = self._make_normal_map()
+        #: The Renderer (render/renderer.py): every GL object of the engine.
+        self.renderer = Renderer(self.ctx, cache_bytes, self.owns_context)
+        self.programs = self.renderer.programs
+        self.cache: GpuCache = self.renderer.cache
+        self.renderer.set_normal_map(*self._normal_map_data())
         self.pyramid = None
         self._texture_patches: dict[tuple[str, int], Any] = {}
         #: The PayloadProvider (None for engines that build their meshes per frame).
@@ -477,12 +474,10 @@ class Engine:
             wanted, fs, self.tree, self.texels, self._on_gpu, self._on_cpu, max_uploads
         )
         provider.request([("node", int(i)) for i in plan.request])
-        uploads = 0
-        for node in plan.upload.tolist():
-            elapsed = (time.perf_counter() - t0) * 1e3
-            if upload_ms is not None and uploads > 0 and elapsed >= upload_ms:
-                break
-            uploads += int(self.upload(node))
+        budget_ms = None if upload_ms is None else upload_ms - (time.perf_counter() - t0) * 1e3
+        uploads = self.renderer.upload_within(
+            [("node", int(i)) for i in plan.upload], self._mesh_data, None, budget_ms
+        )
         # What is drawable now (uploads may have evicted older meshes from a small cache).
         drawn = plan_frame(wanted, fs, self.tree, self.texels, self._on_gpu, self._on_cpu, 0)
         return drawn.drawn, {
@@ -514,24 +509,23 @@ class Engine:
         return select_budget(self.tree, fs, max_triangles, self._node_triangles, self.texels)
 
     def release(self) -> None:
-        """Free every GPU object of the engine (and its context, if it created it)."""
+        """Free every GPU object of the engine (and its context, if it created it), stop the
+        provider's threads and empty its CPU cache."""
         if self._released:
             return
         self._released = True
         if self.provider is not None:
             self.provider.close()
-        self.cache.release()
-        for fbo in self._targets.values():
-            for att in (*fbo.color_attachments, fbo.depth_attachment):
-                if att is not None:
-                    att.release()
-            fbo.release()
-        self._targets.clear()
-        self.normal_map.release()
-        for prog in self.programs.values():
-            prog.release()
-        if self.owns_context:
-            self.ctx.release()
+        self.renderer.release()
+
+    @property
+    def normal_map(self) -> Any:
+        """The normal map texture (owned by the renderer)."""
+        return self.renderer.normal_map
+
+    @property
+    def _targets(self) -> dict[tuple[str, int, int], Any]:
+        return self.renderer.targets
 
     @property
     def released(self) -> bool:
@@ -625,54 +619,23 @@ class Engine:
         program: str,
         lighting: bool = True,
     ):
-        """Clear ``target`` and draw the groups; returns (ms incl. ctx.finish(), triangles,
-        texture binds)."""
-        import moderngl
-
-        ctx = self.ctx
-        prog = self.programs[program]
-        w, h = fs.viewport
-        prog["u_mvp"].write(fs.local_to_clip.T.astype("f4").tobytes())
-        if program in ("terrain", "textured"):
-            z0, z1 = self.tree.terrain.z_range
-            oz = self.tree.origin[2]
-            prog["u_z_range"].value = (z0 - oz, z1 - oz)
-            prog["u_normal_uv"].value = tuple(self._normal_uv)
-            prog["u_line"].value = 1.0 if wireframe else 0.0
-            prog["u_lighting"].value = 1.0 if lighting else 0.0
-            prog["u_normals"].value = 0
-            self.normal_map.use(location=0)
-        if program == "textured":
-            prog["u_texture"].value = 1
-        triangles = 0
-        switches = 0
-        t0 = time.perf_counter()
-        with ctx.scope(framebuffer=target, enable_only=moderngl.DEPTH_TEST):
-            ctx.viewport = (0, 0, w, h)
-            ctx.depth_func = "<"
-            clear = (-1.0, -1.0, -1.0, -1.0) if program == "position" else (0.0, 0.0, 0.0, 0.0)
-            target.clear(*clear, depth=1.0, viewport=(0, 0, w, h))
-            ctx.wireframe = wireframe
-            try:
-                for g, (tex_key, keys) in enumerate(groups):
-                    if tex_key is not None and program == "textured":
-                        # Pinned while its meshes are fetched, so it outlives their uploads.
-                        self.cache.pinned = {tex_key}
-                        tex = resident[g][0] if resident else self._get_texture(tex_key)
-                        tex.texture.use(location=1)
-                        prog["u_tex_uv"].value = self._texture_uv(tex_key)
-                        switches += 1
-                    meshes = resident[g][1] if resident else (self._get_mesh(k) for k in keys)
-                    for mesh in meshes:
-                        if mesh.triangles == 0:
-                            continue
-                        mesh.vao(ctx, prog).render(moderngl.TRIANGLES)
-                        triangles += mesh.triangles
-            finally:
-                ctx.wireframe = False
-                self.cache.pinned = set()
-            ctx.finish()
-        return (time.perf_counter() - t0) * 1e3, triangles, switches
+        """Clear ``target`` and draw the groups (Renderer.draw); returns (ms incl.
+        ctx.finish(), triangles, texture binds)."""
+        z0, z1 = self.tree.terrain.z_range
+        oz = self.tree.origin[2]
+        return self.renderer.draw(
+            target,
+            fs,
+            groups,
+            resident,
+            wireframe,
+            program,
+            lighting,
+            (z0 - oz, z1 - oz),
+            self._get_mesh,
+            self._get_texture,
+            self._texture_uv,
+        )
 
     def _positions(self, fs: FrameState, groups) -> np.ndarray:
         """(h, w, 4) world positions of the drawn surface (see Frame.positions)."""
@@ -688,21 +651,7 @@ class Engine:
 
     def _target(self, kind: str, w: int, h: int) -> Any:
         """The engine's offscreen framebuffer of ``kind`` ("color" RGBA8, "position" RGBA32F)."""
-        key = (kind, w, h)
-        fbo = self._targets.get(key)
-        if fbo is None:
-            # One size at a time per kind: drop buffers of a previous size.
-            for old in [k for k in self._targets if k[0] == kind]:
-                stale = self._targets.pop(old)
-                for att in (*stale.color_attachments, stale.depth_attachment):
-                    att.release()
-                stale.release()
-            dtype = "f4" if kind == "position" else "f1"
-            color = self.ctx.renderbuffer((w, h), 4, dtype=dtype)
-            depth = self.ctx.depth_renderbuffer((w, h))
-            fbo = self.ctx.framebuffer(color_attachments=[color], depth_attachment=depth)
-            self._targets[key] = fbo
-        return fbo
+        return self.renderer.target(kind, w, h)
 
     # -- geometry ---------------------------------------------------------------------------
 
@@ -814,11 +763,9 @@ class Engine:
             stats,
         )
 
-    def _make_normal_map(self) -> tuple[Any, np.ndarray]:
-        """RG8 texture of normal x, y (display units) over the domain, and its uv transform.
-
-        Returns (texture, (4,) float: uv = local_xy * t[:2] + t[2:]).
-        """
+    def _normal_map_data(self) -> tuple[np.ndarray, np.ndarray]:
+        """Normal x, y (display units) over the domain as (ny, nx, 2) uint8, and the uv
+        transform (4,) float: uv = local_xy * t[:2] + t[2:]."""
         terrain = self.tree.terrain
         limit = min(NORMAL_MAP_MAX, int(self.ctx.info.get("GL_MAX_TEXTURE_SIZE", 4096)))
         if isinstance(terrain, Grid):
@@ -843,9 +790,6 @@ class Engine:
         nrm = _normals(z * sz, (xs - ox) * sx, (ys - oy) * sy)
         data = np.ascontiguousarray(np.rint((nrm[..., :2] * 0.5 + 0.5) * 255.0).astype(np.uint8))
         ny, nx = data.shape[:2]
-        tex = self.ctx.texture((nx, ny), 2, data.tobytes(), dtype="f1")
-        tex.repeat_x = False
-        tex.repeat_y = False
         # Texel centre k sits at xs[k]: u = (x − xs[0]) / (dx · nx) + 0.5 / nx.
         dx = (xs[-1] - xs[0]) / max(nx - 1, 1) if nx > 1 else 1.0
         dy = (ys[-1] - ys[0]) / max(ny - 1, 1) if ny > 1 else 1.0
@@ -857,7 +801,7 @@ class Engine:
                 0.5 / ny - (ys[0] - oy) / (dy * ny),
             ]
         )
-        return tex, uv
+        return data, uv
 
     # -- host hooks (interactive viewers) ---------------------------------------------------
     # A host that draws many frames per second bounds the work of each frame: it filters the
@@ -901,8 +845,7 @@ class Engine:
             )
         self._check_alive()
         self.scale = display_scale(self.tree.terrain) * np.array([1.0, 1.0, float(factor)])
-        self.normal_map.release()
-        self.normal_map, self._normal_uv = self._make_normal_map()
+        self.renderer.set_normal_map(*self._normal_map_data())
 
 
 def _read_patch(tree, i: int) -> Any:
