@@ -22,7 +22,6 @@ import argparse
 import json
 import math
 import platform
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -109,8 +108,9 @@ def run_one(args: argparse.Namespace) -> dict:
         # Flat after warm-up: the peak of the first tenth against the peak of the rest.
         "rss_mb_peak_warmup": round(float(rss[:warm].max()), 1),
         "rss_mb_peak_after_warmup": round(float(rss[warm:].max()), 1) if len(rss) > warm else None,
-        "rss_mb_by_decile": [round(float(rss[min(len(rss) - 1, k * len(rss) // 10)]), 1)
-                             for k in range(11)],  # fmt: skip
+        "rss_mb_by_decile": [
+            round(float(rss[min(len(rss) - 1, k * len(rss) // 10)]), 1) for k in range(11)
+        ],
         "provider": provider,
     }
 
@@ -152,15 +152,19 @@ def main() -> None:
         peers = args.peer_cache_mb if args.peer_cache_mb is not None else [args.cache_mb / 8]
         runs = []
         for cache_mb in [args.cache_mb, *peers]:
-            cmd = [sys.executable, __file__, "--one", "--tree", args.tree, "--frames",
-                   str(args.frames), "--size", args.size, "--alpha", str(args.alpha),
-                   "--cache-mb", str(cache_mb), "--max-uploads", str(args.max_uploads)]  # fmt: skip
+            cmd = [
+                *(sys.executable, __file__, "--one", "--tree", args.tree),
+                *("--frames", str(args.frames), "--size", args.size, "--alpha", str(args.alpha)),
+                *("--cache-mb", str(cache_mb), "--max-uploads", str(args.max_uploads)),
+            ]
             out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
             runs.append(json.loads(out.strip().splitlines()[-1]))
             print(json.dumps({k: v for k, v in runs[-1].items() if k != "provider"}), flush=True)
-        tree_bytes = sum(p.stat().st_size for p in Path(args.tree).rglob("*")) if Path(
-            args.tree
-        ).is_dir() else Path(args.tree).stat().st_size
+        tree_bytes = (
+            sum(p.stat().st_size for p in Path(args.tree).rglob("*"))
+            if Path(args.tree).is_dir()
+            else Path(args.tree).stat().st_size
+        )
     result = {
         "tree": args.tree if built is None else f"(built) fractal {args.dem_size}²",
         "tree_bytes": tree_bytes,
