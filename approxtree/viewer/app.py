@@ -88,7 +88,8 @@ class Viewer:
 
     textures: texture pyramid folders (thematic layers, cycled with TAB); size: window
     (w, h); alpha, gamma: initial thresholds; fov: degrees; max_uploads, budget_ms: the
-    per-frame upload budget (0 / None: none); screenshot_dir: where P writes its PNGs; visible: show
+    per-frame upload budget (0 and None: no budget, every frame waits for its whole cut);
+    screenshot_dir: where P writes its PNGs; visible: show
     the window (False for benchmarks that only need the context).
     """
 
@@ -391,7 +392,8 @@ class Viewer:
             s.alpha,
             s.gamma,
             wireframe=s.wireframe,
-            wait=False,
+            # Without an upload budget every wanted mesh loads in the frame that wants it.
+            wait=not self.max_uploads and self.budget_ms is None,
             max_uploads=self.max_uploads or None,
             upload_ms=self.budget_ms,
             **self.features.render_options(s.lighting),
