@@ -1,15 +1,23 @@
 """Engine: draws an approximation tree with moderngl, offscreen (EGL) or into a host's context.
 
-The Engine owns every GPU object it makes — programs, the normal map, the patch cache, its
-offscreen framebuffers and, when it created it, the context — and frees them in
-``release()``. It never touches a global context: either it creates a standalone EGL context
-or it draws into the ``context`` it was given (embedding: into the framebuffer bound there).
+The Engine is the facade over the renderer's three roles (DESIGN.md, "Renderer roles"): the
+PayloadProvider (provider.py) loads node payloads on background threads into a CPU cache
+bounded in bytes, the traversal (selector.py, traversal.py) chooses the cut and what is drawn
+while it loads, and the Renderer (renderer.py) owns the GL objects. It owns every GPU object it
+makes — programs, the normal map, the patch cache, its offscreen framebuffers and, when it
+created it, the context — and frees them (and stops the provider) in ``release()``. It never
+touches a global context: either it creates a standalone EGL context or it draws into the
+``context`` it was given (embedding: into the framebuffer bound there).
 
 A frame:
 
 1. FrameState from the camera and viewport (display scale of the terrain, near/far fitted).
 2. Selection (pure, no GL): the cut of the tree for alpha and gamma; ``full_resolution`` draws
-   the unsimplified terrain instead (the grid in chunks of CHUNK lines, frustum-culled).
+   the unsimplified terrain instead (the grid in chunks of CHUNK lines, frustum-culled). An
+   interactive frame (``wait=False``) then plans with the traversal: payloads in the CPU cache
+   are uploaded within the frame's budget, the others requested from the provider, and the
+   nearest resident ancestors drawn meanwhile; a single image (``wait=True``) draws the cut
+   itself, loading what it lacks.
 3. Textures (with a texture pyramid): each selected node is textured by the texture patch of
    itself or of the ancestor closest to the root whose γ is within the threshold (core paper,
    4.2); meshes are grouped by texture patch so each patch is bound once.
