@@ -248,3 +248,42 @@ def test_stale_requests_are_cancelled():
     assert sorted(loaded) == ["a", "c", "x", "y"]
     assert provider.is_resident(list("axcyb")).tolist() == [True] * 4 + [False]
     provider.close()
+
+
+def test_textured_tiny_caches_settle_to_the_resident_image(gl_context, tmp_path):
+    """With a texture pyramid, texture patches page through the same CPU cache: with tiny
+    caches a single image, and interactive frames once settled, equal the resident image."""
+    from approxtree.textures import TexturePyramid, TopographicShading
+
+    terrain = fractal_terrain(257, seed=3, relief=300.0)
+    tree = ApproximationTree.build(terrain, epsilon=1.0, max_points=17 * 17, progress=False)
+    pyramid = TexturePyramid.build(TopographicShading(terrain), tmp_path, max_texture_size=64)
+    with Engine(tree, textures=pyramid, context=gl_context, offscreen=True) as ref:
+        budget = 3 * int(payload_bytes(ref).max())
+        cams = views(tree, ref.scale)
+        refs = [ref.render(cam, SIZE) for cam in cams]
+    with Engine(
+        tree,
+        textures=pyramid,
+        context=gl_context,
+        offscreen=True,
+        cache_bytes=budget,
+        cpu_cache_bytes=budget,
+    ) as tiny:
+        loaded = []
+        load = tiny.provider.loader
+        tiny.provider.loader = lambda key: loaded.append(key) or load(key)
+        for cam, want in zip(cams, refs, strict=True):
+            assert want.stats["texture_patches"] > 1
+            frame = tiny.render(cam, SIZE)
+            assert np.array_equal(frame.image, want.image)
+            assert tiny.cache.nbytes <= budget and tiny.provider.nbytes <= budget
+        assert any(k[0] == "tex" for k in loaded) and tiny.provider.evictions > 0
+    with Engine(tree, textures=pyramid, context=gl_context, offscreen=True) as eng:
+        for cam, want in zip(cams, refs, strict=True):
+            for _ in range(200):
+                frame = eng.render(cam, SIZE, wait=False, max_uploads=8)
+                if frame.stats["pending"] == 0:
+                    break
+                eng.provider.wait()
+            assert np.array_equal(frame.image, want.image)
