@@ -54,6 +54,18 @@ def loop_cameras(tree, frames: int, scale) -> list:
     return cams
 
 
+def rss_parts() -> tuple[int, int]:
+    """(anonymous, file-backed) resident bytes of this process (Linux /proc; file-backed
+    pages are mapped files such as a memory-mapped tree store: the kernel reclaims them)."""
+    parts = {"RssAnon:": 0, "RssFile:": 0}
+    with open("/proc/self/status") as f:
+        for line in f:
+            key = line.split(maxsplit=1)[0]
+            if key in parts:
+                parts[key] = int(line.split()[1]) * 1024
+    return parts["RssAnon:"], parts["RssFile:"]
+
+
 def run_one(args: argparse.Namespace) -> dict:
     """One fly-over in this process; returns its figures."""
     from approxtree import load_tree
@@ -84,11 +96,15 @@ def run_one(args: argparse.Namespace) -> dict:
                     "gpu_bytes": frame.stats["gpu_bytes"],
                     "cpu_bytes": frame.stats["cpu_bytes"],
                     "rss": proc.memory_info().rss,
+                    "rss_anon": rss_parts()[0],
+                    "rss_file": rss_parts()[1],
                 }
             )
         provider = eng.provider.figures()
     ms = np.array([r["ms"] for r in rows])
     rss = np.array([r["rss"] for r in rows]) / 2**20
+    anon = np.array([r["rss_anon"] for r in rows]) / 2**20
+    file_backed = np.array([r["rss_file"] for r in rows]) / 2**20
     warm = max(1, len(rows) // 10)
     mb = 1 << 20
     return {
@@ -98,6 +114,8 @@ def run_one(args: argparse.Namespace) -> dict:
         "frame_ms_p95": round(float(np.percentile(ms, 95)), 2),
         "frames_with_stand_ins": int(sum(r["stand_ins"] > 0 for r in rows)),
         "frames_pending": int(sum(r["pending"] > 0 for r in rows)),
+        "stand_ins_median": float(np.median([r["stand_ins"] for r in rows])),
+        "pending_median": float(np.median([r["pending"] for r in rows])),
         "patches_median": int(np.median([r["patches"] for r in rows])),
         "triangles_median": int(np.median([r["triangles"] for r in rows])),
         "gpu_mb_max": round(max(r["gpu_bytes"] for r in rows) / mb, 1),
@@ -108,11 +126,22 @@ def run_one(args: argparse.Namespace) -> dict:
         # Flat after warm-up: the peak of the first tenth against the peak of the rest.
         "rss_mb_peak_warmup": round(float(rss[:warm].max()), 1),
         "rss_mb_peak_after_warmup": round(float(rss[warm:].max()), 1) if len(rss) > warm else None,
-        "rss_mb_by_decile": [
-            round(float(rss[min(len(rss) - 1, k * len(rss) // 10)]), 1) for k in range(11)
-        ],
+        "rss_mb_by_decile": _deciles(rss),
+        # RSS split: anonymous memory (caches, arrays, driver buffers) and mapped files.
+        "rss_anon_mb_peak_warmup": round(float(anon[:warm].max()), 1),
+        "rss_anon_mb_peak_after_warmup": round(float(anon[warm:].max()), 1)
+        if len(anon) > warm
+        else None,
+        "rss_anon_mb_by_decile": _deciles(anon),
+        "rss_file_mb_by_decile": _deciles(file_backed),
         "provider": provider,
     }
+
+
+def _deciles(values: np.ndarray) -> list[float]:
+    """values at frames 0, 10 %, ..., 100 % of the run."""
+    n = len(values)
+    return [round(float(values[min(n - 1, k * n // 10)]), 1) for k in range(11)]
 
 
 def build_tree(size: int, folder: Path) -> Path:
