@@ -134,6 +134,10 @@ def run_one(args: argparse.Namespace) -> dict:
         else None,
         "rss_anon_mb_by_decile": _deciles(anon),
         "rss_file_mb_by_decile": _deciles(file_backed),
+        # Cache fill: RSS must follow it, then stay flat.
+        "caches_mb_by_decile": _deciles(
+            np.array([r["cpu_bytes"] + r["gpu_bytes"] for r in rows]) / mb
+        ),
         "provider": provider,
     }
 
