@@ -287,3 +287,23 @@ def test_textured_tiny_caches_settle_to_the_resident_image(gl_context, tmp_path)
                     break
                 eng.provider.wait()
             assert np.array_equal(frame.image, want.image)
+
+
+def test_a_failed_background_load_fails_the_next_frame():
+    """An error met on a loader thread (a corrupted chunk) is raised to the caller, once,
+    instead of the node being requested and stood in for forever."""
+    from approxtree.errors import StoreError
+
+    def loader(key: int) -> Payload:
+        if key == 3:
+            raise StoreError("checksum mismatch in the patch of node 3")
+        return _payload(1)
+
+    provider = PayloadProvider(loader, cache_bytes=1 << 20, threads=1)
+    provider.request([1, 3, 2])
+    with pytest.raises(StoreError, match="node 3"):
+        provider.wait()
+    provider.wait()  # raised once
+    provider.raise_error()
+    assert provider.is_resident([1, 2, 3]).tolist() == [True, True, False]
+    provider.close()

@@ -74,6 +74,8 @@ from approxtree.render.visual_error import texel_sizes
 
 #: Default GPU cache budget (bytes).
 DEFAULT_CACHE_BYTES = 1 << 30
+#: Texture windows of nodes remembered at most (each a few hundred bytes).
+TEXTURE_PATCH_MEMO = 1 << 16
 #: Largest side of the normal map (texels), further limited by GL_MAX_TEXTURE_SIZE.
 NORMAL_MAP_MAX = 4096
 #: Data lines per side of a full-resolution chunk (256 intervals).
@@ -314,6 +316,9 @@ class Engine:
         key = ("node", int(node))
         patch = self._texture_patches.get(key)
         if patch is None:
+            # Bounded like the caches, however many nodes a fly-over visits.
+            if len(self._texture_patches) >= TEXTURE_PATCH_MEMO:
+                self._texture_patches.clear()
             patch = TexturePatch.for_rect(self.pyramid, self.tree.node(int(node)).rect)
             self._texture_patches[key] = patch
         return patch
@@ -477,6 +482,7 @@ class Engine:
         root counts as resident: the draw loads it when it is not (the one blocking read).
         """
         provider = self.provider
+        provider.raise_error()
         t0 = time.perf_counter()
         plan = plan_frame(
             wanted, fs, self.tree, self.texels, self._on_gpu, self._on_cpu, max_uploads

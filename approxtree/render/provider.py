@@ -129,6 +129,8 @@ class PayloadProvider:
             payload = future.result()
             if payload is not None and generation == self._generation:
                 return payload
+            if payload is None:
+                self.raise_error()  # the worker's error, once
         payload = self.loader(key)
         self._store(key, payload, generation)
         return payload
@@ -164,11 +166,13 @@ class PayloadProvider:
         return len(self._queue) + len(self._inflight)
 
     def wait(self) -> None:
-        """Block until the current request is loaded (or cancelled)."""
+        """Block until the current request is loaded (or cancelled); raises the first error
+        a load met (once)."""
         while True:
             with self._lock:
                 key = self._queue[0] if self._queue else next(iter(self._inflight), None)
             if key is None:
+                self.raise_error()
                 return
             self.load(key)
 
@@ -211,6 +215,14 @@ class PayloadProvider:
                 _, old = self._entries.popitem(last=False)
                 self.nbytes -= old.nbytes
                 self.evictions += 1
+
+    def raise_error(self) -> None:
+        """Raise (once) the first error a background load met, e.g. a StoreError for a
+        corrupted chunk, so a frame fails instead of drawing a stand-in forever."""
+        with self._lock:
+            error, self.error = self.error, None
+        if error is not None:
+            raise error
 
     # -- housekeeping -------------------------------------------------------------------------
 
