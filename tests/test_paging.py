@@ -68,6 +68,30 @@ def payload_bytes(engine: Engine) -> np.ndarray:
     return np.array([engine._load_payload(("node", i)).nbytes for i in range(len(engine.tree))])
 
 
+def record_blocking_loads(engine: Engine):
+    """(keys, render): ``render(...)`` is ``engine.render`` recording into ``keys`` the
+    payloads loaded on the frame's own thread during the call (a blocking read)."""
+    main = threading.current_thread()
+    blocking: list = []
+    inside = [False]
+    load = engine.provider.loader
+
+    def loader(key):
+        if inside[0] and threading.current_thread() is main:
+            blocking.append(key)
+        return load(key)
+
+    def render(*args, **kwargs):
+        inside[0] = True
+        try:
+            return engine.render(*args, **kwargs)
+        finally:
+            inside[0] = False
+
+    engine.provider.loader = loader
+    return blocking, render
+
+
 def ancestors_or_self(parents: np.ndarray, node: int) -> list[int]:
     out = [node]
     while parents[out[-1]] >= 0:
@@ -141,10 +165,11 @@ def test_interactive_frames_settle_to_the_resident_image(gl_context, stored_tree
     with Engine(
         tree, context=gl_context, offscreen=True, cache_bytes=budget, cpu_cache_bytes=budget
     ) as eng:
+        blocking, render = record_blocking_loads(eng)
         stand_ins = 0
         for cam, want in zip(cams, refs, strict=True):
             for _ in range(200):
-                frame = eng.render(cam, SIZE, wait=False, max_uploads=8)
+                frame = render(cam, SIZE, wait=False, max_uploads=8)
                 assert_partition(tree, want.selection.nodes, frame.selection.nodes)
                 stand_ins += frame.stats["stand_ins"]
                 if frame.stats["pending"] == 0:
@@ -153,6 +178,8 @@ def test_interactive_frames_settle_to_the_resident_image(gl_context, stored_tree
             assert frame.stats["pending"] == 0 and frame.stats["stand_ins"] == 0
             assert np.array_equal(frame.image, want.image)
         assert stand_ins > 0
+        # Only the root was read on the frame's thread; everything else on loader threads.
+        assert blocking == [("node", 0)]
 
 
 def test_budgets_hold_and_frames_stay_partitions_over_a_fly_over(gl_context, stored_tree):
@@ -280,13 +307,20 @@ def test_textured_tiny_caches_settle_to_the_resident_image(gl_context, tmp_path)
             assert tiny.cache.nbytes <= budget and tiny.provider.nbytes <= budget
         assert any(k[0] == "tex" for k in loaded) and tiny.provider.evictions > 0
     with Engine(tree, textures=pyramid, context=gl_context, offscreen=True) as eng:
+        blocking, render = record_blocking_loads(eng)
+        root_tex = eng._group_by_texture([("node", 0)], [("node", 0)])[0][0]
+        texture_stand_ins = 0
         for cam, want in zip(cams, refs, strict=True):
             for _ in range(200):
-                frame = eng.render(cam, SIZE, wait=False, max_uploads=8)
-                if frame.stats["pending"] == 0:
+                frame = render(cam, SIZE, wait=False, max_uploads=8)
+                texture_stand_ins += frame.stats["texture_stand_ins"]
+                if frame.stats["pending"] == 0 and frame.stats["texture_stand_ins"] == 0:
                     break
                 eng.provider.wait()
             assert np.array_equal(frame.image, want.image)
+        # Interactive frames read the store on the frame's thread only for the root's mesh
+        # and texture patch; texture patches not loaded yet were stood in for by the root's.
+        assert set(blocking) <= {("node", 0), root_tex} and texture_stand_ins > 0
 
 
 def test_a_failed_background_load_fails_the_next_frame():

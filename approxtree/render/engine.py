@@ -95,6 +95,7 @@ STAT_KEYS = (
     "texture_patches",
     "texture_switches",
     "stand_ins",
+    "texture_stand_ins",
     "pending",
     "uploads",
     "cpu_bytes",
@@ -395,9 +396,11 @@ class Engine:
         select_ms = (time.perf_counter() - t0) * 1e3
         # 2b. Paging: what is drawn while the cut loads (the traversal's plan).
         t0 = time.perf_counter()
-        paging = {"stand_ins": 0, "pending": 0, "uploads": 0}
-        if not wait and not full_resolution and self.provider is not None:
-            selection, paging = self._page(selection, fs, max_uploads, upload_ms)
+        paging = {"stand_ins": 0, "pending": 0, "uploads": 0, "texture_stand_ins": 0}
+        requests: list[tuple] = []
+        interactive = not wait and not full_resolution and self.provider is not None
+        if interactive:
+            selection, paging, requests = self._page(selection, fs, max_uploads, upload_ms)
         page_ms = (time.perf_counter() - t0) * 1e3
         keys = self._mesh_keys(selection, full_resolution)
         # 3. Texture patch of each mesh, and the meshes grouped by texture patch.
@@ -413,8 +416,16 @@ class Engine:
                 )
                 owners = [("node", int(i)) for i in tex_nodes]
             groups = self._group_by_texture(keys, owners)
+            if interactive:
+                # Texture patches not loaded yet: the root's stands in, the rest is requested.
+                groups, tex_requests = self._page_textures(groups)
+                paging["texture_stand_ins"] = len(tex_requests)
+                requests = tex_requests + requests
         else:
             groups = [(None, keys)]
+        if interactive:
+            # One request per frame (it replaces the previous frame's): textures, then meshes.
+            self.provider.request(requests)
         # 4. Upload what the cache lacks; a frame larger than the budget is drawn in parts.
         t0 = time.perf_counter()
         resident = self._upload(groups)
@@ -473,12 +484,12 @@ class Engine:
         fs: FrameState,
         max_uploads: int | None,
         upload_ms: float | None,
-    ) -> tuple[Selection, dict[str, int]]:
-        """The drawn cut of an interactive frame and its paging figures (traversal.py).
+    ) -> tuple[Selection, dict[str, int], list[tuple]]:
+        """The drawn cut of an interactive frame, its paging figures and the mesh keys to
+        request, coarsest first (traversal.py).
 
         Uploads the wanted nodes whose payload is in the CPU cache (coarsest first, within
-        the budget), requests the others from the provider (replacing the previous frame's
-        request), and returns the nearest resident ancestors of what is still missing. The
+        the budget), and returns the nearest resident ancestors of what is still missing. The
         root counts as resident: the draw loads it when it is not (the one blocking read).
         """
         provider = self.provider
@@ -487,18 +498,36 @@ class Engine:
         plan = plan_frame(
             wanted, fs, self.tree, self.texels, self._on_gpu, self._on_cpu, max_uploads
         )
-        provider.request([("node", int(i)) for i in plan.request])
         budget_ms = None if upload_ms is None else upload_ms - (time.perf_counter() - t0) * 1e3
         uploads = self.renderer.upload_within(
             [("node", int(i)) for i in plan.upload], self._mesh_data, None, budget_ms
         )
         # What is drawable now (uploads may have evicted older meshes from a small cache).
         drawn = plan_frame(wanted, fs, self.tree, self.texels, self._on_gpu, self._on_cpu, 0)
-        return drawn.drawn, {
+        paging = {
             "stand_ins": drawn.stand_ins,
             "pending": drawn.pending,
             "uploads": uploads,
+            "texture_stand_ins": 0,
         }
+        return drawn.drawn, paging, [("node", int(i)) for i in plan.request]
+
+    def _page_textures(self, groups):
+        """Groups of an interactive frame whose texture patches are all loaded or loadable
+        without the store: a texture patch neither on the GPU nor in the CPU cache is replaced
+        by the root's (coarser, always drawable: its one blocking read) and requested.
+
+        Returns (groups, texture keys to request).
+        """
+        root_key = self._group_by_texture([("node", 0)], [("node", 0)])[0][0]
+        merged: dict[tuple, list] = {}
+        requests = []
+        for tex_key, keys in groups:
+            if tex_key not in self.cache and tex_key not in self.provider:
+                requests.append(tex_key)
+                tex_key = root_key
+            merged.setdefault(tex_key, []).extend(keys)
+        return list(merged.items()), requests
 
     def _on_gpu(self, nodes: np.ndarray) -> np.ndarray:
         """(k,) bool: node meshes in the GPU cache; the root always counts (see ``_page``)."""
