@@ -1,13 +1,15 @@
 """Rendering: camera, frame state, visual errors, selection (pure) and the moderngl Engine.
 
-Only this package touches OpenGL, and only inside ``Engine`` and the GPU helpers it owns,
-always through a context passed in or created by the Engine. The selection modules (camera,
-frame_state, frustum, visual_error, selector) import no GL and can be used without a GPU.
+Only this package touches OpenGL, and only inside the Renderer (renderer.py) an ``Engine``
+owns, always through a context passed in or created by the Engine. The selection modules
+(camera, frame_state, frustum, visual_error, selector, traversal) import no GL and can be used
+without a GPU; the provider (provider.py) loads node payloads on background threads.
 """
 
 from approxtree.render.camera import Camera, Projection
 from approxtree.render.frame_state import FrameState, display_scale, overview_camera
 from approxtree.render.selector import Selection, SelectionResult, select
+from approxtree.render.traversal import Cut
 from approxtree.render.visual_error import texel_sizes, visual_errors
 
 
@@ -22,6 +24,7 @@ def __getattr__(name: str):
 
 __all__ = [
     "Camera",
+    "Cut",
     "Engine",
     "Frame",
     "FrameState",

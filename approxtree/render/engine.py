@@ -1,15 +1,23 @@
 """Engine: draws an approximation tree with moderngl, offscreen (EGL) or into a host's context.
 
-The Engine owns every GPU object it makes — programs, the normal map, the patch cache, its
-offscreen framebuffers and, when it created it, the context — and frees them in
-``release()``. It never touches a global context: either it creates a standalone EGL context
-or it draws into the ``context`` it was given (embedding: into the framebuffer bound there).
+The Engine is the facade over the renderer's three roles (DESIGN.md, "Renderer roles"): the
+PayloadProvider (provider.py) loads node payloads on background threads into a CPU cache
+bounded in bytes, the traversal (selector.py, traversal.py) chooses the cut and what is drawn
+while it loads, and the Renderer (renderer.py) owns the GL objects. It owns every GPU object it
+makes — programs, the normal map, the patch cache, its offscreen framebuffers and, when it
+created it, the context — and frees them (and stops the provider) in ``release()``. It never
+touches a global context: either it creates a standalone EGL context or it draws into the
+``context`` it was given (embedding: into the framebuffer bound there).
 
 A frame:
 
 1. FrameState from the camera and viewport (display scale of the terrain, near/far fitted).
 2. Selection (pure, no GL): the cut of the tree for alpha and gamma; ``full_resolution`` draws
-   the unsimplified terrain instead (the grid in chunks of CHUNK lines, frustum-culled).
+   the unsimplified terrain instead (the grid in chunks of CHUNK lines, frustum-culled). An
+   interactive frame (``wait=False``) then plans with the traversal: payloads in the CPU cache
+   are uploaded within the frame's budget, the others requested from the provider, and the
+   nearest resident ancestors drawn meanwhile; a single image (``wait=True``) draws the cut
+   itself, loading what it lacks.
 3. Textures (with a texture pyramid): each selected node is textured by the texture patch of
    itself or of the ancestor closest to the root whose γ is within the threshold (core paper,
    4.2); meshes are grouped by texture patch so each patch is bound once.
@@ -56,14 +64,18 @@ from approxtree.render.frame_state import (
 )
 from approxtree.render.frustum import boxes_in_frustum
 from approxtree.render.gpu_cache import GpuCache
+from approxtree.render.provider import DEFAULT_CPU_CACHE_BYTES, Payload, PayloadProvider
+from approxtree.render.renderer import Renderer
 from approxtree.render.selector import Selection, check_thresholds, eye_below_ground, select
-from approxtree.render.shaders import create_program
 from approxtree.render.skirts import add_skirts, patches_reach_rect, skirt_base, skirt_depths
 from approxtree.render.texture_sharing import texture_nodes
+from approxtree.render.traversal import Cut, plan_frame
 from approxtree.render.visual_error import texel_sizes
 
 #: Default GPU cache budget (bytes).
 DEFAULT_CACHE_BYTES = 1 << 30
+#: Texture windows of nodes remembered at most (each a few hundred bytes).
+TEXTURE_PATCH_MEMO = 1 << 16
 #: Largest side of the normal map (texels), further limited by GL_MAX_TEXTURE_SIZE.
 NORMAL_MAP_MAX = 4096
 #: Data lines per side of a full-resolution chunk (256 intervals).
@@ -82,6 +94,11 @@ STAT_KEYS = (
     "gpu_bytes",
     "texture_patches",
     "texture_switches",
+    "stand_ins",
+    "texture_stand_ins",
+    "pending",
+    "uploads",
+    "cpu_bytes",
     "empty",
     "warning",
 )
@@ -190,6 +207,15 @@ class Engine:
     "when the engine created the context" (an embedded engine draws into the host's
     framebuffer bound in ``context``).
     skirts: hang skirts below patch borders (off only to show what they close).
+    cpu_cache_bytes: budget of the provider's CPU cache of node payloads (meshes with skirts,
+    texture patches); loader_threads: its background threads.
+
+    Paging (DESIGN.md, "Renderer roles"): the provider (render/provider.py) loads payloads on
+    background threads into its CPU cache, the traversal (render/traversal.py) plans each
+    frame, the GpuCache holds what was uploaded. ``render(..., wait=True)`` (a single image)
+    blocks until every payload of the cut is drawn; ``wait=False`` (interactive frames) never
+    blocks on the store except for the root: missing nodes are requested coarsest first and
+    their nearest resident ancestors are drawn meanwhile.
     """
 
     def __new__(cls, tree: Any, *args: Any, **kwargs: Any) -> Engine:
@@ -208,11 +234,15 @@ class Engine:
         cache_bytes: int = DEFAULT_CACHE_BYTES,
         offscreen: bool | None = None,
         skirts: bool = True,
+        cpu_cache_bytes: int = DEFAULT_CPU_CACHE_BYTES,
+        loader_threads: int = 2,
     ) -> None:
         # Bad textures and a tree with nothing to draw fail before any GPU object exists.
         _check_drawable(tree)
         textures = _as_pyramid(textures, tree.terrain)
+        provider = PayloadProvider(self._load_payload, cpu_cache_bytes, loader_threads)
         self._open_gpu(tree, context, cache_bytes, offscreen, skirts)
+        self.provider = provider
         # Per-node figures used every frame, computed once.
         self._data_texels = texel_sizes(tree)
         self.texels = self._data_texels
@@ -246,17 +276,16 @@ class Engine:
         self.ctx = create_context() if context is None else context
         self.scale = display_scale(tree.terrain)
         self._full_chunks: list[tuple[Any, np.ndarray]] | None = None
-        self._targets: dict[tuple[str, int, int], Any] = {}
         self._released = False
-        self.programs = {
-            "terrain": create_program(self.ctx, "terrain"),
-            "position": create_program(self.ctx, "position"),
-            "textured": create_program(self.ctx, "textured"),
-        }
-        self.cache = GpuCache(self.ctx, cache_bytes)
-        self.normal_map, self._normal_uv = self._make_normal_map()
+        #: The Renderer (render/renderer.py): every GL object of the engine.
+        self.renderer = Renderer(self.ctx, cache_bytes, self.owns_context)
+        self.programs = self.renderer.programs
+        self.cache: GpuCache = self.renderer.cache
+        self.renderer.set_normal_map(*self._normal_map_data())
         self.pyramid = None
         self._texture_patches: dict[tuple[str, int], Any] = {}
+        #: The PayloadProvider (None for engines that build their meshes per frame).
+        self.provider: PayloadProvider | None = None
 
     # -- public -----------------------------------------------------------------------------
 
@@ -271,6 +300,8 @@ class Engine:
 
         textures = _as_pyramid(textures, self.tree.terrain)
         self.cache.drop(lambda key: key[0] == "tex")
+        if self.provider is not None:
+            self.provider.drop(lambda key: key[0] == "tex")
         self._texture_patches.clear()
         self.pyramid = textures
         self.texels = (
@@ -286,6 +317,9 @@ class Engine:
         key = ("node", int(node))
         patch = self._texture_patches.get(key)
         if patch is None:
+            # Bounded like the caches, however many nodes a fly-over visits.
+            if len(self._texture_patches) >= TEXTURE_PATCH_MEMO:
+                self._texture_patches.clear()
             patch = TexturePatch.for_rect(self.pyramid, self.tree.node(int(node)).rect)
             self._texture_patches[key] = patch
         return patch
@@ -306,7 +340,7 @@ class Engine:
         self,
         camera: Camera,
         size: tuple[int, int] = (1280, 720),
-        alpha: float = 1.0,
+        alpha: float | Cut = 1.0,
         gamma: float = 2.0,
         wireframe: bool = False,
         full_resolution: bool = False,
@@ -316,11 +350,15 @@ class Engine:
         lighting: bool = True,
         share_textures: bool = True,
         max_triangles: int | None = None,
+        wait: bool = True,
+        max_uploads: int | None = None,
+        upload_ms: float | None = None,
     ) -> Frame:
         """Draw one frame; see the module docstring for the steps.
 
-        camera: Camera; size: (w, h) pixels; alpha: α threshold (px, > 0); gamma: γ threshold
-        (px², > 0, inf ignores it); wireframe: draw triangle edges instead of filled
+        camera: Camera; size: (w, h) pixels; alpha: α threshold (px, > 0), or a Cut
+        (traversal.py) that gives alpha, gamma, max_triangles and full_resolution; gamma: γ
+        threshold (px², > 0, inf ignores it); wireframe: draw triangle edges instead of filled
         triangles; full_resolution: draw the unsimplified terrain (reference).
         target: framebuffer to draw into; None draws into the engine's own offscreen
         framebuffer, or, for an engine made with context=, into the framebuffer bound there.
@@ -332,8 +370,18 @@ class Engine:
         max_triangles: triangle budget instead of the alpha threshold: draw the cut of
         smallest largest α with at most this many triangles, skirts included (``budget``);
         stats["max_alpha"] is the α reached.
+        wait: draw the settled cut, loading every payload it needs (a single image); False
+        draws an interactive frame that never waits for the store except for the root: the
+        nodes not yet loaded are requested in the background and their nearest resident
+        ancestors drawn meanwhile (stats "stand_ins", "pending"). max_uploads, upload_ms:
+        such a frame's upload budget (meshes, milliseconds after the first; None: no limit).
         """
         self._check_alive()
+        # A Cut object (DESIGN.md) in place of alpha sets every cut option at once.
+        if isinstance(alpha, Cut):
+            cut = alpha
+            alpha, gamma = cut.alpha, cut.gamma
+            max_triangles, full_resolution = cut.max_triangles, cut.full_resolution
         alpha, gamma = check_thresholds(alpha, gamma)
         fs = self.frame_state(camera, size)
         w, h = fs.viewport
@@ -346,6 +394,14 @@ class Engine:
         else:
             selection = self._select(fs, alpha, gamma)
         select_ms = (time.perf_counter() - t0) * 1e3
+        # 2b. Paging: what is drawn while the cut loads (the traversal's plan).
+        t0 = time.perf_counter()
+        paging = {"stand_ins": 0, "pending": 0, "uploads": 0, "texture_stand_ins": 0}
+        requests: list[tuple] = []
+        interactive = not wait and not full_resolution and self.provider is not None
+        if interactive:
+            selection, paging, requests = self._page(selection, fs, max_uploads, upload_ms)
+        page_ms = (time.perf_counter() - t0) * 1e3
         keys = self._mesh_keys(selection, full_resolution)
         # 3. Texture patch of each mesh, and the meshes grouped by texture patch.
         tex_nodes = tex_gammas = None
@@ -360,12 +416,20 @@ class Engine:
                 )
                 owners = [("node", int(i)) for i in tex_nodes]
             groups = self._group_by_texture(keys, owners)
+            if interactive:
+                # Texture patches not loaded yet: the root's stands in, the rest is requested.
+                groups, tex_requests = self._page_textures(groups)
+                paging["texture_stand_ins"] = len(tex_requests)
+                requests = tex_requests + requests
         else:
             groups = [(None, keys)]
+        if interactive:
+            # One request per frame (it replaces the previous frame's): textures, then meshes.
+            self.provider.request(requests)
         # 4. Upload what the cache lacks; a frame larger than the budget is drawn in parts.
         t0 = time.perf_counter()
         resident = self._upload(groups)
-        upload_ms = (time.perf_counter() - t0) * 1e3
+        upload_ms = (time.perf_counter() - t0) * 1e3 + page_ms
         # 4. Draw.
         own = target is None and self.offscreen
         if target is None:
@@ -396,6 +460,8 @@ class Engine:
             "gpu_bytes": int(self.cache.nbytes),
             "texture_patches": sum(1 for tex, _ in groups if tex is not None),
             "texture_switches": int(switches),
+            **paging,
+            "cpu_bytes": int(self.provider.nbytes) if self.provider is not None else 0,
         }
         # 7. A frame without terrain says so (stats and a warning) instead of a silent blank.
         reason = empty_frame_reason(selection, triangles, image)
@@ -412,6 +478,66 @@ class Engine:
             selection = self.selection_filter(selection, fs)
         return selection
 
+    def _page(
+        self,
+        wanted: Selection,
+        fs: FrameState,
+        max_uploads: int | None,
+        upload_ms: float | None,
+    ) -> tuple[Selection, dict[str, int], list[tuple]]:
+        """The drawn cut of an interactive frame, its paging figures and the mesh keys to
+        request, coarsest first (traversal.py).
+
+        Uploads the wanted nodes whose payload is in the CPU cache (coarsest first, within
+        the budget), and returns the nearest resident ancestors of what is still missing. The
+        root counts as resident: the draw loads it when it is not (the one blocking read).
+        """
+        provider = self.provider
+        provider.raise_error()
+        t0 = time.perf_counter()
+        plan = plan_frame(
+            wanted, fs, self.tree, self.texels, self._on_gpu, self._on_cpu, max_uploads
+        )
+        budget_ms = None if upload_ms is None else upload_ms - (time.perf_counter() - t0) * 1e3
+        uploads = self.renderer.upload_within(
+            [("node", int(i)) for i in plan.upload], self._mesh_data, None, budget_ms
+        )
+        # What is drawable now (uploads may have evicted older meshes from a small cache).
+        drawn = plan_frame(wanted, fs, self.tree, self.texels, self._on_gpu, self._on_cpu, 0)
+        paging = {
+            "stand_ins": drawn.stand_ins,
+            "pending": drawn.pending,
+            "uploads": uploads,
+            "texture_stand_ins": 0,
+        }
+        return drawn.drawn, paging, [("node", int(i)) for i in plan.request]
+
+    def _page_textures(self, groups):
+        """Groups of an interactive frame whose texture patches are all loaded or loadable
+        without the store: a texture patch neither on the GPU nor in the CPU cache is replaced
+        by the root's (coarser, always drawable: its one blocking read) and requested.
+
+        Returns (groups, texture keys to request).
+        """
+        root_key = self._group_by_texture([("node", 0)], [("node", 0)])[0][0]
+        merged: dict[tuple, list] = {}
+        requests = []
+        for tex_key, keys in groups:
+            if tex_key not in self.cache and tex_key not in self.provider:
+                requests.append(tex_key)
+                tex_key = root_key
+            merged.setdefault(tex_key, []).extend(keys)
+        return list(merged.items()), requests
+
+    def _on_gpu(self, nodes: np.ndarray) -> np.ndarray:
+        """(k,) bool: node meshes in the GPU cache; the root always counts (see ``_page``)."""
+        nodes = np.asarray(nodes)
+        return self.resident(nodes) | (nodes == 0)
+
+    def _on_cpu(self, nodes: np.ndarray) -> np.ndarray:
+        """(k,) bool: node payloads in the provider's CPU cache."""
+        return self.provider.is_resident([("node", int(i)) for i in np.asarray(nodes)])
+
     def _mesh_keys(self, selection: Selection, full_resolution: bool) -> list[tuple]:
         """GPU cache keys of the meshes to draw for ``selection`` (``_mesh_data`` builds them)."""
         kind = "full" if full_resolution else "node"
@@ -426,22 +552,23 @@ class Engine:
         return select_budget(self.tree, fs, max_triangles, self._node_triangles, self.texels)
 
     def release(self) -> None:
-        """Free every GPU object of the engine (and its context, if it created it)."""
+        """Free every GPU object of the engine (and its context, if it created it), stop the
+        provider's threads and empty its CPU cache."""
         if self._released:
             return
         self._released = True
-        self.cache.release()
-        for fbo in self._targets.values():
-            for att in (*fbo.color_attachments, fbo.depth_attachment):
-                if att is not None:
-                    att.release()
-            fbo.release()
-        self._targets.clear()
-        self.normal_map.release()
-        for prog in self.programs.values():
-            prog.release()
-        if self.owns_context:
-            self.ctx.release()
+        if self.provider is not None:
+            self.provider.close()
+        self.renderer.release()
+
+    @property
+    def normal_map(self) -> Any:
+        """The normal map texture (owned by the renderer)."""
+        return self.renderer.normal_map
+
+    @property
+    def _targets(self) -> dict[tuple[str, int, int], Any]:
+        return self.renderer.targets
 
     @property
     def released(self) -> bool:
@@ -490,10 +617,10 @@ class Engine:
         return patch
 
     def _texture_data(self, tex_key: tuple) -> np.ndarray:
-        from approxtree.textures.patch import TexturePatch
-
-        _, level, c0, r0, w, h = tex_key
-        return TexturePatch(self.pyramid, level, c0, r0, w, h).texels()
+        """(h, w, 4) uint8 texels of a texture window (through the provider's CPU cache)."""
+        if self.provider is not None:
+            return self.provider.load(tex_key).texels
+        return self._load_payload(tex_key).texels
 
     def _texture_uv(self, tex_key: tuple) -> tuple[float, float, float, float]:
         """uv = local.xy * t[:2] + t[2:] of a texture window (u along columns, v along rows,
@@ -535,54 +662,23 @@ class Engine:
         program: str,
         lighting: bool = True,
     ):
-        """Clear ``target`` and draw the groups; returns (ms incl. ctx.finish(), triangles,
-        texture binds)."""
-        import moderngl
-
-        ctx = self.ctx
-        prog = self.programs[program]
-        w, h = fs.viewport
-        prog["u_mvp"].write(fs.local_to_clip.T.astype("f4").tobytes())
-        if program in ("terrain", "textured"):
-            z0, z1 = self.tree.terrain.z_range
-            oz = self.tree.origin[2]
-            prog["u_z_range"].value = (z0 - oz, z1 - oz)
-            prog["u_normal_uv"].value = tuple(self._normal_uv)
-            prog["u_line"].value = 1.0 if wireframe else 0.0
-            prog["u_lighting"].value = 1.0 if lighting else 0.0
-            prog["u_normals"].value = 0
-            self.normal_map.use(location=0)
-        if program == "textured":
-            prog["u_texture"].value = 1
-        triangles = 0
-        switches = 0
-        t0 = time.perf_counter()
-        with ctx.scope(framebuffer=target, enable_only=moderngl.DEPTH_TEST):
-            ctx.viewport = (0, 0, w, h)
-            ctx.depth_func = "<"
-            clear = (-1.0, -1.0, -1.0, -1.0) if program == "position" else (0.0, 0.0, 0.0, 0.0)
-            target.clear(*clear, depth=1.0, viewport=(0, 0, w, h))
-            ctx.wireframe = wireframe
-            try:
-                for g, (tex_key, keys) in enumerate(groups):
-                    if tex_key is not None and program == "textured":
-                        # Pinned while its meshes are fetched, so it outlives their uploads.
-                        self.cache.pinned = {tex_key}
-                        tex = resident[g][0] if resident else self._get_texture(tex_key)
-                        tex.texture.use(location=1)
-                        prog["u_tex_uv"].value = self._texture_uv(tex_key)
-                        switches += 1
-                    meshes = resident[g][1] if resident else (self._get_mesh(k) for k in keys)
-                    for mesh in meshes:
-                        if mesh.triangles == 0:
-                            continue
-                        mesh.vao(ctx, prog).render(moderngl.TRIANGLES)
-                        triangles += mesh.triangles
-            finally:
-                ctx.wireframe = False
-                self.cache.pinned = set()
-            ctx.finish()
-        return (time.perf_counter() - t0) * 1e3, triangles, switches
+        """Clear ``target`` and draw the groups (Renderer.draw); returns (ms incl.
+        ctx.finish(), triangles, texture binds)."""
+        z0, z1 = self.tree.terrain.z_range
+        oz = self.tree.origin[2]
+        return self.renderer.draw(
+            target,
+            fs,
+            groups,
+            resident,
+            wireframe,
+            program,
+            lighting,
+            (z0 - oz, z1 - oz),
+            self._get_mesh,
+            self._get_texture,
+            self._texture_uv,
+        )
 
     def _positions(self, fs: FrameState, groups) -> np.ndarray:
         """(h, w, 4) world positions of the drawn surface (see Frame.positions)."""
@@ -598,37 +694,43 @@ class Engine:
 
     def _target(self, kind: str, w: int, h: int) -> Any:
         """The engine's offscreen framebuffer of ``kind`` ("color" RGBA8, "position" RGBA32F)."""
-        key = (kind, w, h)
-        fbo = self._targets.get(key)
-        if fbo is None:
-            # One size at a time per kind: drop buffers of a previous size.
-            for old in [k for k in self._targets if k[0] == kind]:
-                stale = self._targets.pop(old)
-                for att in (*stale.color_attachments, stale.depth_attachment):
-                    att.release()
-                stale.release()
-            dtype = "f4" if kind == "position" else "f1"
-            color = self.ctx.renderbuffer((w, h), 4, dtype=dtype)
-            depth = self.ctx.depth_renderbuffer((w, h))
-            fbo = self.ctx.framebuffer(color_attachments=[color], depth_attachment=depth)
-            self._targets[key] = fbo
-        return fbo
+        return self.renderer.target(kind, w, h)
 
     # -- geometry ---------------------------------------------------------------------------
 
     def _mesh_data(self, key: tuple[str, int]) -> tuple[np.ndarray, np.ndarray]:
-        """(vertex data (n, 4) float32: local x, y, z and skirt flag; triangles (m, 3) uint32)."""
+        """(vertex data (n, 4) float32: local x, y, z and skirt flag; triangles (m, 3) uint32).
+
+        Node meshes come through the provider's CPU cache (loaded now when missing).
+        """
+        if key[0] == "node" and self.provider is not None:
+            payload = self.provider.load(key)
+            return payload.vertices, payload.triangles
+        payload = self._load_payload(key)
+        return payload.vertices, payload.triangles
+
+    def _load_payload(self, key: tuple) -> Payload:
+        """The payload of ``key``: ("node", i) or ("full", chunk) mesh arrays, or a texture
+        window's texels (("tex", level, col0, row0, w, h)). Runs on the provider's threads:
+        it reads the tree's store without keeping the patch (``read_patch``)."""
+        if key[0] == "tex":
+            from approxtree.textures.patch import TexturePatch
+
+            _, level, c0, r0, w, h = key
+            texels = TexturePatch(self.pyramid, level, c0, r0, w, h).texels()
+            return Payload(texels=np.ascontiguousarray(texels, dtype=np.uint8))
         kind, i = key
+        skirts = self.skirts
         if kind == "full":
             patch = self._full_resolution_chunks()[i][0]
             verts, tris = patch.vertices, patch.triangles
             flags = np.zeros(len(verts), dtype=np.float32)
-        elif not self.skirts:
-            patch = self.tree.patch(i)
+        elif not skirts:
+            patch = _read_patch(self.tree, i)
             verts, tris = patch.vertices, patch.triangles
             flags = np.zeros(len(verts), dtype=np.float32)
         else:
-            patch = self.tree.patch(i)
+            patch = _read_patch(self.tree, i)
             verts, tris, flags = add_skirts(
                 patch.vertices,
                 patch.triangles,
@@ -640,7 +742,7 @@ class Engine:
         data = np.empty((len(verts), 4), dtype=np.float32)
         data[:, :3] = verts - self.tree.origin
         data[:, 3] = flags
-        return data, np.asarray(tris, dtype=np.uint32)
+        return Payload(data, np.ascontiguousarray(tris, dtype=np.uint32).reshape(-1, 3))
 
     def _full_resolution_chunks(self) -> list[tuple[Any, np.ndarray]]:
         """(patch, bbox (6,)) of the unsimplified terrain.
@@ -704,11 +806,9 @@ class Engine:
             stats,
         )
 
-    def _make_normal_map(self) -> tuple[Any, np.ndarray]:
-        """RG8 texture of normal x, y (display units) over the domain, and its uv transform.
-
-        Returns (texture, (4,) float: uv = local_xy * t[:2] + t[2:]).
-        """
+    def _normal_map_data(self) -> tuple[np.ndarray, np.ndarray]:
+        """Normal x, y (display units) over the domain as (ny, nx, 2) uint8, and the uv
+        transform (4,) float: uv = local_xy * t[:2] + t[2:]."""
         terrain = self.tree.terrain
         limit = min(NORMAL_MAP_MAX, int(self.ctx.info.get("GL_MAX_TEXTURE_SIZE", 4096)))
         if isinstance(terrain, Grid):
@@ -731,9 +831,6 @@ class Engine:
         nrm = _normals(z * sz, (xs - ox) * sx, (ys - oy) * sy)
         data = np.ascontiguousarray(np.rint((nrm[..., :2] * 0.5 + 0.5) * 255.0).astype(np.uint8))
         ny, nx = data.shape[:2]
-        tex = self.ctx.texture((nx, ny), 2, data.tobytes(), dtype="f1")
-        tex.repeat_x = False
-        tex.repeat_y = False
         # Texel centre k sits at xs[k]: u = (x − xs[0]) / (dx · nx) + 0.5 / nx.
         dx = (xs[-1] - xs[0]) / max(nx - 1, 1) if nx > 1 else 1.0
         dy = (ys[-1] - ys[0]) / max(ny - 1, 1) if ny > 1 else 1.0
@@ -745,7 +842,7 @@ class Engine:
                 0.5 / ny - (ys[0] - oy) / (dy * ny),
             ]
         )
-        return tex, uv
+        return data, uv
 
     # -- host hooks (interactive viewers) ---------------------------------------------------
     # A host that draws many frames per second bounds the work of each frame: it filters the
@@ -778,6 +875,8 @@ class Engine:
         if skirts != self.skirts:
             self.skirts = skirts
             self.cache.release()
+            if self.provider is not None:
+                self.provider.drop(lambda key: key[0] == "node")
 
     def set_vertical_exaggeration(self, factor: float) -> None:
         """Draw z times ``factor`` (> 0): α, the normals and near/far follow the new scale."""
@@ -787,8 +886,13 @@ class Engine:
             )
         self._check_alive()
         self.scale = display_scale(self.tree.terrain) * np.array([1.0, 1.0, float(factor)])
-        self.normal_map.release()
-        self.normal_map, self._normal_uv = self._make_normal_map()
+        self.renderer.set_normal_map(*self._normal_map_data())
+
+
+def _read_patch(tree, i: int) -> Any:
+    """T_N of node i, read without being kept by the tree when it can be (bounded memory)."""
+    reader = getattr(tree, "read_patch", None)
+    return reader(i) if reader is not None else tree.patch(i)
 
 
 def _normals(z: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:

@@ -65,7 +65,11 @@ class PointQuadtreeEngine(Engine):
         cache_bytes: int = DEFAULT_CACHE_BYTES,
         offscreen: bool | None = None,
         skirts: bool = True,
+        cpu_cache_bytes: int | None = None,
+        loader_threads: int | None = None,
     ) -> None:
+        # A point quadtree's cut is a per-view mesh built in one kernel call per frame: no
+        # payloads to page (cpu_cache_bytes and loader_threads accepted for the same call).
         # Bad arguments fail before any GPU object exists.
         _no_textures(textures)
         self._open_gpu(tree, context, cache_bytes, offscreen, skirts)

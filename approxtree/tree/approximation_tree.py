@@ -219,6 +219,17 @@ class ApproximationTree:
             self._patches[index] = p
         return p
 
+    def read_patch(self, index: int) -> GeometryPatch:
+        """T_N of node ``index`` without keeping it: read from the tree file each time unless
+        already held (a paging renderer's read, so memory stays bounded by its caches)."""
+        p = self._patches[index]
+        if p is not None or self._source is None:
+            return self.patch(index)
+        _, arrays = self._source.patch_record(index)
+        kind = self.strategy_names[int(self.strategies[index])]
+        rect = Rect(*(float(v) for v in self.rects[index]))
+        return STRATEGIES[kind].from_record(self.terrain, rect, arrays)
+
     @property
     def epsilon(self) -> float:
         return self.params["epsilon"]

@@ -10,9 +10,10 @@ A frame:
 1. poll events; apply the scripted key presses of this frame; in a replay, take the pose of
    the script frame;
 2. move the fly camera by the held keys (scripted runs use a fixed 1/30 s step);
-3. ``engine.render`` into the window; the UploadQueue, installed as the Engine's selection
-   filter, bounds the uploads of the frame (and the frozen frustum, when on, replaces the
-   selection's view);
+3. ``engine.render(..., wait=False)`` into the window: the Engine's traversal requests the
+   missing patches from its provider (background loads) and draws their nearest resident
+   ancestors meanwhile, uploading at most ``max_uploads`` meshes (``budget_ms``) per frame;
+   the frozen frustum, when on, replaces the selection's view (the selection filter);
 4. screenshots read the window's back buffer (terrain only, before the overlay);
 5. overlay text and window title; swap buffers; one JSON line of stats when asked.
 """
@@ -43,7 +44,6 @@ from approxtree.viewer.controllers import (
 from approxtree.viewer.features import EngineFeatures
 from approxtree.viewer.keys import FLY_KEYS, MOD_SHIFT, KeyPress, action_for, help_lines
 from approxtree.viewer.script import ScriptFrame
-from approxtree.viewer.upload_queue import UploadQueue
 
 #: Threshold and exaggeration steps of one key press.
 THRESHOLD_STEP, EXAGGERATION_STEP = 1.5, 1.25
@@ -88,7 +88,8 @@ class Viewer:
 
     textures: texture pyramid folders (thematic layers, cycled with TAB); size: window
     (w, h); alpha, gamma: initial thresholds; fov: degrees; max_uploads, budget_ms: the
-    UploadQueue's per-frame budget; screenshot_dir: where P writes its PNGs; visible: show
+    per-frame upload budget (0 and None: no budget, every frame waits for its whole cut);
+    screenshot_dir: where P writes its PNGs; visible: show
     the window (False for benchmarks that only need the context).
     """
 
@@ -140,10 +141,15 @@ class Viewer:
         glfw.make_context_current(self.window)
         glfw.swap_interval(0)
         self.ctx = moderngl.create_context()
-        # 2. The embedded engine, its upload queue and what it supports.
+        # 2. The embedded engine, its per-frame upload budget and what it supports. Frames
+        # page (Engine.render(wait=False)): the provider loads in the background, the
+        # traversal draws resident ancestors meanwhile; only the root is read up front.
         self.engine = Engine(tree, context=self.ctx)
         self.features = EngineFeatures(self.engine)
-        self.queue = UploadQueue(self.engine, max_uploads, budget_ms)
+        if max_uploads < 0:
+            raise ValueError(f"max_uploads must be >= 0, got {max_uploads}")
+        self.max_uploads = int(max_uploads)
+        self.budget_ms = budget_ms
         self.engine.set_selection_filter(self._filter)
         # The root's mesh now: it also loads the compiled skirt kernels before frame 0.
         self.engine.upload(0)
@@ -357,11 +363,11 @@ class Viewer:
     # -- frames -----------------------------------------------------------------------------
 
     def _filter(self, selection, frame):
-        """The Engine's selection filter: frozen frustum, then the upload budget."""
+        """The Engine's selection filter: the frozen frustum's cut while frozen."""
         if self._frozen_frame is not None:
             s = self.settings
             selection = select(self.tree, self._frozen_frame, s.alpha, s.gamma, self.engine.texels)
-        return self.queue(selection, frame)
+        return selection
 
     def _camera(self):
         return self.controller.camera(self.tree.origin, self.engine.scale, self.fov)
@@ -386,10 +392,16 @@ class Viewer:
             s.alpha,
             s.gamma,
             wireframe=s.wireframe,
+            # Without an upload budget every wanted mesh loads in the frame that wants it.
+            wait=not self.max_uploads and self.budget_ms is None,
+            max_uploads=self.max_uploads or None,
+            upload_ms=self.budget_ms,
             **self.features.render_options(s.lighting),
         )
         stats = dict(frame.stats)
-        stats.update(self.queue.figures())
+        # The names of the former upload queue's figures, kept for stats files and benchmarks.
+        stats["fallbacks"] = stats.get("stand_ins", 0)
+        stats["upload_queue_ms"] = stats.get("upload_ms", 0.0)
         stats.setdefault("texture_switches", 0)
         return stats
 
@@ -523,6 +535,10 @@ class Viewer:
             if stats_path is not None:
                 lines.append((json.dumps(_json_safe(stats)) + "\n").encode())
             frames += 1
+            # A scripted replay lets this frame's requests load before the next frame, so a
+            # script draws the same frames on any machine (outside frame_ms).
+            if scripted and getattr(self.engine, "provider", None) is not None:
+                self.engine.provider.wait()
         if stats_path is not None:
             with atomic_write(stats_path) as f:
                 f.writelines(lines)

@@ -16,6 +16,9 @@ uploading them all at once stalls the window. The queue is the Engine's selectio
 
 The queue is rebuilt from the wanted cut every frame: requests of views already left are
 forgotten, not uploaded late.
+
+The Engine's own paging (``Engine.render(..., wait=False)``, render/traversal.py) does the same
+with background loads; this queue remains for hosts that upload synchronously.
 """
 
 from __future__ import annotations
@@ -28,63 +31,8 @@ import numpy as np
 
 from approxtree.render.frame_state import FrameState
 from approxtree.render.selector import Selection
+from approxtree.render.traversal import drop_covered, nearest_resident, upload_order
 from approxtree.render.visual_error import visual_errors
-
-
-def nearest_resident(nodes: np.ndarray, parents: np.ndarray, is_resident) -> np.ndarray:
-    """(k,) int64: each of ``nodes`` (k,), or its nearest ancestor for which
-    ``is_resident(ids) -> bool array`` holds; −1 when none holds up to the root."""
-    out = np.asarray(nodes, dtype=np.int64).copy()
-    todo = ~is_resident(out) if len(out) else np.zeros(0, dtype=bool)
-    # One step up the tree per round, for all missing nodes at once.
-    while todo.any():
-        idx = np.flatnonzero(todo)
-        up = parents[out[idx]]
-        top = up < 0
-        out[idx[top]] = -1
-        todo[idx[top]] = False
-        idx, up = idx[~top], up[~top]
-        out[idx] = up
-        todo[idx] = ~is_resident(up)
-    return out
-
-
-def drop_covered(nodes: np.ndarray, parents: np.ndarray) -> np.ndarray:
-    """``nodes`` (k,) without duplicates and without nodes that have an ancestor among them,
-    in first-seen order."""
-    if len(nodes) == 0:
-        return np.asarray(nodes, dtype=np.int64)
-    _, first = np.unique(nodes, return_index=True)
-    nodes = np.asarray(nodes, dtype=np.int64)[np.sort(first)]
-    member = np.zeros(len(parents), dtype=bool)
-    member[nodes] = True
-    covered = np.zeros(len(nodes), dtype=bool)
-    anc = parents[nodes]
-    while (anc >= 0).any():
-        live = anc >= 0
-        covered[live] |= member[anc[live]]
-        anc[live] = parents[anc[live]]
-    return nodes[~covered]
-
-
-def upload_order(
-    wanted: np.ndarray, parents: np.ndarray, levels: np.ndarray, is_resident
-) -> np.ndarray:
-    """(m,) int64 node ids to upload, coarsest level first: the missing ``wanted`` nodes and
-    their missing ancestors below the nearest resident one. Uploading ancestors first lets the
-    drawn cut refine level by level while a large request is still in the queue."""
-    wanted = np.asarray(wanted, dtype=np.int64)
-    if len(wanted) == 0:
-        return wanted
-    parts = [wanted[~is_resident(wanted)]]
-    cur = parts[0]
-    while len(cur):
-        up = np.unique(parents[cur])
-        up = up[up >= 0]
-        cur = up[~is_resident(up)] if len(up) else up
-        parts.append(cur)
-    nodes = np.unique(np.concatenate(parts))
-    return nodes[np.argsort(levels[nodes], kind="stable")]
 
 
 class UploadQueue:

@@ -1,0 +1,198 @@
+"""Renderer: the GL objects of an engine — programs, GPU cache, normal map, framebuffers.
+
+The renderer is the third of the renderer's three roles (DESIGN.md, "Renderer roles"). It owns
+every GL object the Engine draws with, uploads payloads into the GpuCache (bounded in bytes,
+least recently used out) within a per-frame budget, draws a frame's groups of meshes, reads
+images back, and frees everything in ``release()`` — nothing relies on the garbage collector.
+It neither selects nor loads: the traversal decides what to draw, the provider supplies the
+arrays (``build`` callbacks).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Hashable, Sequence
+from typing import Any
+
+import numpy as np
+
+from approxtree.render.frame_state import FrameState
+from approxtree.render.gpu_cache import GpuCache, GpuMesh, GpuTexture
+from approxtree.render.shaders import create_program
+
+#: build() -> (vertex data (n, 4) float32, triangles (m, 3) uint32)
+MeshBuild = Callable[[], tuple[np.ndarray, np.ndarray]]
+
+
+class Renderer:
+    """GL state on ``ctx``: programs, a GpuCache of ``cache_bytes``, the normal map, targets.
+
+    owns_context: release ``ctx`` too in ``release()``.
+    """
+
+    def __init__(self, ctx: Any, cache_bytes: int, owns_context: bool) -> None:
+        self.ctx = ctx
+        self.owns_context = owns_context
+        self.programs = {
+            "terrain": create_program(ctx, "terrain"),
+            "position": create_program(ctx, "position"),
+            "textured": create_program(ctx, "textured"),
+        }
+        self.cache = GpuCache(ctx, cache_bytes)
+        self.targets: dict[tuple[str, int, int], Any] = {}
+        self.normal_map: Any = None
+        self.normal_uv = np.zeros(4)
+        self.released = False
+
+    # -- uploads ------------------------------------------------------------------------------
+
+    def set_normal_map(self, data: np.ndarray, uv: np.ndarray) -> None:
+        """Replace the normal map by ``data`` (ny, nx, 2) uint8; uv (4,): local xy → uv."""
+        if self.normal_map is not None:
+            self.normal_map.release()
+        ny, nx = data.shape[:2]
+        tex = self.ctx.texture((nx, ny), 2, np.ascontiguousarray(data).tobytes(), dtype="f1")
+        tex.repeat_x = False
+        tex.repeat_y = False
+        self.normal_map, self.normal_uv = tex, np.asarray(uv, dtype=np.float64)
+
+    def mesh(self, key: Hashable, build: MeshBuild) -> GpuMesh:
+        """The GPU mesh of ``key``, uploaded from ``build()`` on a miss."""
+        return self.cache.get(key, build)
+
+    def texture(self, key: Hashable, build: Callable[[], np.ndarray]) -> GpuTexture:
+        """The GPU texture of ``key``, uploaded from ``build()`` ((h, w, 4) uint8) on a miss."""
+        return self.cache.get_texture(key, build)
+
+    def upload_within(
+        self,
+        keys: Sequence[Hashable],
+        build: Callable[[Hashable], tuple[np.ndarray, np.ndarray]],
+        max_uploads: int | None = None,
+        budget_ms: float | None = None,
+    ) -> int:
+        """Upload the meshes of ``keys`` (in order) missing from the cache, stopping after
+        ``max_uploads`` uploads or ``budget_ms`` milliseconds (after the first); returns how
+        many were uploaded."""
+        t0 = time.perf_counter()
+        uploads = 0
+        for key in keys:
+            if max_uploads is not None and uploads >= max_uploads:
+                break
+            if budget_ms is not None and uploads and (time.perf_counter() - t0) * 1e3 >= budget_ms:
+                break
+            if key in self.cache:
+                continue
+            self.cache.get(key, lambda key=key: build(key))
+            uploads += 1
+        return uploads
+
+    # -- framebuffers -------------------------------------------------------------------------
+
+    def target(self, kind: str, w: int, h: int) -> Any:
+        """The offscreen framebuffer of ``kind`` ("color" RGBA8, "position" RGBA32F)."""
+        key = (kind, w, h)
+        fbo = self.targets.get(key)
+        if fbo is None:
+            # One size at a time per kind: drop buffers of a previous size.
+            for old in [k for k in self.targets if k[0] == kind]:
+                _release_fbo(self.targets.pop(old))
+            dtype = "f4" if kind == "position" else "f1"
+            color = self.ctx.renderbuffer((w, h), 4, dtype=dtype)
+            depth = self.ctx.depth_renderbuffer((w, h))
+            fbo = self.ctx.framebuffer(color_attachments=[color], depth_attachment=depth)
+            self.targets[key] = fbo
+        return fbo
+
+    # -- drawing ------------------------------------------------------------------------------
+
+    def draw(
+        self,
+        target: Any,
+        fs: FrameState,
+        groups: list[tuple[Any, list[Hashable]]],
+        resident: list[tuple[Any, list[Any]]] | None,
+        wireframe: bool,
+        program: str,
+        lighting: bool,
+        z_range: tuple[float, float],
+        fetch_mesh: Callable[[Hashable], GpuMesh],
+        fetch_texture: Callable[[Hashable], GpuTexture],
+        texture_uv: Callable[[Hashable], tuple[float, float, float, float]],
+    ) -> tuple[float, int, int]:
+        """Clear ``target`` and draw the groups [(texture key or None, mesh keys)].
+
+        resident: per group (texture, meshes) already uploaded, or None to fetch each entry
+        while drawing (a frame larger than the cache budget). z_range: local z of the colour
+        ramp. Returns (ms incl. ctx.finish(), triangles, texture binds).
+        """
+        import moderngl
+
+        ctx = self.ctx
+        prog = self.programs[program]
+        w, h = fs.viewport
+        prog["u_mvp"].write(fs.local_to_clip.T.astype("f4").tobytes())
+        if program in ("terrain", "textured"):
+            prog["u_z_range"].value = z_range
+            prog["u_normal_uv"].value = tuple(self.normal_uv)
+            prog["u_line"].value = 1.0 if wireframe else 0.0
+            prog["u_lighting"].value = 1.0 if lighting else 0.0
+            prog["u_normals"].value = 0
+            self.normal_map.use(location=0)
+        if program == "textured":
+            prog["u_texture"].value = 1
+        triangles = 0
+        switches = 0
+        t0 = time.perf_counter()
+        with ctx.scope(framebuffer=target, enable_only=moderngl.DEPTH_TEST):
+            ctx.viewport = (0, 0, w, h)
+            ctx.depth_func = "<"
+            clear = (-1.0, -1.0, -1.0, -1.0) if program == "position" else (0.0, 0.0, 0.0, 0.0)
+            target.clear(*clear, depth=1.0, viewport=(0, 0, w, h))
+            ctx.wireframe = wireframe
+            try:
+                for g, (tex_key, keys) in enumerate(groups):
+                    if tex_key is not None and program == "textured":
+                        # Pinned while its meshes are fetched, so it outlives their uploads.
+                        self.cache.pinned = {tex_key}
+                        tex = resident[g][0] if resident else fetch_texture(tex_key)
+                        tex.texture.use(location=1)
+                        prog["u_tex_uv"].value = texture_uv(tex_key)
+                        switches += 1
+                    meshes = resident[g][1] if resident else (fetch_mesh(k) for k in keys)
+                    for mesh in meshes:
+                        if mesh.triangles == 0:
+                            continue
+                        mesh.vao(ctx, prog).render(moderngl.TRIANGLES)
+                        triangles += mesh.triangles
+            finally:
+                ctx.wireframe = False
+                self.cache.pinned = set()
+            ctx.finish()
+        return (time.perf_counter() - t0) * 1e3, triangles, switches
+
+    # -- housekeeping -------------------------------------------------------------------------
+
+    def release(self) -> None:
+        """Free every GL object now (and the context, when owned); idempotent."""
+        if self.released:
+            return
+        self.released = True
+        self.cache.release()
+        for fbo in self.targets.values():
+            _release_fbo(fbo)
+        self.targets.clear()
+        if self.normal_map is not None:
+            self.normal_map.release()
+            self.normal_map = None
+        for prog in self.programs.values():
+            prog.release()
+        if self.owns_context:
+            self.ctx.release()
+
+
+def _release_fbo(fbo: Any) -> None:
+    for att in (*fbo.color_attachments, fbo.depth_attachment):
+        if att is not None:
+            att.release()
+    fbo.release()

@@ -1,0 +1,179 @@
+"""Traversal: the cut of a frame, what to load for it, and what to draw meanwhile (no GL).
+
+The traversal is the second of the renderer's three roles (DESIGN.md, "Renderer roles"). It is
+pure: from a FrameState, a Cut and the tree's flat arrays it decides, and the caller (the
+Engine) carries the decisions out with the provider and the renderer.
+
+1. The wanted cut: the selector's traversal by alpha and gamma, or by a triangle budget, or
+   the full-resolution chunks (``Cut``).
+2. Wanted nodes missing from the GPU, and their missing ancestors, coarsest level first
+   (``upload_order``): those whose payload is in the CPU cache are uploaded this frame (up to
+   ``max_uploads``), the others are requested from the provider in that order — a request
+   replaces the previous frame's, so views already left are never loaded late.
+3. Every wanted node not yet drawable is replaced by its nearest drawable ancestor and nodes
+   under a drawn ancestor are dropped (``nearest_resident``, ``drop_covered``): the drawn cut
+   is a crack-free partition of the wanted cut's area — coarser, never with holes or overlaps.
+   ``Plan.stand_ins`` counts the ancestors drawn in place of wanted nodes.
+4. α and γ of the drawn cut are recomputed, so the frame's max_alpha tells the truth.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from approxtree.errors import InvalidParameterError
+from approxtree.render.frame_state import FrameState
+from approxtree.render.selector import Selection, check_thresholds
+from approxtree.render.visual_error import visual_errors
+
+#: is_resident(ids (k,) int64) -> (k,) bool
+Residency = Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class Cut:
+    """How a frame's cut is chosen.
+
+    alpha: α threshold (px, > 0); gamma: γ threshold (px², > 0, inf ignores it);
+    max_triangles: triangle budget instead of alpha (the cut of smallest largest α with at
+    most this many triangles, skirts included); full_resolution: the unsimplified terrain.
+    """
+
+    alpha: float = 1.0
+    gamma: float = 2.0
+    max_triangles: int | None = None
+    full_resolution: bool = False
+
+    def __post_init__(self) -> None:
+        alpha, gamma = check_thresholds(self.alpha, self.gamma)
+        object.__setattr__(self, "alpha", alpha)
+        object.__setattr__(self, "gamma", gamma)
+        if self.max_triangles is not None and not (
+            isinstance(self.max_triangles, int | np.integer) and self.max_triangles > 0
+        ):
+            raise InvalidParameterError(
+                f"max_triangles must be an int > 0 or None, got {self.max_triangles!r}."
+            )
+
+
+def nearest_resident(nodes: np.ndarray, parents: np.ndarray, is_resident: Residency) -> np.ndarray:
+    """(k,) int64: each of ``nodes`` (k,), or its nearest ancestor for which
+    ``is_resident(ids) -> bool array`` holds; −1 when none holds up to the root."""
+    out = np.asarray(nodes, dtype=np.int64).copy()
+    todo = ~is_resident(out) if len(out) else np.zeros(0, dtype=bool)
+    # One step up the tree per round, for all missing nodes at once.
+    while todo.any():
+        idx = np.flatnonzero(todo)
+        up = parents[out[idx]]
+        top = up < 0
+        out[idx[top]] = -1
+        todo[idx[top]] = False
+        idx, up = idx[~top], up[~top]
+        out[idx] = up
+        todo[idx] = ~is_resident(up)
+    return out
+
+
+def drop_covered(nodes: np.ndarray, parents: np.ndarray) -> np.ndarray:
+    """``nodes`` (k,) without duplicates and without nodes that have an ancestor among them,
+    in first-seen order."""
+    if len(nodes) == 0:
+        return np.asarray(nodes, dtype=np.int64)
+    _, first = np.unique(nodes, return_index=True)
+    nodes = np.asarray(nodes, dtype=np.int64)[np.sort(first)]
+    member = np.zeros(len(parents), dtype=bool)
+    member[nodes] = True
+    covered = np.zeros(len(nodes), dtype=bool)
+    anc = parents[nodes]
+    while (anc >= 0).any():
+        live = anc >= 0
+        covered[live] |= member[anc[live]]
+        anc[live] = parents[anc[live]]
+    return nodes[~covered]
+
+
+def upload_order(
+    wanted: np.ndarray, parents: np.ndarray, levels: np.ndarray, is_resident: Residency
+) -> np.ndarray:
+    """(m,) int64 node ids to upload, coarsest level first: the missing ``wanted`` nodes and
+    their missing ancestors below the nearest resident one. Uploading ancestors first lets the
+    drawn cut refine level by level while a large request is still in the queue."""
+    wanted = np.asarray(wanted, dtype=np.int64)
+    if len(wanted) == 0:
+        return wanted
+    parts = [wanted[~is_resident(wanted)]]
+    cur = parts[0]
+    while len(cur):
+        up = np.unique(parents[cur])
+        up = up[up >= 0]
+        cur = up[~is_resident(up)] if len(up) else up
+        parts.append(cur)
+    nodes = np.unique(np.concatenate(parts))
+    return nodes[np.argsort(levels[nodes], kind="stable")]
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What one frame does.
+
+    drawn: the Selection drawn (the wanted cut where drawable, nearest drawable ancestors
+    elsewhere). upload: (u,) int64 nodes to upload now (payload in the CPU cache), coarsest
+    first. request: (r,) int64 nodes to ask the provider for, coarsest first. pending: wanted
+    nodes not drawn as themselves; stand_ins: drawn nodes that are not wanted ones.
+    """
+
+    drawn: Selection
+    upload: np.ndarray
+    request: np.ndarray
+    pending: int
+    stand_ins: int
+
+
+def plan_frame(
+    wanted: Selection,
+    frame: FrameState,
+    tree,
+    texels: np.ndarray,
+    on_gpu: Residency,
+    on_cpu: Residency,
+    max_uploads: int | None = None,
+) -> Plan:
+    """The Plan of a frame whose wanted cut is ``wanted`` (see the module docstring).
+
+    tree: its ``parents``, ``levels``, ``bboxes``, ``errors`` arrays are used. texels: (n, 2)
+    texel sizes of the nodes (γ). on_gpu / on_cpu: residency of node payloads on the GPU / in
+    the CPU cache. max_uploads: uploads this frame at most (None: every CPU-resident one).
+    """
+    parents = tree.parents
+    nodes = np.asarray(wanted.nodes, dtype=np.int64)
+    order = upload_order(nodes, parents, tree.levels, on_gpu)
+    cpu = on_cpu(order) if len(order) else np.zeros(0, dtype=bool)
+    upload = order[cpu]
+    if max_uploads is not None:
+        upload = upload[: max(0, int(max_uploads))]
+    request = order[~cpu]
+    uploading = np.zeros(len(parents), dtype=bool)
+    uploading[upload] = True
+
+    def drawable(ids: np.ndarray) -> np.ndarray:
+        return on_gpu(ids) | uploading[ids]
+
+    stand_in = nearest_resident(nodes, parents, drawable)
+    pending = int(np.count_nonzero(stand_in != nodes))
+    drawn = drop_covered(stand_in[stand_in >= 0], parents)
+    stand_ins = int(np.count_nonzero(~np.isin(drawn, nodes)))
+    if pending == 0:
+        return Plan(wanted, upload, request, 0, 0)
+    # The drawn cut's own visual errors.
+    alphas, gammas = visual_errors(tree.bboxes[drawn], tree.errors[drawn], texels[drawn], frame)
+    stats = dict(wanted.stats)
+    stats.update(
+        selected=len(drawn),
+        max_alpha=float(alphas.max()) if len(drawn) else 0.0,
+        max_gamma=float(gammas.max()) if len(drawn) else 0.0,
+    )
+    selection = replace(wanted, nodes=drawn, alphas=alphas, gammas=gammas, stats=stats)
+    return Plan(selection, upload, request, pending, stand_ins)
