@@ -201,7 +201,7 @@ def _check_crs(crs: str | None) -> Any:
 
     try:
         return CRS.from_user_input(crs)
-    except CRSError as exc:
+    except (CRSError, ValueError) as exc:
         raise InvalidParameterError(
             f"Unknown CRS {crs!r}; give it as EPSG:NNNN, a WKT string or a PROJ string."
         ) from exc
