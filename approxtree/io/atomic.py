@@ -268,3 +268,17 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
             with contextlib.suppress(FileNotFoundError):
                 os.unlink(tmp)
             raise
+
+
+@contextlib.contextmanager
+def scratch_path(path: str | os.PathLike) -> Iterator[Path]:
+    """A temp file path beside ``path`` for an intermediate file, always removed at the end;
+    named like the temp files of writes to ``path``, so a killed writer's leftover goes with
+    the next write to ``path``."""
+    tmp = _temp_path(Path(path))
+    with _registered(tmp):
+        try:
+            yield tmp
+        finally:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(tmp)

@@ -7,7 +7,6 @@ written beside the target and renamed into place.
 
 from __future__ import annotations
 
-import contextlib
 import math
 import os
 import threading
@@ -16,7 +15,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from approxtree.errors import InvalidParameterError
+from approxtree.errors import InvalidParameterError, StoreError
 
 #: Internal tile edge (cells): the COG default, and what GDAL readers expect.
 TILE = 512
@@ -120,11 +119,11 @@ def write_tiled_geotiff(
     multiple of 512; progress: a tqdm bar of blocks written (None = when over 16 blocks).
     Returns the path written.
     """
-    import dask.array as da
     import rasterio
+    from rasterio.errors import RasterioError
     from tqdm.auto import tqdm
 
-    from approxtree.io.atomic import atomic_path
+    from approxtree.io.atomic import atomic_path, scratch_path
 
     options = _creation_options(compress, source.dtype)
     if isinstance(block, bool) or not isinstance(block, int) or block < TILE or block % TILE:
@@ -152,30 +151,39 @@ def write_tiled_geotiff(
     show = nblocks > 16 if progress is None else progress
     with (
         atomic_path(target) as tmp,
-        tqdm(total=nblocks, unit="block", desc="fractal", disable=not show) as bar,
+        tqdm(total=nblocks, unit="block", desc="GeoTIFF blocks", disable=not show) as bar,
         rasterio.Env(GDAL_CACHEMAX=_WRITE_CACHE_MB),
     ):
-        tiled = tmp.with_name(tmp.name + ".tiled") if cog else tmp
         try:
-            with rasterio.open(tiled, "w", **profile) as ds:
-                # One lock: blocks are computed in parallel, written one at a time.
-                da.store(
-                    blocks,
-                    _BandWriter(ds, bar),
-                    lock=threading.Lock(),
-                    scheduler="threads",
-                    num_workers=workers or os.cpu_count() or 1,
-                )
             if cog:
-                _copy_as_cog(tiled, tmp, compress, source.dtype)
-        finally:
-            if cog:
-                with contextlib.suppress(FileNotFoundError):
-                    tiled.unlink()
+                # The COG driver copies a finished raster: tiles first, then the COG beside.
+                with scratch_path(target) as tiled:
+                    _write_blocks(tiled, profile, blocks, bar, workers)
+                    _copy_as_cog(tiled, tmp, compress)
+            else:
+                _write_blocks(tmp, profile, blocks, bar, workers)
+        except RasterioError as exc:
+            raise StoreError(f"Cannot write {target}: {exc}") from exc
     return target
 
 
-def _copy_as_cog(src: Path, dst: Path, compress: str, dtype: np.dtype) -> None:
+def _write_blocks(path: Path, profile: dict, blocks: Any, bar: Any, workers: int | None) -> None:
+    """Compute the dask blocks in threads and write them into a new GeoTIFF at ``path``."""
+    import dask.array as da
+    import rasterio
+
+    with rasterio.open(path, "w", **profile) as ds:
+        # One lock: blocks are computed in parallel, written one at a time.
+        da.store(
+            blocks,
+            _BandWriter(ds, bar),
+            lock=threading.Lock(),
+            scheduler="threads",
+            num_workers=workers or os.cpu_count() or 1,
+        )
+
+
+def _copy_as_cog(src: Path, dst: Path, compress: str) -> None:
     """GDAL's COG driver: tiles, overviews (average) before the full-resolution data."""
     from rasterio.shutil import copy
 
