@@ -103,6 +103,7 @@ class TreeSampler(threading.Thread):
 
 def measure(cmd: list[str], limit: int | None = None, timeout: float | None = None) -> dict:
     """Run ``cmd``; its wall time, exit code, stdout, stderr tail and peak RSS figures."""
+    load_before = os.getloadavg()[0]
     with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
         t0 = time.perf_counter()
         proc = subprocess.Popen(cmd, stdout=out, stderr=err, text=True)
@@ -133,6 +134,8 @@ def measure(cmd: list[str], limit: int | None = None, timeout: float | None = No
         "maxrss_single_process_bytes": usage.ru_maxrss * 1024,
         "cpu_seconds": round(usage.ru_utime + usage.ru_stime, 3),
         "killed_over_memory_limit": sampler.killed,
+        # Other work on the machine slows the run: the 1-minute load before and after.
+        "loadavg_1min": [round(load_before, 2), round(os.getloadavg()[0], 2)],
         "stdout": stdout,
         "stderr_tail": stderr[-2000:],
     }
