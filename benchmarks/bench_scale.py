@@ -43,7 +43,10 @@ from typing import Any
 
 RESULTS = Path(__file__).resolve().parent / "results"
 DEFAULT_DATA = Path(tempfile.gettempdir()) / "approxtree-scale"
+#: The approxtree that builds (``--python`` replaces the interpreter) and the one that makes
+#: the DEMs (always this checkout's).
 CLI = [sys.executable, "-m", "approxtree"]
+FRACTAL_CLI = [sys.executable, "-m", "approxtree"]
 
 
 class TreeSampler(threading.Thread):
@@ -126,7 +129,7 @@ def measure(cmd: list[str], limit: int | None = None, timeout: float | None = No
         err.seek(0)
         stdout, stderr = out.read(), err.read()
     return {
-        "command": " ".join(cmd[2:] if cmd[:2] == CLI[:2] else cmd),
+        "command": " ".join(["approxtree", *cmd[3:]] if cmd[1:3] == ["-m", "approxtree"] else cmd),
         "returncode": proc.returncode,
         "seconds": round(seconds, 3),
         "peak_rss_tree_bytes": sampler.peak,
@@ -181,7 +184,7 @@ def generate(size: int, seed: int, data_dir: Path, cell_size: float, crs: str | 
     if dem.is_file() and sidecar.is_file():
         record = json.loads(sidecar.read_text())
         return {**record, "cached": True}
-    cmd = [*CLI, "fractal", str(dem), "--size", str(size), "--seed", str(seed)]
+    cmd = [*FRACTAL_CLI, "fractal", str(dem), "--size", str(size), "--seed", str(seed)]
     cmd += ["--cell-size", str(cell_size), "--json"]
     if crs:
         cmd += ["--crs", crs]
@@ -310,7 +313,13 @@ def main(argv: list[str] | None = None) -> dict:
     )
     parser.add_argument("--timeout", type=float, default=None, help="Seconds per build.")
     parser.add_argument("--keep-trees", action="store_true")
+    parser.add_argument(
+        "--python",
+        default=sys.executable,
+        help="Interpreter whose `-m approxtree build` is measured [this one]",
+    )
     args = parser.parse_args(argv)
+    CLI[0] = args.python
 
     import psutil
 
@@ -329,6 +338,7 @@ def main(argv: list[str] | None = None) -> dict:
         },
         "epsilon": args.epsilon,
         "seed": args.seed,
+        "python": args.python,
         "memory_limit_bytes": limit,
         "generated": [],
         "builds": [],
