@@ -194,3 +194,14 @@ def test_cli_bad_parameters_give_one_error_line(tmp_path, args, words):
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("Error:") and words in lines[0]
     assert not os.listdir(tmp_path)
+
+
+def test_heights_pickle_as_their_parameters():
+    """dask ships the source to its workers: a 32768² source pickles in a few hundred bytes."""
+    import pickle
+
+    source = FractalHeights((32768, 32768), seed=9, holes=0.1)
+    window = source.read(30000, 30100, 100, 300)
+    blob = pickle.dumps(source)
+    assert len(blob) < 1000
+    assert np.array_equal(pickle.loads(blob).read(30000, 30100, 100, 300), window, equal_nan=True)
