@@ -177,9 +177,11 @@ def path_bytes(path: Path) -> int:
     return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
 
 
-def generate(size: int, seed: int, data_dir: Path, cell_size: float, crs: str | None) -> dict:
+def generate(
+    size: int, seed: int, data_dir: Path, cell_size: float, crs: str | None, cog: bool
+) -> dict:
     """Make (or find) the size² fractal DEM; its generation figures (kept in a JSON beside)."""
-    dem = data_dir / f"fractal_{size}_seed{seed}.tif"
+    dem = data_dir / f"fractal_{size}_seed{seed}{'_cog' if cog else ''}.tif"
     sidecar = dem.with_suffix(".json")
     if dem.is_file() and sidecar.is_file():
         record = json.loads(sidecar.read_text())
@@ -188,6 +190,8 @@ def generate(size: int, seed: int, data_dir: Path, cell_size: float, crs: str | 
     cmd += ["--cell-size", str(cell_size), "--json"]
     if crs:
         cmd += ["--crs", crs]
+    if cog:
+        cmd.append("--cog")
     run = measure(cmd)
     if run["returncode"] != 0:
         raise SystemExit(f"generating {dem} failed:\n{run['stderr_tail']}")
@@ -299,6 +303,9 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--crs", default="EPSG:32633")
     parser.add_argument("--epsilon", type=float, default=1.0)
     parser.add_argument(
+        "--cog", action="store_true", help="Make COGs (overviews) rather than tiled GeoTIFFs."
+    )
+    parser.add_argument(
         "--workers", type=int, default=None, help="--workers of the size runs [CLI default]"
     )
     parser.add_argument("--speedup-size", type=int, default=None, help="[smallest size]")
@@ -346,7 +353,7 @@ def main(argv: list[str] | None = None) -> dict:
         "notes": [],
     }
     for size in args.sizes:
-        record = generate(size, args.seed, args.data_dir, args.cell_size, args.crs)
+        record = generate(size, args.seed, args.data_dir, args.cell_size, args.crs, args.cog)
         g = record["generate"]
         print(
             f"DEM {size}²: {g['seconds']:.1f} s, peak RSS {g['peak_rss_tree_bytes'] / 2**20:.0f}"
