@@ -93,7 +93,9 @@ def _dask_blocks(source: HeightSource, block: int) -> Any:
         return np.asarray(source.read(r0, r1, c0, c1), dtype=source.dtype)
 
     chunks = tuple(tuple(min(block, n - i) for i in range(0, n, block)) for n in (rows, cols))
-    return da.map_blocks(chunk, chunks=chunks, dtype=source.dtype, meta=np.empty((0, 0)))
+    return da.map_blocks(
+        chunk, chunks=chunks, dtype=source.dtype, meta=np.empty((0, 0), source.dtype)
+    )
 
 
 def write_tiled_geotiff(
