@@ -100,7 +100,8 @@ def fractal_terrain(
 ) -> Grid:
     """A seeded fractal Grid of any size with square cells of ``cell_size`` metres.
 
-    No CRS: x and y are metres from the north-west corner at (0, rows × cell_size).
+    No CRS: x and y are metres from the north-west corner at (0, rows × cell_size). Held in
+    memory whole; for DEMs bigger than memory see ``write_fractal_terrain``.
     """
     z = fractal_heights(rows, cols, seed=seed, hurst=hurst, relief=relief)
     transform = Affine(cell_size, 0.0, 0.0, 0.0, -cell_size, z.shape[0] * cell_size)
