@@ -205,3 +205,11 @@ def test_heights_pickle_as_their_parameters():
     blob = pickle.dumps(source)
     assert len(blob) < 1000
     assert np.array_equal(pickle.loads(blob).read(30000, 30100, 100, 300), window, equal_nan=True)
+
+
+def test_cli_output_under_a_file_is_one_error_line(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    result = CliRunner().invoke(main, ["fractal", str(blocker / "dem.tif"), "--size", "64"])
+    assert result.exit_code == 2
+    assert result.stderr.startswith("Error:") and "is a file, not a folder" in result.stderr
