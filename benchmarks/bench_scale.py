@@ -178,10 +178,17 @@ def path_bytes(path: Path) -> int:
 
 
 def generate(
-    size: int, seed: int, data_dir: Path, cell_size: float, crs: str | None, cog: bool
+    size: int,
+    seed: int,
+    data_dir: Path,
+    cell_size: float,
+    crs: str | None,
+    cog: bool,
+    hurst: float | None,
 ) -> dict:
     """Make (or find) the size² fractal DEM; its generation figures (kept in a JSON beside)."""
-    dem = data_dir / f"fractal_{size}_seed{seed}{'_cog' if cog else ''}.tif"
+    tag = (f"_h{hurst:g}" if hurst is not None else "") + ("_cog" if cog else "")
+    dem = data_dir / f"fractal_{size}_seed{seed}{tag}.tif"
     sidecar = dem.with_suffix(".json")
     if dem.is_file() and sidecar.is_file():
         record = json.loads(sidecar.read_text())
@@ -192,6 +199,8 @@ def generate(
         cmd += ["--crs", crs]
     if cog:
         cmd.append("--cog")
+    if hurst is not None:
+        cmd += ["--hurst", str(hurst)]
     run = measure(cmd)
     if run["returncode"] != 0:
         raise SystemExit(f"generating {dem} failed:\n{run['stderr_tail']}")
@@ -306,6 +315,12 @@ def main(argv: list[str] | None = None) -> dict:
         "--cog", action="store_true", help="Make COGs (overviews) rather than tiled GeoTIFFs."
     )
     parser.add_argument(
+        "--hurst",
+        type=float,
+        default=None,
+        help="Roughness of the DEMs [approxtree fractal's default, 0.9]; lower is rougher",
+    )
+    parser.add_argument(
         "--workers", type=int, default=None, help="--workers of the size runs [CLI default]"
     )
     parser.add_argument("--speedup-size", type=int, default=None, help="[smallest size]")
@@ -353,7 +368,9 @@ def main(argv: list[str] | None = None) -> dict:
         "notes": [],
     }
     for size in args.sizes:
-        record = generate(size, args.seed, args.data_dir, args.cell_size, args.crs, args.cog)
+        record = generate(
+            size, args.seed, args.data_dir, args.cell_size, args.crs, args.cog, args.hurst
+        )
         g = record["generate"]
         print(
             f"DEM {size}²: {g['seconds']:.1f} s, peak RSS {g['peak_rss_tree_bytes'] / 2**20:.0f}"
