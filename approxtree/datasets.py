@@ -2,11 +2,17 @@
 
 ``sample_terrain()`` is the Jacksboro fault DEM (Tennessee, USGS 3″ data, 344 × 403) that ships
 with matplotlib, so the demo needs no download. ``fractal_terrain()`` makes reproducible
-fractional-Brownian surfaces of any size for benchmarks and scale tests.
+fractional-Brownian surfaces of any size for benchmarks and scale tests. ``FractalHeights`` and
+``write_fractal_terrain()`` make DEMs bigger than memory: heights are a pure function of
+(row, col, seed), computed and written block by block (a tiled, compressed GeoTIFF or COG).
 """
 
 from __future__ import annotations
 
+import functools
+import math
+import os
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -94,11 +100,166 @@ def fractal_terrain(
 ) -> Grid:
     """A seeded fractal Grid of any size with square cells of ``cell_size`` metres.
 
-    No CRS: x and y are metres from the north-west corner at (0, rows × cell_size).
+    No CRS: x and y are metres from the north-west corner at (0, rows × cell_size). Held in
+    memory whole; for DEMs bigger than memory see ``write_fractal_terrain``.
     """
     z = fractal_heights(rows, cols, seed=seed, hurst=hurst, relief=relief)
     transform = Affine(cell_size, 0.0, 0.0, 0.0, -cell_size, z.shape[0] * cell_size)
     return Grid(z, transform=transform)
+
+
+@dataclass(frozen=True)
+class FractalHeights:
+    """Seeded multi-octave gradient noise, read window by window: a ``HeightSource``.
+
+    Heights (metres) are ``relief + Σ_k a_k · noise_k(row, col)`` over octaves of wavelength
+    ``wavelength / 2^k`` cells down to 2 cells, with amplitude a_k = relief · (λ_k /
+    wavelength)^hurst: the same roughness at every scale, about ±relief in all. They depend on
+    (row, col, seed) and the parameters only, never on ``shape``: a window of a big raster equals
+    the same window of a small one. ``holes`` (0 ≤ holes < 1) is about the fraction of cells that
+    are nodata (NaN), in blobs of about wavelength / 8 cells. Pickles as its parameters.
+    """
+
+    shape: tuple[int, int]
+    seed: int = 0
+    hurst: float = 0.9
+    relief: float = 500.0
+    wavelength: float = 8192.0
+    holes: float = 0.0
+    dtype: np.dtype = field(default=np.dtype(np.float32), init=False)
+
+    def __post_init__(self) -> None:
+        shape = tuple(self.shape)
+        if (
+            len(shape) != 2
+            or not all(isinstance(n, int | np.integer) and not isinstance(n, bool) for n in shape)
+            or min(shape) < 2
+        ):
+            raise InvalidParameterError(
+                f"A fractal terrain needs at least 2 × 2 points, got shape {self.shape!r}; "
+                "give whole numbers of rows and columns ≥ 2."
+            )
+        object.__setattr__(self, "shape", (int(shape[0]), int(shape[1])))
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int | np.integer):
+            raise InvalidParameterError(f"seed must be a whole number, got {self.seed!r}.")
+        if not 0.0 < self.hurst < 1.5:
+            raise InvalidParameterError(f"hurst must lie in (0, 1.5), got {self.hurst}.")
+        if not (math.isfinite(self.relief) and self.relief > 0.0):
+            raise InvalidParameterError(f"relief must be a positive height, got {self.relief}.")
+        if not (math.isfinite(self.wavelength) and self.wavelength >= 4.0):
+            raise InvalidParameterError(
+                f"wavelength must be at least 4 cells, got {self.wavelength}."
+            )
+        if not 0.0 <= self.holes < 1.0:
+            raise InvalidParameterError(
+                f"holes is the fraction of nodata cells, in [0, 1); got {self.holes}."
+            )
+
+    @property
+    def nodata(self) -> float | None:
+        """NaN when the terrain has holes, else None."""
+        return math.nan if self.holes > 0 else None
+
+    def _octaves(self, salt: int, wavelength: float, count: int | None = None):
+        """(wavelengths, amplitudes, offsets, salts) of the octaves of one noise field."""
+        from approxtree.kernels.noise import mix64
+
+        k = np.arange(count if count is not None else max(1, int(math.log2(wavelength / 2)) + 1))
+        lengths = wavelength / 2.0**k
+        amplitudes = self.relief * (lengths / wavelength) ** self.hurst
+        seed = np.uint64(int(self.seed) & (2**64 - 1))
+        salts = np.array(
+            [mix64(seed ^ mix64(np.uint64(salt * 1000 + i + 1))) for i in k], dtype=np.uint64
+        )
+        # Lattice shifts of a fraction of the wavelength, from the salt's low bits.
+        frac = np.column_stack([(salts >> np.uint64(s)) & np.uint64(0xFFFF) for s in (16, 32)])
+        offsets = frac / 65536.0 * lengths[:, None]
+        return lengths, amplitudes, offsets, salts
+
+    def _noise(self, r0: int, c0: int, out: np.ndarray, octaves, base: float) -> np.ndarray:
+        from approxtree.kernels.noise import gradient_noise_block
+
+        gradient_noise_block(r0, c0, out, *octaves, base)
+        return out
+
+    @functools.cached_property
+    def _hole_threshold(self) -> float:
+        """The mask level above which a cell is a hole: the (1 − holes) quantile of the mask
+        noise on a fixed sample of cells (it depends on the parameters only, not the window)."""
+        octaves = self._octaves(1, self.wavelength / 8.0, 2)
+        # 256 × 256 cells spread over 64 × 64 mask wavelengths (many blobs).
+        step = max(1, int(self.wavelength / 64))
+        row = np.empty((1, 256 * step))
+        sample = np.empty((256, 256))
+        for i in range(256):
+            sample[i] = self._noise(i * step, 0, row, octaves, 0.0)[0, ::step]
+        return float(np.quantile(sample, 1.0 - self.holes))
+
+    def read(self, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
+        """Heights of rows [r0, r1) and columns [c0, c1): (r1 − r0, c1 − c0) float32, NaN for
+        nodata. Windows may reach beyond ``shape`` (the noise goes on)."""
+        if not (0 <= r0 <= r1 and 0 <= c0 <= c1):
+            raise InvalidParameterError(
+                f"A window needs 0 ≤ r0 ≤ r1 and 0 ≤ c0 ≤ c1, got rows [{r0}, {r1}), "
+                f"columns [{c0}, {c1})."
+            )
+        out = np.empty((r1 - r0, c1 - c0), dtype=np.float32)
+        self._noise(r0, c0, out, self._octaves(0, self.wavelength), self.relief)
+        if self.holes > 0:
+            mask = np.empty(out.shape, dtype=np.float32)
+            self._noise(r0, c0, mask, self._octaves(1, self.wavelength / 8.0, 2), 0.0)
+            out[mask > self._hole_threshold] = np.nan
+        return out
+
+
+def write_fractal_terrain(
+    path: str | os.PathLike,
+    rows: int,
+    cols: int | None = None,
+    *,
+    seed: int = 0,
+    hurst: float = 0.9,
+    relief: float = 500.0,
+    wavelength: float = 8192.0,
+    holes: float = 0.0,
+    cell_size: float = 1.0,
+    crs: str | None = None,
+    origin: tuple[float, float] | None = None,
+    compress: str = "deflate",
+    cog: bool = False,
+    workers: int | None = None,
+    block: int = 2048,
+    progress: bool | None = None,
+) -> Path:
+    """Write ``FractalHeights`` of rows × cols cells as a tiled, compressed GeoTIFF (or COG).
+
+    Blocks of ``block`` × ``block`` cells are computed by dask threads and written by one writer,
+    so memory stays at a few blocks whatever the size. Square cells of ``cell_size`` map units;
+    origin: (x, y) of the north-west corner [default (0, rows × cell_size): the south-west
+    corner at (0, 0)]. Written beside ``path`` and renamed into place. Returns the path.
+    """
+    from approxtree.io.tiled_geotiff import write_tiled_geotiff
+
+    cols = rows if cols is None else cols
+    source = FractalHeights(
+        (rows, cols), seed=seed, hurst=hurst, relief=relief, wavelength=wavelength, holes=holes
+    )
+    if not (math.isfinite(cell_size) and cell_size > 0):
+        raise InvalidParameterError(f"cell_size must be a positive length, got {cell_size}.")
+    x0, y0 = (0.0, rows * cell_size) if origin is None else origin
+    transform = Affine(cell_size, 0.0, x0, 0.0, -cell_size, y0)
+    return write_tiled_geotiff(
+        path,
+        source,
+        transform,
+        crs=crs,
+        nodata=source.nodata,
+        compress=compress,
+        cog=cog,
+        workers=workers,
+        block=block,
+        progress=progress,
+    )
 
 
 def _meander(rng: np.random.Generator, start: np.ndarray, steps: int, step: float) -> np.ndarray:

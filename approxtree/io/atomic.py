@@ -243,3 +243,42 @@ def atomic_directory(path: str | os.PathLike) -> Iterator[Path]:
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
+    """A temp file path beside ``path`` for a library that writes by name (GDAL, ...): the file
+    written there replaces ``path`` when the block finishes cleanly; on failure it is removed
+    and ``path`` is left as it was."""
+    target = Path(path)
+    _check_folder(target)
+    remove_stale_temps(target)
+    keep_mode = _existing_mode(target)
+    tmp = _temp_path(target)
+    with _sigterm_unwinds(), _registered(tmp):
+        try:
+            yield tmp
+            with _os_errors(f"Cannot replace {target}"):
+                if keep_mode is not None:
+                    os.chmod(tmp, keep_mode)
+                with open(tmp, "rb+") as f:
+                    os.fsync(f.fileno())
+                os.replace(tmp, target)
+        except BaseException:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(tmp)
+            raise
+
+
+@contextlib.contextmanager
+def scratch_path(path: str | os.PathLike) -> Iterator[Path]:
+    """A temp file path beside ``path`` for an intermediate file, always removed at the end;
+    named like the temp files of writes to ``path``, so a killed writer's leftover goes with
+    the next write to ``path``."""
+    tmp = _temp_path(Path(path))
+    with _registered(tmp):
+        try:
+            yield tmp
+        finally:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(tmp)

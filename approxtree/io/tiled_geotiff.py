@@ -1,0 +1,217 @@
+"""Write a height source of any size as a tiled, compressed GeoTIFF (or COG), block by block.
+
+Blocks are computed by dask (threads: the height kernels release the GIL) and written by one
+writer under a lock, so memory holds a few blocks whatever the raster's size. The file is
+written beside the target and renamed into place.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from approxtree.errors import InvalidParameterError, StoreError
+
+#: Internal tile edge (cells): the COG default, and what GDAL readers expect.
+TILE = 512
+
+#: GDAL's block cache while writing: enough for a row of tiles, never a copy of the raster
+#: (GDAL's default is 5 % of RAM and would hold written tiles there).
+_WRITE_CACHE_MB = 64
+
+COMPRESSIONS = ("deflate", "zstd", "lzw", "none")
+
+
+class HeightSource(Protocol):
+    """Anything that reads half-open windows of heights (see geometry/windowed.py)."""
+
+    shape: tuple[int, int]
+    dtype: np.dtype
+
+    def read(self, r0: int, r1: int, c0: int, c1: int) -> np.ndarray: ...
+
+
+def _creation_options(compress: str, dtype: np.dtype) -> dict[str, Any]:
+    """GDAL creation options: 512² tiles, compression with the predictor of the data type."""
+    if compress not in COMPRESSIONS:
+        raise InvalidParameterError(
+            f"Unknown compression {compress!r}; choose one of {', '.join(COMPRESSIONS)}."
+        )
+    options: dict[str, Any] = {
+        "tiled": True,
+        "blockxsize": TILE,
+        "blockysize": TILE,
+        # BigTIFF when the file might pass 4 GB (GDAL decides from the uncompressed size).
+        "BIGTIFF": "IF_SAFER",
+        "NUM_THREADS": "ALL_CPUS",
+    }
+    if compress != "none":
+        options["compress"] = compress
+        # Floating-point predictor (3) for floats, horizontal differencing (2) for integers.
+        options["predictor"] = 3 if np.dtype(dtype).kind == "f" else 2
+    if compress == "zstd":
+        options["ZSTD_LEVEL"] = 3
+    return options
+
+
+class _BandWriter:
+    """The target of ``dask.array.store``: writes each block into band 1 of an open dataset.
+
+    dask calls ``__setitem__`` from its worker threads; the store's lock makes one writer.
+    """
+
+    def __init__(self, dataset: Any, bar: Any) -> None:
+        self.dataset = dataset
+        self.bar = bar
+        self.shape = (dataset.height, dataset.width)
+        self.dtype = np.dtype(dataset.dtypes[0])
+        self.ndim = 2
+
+    def __setitem__(self, key: tuple[slice, slice], block: np.ndarray) -> None:
+        from rasterio.windows import Window
+
+        rows, cols = key
+        window = Window(cols.start, rows.start, cols.stop - cols.start, rows.stop - rows.start)
+        self.dataset.write(block, 1, window=window)
+        if self.bar is not None:
+            self.bar.update(1)
+
+
+def _dask_blocks(source: HeightSource, block: int) -> Any:
+    """The source as a dask array of block × block chunks, each read on its own."""
+    import dask.array as da
+
+    rows, cols = source.shape
+
+    def chunk(block_info: dict | None = None) -> np.ndarray:
+        (r0, r1), (c0, c1) = block_info[None]["array-location"]
+        return np.asarray(source.read(r0, r1, c0, c1), dtype=source.dtype)
+
+    chunks = tuple(tuple(min(block, n - i) for i in range(0, n, block)) for n in (rows, cols))
+    return da.map_blocks(
+        chunk, chunks=chunks, dtype=source.dtype, meta=np.empty((0, 0), source.dtype)
+    )
+
+
+def write_tiled_geotiff(
+    path: str | os.PathLike,
+    source: HeightSource,
+    transform: Any,
+    *,
+    crs: str | None = None,
+    nodata: float | None = None,
+    compress: str = "deflate",
+    cog: bool = False,
+    workers: int | None = None,
+    block: int = 2048,
+    progress: bool | None = None,
+) -> Path:
+    """Write ``source`` (rows, cols) as band 1 of a GeoTIFF with 512 × 512 tiles.
+
+    transform: the affine georeference; crs: any CRS rasterio understands (None: none);
+    nodata: the nodata value written in the file (NaN for float sources with holes);
+    compress: deflate, zstd, lzw or none (with the predictor of the data type); cog: a Cloud
+    Optimized GeoTIFF with overviews (GDAL's COG driver copies the tiled file, tile by tile);
+    workers: dask threads (default: the core count); block: cells per dask block edge, a
+    multiple of 512; progress: a tqdm bar of blocks written (None = when over 16 blocks).
+    Returns the path written.
+    """
+    import rasterio
+    from rasterio.errors import RasterioError
+    from tqdm.auto import tqdm
+
+    from approxtree.io.atomic import atomic_path, scratch_path
+
+    options = _creation_options(compress, source.dtype)
+    if isinstance(block, bool) or not isinstance(block, int) or block < TILE or block % TILE:
+        raise InvalidParameterError(
+            f"block must be a multiple of {TILE} cells (the tile size), got {block!r}."
+        )
+    if workers is not None and (isinstance(workers, bool) or workers < 1):
+        raise InvalidParameterError(f"workers must be at least 1, got {workers!r}.")
+    crs = _check_crs(crs)
+    rows, cols = source.shape
+    blocks = _dask_blocks(source, block)
+    nblocks = math.prod(len(c) for c in blocks.chunks)
+    target = Path(path)
+    profile = dict(
+        driver="GTiff",
+        width=cols,
+        height=rows,
+        count=1,
+        dtype=source.dtype,
+        crs=crs,
+        transform=transform,
+        nodata=nodata,
+        **options,
+    )
+    show = nblocks > 16 if progress is None else progress
+    with (
+        atomic_path(target) as tmp,
+        tqdm(total=nblocks, unit="block", desc="GeoTIFF blocks", disable=not show) as bar,
+        rasterio.Env(GDAL_CACHEMAX=_WRITE_CACHE_MB),
+    ):
+        try:
+            if cog:
+                # The COG driver copies a finished raster: tiles first, then the COG beside.
+                with scratch_path(target) as tiled:
+                    _write_blocks(tiled, profile, blocks, bar, workers)
+                    _copy_as_cog(tiled, tmp, compress)
+            else:
+                _write_blocks(tmp, profile, blocks, bar, workers)
+        except RasterioError as exc:
+            raise StoreError(f"Cannot write {target}: {exc}") from exc
+    return target
+
+
+def _write_blocks(path: Path, profile: dict, blocks: Any, bar: Any, workers: int | None) -> None:
+    """Compute the dask blocks in threads and write them into a new GeoTIFF at ``path``."""
+    import dask.array as da
+    import rasterio
+
+    with rasterio.open(path, "w", **profile) as ds:
+        # One lock: blocks are computed in parallel, written one at a time.
+        da.store(
+            blocks,
+            _BandWriter(ds, bar),
+            lock=threading.Lock(),
+            scheduler="threads",
+            num_workers=workers or os.cpu_count() or 1,
+        )
+
+
+def _copy_as_cog(src: Path, dst: Path, compress: str) -> None:
+    """GDAL's COG driver: tiles, overviews (average) before the full-resolution data."""
+    from rasterio.shutil import copy
+
+    options: dict[str, Any] = {
+        "BLOCKSIZE": TILE,
+        "BIGTIFF": "IF_SAFER",
+        "NUM_THREADS": "ALL_CPUS",
+        "OVERVIEWS": "AUTO",
+        "RESAMPLING": "AVERAGE",
+        "COMPRESS": compress.upper() if compress != "none" else "NONE",
+    }
+    if compress != "none":
+        options["PREDICTOR"] = "YES"
+    copy(src, dst, driver="COG", **options)
+
+
+def _check_crs(crs: str | None) -> Any:
+    """A CRS rasterio understands, or an error saying how to name one."""
+    if crs is None:
+        return None
+    from rasterio.crs import CRS
+    from rasterio.errors import CRSError
+
+    try:
+        return CRS.from_user_input(crs)
+    except (CRSError, ValueError) as exc:
+        raise InvalidParameterError(
+            f"Unknown CRS {crs!r}; give it as EPSG:NNNN, a WKT string or a PROJ string."
+        ) from exc
