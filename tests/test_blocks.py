@@ -178,15 +178,12 @@ def test_cli_rejects_workers_with_scheduler(tmp_path):
     assert "Error:" in r.output and "not both" in r.output
 
 
-class _WindowedGrid(Grid):
-    """Stands in for a windowed grid: tasks get the grid itself and read their windows."""
-
-    is_windowed = True
-
-
 def test_windowed_grid_tasks_read_their_own_windows():
+    from approxtree.geometry.windowed import ArraySource, WindowedHeights
+
     g = _terrain()
-    w = _WindowedGrid(g.heights, g.transform)
+    source = ArraySource(np.asarray(g.heights))
+    w = Grid(WindowedHeights(source, cache_bytes=1 << 16, block_shape=(32, 32)), g.transform)
     plan = plan_blocks(w, 4, 80)
     tasks = make_tasks(w, plan, 0.5, 81, 4, StrategyPolicy("type"))
     assert all(t.grid is w and all(a.lattice is None for a in t.ancestors) for t in tasks)

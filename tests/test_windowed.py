@@ -355,7 +355,7 @@ def test_peak_memory_bounded_by_blocks(tmp_path):
 
 
 def test_whole_band_operations_fail_clearly(tmp_path, monkeypatch):
-    from approxtree import ApproximationTree
+    from approxtree.patches import STRATEGIES
     from approxtree.rd.bintree import lattice_heights
     from approxtree.textures.shading import TopographicShading
 
@@ -366,9 +366,10 @@ def test_whole_band_operations_fail_clearly(tmp_path, monkeypatch):
         _ = g.valid
     with pytest.raises(WholeBandError, match="window"):
         np.asarray(g.heights)
+    # A patch over the whole band is refused (trees build block by block instead).
     for policy in ("grid", "rtin", "tin", "nonregular"):
         with pytest.raises(WholeBandError, match="building"):
-            ApproximationTree.build(g, epsilon=1.0, policy=policy)
+            STRATEGIES[policy].build_many(g, [g.domain], 16, 1.0)
     with pytest.raises(WholeBandError, match="shading"):
         TopographicShading(g).hillshade()
     with pytest.raises(WholeBandError, match="binary tree"):
@@ -441,17 +442,23 @@ def test_raster_source_read_from_many_threads(tmp_path):
 
 
 @pytest.mark.parametrize("policy", ["grid", "rtin", "tin", "nonregular"])
-def test_too_large_build_fails_before_reading_the_band(monkeypatch, policy):
+def test_windowed_build_reads_blocks_not_the_band(monkeypatch, policy):
+    """Above the whole-band limit a build goes block by block (tree/blocks.py): it never asks
+    for the band whole, reads each cell about once, and equals the in-memory build."""
     from approxtree import ApproximationTree
 
     z = _synthetic(200, 180)
     source = ArraySource(z)
     g = Grid(WindowedHeights(source, cache_bytes=64 * 1024, block_shape=(64, 64)))
     monkeypatch.setattr(windowed_module, "WHOLE_BAND_LIMIT_BYTES", 10_000)
-    with pytest.raises(WholeBandError, match="building"):
-        ApproximationTree.build(g, epsilon=1.0, policy=policy)
-    # Only the blockwise z range scan touched every cell; nothing read the band whole.
-    assert source.cells_read <= z.size
+    with pytest.raises(WholeBandError):
+        g.heights_array("reading it whole")
+    tree = ApproximationTree.build(g, epsilon=1.0, policy=policy)
+    # The blockwise z range scan and the one block's window: each cell read about twice.
+    assert source.cells_read <= 2 * z.size + 4 * (z.shape[0] + z.shape[1])
+    ref = ApproximationTree.build(Grid(z), epsilon=1.0, policy=policy)
+    np.testing.assert_array_equal(tree.rects, ref.rects)
+    np.testing.assert_array_equal(tree.errors, ref.errors)
 
 
 def test_header_claiming_more_cells_fails_at_open(tmp_path):

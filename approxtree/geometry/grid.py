@@ -377,18 +377,26 @@ class Grid(GeometryData):
             attrs["index_offset"] = list(self.index_offset)
         if self.is_windowed:
             attrs["windowed"] = True
+        # The band's figures travel with it, so a store opened windowed never scans the band.
+        attrs["stats"] = {"points": int(self._n_valid), "z_range": list(self.z_range)}
         return attrs, {"heights": self.heights}
 
     @classmethod
     def from_record(cls, attrs: dict[str, Any], arrays: dict[str, np.ndarray]) -> Grid:
         offset = tuple(attrs.get("index_offset", (0, 0)))
-        return cls(
+        grid = cls(
             arrays["heights"],
             Affine(*attrs["transform"]),
             attrs["crs"],
             attrs["nodata"],
             index_offset=offset,  # type: ignore[arg-type]
         )
+        stats = attrs.get("stats")
+        if stats and grid.is_windowed:
+            grid.__dict__["_n_valid"] = int(stats["points"])
+            zmin, zmax = stats["z_range"]
+            grid.__dict__["_z_range"] = (float(zmin), float(zmax))
+        return grid
 
     def split_position(self, rect: Rect, axis: int) -> float | None:
         r0, r1, c0, c1 = self.index_range(rect)

@@ -34,6 +34,7 @@ import numpy as np
 
 from approxtree import __version__
 from approxtree.errors import StoreError
+from approxtree.geometry.windowed import WindowedHeights
 from approxtree.patches import STRATEGIES
 from approxtree.patches.records import Batch, concat_records, take
 from approxtree.tree.zarr_store import (
@@ -112,9 +113,10 @@ def _read_terrain(reader: StoreReader) -> GeometryData:
     for name in reader.children("terrain"):
         path = f"terrain/{name}"
         if name == "heights":
+            # The heights stay in the store: windows are read (and checksummed) as asked for,
+            # through a cache bounded in bytes.
             source = ZarrHeightSource(reader.location, path, reader=reader)
-            # LEAD: wrap in WindowedHeights once geometry/windowed.py lands
-            arrays[name] = source.read(0, source.shape[0], 0, source.shape[1])
+            arrays[name] = WindowedHeights(source)
         else:
             arrays[name] = reader.read(path)
     try:

@@ -417,6 +417,8 @@ class ZarrHeightSource:
         arr = self._open().node(path)
         self.shape: tuple[int, int] = (int(arr.shape[0]), int(arr.shape[1]))
         self.dtype = np.dtype(arr.dtype).newbyteorder("=")
+        #: The array's chunks: the blocks a WindowedHeights over this source reads whole.
+        self.block_shape: tuple[int, int] = (int(arr.chunks[0]), int(arr.chunks[1]))
 
     def _open(self) -> StoreReader:
         if self._reader is None:
