@@ -413,7 +413,7 @@ def test_reader_options_with_a_tree_file_are_refused(built, files, tmp_path):
     ):
         code, _, err = run(*args)
         assert code == 2, args
-        assert err.startswith("Error: ") and "tree file" in err
+        assert err.startswith("Error: ") and "saved tree" in err
     assert not (tmp_path / "tex").exists()
 
 
