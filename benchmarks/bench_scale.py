@@ -164,6 +164,7 @@ def build_options() -> dict[str, Any]:
         "workers": "--workers" in text,
         "report": "--report" in text,
         "scheduler": "--scheduler" in text,
+        "windowed": "--windowed" in text,
         "json": "--json" in text,
         "zarr": "zarr" in text.lower(),
         "help": text,
@@ -234,6 +235,10 @@ def build(
     cmd = [*CLI, "build", str(dem), "-o" if opts["short_out"] else "--out", str(tree)]
     cmd += ["--epsilon", str(epsilon)]
     notes = []
+    # Every size read windowed, so the figures compare like with like (by default only rasters
+    # above 1 GiB of heights open windowed).
+    if opts.get("windowed"):
+        cmd += ["--windowed", "on"]
     if workers is not None:
         if opts["workers"]:
             cmd += ["--workers", str(workers)]

@@ -151,6 +151,13 @@ class RasterSource:
             self._local.dataset = ds
         return ds
 
+    def close(self) -> None:
+        """Close this thread's dataset handle (reopened on the next read)."""
+        ds = getattr(self._local, "dataset", None)
+        if ds is not None:
+            ds.close()
+            self._local.dataset = None
+
     def read(self, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
         """Rows [r0, r1), columns [c0, c1) as (r1 − r0, c1 − c0) heights, NaN for nodata."""
         import rasterio

@@ -307,6 +307,13 @@ def run_block(task: BlockTask) -> BlockResult:
         stats = measure_ancestors(grid, task.index, ancestors)
     finally:
         numba.set_num_threads(threads)
+        # A worker keeps a task until its result is collected: a windowed terrain's block
+        # cache and dataset handle go now, so worker memory does not grow with the blocks done.
+        if getattr(task.grid, "is_windowed", False):
+            task.grid.heights.clear_cache()
+            close = getattr(task.grid.heights.source, "close", None)
+            if close is not None:
+                close()
     n = len(built.patches)
     # Grid patches (most nodes) travel as two arrays rather than one record each.
     is_grid = [type(p) is GridPatch for p in built.patches]

@@ -113,6 +113,8 @@ def dask_runner(
                 for fut in as_completed(futures):
                     try:
                         results.append(fut.result())
+                        # The worker may forget the task and its result now.
+                        fut.release()
                     except ApproxTreeError:
                         raise
                     except Exception as exc:
