@@ -432,3 +432,31 @@ def test_store_to_store_copy_follows_the_storage_order(grid, tmp_path, monkeypat
     assert StoreReader(tmp_path / "b.zarr").meta["ancestor_level"] == 1
     assert StoreReader(tmp_path / "a.zarr").meta["ancestor_level"] > 1
     same_tree(tree, load_tree(tmp_path / "b.zarr"))
+
+
+def test_coarse_grid_patches_carry_their_lattice(tmp_path, monkeypatch):
+    """A coarse grid patch's lattice touches a terrain chunk per vertex; its record carries the
+    lattice heights, so drawing it reads nothing of the stored terrain — and the mesh is the
+    same as the one read from the terrain."""
+    from approxtree.patches.grid import LATTICE_STORED_STEP
+
+    terrain = fractal_terrain(513, seed=4)
+    h = np.array(terrain.heights)
+    h[100:140, 300:420] = np.nan
+    terrain = at.Grid(h, terrain.transform, terrain.crs)
+    tree = ApproximationTree.build(terrain, epsilon=0.05, max_points=9)
+    coarse = [i for i in range(len(tree)) if max(tree.patch(i).steps) >= LATTICE_STORED_STEP]
+    assert len(coarse) >= 5
+    path = tmp_path / "t.zarr"
+    tree.save(path)
+    back = load_tree(path)
+
+    def no_reads(*args, **kwargs):
+        raise AssertionError("a coarse patch read the stored terrain")
+
+    monkeypatch.setattr(ZarrHeightSource, "read", no_reads)
+    for i in coarse:
+        np.testing.assert_array_equal(back.read_patch(i).vertices, tree.patch(i).vertices)
+        np.testing.assert_array_equal(back.read_patch(i).triangles, tree.patch(i).triangles)
+    monkeypatch.undo()
+    same_tree(tree, back)

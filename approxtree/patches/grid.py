@@ -31,17 +31,24 @@ def grid_steps(n_lines: int, max_lines: int) -> int:
 
 
 def lattice_world_mesh(
-    grid: Grid, rows: np.ndarray, cols: np.ndarray, tris: np.ndarray
+    grid: Grid,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    tris: np.ndarray,
+    z: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """World vertices (n, 3) float64 and CCW triangles (m, 3) of the rows × cols sub-lattice.
 
     rows, cols: grid row and column indices kept; tris: (m, 3) indices into the row-major
-    rows × cols vertices, orient > 0 in (column, row) index space. Nodata vertices are left
-    out together with the triangles touching them.
+    rows × cols vertices, orient > 0 in (column, row) index space; z: the (rows, cols) heights
+    when already read (else read from the grid). Nodata vertices are left out together with the
+    triangles touching them.
     """
     rr, cc = np.meshgrid(rows, cols, indexing="ij")
+    if z is None:
+        z = grid.heights[rr, cc]
     verts = np.column_stack(
-        [grid.x_coords[cc.ravel()], grid.y_coords[rr.ravel()], grid.heights[rr, cc].ravel()]
+        [grid.x_coords[cc.ravel()], grid.y_coords[rr.ravel()], np.asarray(z).ravel()]
     ).astype(np.float64)
     # Index space is (col, row); a north-up transform mirrors it, so flip to stay CCW.
     if grid.transform.a * grid.transform.e < 0:
@@ -76,6 +83,8 @@ class GridPatch(GeometryPatch):
         self.z_range = (float(z_range[0]), float(z_range[1]))
         self.data_count = int(data_count)
         self._mesh: tuple[np.ndarray, np.ndarray] | None = None
+        #: (kr, kc) heights of the sampled lattice when the record carried them (coarse patches).
+        self._lattice_z: np.ndarray | None = None
 
     @staticmethod
     def _require_grid(terrain: GeometryData) -> Grid:
@@ -157,16 +166,29 @@ class GridPatch(GeometryPatch):
             _, sumsq, count, _, _ = lattice_error(g.heights, rows, cols)
         return float(np.sqrt(sumsq / max(count, 1)))
 
+    @property
+    def stores_lattice(self) -> bool:
+        """True when the patch's record carries its lattice heights (see LATTICE_STORED_STEP)."""
+        return max(self.steps) >= LATTICE_STORED_STEP
+
+    def lattice_heights(self) -> np.ndarray:
+        """(kr, kc) heights at the sampled rows × columns (NaN for nodata)."""
+        if self._lattice_z is not None:
+            return self._lattice_z
+        rows, cols = self.lines
+        return np.asarray(self.grid.heights[rows[:, None], cols[None, :]])
+
     def _build_mesh(self) -> tuple[np.ndarray, np.ndarray]:
         g = self.grid
         r0, r1, c0, c1, sr, sc = self.index
-        if g.is_windowed:
-            # A windowed grid reads only the sampled lattice; the kernel sees it with steps 1.
+        if g.is_windowed or self._lattice_z is not None:
+            # Only the sampled lattice is read (or it came with the record); the kernel sees
+            # it with steps 1.
             rows, cols = self.lines
-            z = g.heights[rows[:, None], cols[None, :]]
+            z = self.lattice_heights()
             _, _, tris = grid_patch_mesh(z, 0, len(rows) - 1, 0, len(cols) - 1, 1, 1)
-        else:
-            rows, cols, tris = grid_patch_mesh(g.heights, r0, r1, c0, c1, sr, sc)
+            return lattice_world_mesh(g, rows, cols, tris, z)
+        rows, cols, tris = grid_patch_mesh(g.heights, r0, r1, c0, c1, sr, sc)
         return lattice_world_mesh(g, rows, cols, tris)
 
     @property
@@ -195,9 +217,11 @@ class GridPatch(GeometryPatch):
         r_off, c_off = self.grid.index_offset
         r0, r1, c0, c1, sr, sc = self.index
         index = (r0 + r_off, r1 + r_off, c0 + c_off, c1 + c_off, sr, sc)
+        z = self.lattice_heights().reshape(-1) if self.stores_lattice else np.empty(0)
         return {
             "index": np.array(index, dtype="<i8"),
             "stats": np.array([self.error, *self.z_range, self.data_count], dtype="<f8"),
+            "z": z.astype("<f8"),
         }
 
     @classmethod
@@ -209,6 +233,7 @@ class GridPatch(GeometryPatch):
         return {
             "index": gather((p.index for p in ps), k, 6, "<i8"),
             "stats": gather(stats, k, 4, "<f8"),
+            "z": _lattices_many(ps),
         }
 
     @classmethod
@@ -220,7 +245,50 @@ class GridPatch(GeometryPatch):
         r_off, c_off = grid.index_offset
         index = (r0 - r_off, r1 - r_off, c0 - c_off, c1 - c_off, sr, sc)
         error, zmin, zmax, count = (float(v) for v in record["stats"])
-        return cls(grid, rect, index, error, (zmin, zmax), int(count))
+        patch = cls(grid, rect, index, error, (zmin, zmax), int(count))
+        z = record.get("z")
+        if z is not None and len(z):
+            rows, cols = patch.lines
+            patch._lattice_z = np.asarray(z, dtype=np.float64).reshape(len(rows), len(cols))
+        return patch
+
+
+#: Coarsest steps from which a grid patch's record carries its lattice heights: the lattice of
+#: a coarse patch touches a chunk of the stored terrain per vertex, so reading it back from the
+#: terrain would decode most of the raster (4.5 s for the root of a 32768² tree); stored, it is
+#: 8 bytes a vertex (coarse patches are few: about 1/256 of the nodes of a quadtree).
+LATTICE_STORED_STEP = 16
+
+
+def _lattices_many(patches: Sequence[GridPatch]) -> tuple[np.ndarray, np.ndarray]:
+    """(flat, offsets) of the lattice heights of the patches that store them (none for others).
+
+    All lattices over one grid are read with one index gather, so a windowed grid reads each of
+    its blocks once, however many coarse patches cover it.
+    """
+    k = len(patches)
+    sizes = np.zeros(k, dtype=np.int64)
+    coarse = [i for i, p in enumerate(patches) if p.stores_lattice]
+    flat = np.empty(0, dtype="<f8")
+    if coarse:
+        parts: dict[int, list[int]] = {}
+        for i in coarse:
+            parts.setdefault(id(patches[i].grid), []).append(i)
+        pieces: dict[int, np.ndarray] = {}
+        for members in parts.values():
+            lines = [patches[i].lines for i in members]
+            rr = np.concatenate([np.repeat(r, len(c)) for r, c in lines])
+            cc = np.concatenate([np.tile(c, len(r)) for r, c in lines])
+            z = np.asarray(patches[members[0]].grid.heights[rr, cc], dtype="<f8")
+            ends = np.cumsum([len(r) * len(c) for r, c in lines])
+            for i, part in zip(members, np.split(z, ends[:-1]), strict=True):
+                pieces[i] = part
+        for i in coarse:
+            sizes[i] = len(pieces[i])
+        flat = np.concatenate([pieces[i] for i in coarse])
+    offsets = np.zeros(k + 1, dtype=np.int64)
+    np.cumsum(sizes, out=offsets[1:])
+    return flat, offsets
 
 
 def _uniform_counts(rows: int, cols: int, step: int) -> tuple[int, int]:

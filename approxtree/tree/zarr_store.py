@@ -144,11 +144,28 @@ def write_array(group: Any, name: str, data: Any, chunks: tuple[int, ...] | None
     rows, cols = shape
     rstep = chunks[0]
     cstep = max(chunks[1], (_HEIGHT_BLOCK_COLS // chunks[1]) * chunks[1])
-    for r0 in range(0, rows, rstep):
-        r1 = min(rows, r0 + rstep)
-        for c0 in range(0, cols, cstep):
-            c1 = min(cols, c0 + cstep)
-            arr[r0:r1, c0:c1] = np.asarray(data[r0:r1, c0:c1])
+    slabs = [
+        (r0, min(rows, r0 + rstep), c0, min(cols, c0 + cstep))
+        for r0 in range(0, rows, rstep)
+        for c0 in range(0, cols, cstep)
+    ]
+
+    def copy(slab: tuple[int, int, int, int]) -> None:
+        r0, r1, c0, c1 = slab
+        arr[r0:r1, c0:c1] = np.asarray(data[r0:r1, c0:c1])
+
+    # Slabs cover whole, disjoint chunks, so they are read (a raster decoded) and compressed
+    # on a thread per core; at most two slabs per thread are in flight, bounding memory.
+    threads = min(os.cpu_count() or 1, len(slabs))
+    if threads <= 1:
+        for slab in slabs:
+            copy(slab)
+        return arr
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(threads, thread_name_prefix="store-write") as pool:
+        for start in range(0, len(slabs), 2 * threads):
+            list(pool.map(copy, slabs[start : start + 2 * threads]))
     return arr
 
 
