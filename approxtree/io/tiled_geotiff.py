@@ -11,11 +11,12 @@ import math
 import os
 import threading
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
 from approxtree.errors import InvalidParameterError, StoreError
+from approxtree.geometry.windowed import HeightSource
 
 #: Internal tile edge (cells): the COG default, and what GDAL readers expect.
 TILE = 512
@@ -25,15 +26,6 @@ TILE = 512
 _WRITE_CACHE_MB = 64
 
 COMPRESSIONS = ("deflate", "zstd", "lzw", "none")
-
-
-class HeightSource(Protocol):
-    """Anything that reads half-open windows of heights (see geometry/windowed.py)."""
-
-    shape: tuple[int, int]
-    dtype: np.dtype
-
-    def read(self, r0: int, r1: int, c0: int, c1: int) -> np.ndarray: ...
 
 
 def _creation_options(compress: str, dtype: np.dtype) -> dict[str, Any]:
