@@ -460,3 +460,21 @@ def test_coarse_grid_patches_carry_their_lattice(tmp_path, monkeypatch):
         np.testing.assert_array_equal(back.read_patch(i).triangles, tree.patch(i).triangles)
     monkeypatch.undo()
     same_tree(tree, back)
+
+
+def test_windowed_save_reads_the_band_once(tmp_path):
+    """The save of a blocked build over a windowed grid copies the band once, picking the
+    coarse patches' lattices as it streams past: no statistics scan (the build's root gave the
+    band's figures), no second pass for the lattices. The store equals the in-memory build's."""
+    from approxtree.geometry.windowed import ArraySource, WindowedHeights
+
+    z = np.asarray(fractal_terrain(513, seed=8).heights)
+    source = ArraySource(z)
+    g = at.Grid(WindowedHeights(source, cache_bytes=1 << 18, block_shape=(64, 64)))
+    tree = ApproximationTree.build(g, epsilon=0.05, max_points=9, block_size=128)
+    assert any(max(tree.patch(i).steps) >= 16 for i in range(len(tree)))
+    before = source.cells_read
+    tree.save(tmp_path / "w.zarr")
+    assert source.cells_read - before == z.size
+    ref = ApproximationTree.build(at.Grid(z), epsilon=0.05, max_points=9)
+    same_tree(ref, load_tree(tmp_path / "w.zarr"))

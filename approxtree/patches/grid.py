@@ -271,10 +271,15 @@ def _lattices_many(patches: Sequence[GridPatch]) -> tuple[np.ndarray, np.ndarray
     coarse = [i for i, p in enumerate(patches) if p.stores_lattice]
     flat = np.empty(0, dtype="<f8")
     if coarse:
+        pieces: dict[int, np.ndarray] = {
+            i: np.asarray(patches[i]._lattice_z, dtype="<f8").reshape(-1)
+            for i in coarse
+            if patches[i]._lattice_z is not None
+        }
         parts: dict[int, list[int]] = {}
         for i in coarse:
-            parts.setdefault(id(patches[i].grid), []).append(i)
-        pieces: dict[int, np.ndarray] = {}
+            if i not in pieces:
+                parts.setdefault(id(patches[i].grid), []).append(i)
         for members in parts.values():
             lines = [patches[i].lines for i in members]
             rr = np.concatenate([np.repeat(r, len(c)) for r, c in lines])

@@ -539,5 +539,11 @@ def build_blocked(
     else:
         results = run(tasks)
     out = assemble(grid, plan, results, epsilon, max_points)
+    # The root's figures are the band's: a windowed grid need not scan itself for them.
+    if getattr(grid, "is_windowed", False) and "_n_valid" not in grid.__dict__:
+        root = out.patches[0]
+        if root.rect == grid.domain and root.data_count > 0:
+            grid.__dict__["_n_valid"] = int(root.data_count)
+            grid.__dict__["_z_range"] = (float(root.z_range[0]), float(root.z_range[1]))
     out.seconds = time.perf_counter() - t0
     return out

@@ -92,14 +92,66 @@ def storage_order(levels: np.ndarray, parents: np.ndarray, level: int) -> np.nda
 # -- terrain -----------------------------------------------------------------------------------
 
 
-def _write_terrain(root: Any, terrain: GeometryData) -> None:
+def _write_terrain(root: Any, terrain: GeometryData, tap: Any = None) -> None:
+    """The terrain group; ``tap(r0, r1, c0, c1, values)`` sees every slab of the heights."""
     attrs, arrays = terrain.to_record()
     group = root.create_group("terrain", attributes={"kind": terrain.kind, "attrs": attrs})
     for name, a in arrays.items():
         if name == "heights":
-            write_array(group, name, a, chunks=(HEIGHT_CHUNK, HEIGHT_CHUNK))
+            write_array(group, name, a, chunks=(HEIGHT_CHUNK, HEIGHT_CHUNK), tap=tap)
         else:
             write_array(group, name, np.asarray(a))
+
+
+class _LatticeTap:
+    """Picks the lattice heights of coarse grid patches out of the terrain's slabs as the store
+    copies them, so a windowed terrain is read once, not once more for the lattices.
+
+    patches: GridPatch objects over the terrain's (windowed) grid that store their lattice and
+    do not hold it yet. ``finish()`` hands each patch its (kr, kc) heights.
+    """
+
+    def __init__(self, patches: list[Any]) -> None:
+        self.patches = patches
+        lines = [p.lines for p in patches]
+        self.sizes = [(len(r), len(c)) for r, c in lines]
+        rr = np.concatenate([np.repeat(r, len(c)) for r, c in lines])
+        cc = np.concatenate([np.tile(c, len(r)) for r, c in lines])
+        # Points sorted by row: a slab's points are one searchsorted range, then a column test.
+        self.order = np.argsort(rr, kind="stable")
+        self.rows = rr[self.order]
+        self.cols = cc[self.order]
+        self.values = np.full(len(rr), np.nan, dtype=np.float64)
+
+    def __call__(self, r0: int, r1: int, c0: int, c1: int, block: np.ndarray) -> None:
+        lo, hi = np.searchsorted(self.rows, [r0, r1])
+        cols = self.cols[lo:hi]
+        inside = np.flatnonzero((cols >= c0) & (cols < c1))
+        if len(inside):
+            at = lo + inside
+            self.values[self.order[at]] = block[self.rows[at] - r0, cols[inside] - c0]
+
+    def finish(self) -> None:
+        ends = np.cumsum([kr * kc for kr, kc in self.sizes])
+        parts = np.split(self.values, ends[:-1])
+        for p, (kr, kc), z in zip(self.patches, self.sizes, parts, strict=True):
+            p._lattice_z = z.reshape(kr, kc)
+
+
+def _lattice_tap(tree: ApproximationTree) -> _LatticeTap | None:
+    """The tap for the coarse grid patches of a tree over a windowed grid (None otherwise)."""
+    from approxtree.patches.grid import GridPatch
+
+    grid = tree.terrain
+    if not getattr(grid, "is_windowed", False) or grid.index_offset != (0, 0):
+        return None
+    held = tree._patches
+    wanted = [
+        p
+        for p in held
+        if type(p) is GridPatch and p.grid is grid and p._lattice_z is None and p.stores_lattice
+    ]
+    return _LatticeTap(wanted) if wanted else None
 
 
 def _read_terrain(reader: StoreReader) -> GeometryData:
@@ -182,8 +234,11 @@ def save_tree(tree: ApproximationTree, path: str | os.PathLike) -> int:
         "nodes": n,
     }
     slot = np.empty(n, dtype=np.int64)
+    tap = _lattice_tap(tree)
     with writing(path, meta) as root:
-        _write_terrain(root, tree.terrain)
+        _write_terrain(root, tree.terrain, tap)
+        if tap is not None:
+            tap.finish()
         patches = root.create_group("patches")
         for s, name in enumerate(tree.strategy_names):
             nodes = order[tree.strategies[order] == s]

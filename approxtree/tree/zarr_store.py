@@ -118,9 +118,19 @@ def _row_chunks(shape: tuple[int, ...], itemsize: int) -> tuple[int, ...]:
     return (rows, *shape[1:]) if len(shape) else ()
 
 
-def write_array(group: Any, name: str, data: Any, chunks: tuple[int, ...] | None = None) -> Any:
+def write_array(
+    group: Any,
+    name: str,
+    data: Any,
+    chunks: tuple[int, ...] | None = None,
+    tap: Any = None,
+) -> Any:
     """Create ``group/name`` and fill it from ``data`` (an ndarray, or any 2-D array-like with
-    ``shape``, ``dtype`` and slicing when ``chunks`` is given: then written block by block)."""
+    ``shape``, ``dtype`` and slicing when ``chunks`` is given: then written block by block).
+
+    tap: called as ``tap(r0, r1, c0, c1, values)`` with every 2-D slab written (half-open
+    ranges), for a caller that wants to see the data once as it streams past.
+    """
     shape = tuple(int(s) for s in data.shape)
     dtype = np.dtype(data.dtype).newbyteorder("<")
     if chunks is None:
@@ -137,7 +147,7 @@ def write_array(group: Any, name: str, data: Any, chunks: tuple[int, ...] | None
     )
     if not math.prod(shape):
         return arr
-    if isinstance(data, np.ndarray) or len(shape) != 2:
+    if (isinstance(data, np.ndarray) and tap is None) or len(shape) != 2:
         arr[...] = np.asarray(data)
         return arr
     # Block by block: the source may be a lazy windowed array that never holds the band.
@@ -152,7 +162,10 @@ def write_array(group: Any, name: str, data: Any, chunks: tuple[int, ...] | None
 
     def copy(slab: tuple[int, int, int, int]) -> None:
         r0, r1, c0, c1 = slab
-        arr[r0:r1, c0:c1] = np.asarray(data[r0:r1, c0:c1])
+        values = np.asarray(data[r0:r1, c0:c1])
+        if tap is not None:
+            tap(r0, r1, c0, c1, values)
+        arr[r0:r1, c0:c1] = values
 
     # Slabs cover whole, disjoint chunks, so they are read (a raster decoded) and compressed
     # on a thread per core; at most two slabs per thread are in flight, bounding memory.
