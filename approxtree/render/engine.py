@@ -828,8 +828,7 @@ class Engine:
             z = terrain.height_at(xs[None, :], ys[:, None])
         ox, oy, _ = self.tree.origin
         sx, sy, sz = self.scale
-        nrm = _normals(z * sz, (xs - ox) * sx, (ys - oy) * sy)
-        data = np.ascontiguousarray(np.rint((nrm[..., :2] * 0.5 + 0.5) * 255.0).astype(np.uint8))
+        data = _normal_texels(z * sz, (xs - ox) * sx, (ys - oy) * sy)
         ny, nx = data.shape[:2]
         # Texel centre k sits at xs[k]: u = (x − xs[0]) / (dx · nx) + 0.5 / nx.
         dx = (xs[-1] - xs[0]) / max(nx - 1, 1) if nx > 1 else 1.0
@@ -910,6 +909,27 @@ def _normals(z: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
     bad = ~np.isfinite(n).all(axis=-1)
     n[bad] = (0.0, 0.0, 1.0)
     return n
+
+
+#: Rows of the normal map computed at once: its float64 temporaries stay a few tens of MB
+#: (the whole 4096² map at once took 1.4 GB).
+_NORMAL_STRIP_ROWS = 256
+
+
+def _normal_texels(z: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    """(ny, nx, 2) uint8 normal x, y of ``_normals(z, xs, ys)``, computed strip by strip.
+
+    Each strip takes one row of halo on either side, so central differences see the same
+    neighbours as over the whole map and every texel is the same as computed at once.
+    """
+    ny, nx = z.shape
+    out = np.empty((ny, nx, 2), dtype=np.uint8)
+    for a in range(0, ny, _NORMAL_STRIP_ROWS):
+        b = min(ny, a + _NORMAL_STRIP_ROWS)
+        lo, hi = max(0, a - 1), min(ny, b + 1)
+        nrm = _normals(z[lo:hi], xs, ys[lo:hi])[a - lo : a - lo + (b - a)]
+        out[a:b] = np.rint((nrm[..., :2] * 0.5 + 0.5) * 255.0).astype(np.uint8)
+    return out
 
 
 def _as_pyramid(textures: Any, terrain) -> Any:
