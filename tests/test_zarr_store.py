@@ -478,3 +478,39 @@ def test_windowed_save_reads_the_band_once(tmp_path):
     assert source.cells_read - before == z.size
     ref = ApproximationTree.build(at.Grid(z), epsilon=0.05, max_points=9)
     same_tree(ref, load_tree(tmp_path / "w.zarr"))
+
+
+def test_stored_overview_feeds_the_normal_map(tmp_path, monkeypatch):
+    """A grid larger than the overview keeps ``heights[::rs, ::cs]`` beside its heights; the
+    Engine's normal map reads it instead of every terrain chunk, and draws the same pixels."""
+    from affine import Affine
+
+    import approxtree.geometry.grid as grid_module
+    from approxtree.render import engine as engine_module
+
+    monkeypatch.setattr(grid_module, "OVERVIEW_SIDE", 64)
+    monkeypatch.setattr(engine_module, "NORMAL_MAP_MAX", 64)
+    base = fractal_terrain(300, seed=2)
+    z = np.array(base.heights)
+    z[10:20, 5:50] = np.nan
+    for t in (base.transform, Affine(2.0, 0, 100, 0, 3.0, 50), Affine(-2.0, 0, 900, 0, -3.0, 950)):
+        grid = at.Grid(z, t)
+        rs, cs = grid.overview_steps()
+        assert max(abs(rs), abs(cs)) == 5
+        tree = ApproximationTree.build(grid, epsilon=5.0)
+        path = tmp_path / f"t{t.a:g}{t.e:g}.zarr"
+        tree.save(path)
+        back = load_tree(path)
+        np.testing.assert_array_equal(back.terrain.strided_heights(rs, cs), z[::rs, ::cs])
+        with engine_module.Engine(tree) as e:
+            want = np.array(e.normal_map.read())
+        monkeypatch.setattr(ZarrHeightSource, "read", _no_terrain_reads)
+        with engine_module.Engine(back) as e:
+            np.testing.assert_array_equal(np.array(e.normal_map.read()), want)
+        monkeypatch.undo()
+        monkeypatch.setattr(grid_module, "OVERVIEW_SIDE", 64)
+        monkeypatch.setattr(engine_module, "NORMAL_MAP_MAX", 64)
+
+
+def _no_terrain_reads(*args, **kwargs):
+    raise AssertionError("the normal map read the stored terrain")

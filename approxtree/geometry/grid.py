@@ -33,6 +33,10 @@ def _as_heights(heights: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.float32)
 
 
+#: Largest side of the strided overview of a grid (the Engine's normal map); a tree store keeps
+#: it beside the heights so opening a viewer on a huge terrain reads no more than it.
+OVERVIEW_SIDE = 4096
+
 #: Fewest float64 steps a cell must span at the grid's coordinates; below it data points on a
 #: node's border fall on either side of it by round-off.
 MIN_CELL_STEPS = 1e4
@@ -165,6 +169,24 @@ class Grid(GeometryData):
     def is_windowed(self) -> bool:
         """True when the heights are read by windows (a WindowedHeights), not held in memory."""
         return isinstance(self.heights, WindowedHeights)
+
+    def overview_steps(self, side: int | None = None) -> tuple[int, int]:
+        """(row step, column step) of the strided overview of at most ``side`` cells a side, in
+        the order that makes its rows run south to north and its columns west to east (a
+        negative step walks the grid backwards from its last line); side: OVERVIEW_SIDE."""
+        side = OVERVIEW_SIDE if side is None else side
+        stride = max(1, -(-max(self.shape) // side))
+        t = self.transform
+        return (stride if t.e > 0 else -stride, -stride if t.a < 0 else stride)
+
+    def strided_heights(self, row_step: int, col_step: int) -> np.ndarray:
+        """``heights[::row_step, ::col_step]`` as an array: from the overview a tree store keeps
+        beside the heights when it is that one (no read of the band), else read (a windowed
+        grid reads every block the lines cross)."""
+        stored = self.__dict__.get("_overviews", {}).get((row_step, col_step))
+        if stored is not None:
+            return np.asarray(stored())
+        return np.asarray(self.heights[::row_step, ::col_step])
 
     def heights_array(self, operation: str) -> np.ndarray:
         """The whole (rows, cols) height band as a numpy array, for ``operation``.

@@ -54,7 +54,7 @@ from approxtree.errors import (
     EmptyTerrainError,
     InvalidParameterError,
 )
-from approxtree.geometry.grid import Grid
+from approxtree.geometry.grid import OVERVIEW_SIDE, Grid
 from approxtree.render.camera import Camera
 from approxtree.render.frame_state import (
     FrameState,
@@ -77,7 +77,7 @@ DEFAULT_CACHE_BYTES = 1 << 30
 #: Texture windows of nodes remembered at most (each a few hundred bytes).
 TEXTURE_PATCH_MEMO = 1 << 16
 #: Largest side of the normal map (texels), further limited by GL_MAX_TEXTURE_SIZE.
-NORMAL_MAP_MAX = 4096
+NORMAL_MAP_MAX = OVERVIEW_SIDE  # the overview a tree store keeps is this map's samples
 #: Data lines per side of a full-resolution chunk (256 intervals).
 CHUNK = 257
 #: Keys of Frame.stats and of ``approxtree render --json``.
@@ -815,10 +815,8 @@ class Engine:
             # Ascending x and y so that texture rows run south to north; one strided read
             # (a windowed grid reads only the sampled cells, block by block).
             xs, ys = terrain.x_coords, terrain.y_coords
-            stride = max(1, math.ceil(max(terrain.shape) / limit))
-            cs = -stride if xs[0] > xs[-1] else stride
-            rs = -stride if ys[0] > ys[-1] else stride
-            z = np.asarray(terrain.heights[::rs, ::cs], dtype=np.float64)
+            rs, cs = terrain.overview_steps(limit)
+            z = np.asarray(terrain.strided_heights(rs, cs), dtype=np.float64)
             xs, ys = xs[::cs], ys[::rs]
         else:
             d = terrain.domain

@@ -93,14 +93,59 @@ def storage_order(levels: np.ndarray, parents: np.ndarray, level: int) -> np.nda
 
 
 def _write_terrain(root: Any, terrain: GeometryData, tap: Any = None) -> None:
-    """The terrain group; ``tap(r0, r1, c0, c1, values)`` sees every slab of the heights."""
+    """The terrain group; ``tap(r0, r1, c0, c1, values)`` sees every slab of the heights.
+
+    A grid larger than its overview also gets ``overview`` (the Engine's normal map samples,
+    ``Grid.strided_heights``), picked from the same slabs: no second read of the band.
+    """
+    from approxtree.geometry.grid import Grid
+
     attrs, arrays = terrain.to_record()
     group = root.create_group("terrain", attributes={"kind": terrain.kind, "attrs": attrs})
+    grid = getattr(terrain, "grid", terrain)
+    overview = _OverviewTap(grid) if isinstance(grid, Grid) else None
+    if overview is not None and max(abs(v) for v in overview.steps) == 1:
+        overview = None
+    taps = [t for t in (tap, overview) if t is not None]
+
+    def both(*args: Any) -> None:
+        for t in taps:
+            t(*args)
+
     for name, a in arrays.items():
         if name == "heights":
-            write_array(group, name, a, chunks=(HEIGHT_CHUNK, HEIGHT_CHUNK), tap=tap)
+            write_array(
+                group, name, a, chunks=(HEIGHT_CHUNK, HEIGHT_CHUNK), tap=both if taps else None
+            )
         else:
             write_array(group, name, np.asarray(a))
+    if overview is not None:
+        arr = write_array(group, "overview", overview.values, chunks=(HEIGHT_CHUNK, HEIGHT_CHUNK))
+        arr.attrs.update({"row_step": overview.steps[0], "col_step": overview.steps[1]})
+
+
+class _OverviewTap:
+    """Collects ``heights[::rs, ::cs]`` (the grid's overview steps) from the slabs streamed past."""
+
+    def __init__(self, grid: Any) -> None:
+        self.steps = grid.overview_steps()
+        rows, cols = grid.shape
+        rs, cs = self.steps
+        self.rows = np.arange(rows)[::rs]
+        self.cols = np.arange(cols)[::cs]
+        # Slab lines → overview positions, by lookup (steps may be negative: lines reversed).
+        self.row_at = np.full(rows, -1, dtype=np.int64)
+        self.row_at[self.rows] = np.arange(len(self.rows))
+        self.col_at = np.full(cols, -1, dtype=np.int64)
+        self.col_at[self.cols] = np.arange(len(self.cols))
+        dtype = np.float64 if grid.heights.dtype == np.float64 else np.float32
+        self.values = np.full((len(self.rows), len(self.cols)), np.nan, dtype=dtype)
+
+    def __call__(self, r0: int, r1: int, c0: int, c1: int, block: np.ndarray) -> None:
+        ri = np.flatnonzero(self.row_at[r0:r1] >= 0)
+        ci = np.flatnonzero(self.col_at[c0:c1] >= 0)
+        if len(ri) and len(ci):
+            self.values[np.ix_(self.row_at[r0 + ri], self.col_at[c0 + ci])] = block[np.ix_(ri, ci)]
 
 
 class _LatticeTap:
@@ -162,9 +207,12 @@ def _read_terrain(reader: StoreReader) -> GeometryData:
     if kind not in TERRAIN_TYPES:
         raise StoreError(f"{reader.location} holds an unknown terrain kind {kind!r}.")
     arrays = {}
+    overview = None
     for name in reader.children("terrain"):
         path = f"terrain/{name}"
-        if name == "heights":
+        if name == "overview":
+            overview = path
+        elif name == "heights":
             # The heights stay in the store: windows are read (and checksummed) as asked for,
             # through a cache bounded in bytes.
             source = ZarrHeightSource(reader.location, path, reader=reader)
@@ -172,11 +220,18 @@ def _read_terrain(reader: StoreReader) -> GeometryData:
         else:
             arrays[name] = reader.read(path)
     try:
-        return TERRAIN_TYPES[kind].from_record(tattrs["attrs"], arrays)
+        terrain = TERRAIN_TYPES[kind].from_record(tattrs["attrs"], arrays)
     except (KeyError, TypeError, ValueError) as exc:
         raise StoreError(
             f"{reader.location} holds a malformed terrain ({exc}); rebuild it."
         ) from exc
+    if overview is not None:
+        # Read when first asked for (the Engine's normal map), checksummed like every chunk.
+        steps = reader.attrs(overview)
+        grid = getattr(terrain, "grid", terrain)
+        key = (int(steps["row_step"]), int(steps["col_step"]))
+        grid.__dict__.setdefault("_overviews", {})[key] = lambda: reader.read(overview)
+    return terrain
 
 
 # -- patches -----------------------------------------------------------------------------------
