@@ -27,6 +27,32 @@ def _block_count(lo: int, hi: int, step: int) -> int:
     return (hi - lo + step - 1) // step
 
 
+@njit(cache=True, inline="always")
+def _block_value(z00, z01, z10, z11, dr, dc, hr, wc):
+    """h_TN at offset (dr, dc) of a block hr × wc with corners z00 .. z11 (NaN: not drawn).
+
+    Integer comparison picks the triangle exactly, as the GPU sees it; the whole-patch kernel
+    and the per-block part of a blocked build share this arithmetic, so their errors agree bit
+    for bit.
+    """
+    if dc * hr >= dr * wc:
+        return z00 + (dc / wc) * (z01 - z00) + (dr / hr) * (z11 - z01)
+    return z00 + (dr / hr) * (z10 - z00) + (dc / wc) * (z11 - z10)
+
+
+@njit(cache=True, inline="always")
+def _fold_error(err, z, valid, p):
+    """The running error after data point z (or nodata) against the patch's height p there."""
+    if not valid:
+        # Nodata under a drawn triangle: the patch would cover a hole.
+        return np.inf if not np.isnan(p) else err
+    if np.isnan(p):
+        # A data point no drawn triangle holds is not represented.
+        return np.inf
+    e = abs(z - p)
+    return e if e > err else err
+
+
 @njit(cache=True)
 def _edge_value(heights, r, c, rb, re, cb, ce, sr, sc, kr, kc):
     """Height of point (r, c) from a drawn triangle other than its primary one, or NaN.
@@ -96,24 +122,10 @@ def _patch_error(heights, r0, r1, c0, c1, sr, sc):
                     # Patch vertices are reproduced exactly.
                     if (dr == 0 or r == re) and (dc == 0 or c == ce):
                         continue
-                    # Integer comparison picks the triangle exactly, as the GPU sees it.
-                    if dc * hr >= dr * wc:
-                        p = z00 + (dc / wc) * (z01 - z00) + (dr / hr) * (z11 - z01)
-                    else:
-                        p = z00 + (dr / hr) * (z10 - z00) + (dc / wc) * (z11 - z10)
+                    p = _block_value(z00, z01, z10, z11, dr, dc, hr, wc)
                     if np.isnan(p):
                         p = _edge_value(heights, r, c, rb, re, cb, ce, sr, sc, kr, kc)
-                    if not valid:
-                        # Nodata under a drawn triangle: the patch would cover a hole.
-                        if not np.isnan(p):
-                            err = np.inf
-                        continue
-                    if np.isnan(p):
-                        err = np.inf
-                    else:
-                        e = abs(z - p)
-                        if e > err:
-                            err = e
+                    err = _fold_error(err, z, valid, p)
     return err, zmin, zmax, count
 
 
@@ -282,20 +294,8 @@ def grid_patch_part(
             z01 = lattice[i, j + 1]
             z10 = lattice[i + 1, j]
             z11 = lattice[i + 1, j + 1]
-            if dc * hr >= dr * wc:
-                p = z00 + (dc / wc) * (z01 - z00) + (dr / hr) * (z11 - z01)
-            else:
-                p = z00 + (dr / hr) * (z10 - z00) + (dc / wc) * (z11 - z10)
+            p = _block_value(z00, z01, z10, z11, dr, dc, hr, wc)
             if np.isnan(p):
                 p = _lattice_edge_value(lattice, i, j, dr, dc, hr, wc, kr, kc)
-            if not valid:
-                if not np.isnan(p):
-                    err = np.inf
-                continue
-            if np.isnan(p):
-                err = np.inf
-            else:
-                e = abs(z - p)
-                if e > err:
-                    err = e
+            err = _fold_error(err, z, valid, p)
     return err, zmin, zmax, count
