@@ -1036,7 +1036,8 @@ def _check_mesh_strategy(path: str, terrain, strategy: str) -> None:
 @click.option(
     "--palette",
     default=None,
-    help="gdaldem colour file or matplotlib colormap for --thematic [default: its colour table].",
+    help="Land-cover legend (nlcd, landclass96), gdaldem colour file or matplotlib colormap "
+    "for --thematic [default: its colour table, softened].",
 )
 @click.option(
     "--roads",
@@ -1045,11 +1046,29 @@ def _check_mesh_strategy(path: str, terrain, strategy: str) -> None:
     help="Vector layer drawn on top (repeatable).",
 )
 @click.option(
-    "--blend",
-    type=click.Choice(["multiply", "overlay", "soft-light", "over"]),
-    default="multiply",
+    "--overlay-colour",
+    default="#2864c8",
     show_default=True,
-    help="How shading combines with the thematic layer.",
+    help="Colour of the --roads lines (#rrggbb).",
+)
+@click.option(
+    "--overlay-width",
+    type=float,
+    default=None,
+    help="Width of the --roads lines in world units [default: 2 texels, the least].",
+)
+@click.option(
+    "--water",
+    multiple=True,
+    type=click.Path(exists=True, dir_okay=False),
+    help="Water polygon layer drawn over the --roads lines (repeatable).",
+)
+@click.option(
+    "--blend",
+    type=click.Choice(["shade", "multiply", "overlay", "soft-light", "over"]),
+    default="shade",
+    show_default=True,
+    help="How shading combines with the thematic layer (shade: legend colour on flat ground).",
 )
 @click.option("--texel", type=float, default=None, help="Texel size in world units.")
 @click.option(
@@ -1078,6 +1097,9 @@ def bake_command(
     thematic: str | None,
     palette: str | None,
     roads: tuple[str, ...],
+    overlay_colour: str,
+    overlay_width: float | None,
+    water: tuple[str, ...],
     blend: str,
     texel: float | None,
     max_texture_size: int,
@@ -1130,12 +1152,28 @@ def bake_command(
         thematic=thematic,
         palette=palette,
         overlays=list(roads),
+        overlay_colour=_rgba(overlay_colour),
+        overlay_width=overlay_width,
+        water=list(water),
         blend=blend,
         texel_size=texel,
         max_texture_size=max_texture_size,
         gl=not no_gl,
     )
     _emit(result.figures(), as_json)
+
+
+def _rgba(text: str) -> tuple[int, int, int, int]:
+    """"#rrggbb" (or a Background colour name) as an opaque RGBA tuple 0..255."""
+    from approxtree.render.style import Background
+
+    bg = Background.parse(text)
+    if bg.kind != "colour":
+        from approxtree.errors import InvalidParameterError
+
+        raise InvalidParameterError(f"Expected a colour (#rrggbb or a name), got {text!r}.")
+    r, g, b = (round(v * 255) for v in bg.colour)
+    return (r, g, b, 255)
 
 
 def _open_tree(path: str, epsilon: float, reader: dict[str, Any]):
