@@ -1164,7 +1164,7 @@ def bake_command(
 
 
 def _rgba(text: str) -> tuple[int, int, int, int]:
-    """"#rrggbb" (or a Background colour name) as an opaque RGBA tuple 0..255."""
+    """ "#rrggbb" (or a Background colour name) as an opaque RGBA tuple 0..255."""
     from approxtree.render.style import Background
 
     bg = Background.parse(text)

@@ -245,7 +245,7 @@ def overview_camera(
 
 
 #: Elevation angles (degrees) tried by ``framing_camera`` when none is given.
-FRAMING_ELEVATIONS = (25.0, 30.0, 35.0, 40.0, 45.0, 50.0)
+FRAMING_ELEVATIONS = (20.0, 25.0, 30.0, 35.0, 40.0, 45.0, 50.0)
 
 
 def framing_camera(
@@ -255,7 +255,7 @@ def framing_camera(
     fov: float = 45.0,
     elevation: float | None = None,
     azimuth: float = 180.0,
-    margin: float = 0.03,
+    margin: float = 0.02,
 ) -> Camera:
     """An oblique view that fits the box ``bounds`` (6,) world to a ``size`` = (w, h) frame.
 

@@ -34,10 +34,10 @@ from approxtree.textures.blend import BLEND_MODES, MultiTexture
 from approxtree.textures.pyramid import TexturePyramid, check_pyramid_target
 from approxtree.textures.shading import GouraudShading, PhongShading, TopographicShading
 from approxtree.textures.thematic import (
-    ClassTable,
-    ColourRamp,
     LEGENDS,
     WATER_CLASSES,
+    ClassTable,
+    ColourRamp,
     ColourReliefFile,
     ThematicTexture,
     rasterize_lines,
@@ -107,9 +107,7 @@ def _thematic_on_lattice(
     from rasterio.warp import Resampling, reproject
 
     legend = palette in LEGENDS
-    src = ThematicTexture.from_raster(
-        path, mapper=ColourRamp() if palette and not legend else None
-    )
+    src = ThematicTexture.from_raster(path, mapper=ColourRamp() if palette and not legend else None)
     if palette is None:
         mapper = src.mapper.softened() if isinstance(src.mapper, ClassTable) else src.mapper
     elif legend:
