@@ -272,3 +272,41 @@ def test_palette_follows_elevation_not_the_data_range(gl_context, hills_tree):
     snow = np.array(PALETTES["relief"].stops[-1][1], dtype=float)
     assert np.linalg.norm(rgb[high] - snow, axis=1).min() > 40.0
     assert (rgb[high].min(axis=1) < 215).all()
+
+
+def test_land_use_is_softened_and_water_covers_the_streams(data_dir, tmp_path):
+    """NC land use baked with its streams in the landclass96 legend: the legend colours are
+    quieter than the raw embedded table (lower chroma), the shading stays visible, and no
+    stream texel lies on open water (Jordan Lake is drawn over the streams); streams are at
+    least two texels wide."""
+    from approxtree.textures.bake import OVERLAY_COLOUR, bake
+
+    dem = at.open_terrain(data_file(data_dir, "nc/elev_ned_30m.tif"))
+    landuse = data_file(data_dir, "nc/landuse_r.tif")
+    streams = data_file(data_dir, "nc/streams.shp")
+    result = bake(dem, tmp_path / "lu", thematic=landuse, palette="landclass96", overlays=[streams])
+    level0 = np.asarray(result.pyramid.level(0)).astype(int)
+    import rasterio
+
+    with rasterio.open(landuse) as ds:
+        classes = ds.read(1)
+        raw = ds.colormap(1)
+    assert level0.shape[:2] == classes.shape
+    r, g, b, _ = OVERLAY_COLOUR
+    stream = (level0[..., 0] == r) & (level0[..., 1] == g) & (level0[..., 2] == b)
+    water = classes == 6
+    assert water.sum() > 10_000 and stream.sum() > 10_000
+    assert not (stream & water).any()
+    # Two texels wide: most stream texels have a stream neighbour across the line's width
+    # in both x and y directions of the lattice (a one-texel line has it along its run only).
+    horiz = stream[:, 1:] & stream[:, :-1]
+    vert = stream[1:, :] & stream[:-1, :]
+    assert horiz.sum() > 0.5 * stream.sum() and vert.sum() > 0.5 * stream.sum()
+    land = ~stream & (classes != 255)
+    rgb = level0[land][:, :3]
+    chroma = (rgb.max(axis=1) - rgb.min(axis=1)).mean()
+    raw_rgb = np.array([raw[int(k)][:3] for k in classes[land]])
+    raw_chroma = (raw_rgb.max(axis=1) - raw_rgb.min(axis=1)).mean()
+    print(f"chroma: baked {chroma:.0f}, raw table {raw_chroma:.0f}")
+    assert chroma < 0.6 * raw_chroma
+    assert level0[land][:, 1].std() > 10
