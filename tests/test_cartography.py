@@ -310,3 +310,21 @@ def test_land_use_is_softened_and_water_covers_the_streams(data_dir, tmp_path):
     print(f"chroma: baked {chroma:.0f}, raw table {raw_chroma:.0f}")
     assert chroma < 0.6 * raw_chroma
     assert level0[land][:, 1].std() > 10
+
+
+def test_cli_refuses_bad_picture_options(tmp_path, hills_tree):
+    """Bad palette, sun, background and exaggeration values: one Error line each, exit 2."""
+    tree_file = tmp_path / "h.atree"
+    hills_tree.save(tree_file)
+    runner = CliRunner()
+    base = ["render", str(tree_file), "--out", str(tmp_path / "x.png"), "--size", "64x48"]
+    cases = {
+        ("--palette", "foo"): "Unknown palette 'foo'",
+        ("--sun-altitude", "0"): "Sun altitude must be in (0, 90]",
+        ("--background", "blurple"): "Unknown background 'blurple'",
+        ("--exaggeration", "-1"): "vertical exaggeration must be a finite number > 0",
+    }
+    for option, message in cases.items():
+        res = runner.invoke(cli_main, [*base, *option])
+        assert res.exit_code == 2 and message in res.output, (option, res.output)
+        assert res.output.count("Error:") == 1
