@@ -328,3 +328,24 @@ def test_cli_refuses_bad_picture_options(tmp_path, hills_tree):
         res = runner.invoke(cli_main, [*base, *option])
         assert res.exit_code == 2 and message in res.output, (option, res.output)
         assert res.output.count("Error:") == 1
+
+
+def test_streams_keep_their_width_on_coarse_pyramid_levels(data_dir, tmp_path):
+    """NC streams baked into a 3-level pyramid: every level shows them in the overlay colour
+    itself (redrawn at that level's texel size, two texels wide), not faded into the
+    averages of level 0, and on a similar share of the level's texels."""
+    from approxtree.textures.bake import OVERLAY_COLOUR, bake
+
+    dem = at.open_terrain(data_file(data_dir, "nc/elev_ned_30m.tif"))
+    streams = data_file(data_dir, "nc/streams.shp")
+    result = bake(dem, tmp_path / "s", overlays=[streams], texel_size=10.0, max_texture_size=512)
+    assert len(result.pyramid) == 3
+    r, g, b, _ = OVERLAY_COLOUR
+    shares = []
+    for k in range(3):
+        lv = np.asarray(result.pyramid.level(k))
+        exact = (lv[..., 0] == r) & (lv[..., 1] == g) & (lv[..., 2] == b)
+        shares.append(exact.mean())
+    print("stream texel share per level:", [f"{s:.3f}" for s in shares])
+    assert min(shares) > 0.03
+    assert shares[2] >= 0.8 * shares[0]

@@ -134,6 +134,15 @@ def _thematic_on_lattice(
     return ThematicTexture(values, transform, mapper, crs=crs, valid=np.isfinite(values))
 
 
+def _coarsen(mask: np.ndarray, level: int, shape: tuple[int, int]) -> np.ndarray:
+    """(rows, cols) of a level: True where any level-0 texel under it is True."""
+    k = 1 << level
+    rows, cols = mask.shape
+    padded = np.zeros((shape[0] * k, shape[1] * k), dtype=bool)
+    padded[:rows, :cols] = mask
+    return padded.reshape(shape[0], k, shape[1], k).any(axis=(1, 3))
+
+
 def _water_mask(thematic: ThematicTexture, palette: str | None) -> np.ndarray | None:
     """(rows, cols) bool: texels of the thematic layer's water classes (the legend's, or the
     classes of a colour table coloured blue), or None when it has none."""
@@ -254,7 +263,24 @@ def bake(
     modes = [blend] if len(layers) > 1 and thematic_path is not None and shading else []
     modes += ["over"] * (len(layers) - 1 - len(modes))
     texture = layers[0] if len(layers) == 1 else MultiTexture(layers, modes)
-    pyramid = TexturePyramid.build(texture, folder, max_texture_size=max_texture_size)
+    # Coarser levels redraw the overlays at their own texel size (least width kept there).
+    redraw = None
+    if overlays:
+
+        def redraw(level: int, t: Affine, level_shape: tuple[int, int]) -> np.ndarray:
+            w = max(overlay_width or 0.0, min_overlay_texels * max(abs(t.a), abs(t.e)))
+            out = np.zeros((*level_shape, 4), dtype=np.uint8)
+            for path in overlays:
+                line = rasterize_lines(path, t, level_shape, terrain.crs, overlay_colour, w)
+                if water_mask is not None:
+                    line.valid = line.valid & ~_coarsen(water_mask, level, level_shape)
+                rgba = line.rgba()
+                out = np.where(rgba[..., 3:] > 0, rgba, out)
+            return out
+
+    pyramid = TexturePyramid.build(
+        texture, folder, max_texture_size=max_texture_size, level_overlay=redraw
+    )
     return BakeResult(pyramid, time.perf_counter() - t0, names, used_gl)
 
 
