@@ -204,6 +204,8 @@ def encode_tile(
         data = np.asarray(water_mask, dtype=np.uint8).tobytes()
         parts.append(struct.pack("<BI", EXT_WATER_MASK, len(data)) + data)
     if metadata is not None:
-        data = json.dumps(metadata, separators=(",", ":")).encode()
+        # The extension holds a uint32 length, then the JSON text (CesiumJS reads both).
+        text = json.dumps(metadata, separators=(",", ":")).encode()
+        data = struct.pack("<I", len(text)) + text
         parts.append(struct.pack("<BI", EXT_METADATA, len(data)) + data)
     return b"".join(parts)
