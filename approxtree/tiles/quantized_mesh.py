@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import gzip
 import json
+import multiprocessing
 import os
 from collections.abc import Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -309,7 +310,10 @@ def write_quantized_mesh(
             # Batches of a few tiles: the job (terrain reference, tile set) is pickled per batch.
             size = max(1, min(64, len(addresses) // (4 * workers) or 1))
             batches = [addresses[i : i + size] for i in range(0, len(addresses), size)]
-            with ProcessPoolExecutor(max_workers=workers) as pool:
+            # Spawned, not forked: a process that ran numba's OpenMP kernels (a build in the
+            # same process) is killed by libgomp when it forks.
+            context = multiprocessing.get_context("spawn")
+            with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
                 for part in pool.map(_write_batch, [job] * len(batches), batches):
                     results.extend(part)
         layer = layer_json(sampler, plan, water is not None, out.name)
