@@ -205,6 +205,20 @@ def _write_batch(job: _Job, addresses: Sequence[tuple[int, int, int]]) -> list[T
     return out
 
 
+#: The job of a worker process, sent once when the process starts (the terrain is big).
+_WORKER_JOB: _Job | None = None
+
+
+def _init_worker(job: _Job) -> None:
+    global _WORKER_JOB
+    _WORKER_JOB = job
+
+
+def _worker_batch(addresses: Sequence[tuple[int, int, int]]) -> list[TileResult]:
+    assert _WORKER_JOB is not None
+    return _write_batch(_WORKER_JOB, addresses)
+
+
 def plan_tiles(
     sampler: TileSampler, minzoom: int, maxzoom: int
 ) -> dict[int, list[tuple[int, int]]]:
@@ -307,14 +321,17 @@ def write_quantized_mesh(
         if workers == 1:
             results = _write_batch(job, addresses)
         else:
-            # Batches of a few tiles: the job (terrain reference, tile set) is pickled per batch.
-            size = max(1, min(64, len(addresses) // (4 * workers) or 1))
+            # Each worker gets the job (terrain, tile set) once; tiles go in batches of a few
+            # so that the workers stay busy to the end.
+            size = max(1, min(32, len(addresses) // (8 * workers)))
             batches = [addresses[i : i + size] for i in range(0, len(addresses), size)]
             # Spawned, not forked: a process that ran numba's OpenMP kernels (a build in the
             # same process) is killed by libgomp when it forks.
             context = multiprocessing.get_context("spawn")
-            with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
-                for part in pool.map(_write_batch, [job] * len(batches), batches):
+            with ProcessPoolExecutor(
+                max_workers=workers, mp_context=context, initializer=_init_worker, initargs=(job,)
+            ) as pool:
+                for part in pool.map(_worker_batch, batches):
                     results.extend(part)
         layer = layer_json(sampler, plan, water is not None, out.name)
         (tmp / "layer.json").write_text(json.dumps(layer, indent=1))
