@@ -263,10 +263,11 @@ def layer_json(
     }
 
 
-def _check_out(out: Path) -> None:
+def check_output(out: str | os.PathLike) -> None:
     """StoreError unless ``out`` is new, empty, or an earlier terrain tileset (it is replaced)."""
     from approxtree.io.output_path import check_output_folder
 
+    out = Path(out)
     check_output_folder(out, "terrain tileset folder")
     if out.is_dir() and any(out.iterdir()) and not (out / "layer.json").is_file():
         raise StoreError(
@@ -311,7 +312,7 @@ def write_quantized_mesh(
         )
     water = WaterMask.open(water_mask) if water_mask is not None else None
     out = Path(out)
-    _check_out(out)
+    check_output(out)
     plan = plan_tiles(sampler, minzoom, maxzoom)
     addresses = [(level, x, y) for level, tiles in plan.items() for x, y in tiles]
     written = set(addresses)
