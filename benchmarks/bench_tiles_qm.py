@@ -50,20 +50,33 @@ def fractal_grid(size: int):
     return Grid(z, Affine(10.0, 0.0, 500000.0, 0.0, -10.0, 4900000.0), crs="EPSG:32618")
 
 
-def heightmap_peer_bytes(terrain, tiles: list[tuple[int, int, int]]) -> list[int]:
+def heightmap_peer(
+    terrain, tiles: list[tuple[int, int, int]], samples: int
+) -> tuple[list[int], list[float]]:
     """gzip bytes of each tile as heightmap-1.0 (65 × 65 uint16 (h + 1000) · 5, row 0 north,
-    child mask byte, water mask byte), sampled like our tiles."""
-    from approxtree.tiles.geographic import tile_bounds
+    child mask byte, water mask byte), sampled like our tiles; and that heightmap's max error
+    (bilinear between its posts) over our tile's samples ÷ the level's error."""
+    from scipy.interpolate import RegularGridInterpolator
+
+    from approxtree.tiles.geographic import level_error, tile_bounds
     from approxtree.tiles.sampling import TileSampler
 
     sampler = TileSampler(terrain)
-    out = []
+    sizes, ratios = [], []
+    t65 = np.linspace(0.0, 1.0, 65)
+    ts = np.linspace(0.0, 1.0, samples)
+    pts = np.stack(np.meshgrid(ts, ts, indexing="ij"), axis=-1).reshape(-1, 2)
     for level, x, y in tiles:
-        h, _ = sampler.sample(tile_bounds(level, x, y), 65)
+        bounds = tile_bounds(level, x, y)
+        h, _ = sampler.sample(bounds, 65)
         q = np.clip(np.rint((h[::-1] + 1000.0) * 5.0), 0, 65535).astype("<u2")
         raw = q.tobytes() + b"\x0f" + b"\x00"
-        out.append(len(gzip.compress(raw, compresslevel=6, mtime=0)))
-    return out
+        sizes.append(len(gzip.compress(raw, compresslevel=6, mtime=0)))
+        fine, _ = sampler.sample(bounds, samples)
+        approx = RegularGridInterpolator((t65, t65), q[::-1] / 5.0 - 1000.0)(pts)
+        err = np.abs(approx.reshape(samples, samples) - fine).max()
+        ratios.append(float(err / level_error(level)))
+    return sizes, ratios
 
 
 def run_case(name: str, terrain, workers: int, repeats: int, maxzoom: int | None) -> dict:
@@ -85,7 +98,9 @@ def run_case(name: str, terrain, workers: int, repeats: int, maxzoom: int | None
     sizes = [r["bytes"] for r in rows]
     deepest = max(r["level"] for r in rows)
     deep = [r for r in rows if r["level"] == deepest]
-    peer = heightmap_peer_bytes(terrain, [(r["level"], r["x"], r["y"]) for r in rows])
+    peer, peer_ratio = heightmap_peer(
+        terrain, [(r["level"], r["x"], r["y"]) for r in rows], result["samples"]
+    )
     serial = statistics.median(times[1])
     parallel = statistics.median(times[workers])
     return {
@@ -106,6 +121,9 @@ def run_case(name: str, terrain, workers: int, repeats: int, maxzoom: int | None
         "peer_heightmap_1_0_gzip_bytes_per_tile_mean": round(statistics.mean(peer), 1),
         "peer_heightmap_1_0_gzip_bytes_per_tile_median": statistics.median(peer),
         "bytes_ratio_ours_to_heightmap": round(sum(sizes) / sum(peer), 3),
+        "peer_heightmap_error_ratio_median": round(statistics.median(peer_ratio), 3),
+        "peer_heightmap_error_ratio_max": round(max(peer_ratio), 3),
+        "peer_heightmap_tiles_over_level_error": sum(r > 1.0 for r in peer_ratio),
         "ctb_quantized_mesh_bytes_per_tile": "unknown (no published figure found)",
     }
 

@@ -270,21 +270,26 @@ def check_tileset(folder: Path, terrain: Grid, samples: int) -> dict:
     # agree (the same sample) within the two tiles' quantization.
     shared = 0
     for (level, x, y), t in decoded.items():
-        right = decoded.get((level, x + 1, y))
-        if right is None:
-            continue
-        a = dict(zip(t["v"][t["edges"]["east"]], t["height"][t["edges"]["east"]], strict=True))
-        b = dict(
-            zip(
-                right["v"][right["edges"]["west"]],
-                right["height"][right["edges"]["west"]],
-                strict=True,
+        # East edge against the east neighbour's west edge (keyed by v), north edge against
+        # the north neighbour's south edge (keyed by u).
+        for other, mine, theirs, key in (
+            (decoded.get((level, x + 1, y)), "east", "west", "v"),
+            (decoded.get((level, x, y + 1)), "north", "south", "u"),
+        ):
+            if other is None:
+                continue
+            a = dict(zip(t[key][t["edges"][mine]], t["height"][t["edges"][mine]], strict=True))
+            b = dict(
+                zip(
+                    other[key][other["edges"][theirs]],
+                    other["height"][other["edges"][theirs]],
+                    strict=True,
+                )
             )
-        )
-        q = (t["max_h"] - t["min_h"] + right["max_h"] - right["min_h"]) / QMAX
-        for vv in set(a) & set(b):
-            assert abs(a[vv] - b[vv]) <= 0.5 * q + 1e-4
-            shared += 1
+            q = (t["max_h"] - t["min_h"] + other["max_h"] - other["min_h"]) / QMAX
+            for k in set(a) & set(b):
+                assert abs(a[k] - b[k]) <= 0.5 * q + 1e-4, (level, x, y, mine)
+                shared += 1
     return {"tiles": tiles, "decoded": decoded, "worst_ratio": worst_ratio, "shared": shared}
 
 
