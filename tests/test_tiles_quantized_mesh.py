@@ -167,6 +167,8 @@ def check_tileset(folder: Path, terrain: Grid, samples: int) -> dict:
     assert layer["format"] == "quantized-mesh-1.0"
     assert layer["scheme"] == "tms" and layer["projection"] == "EPSG:4326"
     assert "octvertexnormals" in layer["extensions"] and "metadata" in layer["extensions"]
+    # CesiumJS reads the tiles' metadata only with metadataAvailability (else it fails on it).
+    assert layer["metadataAvailability"] == 10
     tiles = written(folder)
     assert expand(layer["available"]) == tiles
     assert {t[0] for t in tiles} == set(range(layer["minzoom"], layer["maxzoom"] + 1))
@@ -255,17 +257,20 @@ def check_tileset(folder: Path, terrain: Grid, samples: int) -> dict:
             np.add.at(acc, t["tri"][:, kk], face)
         acc /= np.linalg.norm(acc, axis=1, keepdims=True)
         assert (np.einsum("ij,ij->i", normals, acc) >= np.cos(np.radians(1.5))).all()
-        # Metadata: the children that exist.
+        # Metadata: the tiles that exist below, 10 levels deep on levels 0, 10, 20 (the
+        # layer's metadataAvailability), else 1; the tile's own measured error.
         (length,) = struct.unpack_from("<I", t["ext"][4], 0)
         meta = json.loads(t["ext"][4][4 : 4 + length])
-        kids = expand([[]] * (level + 1) + meta["available"]) if meta["available"] else set()
+        depth = min(10 if level % 10 == 0 else 1, layer["maxzoom"] - level)
+        assert len(meta["available"]) == depth
+        below = expand([[]] * (level + 1) + meta["available"])
         expected = {
-            (level + 1, cx, cy)
-            for cx in (2 * x, 2 * x + 1)
-            for cy in (2 * y, 2 * y + 1)
-            if (level + 1, cx, cy) in tiles
+            (z, tx, ty)
+            for z, tx, ty in tiles
+            if level < z <= level + depth and tx >> (z - level) == x and ty >> (z - level) == y
         }
-        assert kids == expected
+        assert below == expected
+        assert meta["geometricError"] == pytest.approx(err, rel=1e-6, abs=1e-6)
     # Neighbours: where both have a vertex at the same point of the shared edge, the heights
     # agree (the same sample) within the two tiles' quantization.
     shared = 0

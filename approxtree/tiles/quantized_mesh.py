@@ -119,16 +119,26 @@ def tin_of_samples(
     return vx, vy, tv.reshape(-1, 3).astype(np.int64), hq, decoded, worst
 
 
-def child_availability(level: int, x: int, y: int, written: set[tuple[int, int, int]]) -> list:
-    """The metadata extension's ``available``: the tile's children that exist (next level)."""
-    ranges = []
-    for cy in (2 * y, 2 * y + 1):
-        xs = [cx for cx in (2 * x, 2 * x + 1) if (level + 1, cx, cy) in written]
-        if len(xs) == 2:
-            ranges.append({"startX": xs[0], "startY": cy, "endX": xs[1], "endY": cy})
-        elif xs:
-            ranges.append({"startX": xs[0], "startY": cy, "endX": xs[0], "endY": cy})
-    return [ranges] if ranges else []
+#: layer.json's metadataAvailability (CesiumJS World Terrain's convention): tiles of levels
+#: 0, 10, 20... carry the availability of the next 10 levels of their subtree, which CesiumJS
+#: then takes instead of layer.json's list; every other tile carries its children's.
+METADATA_LEVELS = 10
+
+
+def subtree_availability(
+    level: int, x: int, y: int, plan: dict[int, np.ndarray], maxzoom: int
+) -> list[list[dict[str, int]]]:
+    """The metadata extension's ``available``: one list of ranges per level below the tile
+    (METADATA_LEVELS of them on levels that are multiples of it, else 1), clipped at maxzoom;
+    plan: (k, 2) int64 x, y of the tiles written at each level."""
+    depth = METADATA_LEVELS if level % METADATA_LEVELS == 0 else 1
+    out = []
+    for d in range(1, min(depth, maxzoom - level) + 1):
+        xy = plan.get(level + d, np.empty((0, 2), dtype=np.int64))
+        span = 2**d
+        inside = (xy[:, 0] // span == x) & (xy[:, 1] // span == y)
+        out.append(availability(map(tuple, xy[inside].tolist())))
+    return out
 
 
 def availability(tiles: Iterable[tuple[int, int]]) -> list[dict[str, int]]:
@@ -166,7 +176,8 @@ class _Job:
     water: WaterMask | None
     samples: int
     folder: str
-    written: set[tuple[int, int, int]]
+    plan: dict[int, np.ndarray]
+    maxzoom: int
 
 
 def make_tile(job: _Job, level: int, x: int, y: int) -> tuple[bytes, TileResult]:
@@ -177,7 +188,10 @@ def make_tile(job: _Job, level: int, x: int, y: int) -> tuple[bytes, TileResult]
     vx, vy, tri, hq, decoded, worst = tin_of_samples(h, err)
     k = QMAX // (job.samples - 1)
     water = job.water.tile_mask(bounds) if job.water is not None else None
-    meta = {"available": child_availability(level, x, y, job.written), "geometricError": worst}
+    meta = {
+        "available": subtree_availability(level, x, y, job.plan, job.maxzoom),
+        "geometricError": worst,
+    }
     raw = encode_tile(
         vx.astype(np.int64) * k,
         vy.astype(np.int64) * k,
@@ -258,6 +272,7 @@ def layer_json(
         "bounds": [round(v, 9) for v in sampler.footprint.bounds],
         "minzoom": levels[0],
         "maxzoom": levels[-1],
+        "metadataAvailability": METADATA_LEVELS,
         "available": [availability(plan.get(level, [])) for level in range(levels[-1] + 1)],
         "extensions": extensions,
     }
@@ -315,10 +330,10 @@ def write_quantized_mesh(
     check_output(out)
     plan = plan_tiles(sampler, minzoom, maxzoom)
     addresses = [(level, x, y) for level, tiles in plan.items() for x, y in tiles]
-    written = set(addresses)
+    arrays = {level: np.array(t, dtype=np.int64).reshape(-1, 2) for level, t in plan.items()}
     results: list[TileResult] = []
     with atomic_directory(out) as tmp:
-        job = _Job(sampler, water, samples, str(tmp), written)
+        job = _Job(sampler, water, samples, str(tmp), arrays, maxzoom)
         if workers == 1:
             results = _write_batch(job, addresses)
         else:
