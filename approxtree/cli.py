@@ -950,7 +950,13 @@ def _tiles_terrain(path: str, reader: dict[str, Any]):
     help="quantized-mesh: samples along a tile side (samples − 1 divides 32767, so every "
     "sample has an exact quantized position).",
 )
-@click.option("--minzoom", type=int, default=0, show_default=True, help="quantized-mesh.")
+@click.option(
+    "--minzoom",
+    type=int,
+    default=0,
+    show_default=True,
+    help="quantized-mesh: shallowest level written (CesiumJS asks for level 0).",
+)
 @click.option(
     "--maxzoom",
     type=int,
