@@ -473,6 +473,19 @@ def test_bad_input_gets_clear_errors(tmp_path):
     )
     with pytest.raises(EmptyTerrainError, match="nodata only"):
         write_quantized_mesh(nodata_only, tmp_path / "a")
+    # A windowed one is not scanned beforehand: found when no tile sampled a height, and
+    # nothing is left behind.
+    from approxtree.geometry.windowed import ArraySource, WindowedHeights
+
+    windowed = Grid(
+        WindowedHeights(ArraySource(np.full((20, 20), np.nan))),
+        Affine(0.01, 0, -72, 0, -0.01, 45),
+        crs="EPSG:4326",
+        allow_empty=True,
+    )
+    with pytest.raises(EmptyTerrainError, match="nodata only"):
+        write_quantized_mesh(windowed, tmp_path / "w", maxzoom=12)
+    assert not (tmp_path / "w").exists()
     ok = Grid(np.zeros((20, 20)), Affine(0.01, 0, -72, 0, -0.01, 45), crs="EPSG:4326")
     with pytest.raises(InvalidParameterError, match="32767"):
         write_quantized_mesh(ok, tmp_path / "a", samples=65)

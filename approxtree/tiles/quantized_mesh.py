@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from approxtree.errors import InvalidParameterError, StoreError
+from approxtree.errors import EmptyTerrainError, InvalidParameterError, StoreError
 from approxtree.geometry.grid import Grid
 from approxtree.kernels.greedy_tin import mesh_error
 from approxtree.patches.lattice import Window
@@ -39,7 +39,7 @@ from approxtree.tiles.geographic import (
     tile_bounds,
     tiles_touching,
 )
-from approxtree.tiles.sampling import TileSampler, check_has_data
+from approxtree.tiles.sampling import NO_DATA, TileSampler, check_has_data
 from approxtree.tiles.water_mask import WaterMask
 
 #: Samples along a tile side: (samples − 1) divides 32767 = 7 · 31 · 151, so every sample has
@@ -349,6 +349,10 @@ def write_quantized_mesh(
             ) as pool:
                 for part in pool.map(_worker_batch, batches):
                     results.extend(part)
+        if not any(r.valid_samples for r in results) and terrain.point_count == 0:
+            # A windowed terrain of nodata only: scanned only now that no tile sampled a
+            # height (tiles too coarse to hit the data need not mean nodata); nothing is kept.
+            raise EmptyTerrainError(NO_DATA)
         layer = layer_json(sampler, plan, water is not None, out.name)
         (tmp / "layer.json").write_text(json.dumps(layer, indent=1))
     return {
