@@ -964,6 +964,12 @@ def _tiles_terrain(path: str, reader: dict[str, Any]):
     "cell].",
 )
 @click.option(
+    "--max-error",
+    type=float,
+    help="quantized-mesh: go deeper than the DEM's cell until the deepest level's error "
+    "(77 067 m / 2^level, CesiumJS's) is at most this many metres.",
+)
+@click.option(
     "--water-mask",
     type=click.Path(dir_okay=False),
     help="quantized-mesh: land/water raster (nonzero = water) for the water-mask extension.",
@@ -979,6 +985,7 @@ def tiles(
     samples: str,
     minzoom: int,
     maxzoom: int | None,
+    max_error: float | None,
     water_mask: str | None,
     workers: int,
     encoding,
@@ -1014,6 +1021,7 @@ def tiles(
         samples=int(samples),
         minzoom=minzoom,
         maxzoom=maxzoom,
+        max_error=max_error,
         workers=workers,
         water_mask=water_mask,
     )
