@@ -618,38 +618,3 @@ def test_read_raster_holds_the_band_once(tmp_path):
     heights = as_heights(band, reuse=True)
     assert np.shares_memory(heights, band.data)
     assert np.isnan(heights[1, 2]) and np.isfinite(np.delete(heights.ravel(), 6)).all()
-
-
-def test_a_band_without_nodata_is_read_without_its_mask(tmp_path, monkeypatch):
-    """A band GDAL flags all valid (no nodata, mask or alpha) is read as plain values, not as
-    a masked array whose full-size mask GDAL builds cell by cell; its NaNs stay nodata, and a
-    band with a nodata value is still read with its mask."""
-    import rasterio
-    from affine import Affine
-    from rasterio.io import DatasetReader
-
-    from approxtree.io.raster import read_raster
-
-    z = np.arange(64, dtype=np.float32).reshape(8, 8)
-    z[2, 3] = np.nan
-    z[5, 5] = -9999
-    plain, tagged = tmp_path / "plain.tif", tmp_path / "tagged.tif"
-    profile = {"driver": "GTiff", "width": 8, "height": 8, "count": 1, "dtype": "float32"}
-    profile["transform"] = Affine(1, 0, 0, 0, -1, 8)
-    for path, nodata in ((plain, None), (tagged, -9999)):
-        with rasterio.open(path, "w", nodata=nodata, **profile) as ds:
-            ds.write(z, 1)
-    asked = []
-    read = DatasetReader.read
-
-    def recording_read(self, *args, **kwargs):
-        asked.append(kwargs.get("masked", False))
-        return read(self, *args, **kwargs)
-
-    monkeypatch.setattr(DatasetReader, "read", recording_read)
-    heights = read_raster(plain, windowed=False).heights
-    assert asked == [False]
-    assert np.isnan(heights[2, 3]) and heights[5, 5] == -9999 and np.isnan(heights).sum() == 1
-    heights = read_raster(tagged, windowed=False).heights
-    assert asked == [False, True]
-    assert np.isnan(heights[2, 3]) and np.isnan(heights[5, 5]) and np.isnan(heights).sum() == 2

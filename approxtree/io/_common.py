@@ -220,8 +220,7 @@ def as_heights(values: np.ndarray, reuse: bool = False) -> np.ndarray:
     out_type = np.float64 if wide else np.float32
     if reuse and dtype == out_type:
         out = np.ma.getdata(a)
-        if np.ma.getmask(a) is not np.ma.nomask:
-            out[np.ma.getmask(a)] = np.nan
+        out[np.ma.getmaskarray(a)] = np.nan
     elif np.ma.isMaskedArray(a):
         out = np.ma.filled(a.astype(out_type), np.nan)
     else:

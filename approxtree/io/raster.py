@@ -225,12 +225,7 @@ def read_raster(
                 else:
                     # The band, its mask and the float heights: about 3 × 8 bytes a cell.
                     check_claimed_bytes(p, cells * 24, None, f"{ds.width} × {ds.height} cells")
-                    # A band GDAL flags all valid (no nodata, mask or alpha) is read
-                    # without its mask: building that full-size mask costs more than the read.
-                    from rasterio.enums import MaskFlags
-
-                    all_valid = MaskFlags.all_valid in ds.mask_flag_enums[int(band) - 1]
-                    values = ds.read(int(band), masked=not all_valid)
+                    values = ds.read(int(band), masked=True)
                     own = own_transform(ds)
                     file_crs = ds.crs.to_string() if ds.crs else None
                     nodata_value = ds.nodata
