@@ -106,3 +106,24 @@ def halve_bands(src: np.ndarray, out: np.ndarray) -> None:
                 else:
                     out[k, i, j] = 0
             out[alpha, i, j] = _round_quarter(wsum)
+
+
+@njit(cache=True)
+def bands_into_rgba(planes: np.ndarray, out: np.ndarray) -> None:
+    """(bands, rows, cols) uint8 planes of a pyramid level, alpha last (grey and alpha, or R,
+    G, B and alpha), into ``out[:rows, :cols]`` of a (≥ rows, ≥ cols, 4) uint8 RGBA array:
+    grey fills R, G and B. The rest of ``out`` is left as it is. Serial: patches are read on
+    a loader thread, and small ones would wait longer for a thread pool than they take."""
+    bands, rows, cols = planes.shape
+    for r in range(rows):
+        if bands == 2:
+            for c in range(cols):
+                g = planes[0, r, c]
+                out[r, c, 0] = g
+                out[r, c, 1] = g
+                out[r, c, 2] = g
+                out[r, c, 3] = planes[1, r, c]
+        else:
+            for c in range(cols):
+                for k in range(4):
+                    out[r, c, k] = planes[k, r, c]

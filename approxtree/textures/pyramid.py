@@ -33,7 +33,7 @@ from affine import Affine
 
 from approxtree.errors import InvalidParameterError, StoreError
 from approxtree.io.atomic import atomic_directory
-from approxtree.kernels.rgba import halve_bands
+from approxtree.kernels.rgba import bands_into_rgba, halve_bands
 from approxtree.textures.base import TextureData
 
 #: Rows handled at once while halving a level, bounding memory for huge textures.
@@ -370,11 +370,8 @@ class TexturePyramid:
             return out
         with rasterio.open(lv.path) as ds:
             planes = ds.read(window=Window(col0, row0, c1 - col0, r1 - row0))
-        inside = out[: r1 - row0, : c1 - col0]
         # Grey and alpha fill R, G, B and A; RGBA fills them as stored.
-        for band in range(3):
-            inside[..., band] = planes[min(band, self.bands - 2)]
-        inside[..., 3] = planes[-1]
+        bands_into_rgba(np.ascontiguousarray(planes), out)
         return out
 
     def level(self, k: int) -> np.ndarray:
