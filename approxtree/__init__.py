@@ -24,10 +24,16 @@ from approxtree.geometry import (
 
 __version__ = "0.1.0"
 
-from approxtree.tree import ApproximationTree, Node, PointQuadtree, StrategyPolicy, load_tree
+#: Names of approxtree.tree: its patches and kernels cost a third of the import, and commands
+#: that never build nor load a tree (bake, mesh of a DEM) do without them.
+_TREE_NAMES = ("ApproximationTree", "Node", "PointQuadtree", "StrategyPolicy", "load_tree")
 
 
 def __getattr__(name: str):
+    if name in _TREE_NAMES:
+        from approxtree import tree
+
+        return getattr(tree, name)
     # The readers pull in rasterio, laspy and friends: import them on first use only.
     if name == "open_terrain":
         from approxtree.io import open_terrain

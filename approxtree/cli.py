@@ -1230,8 +1230,9 @@ def bake_command(
     A point cloud or TIN is shaded from its heights sampled on a lattice (--texel, default its
     mean point spacing).
 
-    The folder holds pyramid.json and one georeferenced RGBA GeoTIFF per level, level0.tif
-    the finest (pure shading: R = G = B = shade).
+    The folder holds pyramid.json and one georeferenced GeoTIFF per level, level0.tif the
+    finest: tiled, ZSTD-compressed, the last band alpha; grey + alpha for pure shading, RGBA
+    otherwise.
     """
     from approxtree.errors import InvalidParameterError
     from approxtree.io.output_path import check_output_folder

@@ -13,6 +13,16 @@ is its own; --baseline DIR adds the same bake from another checkout (say, main) 
 interleaved. Results in benchmarks/results/bake_pyramid.json.
 
     python benchmarks/bench_bake.py --pyramid [--size 8192] [--repeats 3] [--baseline DIR]
+
+With --cli, issue 15's row: the command line end to end, ``approxtree bake DEM --no-gl``
+(and ``--gl``: the default OpenGL path) against ``gdaldem hillshade DEM out.tif`` on one
+DEM written by ``approxtree fractal`` (uncompressed unless --compress), each run a fresh
+process timed with its peak RSS (/usr/bin/time), interleaved, medians of --repeats (≥ 5 for
+the issue), after one warm-up per side (numba cache). ``import`` is a process that only
+imports the bake's modules (the fixed cost in every bake). Also the time to read texture
+patches of the baked pyramid. Results in benchmarks/results/bake_cli_<size>.json and .png.
+
+    python benchmarks/bench_bake.py --cli [--size 8192] [--repeats 5] [--gl] [--baseline DIR]
 """
 
 from __future__ import annotations
@@ -157,15 +167,150 @@ def bench_pyramid(size: int, repeats: int, baseline: str | None) -> dict:
     }
 
 
+#: A process that only imports what ``approxtree bake`` imports before its work.
+_IMPORT_CHILD = "import approxtree.cli, approxtree.io, approxtree.textures.bake"
+
+
+def _patch_reads(folder: Path) -> dict:
+    """Median seconds to read texture patches (4096², 1024², 256² windows) of a pyramid."""
+    from approxtree.textures import TexturePyramid
+
+    pyramid = TexturePyramid(folder)
+    lv = pyramid.levels[0]
+    out = {}
+    for side in (4096, 1024, 256):
+        rng = np.random.default_rng(side)
+        times = []
+        for _ in range(5):
+            r0 = int(rng.integers(0, max(1, lv.height - side)))
+            c0 = int(rng.integers(0, max(1, lv.width - side)))
+            t0 = time.perf_counter()
+            pyramid.read(0, r0, c0, side, side)
+            times.append(time.perf_counter() - t0)
+        out[f"{side}"] = statistics.median(times)
+    return out
+
+
+def bench_cli(
+    size: int, repeats: int, gl: bool, baseline: str | None, compress: str, dem: str | None
+) -> dict:
+    """``approxtree bake`` (fresh processes) vs ``gdaldem hillshade``, interleaved."""
+    env = dict(os.environ)
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp_path = Path(tmp)
+        src = Path(dem).resolve() if dem else tmp_path / "dem.tif"
+        if not dem:
+            subprocess.run(
+                [sys.executable, "-m", "approxtree", "fractal", str(src), "--size", str(size),
+                 "--seed", "1", "--cell-size", "10", "--compress", compress],
+                check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=tmp_path,
+            )  # fmt: skip
+        with rasterio.open(src) as ds:
+            dem_bytes = ds.width * ds.height * 4
+            size = ds.width
+        bake = [sys.executable, "-m", "approxtree", "bake", str(src), "--out"]
+        sides: dict[str, tuple[list[str], dict[str, str]]] = {
+            "ours": ([*bake, "{out}", "--no-gl"], env),
+        }
+        if gl:
+            sides["ours_gl"] = ([*bake, "{out}"], env)
+        if baseline:
+            base_env = dict(env, PYTHONPATH=str(Path(baseline).resolve()))
+            sides["baseline"] = ([*bake, "{out}", "--no-gl"], base_env)
+        sides["gdaldem"] = (["gdaldem", "hillshade", "-q", str(src), "{out}.tif"], env)
+        sides["import"] = ([sys.executable, "-c", _IMPORT_CHILD], env)
+        runs: dict[str, list[dict]] = {name: [] for name in sides}
+        patch_reads = {}
+        # Warm-up (numba caches, page cache of the DEM), then interleaved repeats. Children
+        # run in the temp folder, so a baseline's PYTHONPATH is not shadowed by this checkout.
+        for i in range(-1, repeats):
+            for name, (cmd, side_env) in sides.items():
+                out = tmp_path / f"{name}{i}"
+                argv = [a.replace("{out}", str(out)) for a in cmd]
+                wall, peak, _ = _child(argv, side_env, tmp_path)
+                written = sum(f.stat().st_size for f in tmp_path.glob(f"{name}{i}*") if f.is_file())
+                written += sum(f.stat().st_size for f in out.glob("*")) if out.is_dir() else 0
+                if i >= 0:
+                    runs[name].append(
+                        {"wall_s": wall, "peak_bytes": peak, "bytes_written": written}
+                    )
+                if name == "ours" and i == 0:
+                    patch_reads = _patch_reads(out)
+                shutil.rmtree(out, ignore_errors=True)
+                Path(f"{out}.tif").unlink(missing_ok=True)
+            if i >= 0:
+                print(
+                    f"run {i}: "
+                    + ", ".join(
+                        f"{k} {v[-1]['wall_s']:.2f} s {v[-1]['peak_bytes'] / 1e6:.0f} MB"
+                        for k, v in runs.items()
+                    ),
+                    flush=True,
+                )
+    med = {
+        name: {key: statistics.median(r[key] for r in rs) for key in rs[0]}
+        for name, rs in runs.items()
+    }
+    gdal = med["gdaldem"]
+    return {
+        "benchmark": "approxtree bake (CLI, fresh process) vs gdaldem hillshade → GeoTIFF",
+        "size": size,
+        "dem_bytes": dem_bytes,
+        "dem_compression": "given" if dem else compress,
+        "cores": os.cpu_count(),
+        "load_average": os.getloadavg(),
+        "medians": med,
+        "wall_ratio_over_gdaldem": {k: v["wall_s"] / gdal["wall_s"] for k, v in med.items()},
+        "peak_over_dem_bytes": {k: v["peak_bytes"] / dem_bytes for k, v in med.items()},
+        "patch_read_s": patch_reads,
+        "runs": runs,
+    }
+
+
+def plot_cli(report: dict, path: Path) -> None:
+    """Wall time and peak RSS medians of each side, with the 1.5× and 3× targets."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    med = report["medians"]
+    names = list(med)
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
+    a.bar(names, [med[n]["wall_s"] for n in names], color=[f"C{i}" for i in range(len(names))])
+    a.axhline(1.5 * med["gdaldem"]["wall_s"], color="k", ls="--", lw=1, label="1.5× gdaldem")
+    a.set_ylabel("seconds (median, fresh process)")
+    a.legend()
+    b.bar(names, [med[n]["peak_bytes"] / 1e6 for n in names])
+    b.axhline(3 * report["dem_bytes"] / 1e6, color="k", ls="--", lw=1, label="3× DEM bytes")
+    b.set_ylabel("peak RSS (MB)")
+    b.legend()
+    fig.suptitle(f"Hillshade bake {report['size']}², end to end")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=8192)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--pyramid", action="store_true", help="bake into a pyramid instead")
     parser.add_argument("--baseline", help="another checkout's root, baked as a peer")
+    parser.add_argument("--cli", action="store_true", help="the CLI end to end vs gdaldem")
+    parser.add_argument("--gl", action="store_true", help="--cli: also the OpenGL bake")
+    parser.add_argument("--compress", default="none", help="--cli: the fractal DEM's codec")
+    parser.add_argument("--dem", help="--cli: an existing DEM instead of a fractal")
     args = parser.parse_args()
     if shutil.which("gdaldem") is None:
         raise SystemExit("gdaldem not found: install the Debian package gdal-bin")
+    if args.cli:
+        RESULTS.mkdir(exist_ok=True)
+        report = bench_cli(args.size, args.repeats, args.gl, args.baseline, args.compress, args.dem)
+        out = RESULTS / f"bake_cli_{report['size']}.json"
+        out.write_text(json.dumps(report, indent=2))
+        plot_cli(report, out.with_suffix(".png"))
+        print(json.dumps({k: v for k, v in report.items() if k != "runs"}, indent=2))
+        return
     if args.pyramid:
         RESULTS.mkdir(exist_ok=True)
         report = bench_pyramid(args.size, args.repeats, args.baseline)

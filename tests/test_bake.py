@@ -188,3 +188,26 @@ def test_bake_uses_gl_and_falls_back_to_numpy(tmp_path, gl_context, monkeypatch)
     assert np.abs(a - b).max() <= 1
     np.testing.assert_array_equal(b[..., 0], TopographicShading(g).shade())
     assert len(on_gpu.pyramid) == len(fallback.pyramid) == 3
+
+
+def test_the_bake_command_does_not_import_the_tree_builder(tmp_path):
+    """``approxtree bake`` of a DEM imports neither the tree builder nor the patch strategies
+    (their numba kernels are a third of the import time of every bake)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, approxtree, approxtree.cli, approxtree.io, approxtree.textures.bake\n"
+        "approxtree.cli._is_tree('dem.tif')\n"
+        "print(sorted(m for m in sys.modules if m.startswith(('approxtree.tree.', "
+        "'approxtree.patches', 'approxtree.render'))))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=tmp_path
+    )
+    assert out.stdout.strip() == "['approxtree.tree.zarr_store']"
+    # The names stay where they were, imported on first use.
+    from approxtree import ApproximationTree
+    from approxtree.tree import ApproximationTree as same
+
+    assert ApproximationTree is same

@@ -41,7 +41,8 @@ def test_levels_share_one_domain_and_are_georeferenced(pyramid, terrain):
     for lv in pyramid.levels:
         with rasterio.open(lv.path) as ds:
             assert ds.transform.almost_equals(lv.transform)
-            assert ds.count == 4
+            # A shading is grey: stored as grey and alpha.
+            assert ds.count == 2
             extents.append(tuple(np.round(ds.bounds, 6)))
     # Odd sizes round up, so coarser levels may reach up to one texel further.
     x0, y0, x1, y1 = extents[0]
@@ -51,11 +52,39 @@ def test_levels_share_one_domain_and_are_georeferenced(pyramid, terrain):
         assert y0 - 4 * terrain.cell_size[1] <= e[1] <= y0
 
 
-def test_memory_map_equals_the_geotiff(pyramid):
-    """The memory-mapped level holds exactly the pixels GDAL reads from the file."""
+def test_levels_read_as_the_geotiff_in_rgba(pyramid):
+    """A level reads as exactly the pixels GDAL reads from the file, grey spread to R, G, B."""
     for k, lv in enumerate(pyramid.levels):
         with rasterio.open(lv.path) as ds:
-            np.testing.assert_array_equal(pyramid.level(k), np.moveaxis(ds.read(), 0, -1))
+            grey, alpha = ds.read()
+        np.testing.assert_array_equal(pyramid.level(k), np.stack([grey, grey, grey, alpha], -1))
+
+
+def test_levels_are_tiled_and_compressed(pyramid, tmp_path):
+    """Levels follow the COG conventions: 512² tiles, ZSTD, grey + alpha for a shading
+    (a quarter of RGBA's bytes before compression), RGBA for a colour texture."""
+    from affine import Affine
+
+    rgba = np.random.default_rng(2).integers(0, 255, (600, 700, 4), dtype=np.uint8)
+    colour = TexturePyramid.build(rgba, tmp_path, 256, transform=Affine(1, 0, 0, 0, -1, 600))
+    for p, bands in ((pyramid, 2), (colour, 4)):
+        assert p.bands == bands
+        for lv in p.levels:
+            with rasterio.open(lv.path) as ds:
+                assert ds.count == bands
+                assert ds.block_shapes == [(512, 512)] * bands
+                assert ds.compression.name.lower() == "zstd"
+    assert pyramid.nbytes < 0.5 * sum(lv.width * lv.height * 2 for lv in pyramid.levels)
+    np.testing.assert_array_equal(colour.level(0), rgba)
+
+
+def test_windows_read_as_slices_of_the_level(pyramid):
+    """``read`` gives the texels of a window, transparent past the level's edges."""
+    level = pyramid.level(1)
+    np.testing.assert_array_equal(pyramid.read(1, 30, 40, 64, 32), level[30:94, 40:72])
+    edge = pyramid.read(1, 380, 490, 16, 16)
+    np.testing.assert_array_equal(edge[:9, :10], level[380:, 490:])
+    assert not edge[9:].any() and not edge[:, 10:].any()
 
 
 def test_halving_is_an_alpha_weighted_box_filter(pyramid):
@@ -72,13 +101,13 @@ def test_halving_is_an_alpha_weighted_box_filter(pyramid):
         assert coarse[r, c, 3] == np.round(w.mean())
 
 
-def test_levels_mark_band_4_as_alpha(pyramid):
-    """Every level's fourth band is an alpha band for GDAL (and viewers), not a fourth colour."""
+def test_levels_mark_their_last_band_as_alpha(pyramid):
+    """Every level's last band is an alpha band for GDAL (and viewers), not a colour."""
     from rasterio.enums import ColorInterp
 
     for lv in pyramid.levels:
         with rasterio.open(lv.path) as ds:
-            assert ds.colorinterp[3] == ColorInterp.alpha, (lv.path, ds.colorinterp)
+            assert tuple(ds.colorinterp) == (ColorInterp.gray, ColorInterp.alpha), lv.path
 
 
 def test_bake_streams_the_texture_without_its_whole_rgba(terrain, tmp_path, monkeypatch):
@@ -170,9 +199,9 @@ def test_bad_pyramids_are_reported(tmp_path):
         TexturePyramid.build(np.zeros((4, 4, 4), np.uint8), tmp_path, max_texture_size=100)
 
 
-def test_levels_with_empty_strips_stay_memory_mappable(tmp_path):
-    """A level taller than one write chunk with all-zero rows (nodata borders) keeps its
-    strips in order, so it memory-maps and reads back exactly."""
+def test_levels_with_empty_strips_read_back_exactly(tmp_path):
+    """A level taller than one write chunk with all-zero rows (nodata borders) reads back
+    exactly."""
     from affine import Affine
 
     rgba = np.random.default_rng(1).integers(1, 255, (2100, 2049, 4), dtype=np.uint8)
@@ -278,6 +307,11 @@ def test_killed_bakes_leave_a_whole_pyramid(tmp_path):
 
 def _swap_level(folder, other):
     shutil.copy(other / "level0.tif", folder / "level0.tif")
+    # Compressed levels of other texels differ in bytes: list the swapped file's, so that
+    # only its build tag tells it apart.
+    meta = json.loads((folder / "pyramid.json").read_text())
+    meta["levels"][0]["bytes"] = (folder / "level0.tif").stat().st_size
+    (folder / "pyramid.json").write_text(json.dumps(meta))
 
 
 def _drop_level(folder, other):
@@ -308,6 +342,13 @@ def _old_format(folder, other):
     (folder / "pyramid.json").write_text(json.dumps(meta))
 
 
+def _format_2(folder, other):
+    meta = json.loads((folder / "pyramid.json").read_text())
+    meta["format"] = 2
+    meta.pop("bands")
+    (folder / "pyramid.json").write_text(json.dumps(meta))
+
+
 @pytest.mark.parametrize(
     ("damage", "message"),
     [
@@ -317,6 +358,7 @@ def _old_format(folder, other):
         (_truncate_level, "bytes"),
         (_wrong_size, "201"),
         (_old_format, "format 1"),
+        (_format_2, "format 2.*Rebake"),
     ],
 )
 def test_levels_that_do_not_match_pyramid_json_are_refused(tmp_path, damage, message):

@@ -299,8 +299,8 @@ def test_nc_land_use_lands_at_its_map_positions(gl_context, nc_tree, data_dir, t
 
 def test_cli_bake_and_render_with_textures(data_dir, tmp_path):
     """bake --json reports levels, sizes, bytes, seconds and writes pyramid.json and
-    georeferenced RGBA levels (R = G = B for pure shading); render --textures reports the
-    texture figures."""
+    georeferenced levels (grey + alpha for pure shading, read as R = G = B); render --textures
+    reports the texture figures."""
     dem = data_file(data_dir, "nc/elev_ned_30m.tif")
     runner = CliRunner()
     tree_file = tmp_path / "nc.atree"
@@ -316,9 +316,10 @@ def test_cli_bake_and_render_with_textures(data_dir, tmp_path):
     assert figures["seconds"] > 0
     assert (out / "pyramid.json").is_file()
     with rasterio.open(out / "level0.tif") as ds, rasterio.open(dem) as src:
-        assert ds.count == 4 and ds.transform.almost_equals(src.transform)
+        # Pure shading is grey: stored as grey and alpha, read back as RGBA with R = G = B.
+        assert ds.count == 2 and ds.transform.almost_equals(src.transform)
         assert ds.crs == src.crs
-        r, g, b, _ = ds.read()
+    r, g, b, _ = np.moveaxis(TexturePyramid(out).level(0), -1, 0)
     assert np.array_equal(r, g) and np.array_equal(r, b) and r.std() > 5
     shade = TopographicShading(at.open_terrain(dem), algorithm="zevenbergen-thorne").shade()
     assert np.abs(r.astype(int) - shade).max() <= 1

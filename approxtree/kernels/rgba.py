@@ -58,8 +58,8 @@ def grey_into_bands(grey: np.ndarray, out: np.ndarray) -> None:
 
 @njit(cache=True, parallel=True)
 def halve_bands(src: np.ndarray, out: np.ndarray) -> None:
-    """2 × 2 alpha-weighted box filter of (4, rows, cols) uint8 planes (R, G, B, A) into
-    ``out`` (4, ⌈rows/2⌉, ⌈cols/2⌉) uint8.
+    """2 × 2 alpha-weighted box filter of (bands, rows, cols) uint8 planes, alpha last (R, G,
+    B, A or grey, A), into ``out`` (bands, ⌈rows/2⌉, ⌈cols/2⌉) uint8.
 
     Colour is the alpha-weighted mean of the four texels (0 where all four are transparent),
     alpha their mean, both rounded half to even. Odd sizes repeat the last row or column, so
@@ -67,6 +67,7 @@ def halve_bands(src: np.ndarray, out: np.ndarray) -> None:
     formula: a quotient of integers below 2^53 is rounded correctly, and a non-tie lies at
     least 1/2040 from a tie.
     """
+    alpha = src.shape[0] - 1
     rows, cols = src.shape[1], src.shape[2]
     out_rows, out_cols = out.shape[1], out.shape[2]
     for i in prange(out_rows):
@@ -76,14 +77,14 @@ def halve_bands(src: np.ndarray, out: np.ndarray) -> None:
         for j in range(out_cols):
             c0 = 2 * j
             c1 = min(c0 + 1, cols - 1)
-            a00 = np.int64(src[3, r0, c0])
-            a01 = np.int64(src[3, r0, c1])
-            a10 = np.int64(src[3, r1, c0])
-            a11 = np.int64(src[3, r1, c1])
+            a00 = np.int64(src[alpha, r0, c0])
+            a01 = np.int64(src[alpha, r0, c1])
+            a10 = np.int64(src[alpha, r1, c0])
+            a11 = np.int64(src[alpha, r1, c1])
             wsum = a00 + a01 + a10 + a11
             if wsum == 1020:
                 # All four opaque (most texels): equal weights, a plain mean of four.
-                for k in range(3):
+                for k in range(alpha):
                     total = (
                         np.int64(src[k, r0, c0])
                         + np.int64(src[k, r0, c1])
@@ -91,9 +92,9 @@ def halve_bands(src: np.ndarray, out: np.ndarray) -> None:
                         + np.int64(src[k, r1, c1])
                     )
                     out[k, i, j] = _round_quarter(total)
-                out[3, i, j] = 255
+                out[alpha, i, j] = 255
                 continue
-            for k in range(3):
+            for k in range(alpha):
                 if wsum > 0:
                     num = (
                         a00 * src[k, r0, c0]
@@ -104,4 +105,25 @@ def halve_bands(src: np.ndarray, out: np.ndarray) -> None:
                     out[k, i, j] = _round_ratio(num, wsum)
                 else:
                     out[k, i, j] = 0
-            out[3, i, j] = _round_quarter(wsum)
+            out[alpha, i, j] = _round_quarter(wsum)
+
+
+@njit(cache=True)
+def bands_into_rgba(planes: np.ndarray, out: np.ndarray) -> None:
+    """(bands, rows, cols) uint8 planes of a pyramid level, alpha last (grey and alpha, or R,
+    G, B and alpha), into ``out[:rows, :cols]`` of a (≥ rows, ≥ cols, 4) uint8 RGBA array:
+    grey fills R, G and B. The rest of ``out`` is left as it is. Serial: patches are read on
+    a loader thread, and small ones would wait longer for a thread pool than they take."""
+    bands, rows, cols = planes.shape
+    for r in range(rows):
+        if bands == 2:
+            for c in range(cols):
+                g = planes[0, r, c]
+                out[r, c, 0] = g
+                out[r, c, 1] = g
+                out[r, c, 2] = g
+                out[r, c, 3] = planes[1, r, c]
+        else:
+            for c in range(cols):
+                for k in range(4):
+                    out[r, c, k] = planes[k, r, c]

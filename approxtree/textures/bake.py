@@ -316,3 +316,11 @@ class _Precomputed(TextureData):
         from approxtree.textures.base import grey_strips
 
         return grey_strips(self._shade, rows)
+
+    #: Grey levels: the pyramid stores grey and alpha.
+    bands = 2
+
+    def level_strips(self, rows: int) -> Iterator[np.ndarray]:
+        from approxtree.textures.base import grey_alpha_strips
+
+        return grey_alpha_strips(self._shade, rows)

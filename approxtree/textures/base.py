@@ -24,6 +24,9 @@ class TextureData(ABC):
     transform: Affine
     shape: tuple[int, int]
     crs: str | None = None
+    #: Bands of the texture's pyramid levels (``level_strips``): 4 (R, G, B, A), or 2 (grey,
+    #: A) for a texture with R = G = B everywhere (shadings), stored in half the bytes.
+    bands: int = 4
 
     @abstractmethod
     def rgba(self) -> np.ndarray:
@@ -37,6 +40,12 @@ class TextureData(ABC):
         rgba = self.rgba()
         for r0 in range(0, rgba.shape[0], rows):
             yield np.ascontiguousarray(np.moveaxis(rgba[r0 : r0 + rows], -1, 0))
+
+    def level_strips(self, rows: int) -> Iterator[np.ndarray]:
+        """The texture as the pyramid stores it: strips of at most ``rows`` rows from the top,
+        each (``bands``, ≤ rows, cols) uint8, alpha last, valid until the next is asked for.
+        By default ``band_strips`` (RGBA)."""
+        return self.band_strips(rows)
 
     @cached_property
     def extent(self) -> Rect:
@@ -68,4 +77,21 @@ def grey_strips(shade: np.ndarray, rows: int) -> Iterator[np.ndarray]:
         n = min(rows, shade.shape[0] - r0)
         strip = buffer if n == buffer.shape[1] else np.empty((4, n, shade.shape[1]), np.uint8)
         grey_into_bands(shade[r0 : r0 + n], strip)
+        yield strip
+
+
+def grey_alpha_strips(shade: np.ndarray, rows: int) -> Iterator[np.ndarray]:
+    """(rows, cols) uint8 grey levels (0 = nodata) as (2, ≤ rows, cols) uint8 strips of grey
+    and alpha (255 where grey > 0, else 0), assembled in one reused buffer: the 2-band form of
+    ``grey_strips`` (R = G = B = grey there)."""
+    shade = np.ascontiguousarray(shade, dtype=np.uint8)
+    buffer = np.empty((2, min(rows, shade.shape[0]), shade.shape[1]), dtype=np.uint8)
+    for r0 in range(0, shade.shape[0], rows):
+        n = min(rows, shade.shape[0] - r0)
+        strip = buffer if n == buffer.shape[1] else np.empty((2, n, shade.shape[1]), np.uint8)
+        grey = shade[r0 : r0 + n]
+        strip[0] = grey
+        # Alpha 0/1 written as bools into the uint8 plane, then scaled to 0/255 in place.
+        np.not_equal(grey, 0, out=strip[1].view(np.bool_))
+        strip[1] *= 255
         yield strip

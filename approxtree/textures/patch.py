@@ -3,7 +3,7 @@
 For a node's domain D_N: take the first (finest) pyramid level whose subtexture covering D_N
 exactly fits the maximum texture size; the patch is a power-of-two sized region of that level
 covering at least D_N. A patch references the pyramid (level and texel window); its texels are
-read from the memory-mapped level only when it is uploaded.
+read from the level's tiles only when it is uploaded.
 """
 
 from __future__ import annotations
@@ -59,13 +59,8 @@ class TexturePatch:
         return Rect(min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1))
 
     def texels(self) -> np.ndarray:
-        """(height, width, 4) uint8; parts beyond the level's edge are transparent."""
-        level = self.pyramid.level(self.level)
-        out = np.zeros((self.height, self.width, 4), dtype=np.uint8)
-        r1 = min(self.row0 + self.height, level.shape[0])
-        c1 = min(self.col0 + self.width, level.shape[1])
-        out[: r1 - self.row0, : c1 - self.col0] = level[self.row0 : r1, self.col0 : c1]
-        return out
+        """(height, width, 4) uint8 RGBA; parts beyond the level's edge are transparent."""
+        return self.pyramid.read(self.level, self.row0, self.col0, self.height, self.width)
 
 
 def patch_levels(pyramid: TexturePyramid, rects: np.ndarray) -> np.ndarray:

@@ -1,18 +1,20 @@
-"""TexturePyramid: the baked texture and its successive halvings, as memory-mapped GeoTIFFs.
+"""TexturePyramid: the baked texture and its successive halvings, as tiled GeoTIFFs.
 
 Level 0 is the full-resolution texture; level k+1 halves level k (2 × 2 box filter weighted
 by alpha, so transparent texels do not darken their neighbours) until a level fits the
-renderer's maximum texture size. Every level is an uncompressed, pixel-interleaved RGBA GeoTIFF
-covering the domain of level 0 (odd sizes add at most one texel at the east and south edges),
-opened through ``numpy.memmap``: reading a texture patch touches only its rows, so pyramids
-larger than memory work. ``pyramid.json`` lists the levels. A build streams: the texture
-arrives in band-order strips (``TextureData.band_strips``), each written and halved at once
-(uint8 kernels, ``kernels.rgba``), so level 0 is never whole in memory.
+renderer's maximum texture size. Every level is a tiled (512²), ZSTD-compressed GeoTIFF with
+its last band marked as alpha (the Cloud Optimized GeoTIFF conventions) covering the domain of
+level 0 (odd sizes add at most one texel at the east and south edges). A grey texture
+(shading: R = G = B) is stored as 2 bands, grey and alpha; any other as 4, RGBA. Reading a
+texture patch decodes only the tiles of its window (``TexturePyramid.read``) and gives RGBA
+either way, so pyramids larger than memory work. ``pyramid.json`` lists the levels. A build
+streams: the texture arrives in band-order strips (``TextureData.level_strips``), each written
+and halved at once (uint8 kernels, ``kernels.rgba``), so level 0 is never whole in memory.
 
 A pyramid is written all or nothing: built in a temp folder beside its folder, then swapped in
 (``atomic_directory``). Each build has an id, stored in pyramid.json and in every level's
 GeoTIFF tags with the level's number; opening a pyramid checks every level against
-pyramid.json (id, number, size, bytes, pixel format, halving chain), so a level of another
+pyramid.json (id, number, size, bytes, bands, alpha, halving chain), so a level of another
 bake, a missing, extra or truncated level is refused instead of draped.
 """
 
@@ -31,14 +33,30 @@ from affine import Affine
 
 from approxtree.errors import InvalidParameterError, StoreError
 from approxtree.io.atomic import atomic_directory
-from approxtree.kernels.rgba import halve_bands
+from approxtree.kernels.rgba import bands_into_rgba, halve_bands
 from approxtree.textures.base import TextureData
 
 #: Rows handled at once while halving a level, bounding memory for huge textures.
 _CHUNK_ROWS = 512
 
-#: pyramid.json format: 2 added the build id, the level tags and the level byte counts.
-PYRAMID_FORMAT = 2
+#: pyramid.json format: 2 added the build id, the level tags and the level byte counts; 3
+#: tiled, compressed levels (no longer memory-mapped) and grey + alpha levels for shadings.
+PYRAMID_FORMAT = 3
+#: Tile side of the level GeoTIFFs (texels), as COGs use.
+_TILE = 512
+#: Level GeoTIFF creation options: tiled, ZSTD at its fastest level (a hillshade shrinks
+#: 2.4×, its alpha band to almost nothing), one plane per band (compresses better and faster
+#: than interleaved grey/alpha), compressed on every core.
+_LEVEL_OPTIONS = {
+    "tiled": True,
+    "blockxsize": _TILE,
+    "blockysize": _TILE,
+    "compress": "zstd",
+    "zstd_level": 1,
+    "interleave": "band",
+    "num_threads": "ALL_CPUS",
+    "alpha": "YES",
+}
 #: GeoTIFF tags naming a level's build and its number in the pyramid.
 _TAG_BUILD = "APPROXTREE_PYRAMID"
 _TAG_LEVEL = "APPROXTREE_LEVEL"
@@ -68,16 +86,18 @@ def _write_level(
     path: Path,
     strips: Iterable[np.ndarray],
     shape: tuple[int, int],
+    bands: int,
     transform: Affine,
     crs: str | None,
     build: str,
     level: int,
     halved: list[np.ndarray] | None,
 ) -> None:
-    """Write the (4, rows, cols) uint8 band-order strips of a level, top to bottom, as an
-    uncompressed pixel-interleaved GeoTIFF tagged with the pyramid's build id and the level
-    number (into the pyramid's temp folder); when ``halved`` is a list, append to it the
-    strips of the level's halving, made while each strip is at hand (strips of even height)."""
+    """Write the (bands, rows, cols) uint8 band-order strips of a level (RGBA, or grey and
+    alpha), top to bottom, as a tiled compressed GeoTIFF tagged with the pyramid's build id and
+    the level number (into the pyramid's temp folder); when ``halved`` is a list, append to it
+    the strips of the level's halving, made while each strip is at hand (strips of even
+    height)."""
     import rasterio
 
     rows, cols = shape
@@ -85,25 +105,21 @@ def _write_level(
         "driver": "GTiff",
         "width": cols,
         "height": rows,
-        "count": 4,
+        "count": bands,
         "dtype": "uint8",
         "transform": transform,
         "crs": crs,
-        "interleave": "pixel",
-        "photometric": "RGB",
-        "alpha": "YES",
-        "tiled": False,
-        # Streamed output writes every strip in order, all-zero strips included (GDAL
-        # otherwise defers empty strips to the end of the file and breaks the memory map).
-        "streamable_output": "YES",
+        "photometric": "RGB" if bands == 4 else "MINISBLACK",
+        **_LEVEL_OPTIONS,
     }
     r0 = 0
     with rasterio.open(path, "w", **profile) as ds:
+        ds.update_tags(**{_TAG_BUILD: build, _TAG_LEVEL: str(level)})
         for strip in strips:
             n = strip.shape[1] if strip.ndim == 3 else 0
-            if strip.ndim != 3 or strip.shape[::2] != (4, cols) or strip.dtype != np.uint8:
+            if strip.ndim != 3 or strip.shape[::2] != (bands, cols) or strip.dtype != np.uint8:
                 raise InvalidParameterError(
-                    f"A texture must be ({rows}, {cols}, 4) uint8, got a strip of "
+                    f"A texture must be ({rows}, {cols}, {bands}) uint8, got a strip of "
                     f"{strip.shape} {strip.dtype} (bands first)."
                 )
             if r0 + n > rows or (n % 2 and r0 + n < rows):
@@ -115,16 +131,12 @@ def _write_level(
             ds.write(strip, window=rasterio.windows.Window(0, r0, cols, n))
             # The halving of a strip depends on that strip only (its rows pair up).
             if halved is not None:
-                half = np.empty((4, (n + 1) // 2, (cols + 1) // 2), dtype=np.uint8)
+                half = np.empty((bands, (n + 1) // 2, (cols + 1) // 2), dtype=np.uint8)
                 halve_bands(strip, half)
                 halved.append(half)
             r0 += n
     if r0 != rows:
         raise InvalidParameterError(f"The texture's strips cover {r0} of its {rows} rows.")
-    # Tags go in afterwards (GDAL rewrites the directory at the end, strips stay in place):
-    # set on a streamed file before its pixels, tags longer than 4 bytes shift its strips.
-    with rasterio.open(path, "r+") as ds:
-        ds.update_tags(**{_TAG_BUILD: build, _TAG_LEVEL: str(level)})
 
 
 #: fn(level, transform, (rows, cols)) -> (rows, cols, 4) uint8 drawn over that level, or None.
@@ -154,20 +166,17 @@ def _strips(rgba: np.ndarray) -> Iterator[np.ndarray]:
         yield np.ascontiguousarray(np.moveaxis(rgba[r0 : r0 + _CHUNK_ROWS], -1, 0))
 
 
-def _level_offset(path: Path, level: PyramidLevel, build: str, k: int) -> int:
-    """Byte offset of the pixels of a level written by ``_write_level``, after checking the
-    file against its entry in pyramid.json (build id, level number, size, pixel format)."""
+def _check_level(path: Path, level: PyramidLevel, bands: int, build: str, k: int) -> None:
+    """Check a level written by ``_write_level`` against its entry in pyramid.json (build id,
+    level number, size, bands, alpha, georeference)."""
     import rasterio
+    from rasterio.enums import ColorInterp
 
     try:
         with rasterio.open(path) as ds:
             rows, cols, count, dtypes = ds.height, ds.width, ds.count, set(ds.dtypes)
             tags = ds.tags()
-            block_rows = ds.block_shapes[0][0]
-            first = ds.get_tag_item("BLOCK_OFFSET_0_0", "TIFF", bidx=1)
-            last_block = (rows - 1) // block_rows
-            last = ds.get_tag_item(f"BLOCK_OFFSET_0_{last_block}", "TIFF", bidx=1)
-            compressed = ds.compression is not None
+            last_band = ds.colorinterp[-1]
             transform = ds.transform
     except rasterio.errors.RasterioError as exc:
         raise StoreError(f"{path} is not a readable GeoTIFF ({exc}); rebake the pyramid.") from exc
@@ -176,22 +185,15 @@ def _level_offset(path: Path, level: PyramidLevel, build: str, k: int) -> int:
             f"{path} belongs to another bake than {path.parent / 'pyramid.json'} (level {k} "
             "of a different pyramid); the folder is inconsistent: rebake the pyramid."
         )
-    if (cols, rows) != (level.width, level.height) or count != 4 or dtypes != {"uint8"}:
+    if (cols, rows) != (level.width, level.height) or count != bands or dtypes != {"uint8"}:
         raise StoreError(
             f"{path} is {cols} × {rows} × {count} {sorted(dtypes)}, but pyramid.json lists "
-            f"{level.width} × {level.height} × 4 uint8; rebake the pyramid."
+            f"{level.width} × {level.height} × {bands} uint8; rebake the pyramid."
         )
+    if last_band != ColorInterp.alpha:
+        raise StoreError(f"{path} has no alpha band; rebake the pyramid.")
     if not transform.almost_equals(level.transform):
         raise StoreError(f"{path} is georeferenced unlike pyramid.json says; rebake the pyramid.")
-    if first is None or last is None or compressed:
-        raise StoreError(f"{path} is not an uncompressed strip GeoTIFF; rebake the pyramid.")
-    first, last = int(first), int(last)
-    # Strips must follow one another so that the pixels form one contiguous array.
-    if last - first != last_block * block_rows * cols * 4:
-        raise StoreError(f"{path} stores its strips out of order; rebake the pyramid.")
-    if first + rows * cols * 4 > path.stat().st_size:
-        raise StoreError(f"{path} is truncated; rebake the pyramid.")
-    return first
 
 
 def check_pyramid_target(folder: str | os.PathLike) -> None:
@@ -228,12 +230,16 @@ class TexturePyramid:
             if version != PYRAMID_FORMAT:
                 raise StoreError(
                     f"{self.folder} is a texture pyramid of format {version}; this approxtree "
-                    f"reads format {PYRAMID_FORMAT} (levels checked against pyramid.json). "
-                    "Rebake it (approxtree bake)."
+                    f"reads format {PYRAMID_FORMAT} (tiled, compressed levels checked against "
+                    "pyramid.json). Rebake it (approxtree bake)."
                 )
             self.build_id: str = str(meta["build"])
             self.crs: str | None = meta["crs"]
             self.max_texture_size: int = int(meta["max_texture_size"])
+            #: Bands of every level: 4 (RGBA) or 2 (grey and alpha).
+            self.bands: int = int(meta["bands"])
+            if self.bands not in (2, 4):
+                raise ValueError(f"bands is {self.bands}, not 2 or 4")
             entries = meta["levels"]
             files = [str(lv["file"]) for lv in entries]
             sizes = [int(lv["bytes"]) for lv in entries]
@@ -249,11 +255,9 @@ class TexturePyramid:
         except (ValueError, KeyError, TypeError, AttributeError) as exc:
             raise StoreError(f"{meta_path} is malformed: {exc}") from exc
         self._check_levels(files, sizes)
-        self._offsets = [
-            _level_offset(lv.path, lv, self.build_id, k) for k, lv in enumerate(self.levels)
-        ]
+        for k, lv in enumerate(self.levels):
+            _check_level(lv.path, lv, self.bands, self.build_id, k)
         self._check_chain()
-        self._maps: dict[int, np.ndarray] = {}
 
     def _check_levels(self, files: list[str], sizes: list[int]) -> None:
         """pyramid.json's level list against the folder: names, missing or extra files, bytes."""
@@ -318,7 +322,8 @@ class TexturePyramid:
         if isinstance(texture, TextureData):
             transform, crs = texture.transform, texture.crs
             shape = tuple(texture.shape)
-            strips: Iterable[np.ndarray] = texture.band_strips(_CHUNK_ROWS)
+            bands = texture.bands
+            strips: Iterable[np.ndarray] = texture.level_strips(_CHUNK_ROWS)
         else:
             rgba = texture
             if transform is None:
@@ -328,6 +333,7 @@ class TexturePyramid:
                     f"A texture must be (rows, cols, 4) uint8, got {rgba.shape} {rgba.dtype}."
                 )
             shape = rgba.shape[:2]
+            bands = 4
             strips = _strips(rgba)
         folder = Path(folder)
         check_pyramid_target(folder)
@@ -346,7 +352,7 @@ class TexturePyramid:
                 # further.
                 last = max(rows, cols) <= max_texture_size
                 halved: list[np.ndarray] | None = None if last else []
-                _write_level(path, strips, (rows, cols), t, crs, build, level, halved)
+                _write_level(path, strips, (rows, cols), bands, t, crs, build, level, halved)
                 levels.append(
                     {
                         "file": path.name,
@@ -368,6 +374,7 @@ class TexturePyramid:
                 "build": build,
                 "crs": crs,
                 "max_texture_size": max_texture_size,
+                "bands": bands,
                 "levels": levels,
             }
             (tmp / "pyramid.json").write_text(json.dumps(meta, indent=2))
@@ -376,15 +383,30 @@ class TexturePyramid:
     def __len__(self) -> int:
         return len(self.levels)
 
+    def read(self, k: int, row0: int, col0: int, rows: int, cols: int) -> np.ndarray:
+        """A (rows, cols, 4) uint8 RGBA window of level k from texel (row0, col0); texels past
+        the level's edge are transparent (0). Decodes only the tiles the window touches; grey
+        levels come back with R = G = B = grey. Opens the file per call, so threads may read
+        at once."""
+        import rasterio
+        from rasterio.windows import Window
+
+        lv = self.levels[k]
+        out = np.zeros((rows, cols, 4), dtype=np.uint8)
+        r1, c1 = min(row0 + rows, lv.height), min(col0 + cols, lv.width)
+        if r1 <= row0 or c1 <= col0:
+            return out
+        with rasterio.open(lv.path) as ds:
+            planes = ds.read(window=Window(col0, row0, c1 - col0, r1 - row0))
+        # Grey and alpha fill R, G, B and A; RGBA fills them as stored.
+        bands_into_rgba(np.ascontiguousarray(planes), out)
+        return out
+
     def level(self, k: int) -> np.ndarray:
-        """Level k as a read-only (rows, cols, 4) uint8 memory map."""
-        if k not in self._maps:
-            lv = self.levels[k]
-            shape = (lv.height, lv.width, 4)
-            self._maps[k] = np.memmap(
-                lv.path, np.uint8, mode="r", offset=self._offsets[k], shape=shape
-            )
-        return self._maps[k]
+        """Level k whole, as a (rows, cols, 4) uint8 RGBA array in memory (``read`` reads a
+        window of it)."""
+        lv = self.levels[k]
+        return self.read(k, 0, 0, lv.height, lv.width)
 
     @property
     def nbytes(self) -> int:

@@ -16,7 +16,7 @@ from approxtree.errors import InvalidParameterError
 from approxtree.geometry.grid import Grid
 from approxtree.kernels import hillshade as hs
 from approxtree.kernels.shadows import cast_shadows
-from approxtree.textures.base import TextureData, grey_strips, grey_to_rgba
+from approxtree.textures.base import TextureData, grey_alpha_strips, grey_strips, grey_to_rgba
 
 ALGORITHMS = {"horn": hs.HORN, "zevenbergen-thorne": hs.ZEVENBERGEN_THORNE}
 
@@ -57,9 +57,15 @@ class ShadingTexture(TextureData):
     def rgba(self) -> np.ndarray:
         return grey_to_rgba(self.shade())
 
+    #: Grey textures: the pyramid stores grey and alpha (R = G = B).
+    bands = 2
+
     def band_strips(self, rows: int) -> Iterator[np.ndarray]:
         # Streamed: only the grey levels are held whole, RGBA one strip at a time.
         return grey_strips(self.shade(), rows)
+
+    def level_strips(self, rows: int) -> Iterator[np.ndarray]:
+        return grey_alpha_strips(self.shade(), rows)
 
 
 class TopographicShading(ShadingTexture):
