@@ -98,7 +98,9 @@ def glb_bytes(
     if uvs is not None and image is not None:
         uv = np.ascontiguousarray(uvs, dtype=np.float32).reshape(-1, 2)
         blobs.append((uv.tobytes(), g.ARRAY_BUFFER))
-        accessors.append(g.Accessor(bufferView=3, componentType=g.FLOAT, count=len(uv), type=g.VEC2))
+        accessors.append(
+            g.Accessor(bufferView=3, componentType=g.FLOAT, count=len(uv), type=g.VEC2)
+        )
         attributes.TEXCOORD_0 = 3
         blobs.append((bytes(image), None))
         images.append(g.Image(bufferView=4, mimeType=mime))

@@ -126,7 +126,7 @@ class EarthFrame:
         if self.crs is None:
             m = self.matrix
             local = (p - m[:3, 3]) @ m[:3, :3]  # the rotation's inverse is its transpose
-            return local + (self.center[0], self.center[1], 0.0)
+            return local + np.array([self.center[0], self.center[1], 0.0])
         from pyproj import Transformer
 
         t = Transformer.from_crs("EPSG:4978", self.crs, always_xy=True)
