@@ -10,6 +10,7 @@ passes the Khronos glTF validator.
 
 from __future__ import annotations
 
+import functools
 import io
 import json
 from pathlib import Path
@@ -76,10 +77,16 @@ def _tiles(out: Path):
     return tileset, list(walk(tileset))
 
 
+@functools.lru_cache(maxsize=4096)
+def _read(path: Path) -> dict:
+    """A GLB's arrays, parsed once per test session (several tests walk the same tileset)."""
+    return read_glb(path)
+
+
 def _node(tile: dict, out: Path) -> tuple[int, dict] | None:
     if "content" not in tile:
         return None
-    glb = read_glb(out / tile["content"]["uri"])
+    glb = _read(out / tile["content"]["uri"])
     return int(glb["extras"]["node"]), glb
 
 
