@@ -52,7 +52,7 @@ def vertex_normals(positions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
 
 
 #: glTF enums: component types, buffer view targets, sampler filters and wrap.
-_FLOAT, _UNSIGNED_INT = 5126, 5125
+_FLOAT, _UNSIGNED_INT, _UNSIGNED_SHORT = 5126, 5125, 5123
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
 _LINEAR, _LINEAR_MIPMAP_LINEAR, _CLAMP_TO_EDGE = 9729, 9987, 33071
 
@@ -70,9 +70,10 @@ def glb_bytes(
     """The GLB of one mesh.
 
     positions: (n, 3) float32 (glTF axes); normals: (n, 3) unit vectors; triangles: (m, 3)
-    counter-clockwise (front faces); uvs: (n, 2) texture coordinates (origin top-left) and
-    image: the encoded texture (``mime``), both or neither; matrix: 16 floats, column-major,
-    of the root node; extras: JSON facts stored in the scene's extras.
+    counter-clockwise (front faces), stored as uint16 when n <= 65535; uvs: (n, 2) texture
+    coordinates (origin top-left) and image: the encoded texture (``mime``), both or neither;
+    matrix: 16 floats, column-major, of the root node; extras: JSON facts stored in the
+    scene's extras.
 
     The glTF JSON and the GLB container (header, JSON chunk, BIN chunk; glTF 2.0 §4.4) are
     assembled here: a generic glTF object model costs more per tile than the arrays it wraps
@@ -80,14 +81,21 @@ def glb_bytes(
     """
     pos = np.ascontiguousarray(positions, dtype="<f4").reshape(-1, 3)
     nrm = np.ascontiguousarray(normals, dtype="<f4").reshape(-1, 3)
-    idx = np.ascontiguousarray(triangles, dtype="<u4").reshape(-1)
+    # 16-bit indices when every vertex fits (a node's patch: always), else 32-bit.
+    small = len(pos) <= 65535
+    idx = np.ascontiguousarray(triangles, dtype="<u2" if small else "<u4").reshape(-1)
     blobs: list[tuple[bytes, int | None]] = [
         (idx.tobytes(), _ELEMENT_ARRAY_BUFFER),
         (pos.tobytes(), _ARRAY_BUFFER),
         (nrm.tobytes(), _ARRAY_BUFFER),
     ]
     accessors: list[dict[str, Any]] = [
-        {"bufferView": 0, "componentType": _UNSIGNED_INT, "count": len(idx), "type": "SCALAR"},
+        {
+            "bufferView": 0,
+            "componentType": _UNSIGNED_SHORT if small else _UNSIGNED_INT,
+            "count": len(idx),
+            "type": "SCALAR",
+        },
         {
             "bufferView": 1,
             "componentType": _FLOAT,
