@@ -394,7 +394,9 @@ def test_cli_refuses_a_folder_it_did_not_write(built, tmp_path):
     keep = tmp_path / "photos"
     keep.mkdir()
     (keep / "a.jpg").write_bytes(b"x")
-    result = CliRunner().invoke(main, ["tiles", str(out.parent / "tree.zarr"), "--out", str(keep)])
+    result = CliRunner().invoke(
+        main, ["tiles", str(out.parent / "tree.zarr"), "--out", str(keep), "--format", "3dtiles"]
+    )
     assert result.exit_code == 2 and "holds no tileset.json" in result.output
     assert [p.name for p in keep.iterdir()] == ["a.jpg"]
 
@@ -409,6 +411,8 @@ def test_cli_rejects_a_bad_origin(built, tmp_path):
             str(out.parent / "tree.zarr"),
             "--out",
             str(tmp_path / "t"),
+            "--format",
+            "3dtiles",
             "--origin",
             "0",
             "95",
