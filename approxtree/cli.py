@@ -955,7 +955,20 @@ def render(
     help="Mesh file to write (.ply, .obj or .glb). PLY and OBJ hold world coordinates; GLB "
     "holds float32 coordinates relative to a local origin (x, y centre, lowest z), stored in "
     "the GLB scene extras as 'origin' and printed in the figures: world = position + origin. "
-    "All formats are z-up.",
+    "PLY and OBJ are z-up; GLB is glTF's y-up (z-up positions under a root node rotating "
+    "z-up to y-up) with vertex normals.",
+)
+@click.option(
+    "--textures",
+    type=click.Path(file_okay=False),
+    default=None,
+    help="GLB: texture pyramid folder (approxtree bake); the patch covering the terrain is "
+    "embedded with texture coordinates.",
+)
+@click.option(
+    "--skirts",
+    is_flag=True,
+    help="Hang a wall from the mesh's border down to its lowest z minus its max error.",
 )
 @click.option(
     "--data-dependent",
@@ -972,6 +985,8 @@ def mesh(
     max_points: int | None,
     max_triangles: int | None,
     out: str | None,
+    textures: str | None,
+    skirts: bool,
     data_dependent: bool,
     encoding,
     nodata_policy,
@@ -987,7 +1002,15 @@ def mesh(
     # Check the cheap things before reading and approximating the terrain.
     check_goal(max_error, max_points, max_triangles)
     if out is not None:
-        mesh_format(out)
+        kind = mesh_format(out)
+        if textures is not None and kind != "glb":
+            from approxtree.errors import InvalidParameterError
+
+            raise InvalidParameterError(f"--textures needs a .glb output; {out} is {kind}.")
+    elif textures is not None or skirts:
+        from approxtree.errors import InvalidParameterError
+
+        raise InvalidParameterError("--textures and --skirts shape the written mesh: give --out.")
     terrain = _open(dem, encoding, nodata_policy, ground_only, height_scale)
     _check_mesh_strategy(dem, terrain, strategy)
     result = approximate(
@@ -996,7 +1019,26 @@ def mesh(
     figures = result.figures()
     if out is not None:
         meta = {"strategy": strategy, "crs": terrain.crs, "max_error": figures["max_error"]}
-        figures.update(write_mesh(out, result.vertices, result.triangles, meta))
+        verts, tris = result.vertices, result.triangles
+        surface = len(tris)
+        if skirts:
+            import numpy as np
+
+            from approxtree.patches.skirts import add_skirts
+
+            # One curtain to a common base: the lowest vertex minus the mesh's max error.
+            z = np.asarray(verts)[:, 2]
+            relief = float(z.max() - z.min())
+            base = float(z.min()) - max(float(figures["max_error"] or 0.0), 1e-3 * relief, 1e-3)
+            verts, tris, _ = add_skirts(verts, tris, np.inf, None, base)
+        texture = None
+        if textures is not None:
+            from approxtree.textures.embed import embedded_texture
+            from approxtree.textures.pyramid import TexturePyramid
+
+            d = terrain.domain
+            texture = embedded_texture(TexturePyramid(textures), d, verts)
+        figures.update(write_mesh(out, verts, tris, meta, surface, texture))
     _emit(figures, as_json)
 
 
@@ -1070,7 +1112,38 @@ def _tiles_terrain(path: str, reader: dict[str, Any]):
     type=click.Path(dir_okay=False),
     help="quantized-mesh: land/water raster (nonzero = water) for the water-mask extension.",
 )
-@click.option("--workers", type=int, default=1, show_default=True, help="Processes writing tiles.")
+@click.option(
+    "--textures",
+    type=click.Path(file_okay=False),
+    default=None,
+    help="3dtiles: texture pyramid folder (approxtree bake); each node's texture patch is "
+    "embedded in its GLB.",
+)
+@click.option(
+    "--texture-format",
+    type=click.Choice(["png", "jpeg"]),
+    default="png",
+    show_default=True,
+    help="3dtiles: encoding of the embedded textures.",
+)
+@click.option(
+    "--origin",
+    nargs=2,
+    type=float,
+    default=(0.0, 0.0),
+    show_default=True,
+    metavar="LON LAT",
+    help="3dtiles, terrain without a CRS: where the local east-north-up frame (metres) sits "
+    "on the WGS84 ellipsoid (degrees).",
+)
+@click.option("--no-skirts", is_flag=True, help="3dtiles: leave the skirts out of the tiles.")
+@click.option(
+    "--workers",
+    type=int,
+    default=1,
+    show_default=True,
+    help="Processes (quantized-mesh) or threads (3dtiles) writing tiles.",
+)
 @reader_options
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
 @_reports_errors
@@ -1083,6 +1156,10 @@ def tiles(
     maxzoom: int | None,
     max_error: float | None,
     water_mask: str | None,
+    textures: str | None,
+    texture_format: str,
+    origin: tuple[float, float],
+    no_skirts: bool,
     workers: int,
     encoding,
     nodata_policy,
@@ -1092,7 +1169,6 @@ def tiles(
 ) -> None:
     """Write TREE (a tree store from `approxtree build`; for quantized-mesh also a raster DEM)
     as web tiles into the folder --out, replaced as a whole when done."""
-    from approxtree.errors import InvalidParameterError
 
     reader = {
         "encoding": encoding,
@@ -1100,10 +1176,9 @@ def tiles(
         "ground_only": ground_only,
         "height_scale": height_scale,
     }
-    if tile_format != "quantized-mesh":
-        raise InvalidParameterError(
-            "--format 3dtiles is not available in this build yet; use --format quantized-mesh."
-        )
+    if tile_format == "3dtiles":
+        _tiles_3dtiles(tree, out, textures, texture_format, origin, no_skirts, workers, as_json)
+        return
     from approxtree.tiles import write_quantized_mesh
     from approxtree.tiles.quantized_mesh import check_output
 
@@ -1123,6 +1198,37 @@ def tiles(
     )
     figures.pop("results")
     figures["seconds"] = round(time.perf_counter() - t0, 3)
+    _emit(figures, as_json)
+
+
+def _tiles_3dtiles(
+    tree_path: str,
+    out: str,
+    textures: str | None,
+    texture_format: str,
+    origin: tuple[float, float],
+    no_skirts: bool,
+    workers: int,
+    as_json: bool,
+) -> None:
+    """`approxtree tiles --format 3dtiles`: the 3D Tiles tileset of a tree store."""
+    from approxtree.errors import InvalidParameterError
+    from approxtree.tiles import write_3dtiles
+    from approxtree.tree import load_tree
+
+    if workers < 1:
+        raise InvalidParameterError(f"--workers must be at least 1, got {workers}.")
+    # verify=False: the patches are read one by one as the tiles are written.
+    tree = load_tree(tree_path, verify=False)
+    figures = write_3dtiles(
+        tree,
+        out,
+        textures=textures,
+        workers=workers,
+        origin=tuple(origin),
+        skirts=not no_skirts,
+        image_format=texture_format,
+    )
     _emit(figures, as_json)
 
 

@@ -2,8 +2,12 @@
 
 - ``quantized_mesh``: Cesium terrain (``layer.json`` + ``z/x/y.terrain``), one greedy TIN per
   tile of Cesium's geographic tiling, each within its level's geometric error.
+- ``tileset3d``: OGC 3D Tiles 1.1 (``tileset.json`` + one GLB per node of an approximation
+  tree, geometricError = the node's exact error); ``earth``: terrain coordinates → ECEF.
 """
 
+from approxtree.tiles.earth import EarthFrame
 from approxtree.tiles.quantized_mesh import write_quantized_mesh
+from approxtree.tiles.tileset3d import write_3dtiles
 
-__all__ = ["write_quantized_mesh"]
+__all__ = ["EarthFrame", "write_3dtiles", "write_quantized_mesh"]
