@@ -62,7 +62,19 @@ async function loadCesium() {
 // Triangles drawn this frame: the tileset's selected contents, or the globe's rendered tiles
 // (their meshes' indices, skirts included, and without them).
 function statistics(viewer, tileset) {
-  const out = { frames: window.approxtree.frames };
+  const cam = viewer.scene.camera;
+  const xyz = (v) => [v.x, v.y, v.z];
+  const out = {
+    frames: window.approxtree.frames,
+    camera: {
+      position: xyz(cam.positionWC),
+      direction: xyz(cam.directionWC),
+      up: xyz(cam.upWC),
+      fov: cam.frustum.fov,
+      near: cam.frustum.near,
+      far: cam.frustum.far,
+    },
+  };
   if (tileset) {
     const s = tileset.statistics;
     const selected = tileset._selectedTiles;
