@@ -1285,3 +1285,80 @@ def rd(
             for row in data["rows"]
         )
         click.echo(f"{name:<13}{cells}   {data['seconds']}")
+
+
+@main.command()
+@click.argument("tree_path", metavar="TREE", type=click.Path())
+@click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder to write.")
+@click.option(
+    "--format",
+    "tile_format",
+    type=click.Choice(["3dtiles", "quantized-mesh"]),
+    default="3dtiles",
+    show_default=True,
+    help="3dtiles: OGC 3D Tiles 1.1 (DIR/tileset.json + one GLB per node); quantized-mesh: "
+    "Cesium terrain (DIR/layer.json + DIR/z/x/y.terrain).",
+)
+@click.option(
+    "--textures",
+    type=click.Path(file_okay=False),
+    default=None,
+    help="3dtiles: texture pyramid folder (approxtree bake); each node's texture patch is "
+    "embedded in its GLB.",
+)
+@click.option(
+    "--texture-format",
+    type=click.Choice(["png", "jpeg"]),
+    default="png",
+    show_default=True,
+    help="3dtiles: encoding of the embedded textures.",
+)
+@click.option(
+    "--origin",
+    nargs=2,
+    type=float,
+    default=(0.0, 0.0),
+    show_default=True,
+    metavar="LON LAT",
+    help="3dtiles, terrain without a CRS: where the local east-north-up frame (metres) sits "
+    "on the WGS84 ellipsoid (degrees).",
+)
+@click.option("--no-skirts", is_flag=True, help="3dtiles: leave the skirts out of the tiles.")
+@click.option(
+    "--workers", type=click.IntRange(min=1), default=1, show_default=True, help="Writer threads."
+)
+@click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
+@_reports_errors
+def tiles(
+    tree_path: str,
+    out: str,
+    tile_format: str,
+    textures: str | None,
+    texture_format: str,
+    origin: tuple[float, float],
+    no_skirts: bool,
+    workers: int,
+    as_json: bool,
+) -> None:
+    """Write web tiles of a tree store: a 3D Tiles tileset (geometricError = each node's exact
+    ε_T(N)) or Cesium quantized-mesh terrain."""
+    if tile_format == "quantized-mesh":
+        # The quantized-mesh writer lives in approxtree/tiles/quantized_mesh.py (issue 16 item 2).
+        from approxtree.errors import InvalidParameterError
+
+        raise InvalidParameterError("--format quantized-mesh is not available in this build.")
+    from approxtree.tiles import write_3dtiles
+    from approxtree.tree import load_tree
+
+    # verify=False: the patches are read one by one as the tiles are written.
+    tree = load_tree(tree_path, verify=False)
+    figures = write_3dtiles(
+        tree,
+        out,
+        textures=textures,
+        workers=workers,
+        origin=tuple(origin),
+        skirts=not no_skirts,
+        image_format=texture_format,
+    )
+    _emit(figures, as_json)

@@ -1,0 +1,417 @@
+"""OGC 3D Tiles 1.1 tileset of an approximation tree: tileset.json and one GLB per node.
+
+One tile per node (an explicit tree, refine REPLACE), so a client streams the tree's patches
+and refines by screen-space error exactly as the paging renderer refines by α:
+
+- ``geometricError`` is ε_T(N) in metres (z units), made monotone bottom-up (a node claims
+  at least its children's errors; the 3D Tiles spec wants a child's error no larger than its
+  parent's, and claiming more only refines sooner). Nodes of infinite error (patches missing
+  data points) claim relief + largest finite error + 1, so clients always refine them. The
+  tileset's own geometricError is twice the root's (the error of the root's missing parent),
+  or the relief (at least 1) when the root is exact.
+- Content: ``{level}/{node}.glb``, the node's patch with its skirts (patches/skirts.py, as the
+  renderer draws it), positions relative to the tile's centre in the tileset frame (RTC: the
+  centre is the tile's ``transform``, relative to its parent's), written in glTF's y-up axes
+  (the client applies glTF's y-up → z-up rotation), with vertex normals (surface normals, a
+  skirt vertex takes its top vertex's), texture coordinates and the node's texture patch
+  (textures/patch.py) embedded as PNG or JPEG when a pyramid is given.
+- Frame (tiles/earth.py): terrain with a CRS goes to ECEF (pyproj); its bounding volumes are
+  ``region``s (radians, ellipsoidal heights) lowered by the sagitta of the longest chord of the
+  tile so the straight triangle edges stay inside. Terrain without a CRS lies in a local
+  east-north-up frame at ``origin`` (the root's transform places it on the ellipsoid); its
+  volumes are axis-aligned ``box``es of that frame. A tile's volume holds its content and
+  its children's volumes (a client culls a subtree by its root's volume).
+
+Tiles are independent: they are written by ``workers`` threads, each reading its node's patch
+on its own (``read_patch``: the tree is never loaded whole). The folder is written all or
+nothing (``atomic_directory``).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from approxtree.errors import InvalidParameterError, StoreError
+from approxtree.io.atomic import atomic_directory
+from approxtree.io.gltf import glb_bytes, vertex_normals, y_up
+from approxtree.io.output_path import check_output_folder
+from approxtree.patches.skirts import add_skirts, patches_reach_rect, skirt_base, skirt_depths
+from approxtree.tiles.earth import WGS84_A, WGS84_B, EarthFrame
+
+#: Smallest radius of curvature of the WGS84 ellipsoid (m), for chord sagittas.
+_MIN_RADIUS = WGS84_B**2 / WGS84_A
+#: Texture encodings: name → (PIL format, MIME type).
+IMAGE_FORMATS = {"png": ("PNG", "image/png"), "jpeg": ("JPEG", "image/jpeg")}
+
+
+@dataclass(frozen=True)
+class TileContent:
+    """What writing one node's GLB yields for tileset.json.
+
+    center: (3,) tileset-frame centre (RTC); low, high: (3,) bounds of the content — frame
+    coordinates for box volumes, (lon, lat radians, height m) for regions; nbytes: GLB size.
+    """
+
+    node: int
+    center: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    nbytes: int
+    vertices: int
+    triangles: int
+
+
+def tile_uri(level: int, node: int) -> str:
+    """Content path of a node's GLB, relative to tileset.json."""
+    return f"{level}/{node}.glb"
+
+
+def geometric_errors(errors: np.ndarray, parents: np.ndarray, levels: np.ndarray, relief: float):
+    """(n,) float64 geometricError of each tile: ε_T(N) with inf replaced by relief + largest
+    finite error + 1, then raised to its children's largest (bottom-up), so no child exceeds
+    its parent."""
+    e = np.asarray(errors, dtype=np.float64).copy()
+    finite = np.isfinite(e)
+    e[~finite] = relief + float(e[finite].max(initial=0.0)) + 1.0
+    for level in range(int(levels.max(initial=0)), 0, -1):
+        nodes = np.flatnonzero(levels == level)
+        np.maximum.at(e, parents[nodes], e[nodes])
+    return e
+
+
+def _check_tree(tree: Any) -> None:
+    if not hasattr(tree, "read_patch") or not hasattr(tree, "rects"):
+        raise InvalidParameterError(
+            f"3D Tiles are made from an approximation tree; got a {type(tree).__name__} "
+            "(point quadtrees hold no patches): build the tree with approxtree build."
+        )
+
+
+def _check_target(out: Path) -> None:
+    """The output folder must be new, empty or a tileset written before (it is replaced)."""
+    check_output_folder(out, "tileset folder")
+    if out.is_dir() and any(out.iterdir()) and not (out / "tileset.json").is_file():
+        raise StoreError(
+            f"{out} is a folder that holds no tileset.json; refusing to replace it. Give a new "
+            "or empty folder (or one a previous `approxtree tiles` wrote)."
+        )
+
+
+def _open_pyramid(textures: Any, terrain: Any) -> Any:
+    """The TexturePyramid of ``textures`` (a folder or a pyramid), checked against the terrain's
+    CRS, or None."""
+    if textures is None:
+        return None
+    from approxtree.textures.pyramid import TexturePyramid
+
+    pyramid = textures if isinstance(textures, TexturePyramid) else TexturePyramid(textures)
+    if pyramid.crs and terrain.crs:
+        from pyproj import CRS
+
+        if not CRS.from_user_input(pyramid.crs).equals(CRS.from_user_input(terrain.crs)):
+            raise InvalidParameterError(
+                f"The texture pyramid's CRS ({pyramid.crs}) differs from the terrain's "
+                f"({terrain.crs}); bake the texture in the terrain's CRS."
+            )
+    return pyramid
+
+
+class _TileWriter:
+    """Writes one node's GLB into ``folder``; shared by the worker threads (read-only state)."""
+
+    def __init__(
+        self,
+        tree: Any,
+        frame: EarthFrame,
+        folder: Path,
+        pyramid: Any,
+        image_format: str,
+        skirts: bool,
+    ) -> None:
+        self.tree = tree
+        self.frame = frame
+        self.folder = folder
+        self.pyramid = pyramid
+        self.image_format = image_format
+        self.skirts = skirts
+        terrain = tree.terrain
+        # Skirts exactly as the renderer hangs them (render/engine.py).
+        extents = tree.bboxes[:, 5] - tree.bboxes[:, 2]
+        self.node_borders = patches_reach_rect(terrain)
+        rects = np.asarray(tree.rects, dtype=np.float64) if self.node_borders else None
+        self.depths = skirt_depths(tree.errors, terrain.z_range, extents, rects)
+        self.base = skirt_base(tree.errors, terrain.z_range, extents)
+        d = terrain.domain
+        self.domain = (d.xmin, d.ymin, d.xmax, d.ymax)
+
+    def mesh(self, i: int) -> tuple[np.ndarray, np.ndarray, int]:
+        """(terrain vertices (n, 3) float64, triangles (m, 3), patch triangle count) of node i
+        with its skirts; the patch's own vertices come first, in the patch's order."""
+        patch = self.tree.read_patch(i)
+        verts = np.asarray(patch.vertices, dtype=np.float64).reshape(-1, 3)
+        tris = np.asarray(patch.triangles, dtype=np.int64).reshape(-1, 3)
+        surface = len(tris)
+        if self.skirts and surface:
+            verts, tris, _ = add_skirts(
+                verts,
+                tris,
+                float(self.depths[i]),
+                self.domain,
+                self.base,
+                patch.rect.as_tuple() if self.node_borders else None,
+            )
+        return verts, tris, surface
+
+    def write(self, i: int) -> TileContent | None:
+        """Write node i's GLB; None for a node whose patch has no triangle (no content)."""
+        verts, tris, surface = self.mesh(i)
+        if surface == 0:
+            return None
+        points = self.frame.to_frame(verts)
+        # Normals of the surface only; a skirt vertex takes the normal of the top vertex it
+        # hangs from (same x, y), so walls do not tilt the shading of the border.
+        normals = vertex_normals(points, tris[:surface])
+        normals = _skirt_normals(verts, normals, tris[:surface])
+        lo, hi = points.min(axis=0), points.max(axis=0)
+        center = (lo + hi) / 2
+        uvs = image = None
+        mime = "image/png"
+        if self.pyramid is not None:
+            uvs, image, mime = self._texture(i, verts)
+        data = glb_bytes(
+            y_up(points - center),
+            y_up(normals),
+            tris,
+            uvs,
+            image,
+            mime,
+            extras={"node": int(i), "error": _json_float(self.tree.errors[i])},
+        )
+        level = int(self.tree.levels[i])
+        path = self.folder / tile_uri(level, i)
+        path.parent.mkdir(exist_ok=True)
+        path.write_bytes(data)
+        if self.frame.georeferenced:
+            low, high = self._region(verts, points, tris)
+        else:
+            low, high = lo, hi
+        return TileContent(i, center, low, high, len(data), len(verts), len(tris))
+
+    def _region(self, verts: np.ndarray, points: np.ndarray, tris: np.ndarray):
+        """(west, south, min height), (east, north, max height) in radians and metres holding
+        the vertices and the straight edges between them (lowered by the longest chord's
+        sagitta) and a float32 rounding margin."""
+        geo = self.frame.to_geodetic(verts)
+        edges = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
+        chord = float(np.linalg.norm(points[edges[:, 0]] - points[edges[:, 1]], axis=1).max())
+        sag = chord * chord / (8.0 * _MIN_RADIUS) + 1e-2
+        lat = np.radians(geo[:, 1])
+        coslat = max(float(np.cos(np.abs(lat).max())), 1e-6)
+        pad = np.array([sag / (_MIN_RADIUS * coslat), sag / _MIN_RADIUS, sag])
+        low = np.array([np.radians(geo[:, 0].min()), lat.min(), geo[:, 2].min()]) - pad
+        high = np.array([np.radians(geo[:, 0].max()), lat.max(), geo[:, 2].max() + 1e-2])
+        high[:2] += pad[:2]
+        return low, high
+
+    def _texture(self, i: int, verts: np.ndarray) -> tuple[np.ndarray, bytes, str]:
+        """(uvs (n, 2), encoded image, MIME type) of node i's texture patch."""
+        from PIL import Image
+
+        from approxtree.geometry.rect import Rect
+        from approxtree.textures.patch import TexturePatch
+
+        patch = TexturePatch.for_rect(self.pyramid, Rect(*map(float, self.tree.rects[i])))
+        ext = patch.extent
+        # glTF's texture origin is the image's top-left texel: row 0 is the north edge.
+        uvs = np.column_stack(
+            [(verts[:, 0] - ext.xmin) / ext.width, (ext.ymax - verts[:, 1]) / ext.height]
+        )
+        texels = patch.texels()
+        kind, mime = IMAGE_FORMATS[self.image_format]
+        img = Image.fromarray(texels, "RGBA")
+        if kind == "JPEG":
+            img = img.convert("RGB")
+        buf = io.BytesIO()
+        img.save(buf, kind, **({"quality": 90} if kind == "JPEG" else {"compress_level": 6}))
+        return uvs, buf.getvalue(), mime
+
+
+def _skirt_normals(verts: np.ndarray, normals: np.ndarray, surface: np.ndarray) -> np.ndarray:
+    """normals (n, 3) with each vertex outside the surface triangles (a skirt's bottom vertex)
+    given the normal of the surface vertex at the same x, y."""
+    used = np.zeros(len(verts), dtype=bool)
+    used[surface.ravel()] = True
+    if used.all():
+        return normals
+    top = np.flatnonzero(used)
+    low = np.flatnonzero(~used)
+    # Match x, y exactly (a skirt vertex copies its top vertex's x, y): sort, then search.
+    key_top = verts[top, :2]
+    order = np.lexsort((key_top[:, 1], key_top[:, 0]))
+    sorted_top = key_top[order]
+    xs = sorted_top[:, 0]
+    out = normals.copy()
+    lo = np.searchsorted(xs, verts[low, 0], side="left")
+    hi = np.searchsorted(xs, verts[low, 0], side="right")
+    # Within the run of equal x, the y column is sorted: search it per run (vectorized).
+    for j in range(int((hi - lo).max(initial=0))):
+        k = np.minimum(lo + j, len(xs) - 1)
+        hit = (lo + j < hi) & (sorted_top[k, 1] == verts[low, 1])
+        out[low[hit]] = normals[top[order[k[hit]]]]
+    return out
+
+
+def _json_float(value: float) -> float | None:
+    value = float(value)
+    return value if np.isfinite(value) else None
+
+
+def _column_major(m: np.ndarray) -> list[float]:
+    return [float(v) for v in np.asarray(m, dtype=np.float64).T.ravel()]
+
+
+def _translation(t: np.ndarray) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, 3] = t
+    return m
+
+
+def write_3dtiles(
+    tree: Any,
+    out: str | os.PathLike,
+    textures: Any = None,
+    workers: int = 1,
+    origin: tuple[float, float] = (0.0, 0.0),
+    skirts: bool = True,
+    image_format: str = "png",
+) -> dict[str, Any]:
+    """Write the 3D Tiles 1.1 tileset of ``tree`` into the folder ``out`` (see the module
+    docstring); returns figures: out, tiles, bytes, seconds, tiles_per_second, frame,
+    geometric_error (the tileset's)."""
+    _check_tree(tree)
+    if not (isinstance(workers, int) and workers >= 1):
+        raise InvalidParameterError(f"--workers must be an int >= 1, got {workers!r}.")
+    if image_format not in IMAGE_FORMATS:
+        raise InvalidParameterError(
+            f"Unknown texture format {image_format!r}; use one of {', '.join(IMAGE_FORMATS)}."
+        )
+    target = Path(out)
+    _check_target(target)
+    terrain = tree.terrain
+    pyramid = _open_pyramid(textures, terrain)
+    frame = EarthFrame(terrain.crs, terrain.domain.center, origin)
+    start = time.perf_counter()
+    n = len(tree.errors)
+    with atomic_directory(target) as tmp:
+        writer = _TileWriter(tree, frame, tmp, pyramid, image_format, skirts)
+        if workers == 1:
+            contents = [writer.write(i) for i in range(n)]
+        else:
+            with ThreadPoolExecutor(workers, thread_name_prefix="approxtree-tiles") as pool:
+                contents = list(pool.map(writer.write, range(n), chunksize=16))
+        tileset = _tileset_json(tree, frame, contents)
+        (tmp / "tileset.json").write_text(json.dumps(tileset, separators=(",", ":")))
+    seconds = time.perf_counter() - start
+    written = [c for c in contents if c is not None]
+    nbytes = sum(c.nbytes for c in written)
+    return {
+        "out": str(target),
+        "format": "3dtiles",
+        "tiles": len(written),
+        "bytes": nbytes,
+        "bytes_per_tile": nbytes / max(len(written), 1),
+        "seconds": seconds,
+        "tiles_per_second": len(written) / seconds if seconds > 0 else None,
+        "workers": workers,
+        "frame": "ecef" if frame.georeferenced else f"enu at lon/lat {frame.origin}",
+        "geometric_error": tileset["geometricError"],
+    }
+
+
+def _tileset_json(tree: Any, frame: EarthFrame, contents: list[TileContent | None]) -> dict:
+    """tileset.json of the written contents (one tile per node, children in node order)."""
+    n = len(contents)
+    parents = np.asarray(tree.parents, dtype=np.int64)
+    levels = np.asarray(tree.levels, dtype=np.int64)
+    relief = float(terrain_relief(tree))
+    errors = geometric_errors(tree.errors, parents, levels, relief)
+    # Content bounds, then each tile's volume grown over its children's, bottom-up.
+    low = np.full((n, 3), np.inf)
+    high = np.full((n, 3), -np.inf)
+    centers = np.zeros((n, 3))
+    for c in contents:
+        if c is not None:
+            low[c.node], high[c.node], centers[c.node] = c.low, c.high, c.center
+    for level in range(int(levels.max(initial=0)), 0, -1):
+        nodes = np.flatnonzero(levels == level)
+        np.minimum.at(low, parents[nodes], low[nodes])
+        np.maximum.at(high, parents[nodes], high[nodes])
+    # A tile without content (no triangle) is centred on its volume.
+    for i in np.flatnonzero([c is None for c in contents]):
+        if not frame.georeferenced and np.isfinite(low[i]).all():
+            centers[i] = (low[i] + high[i]) / 2
+    tiles: list[dict[str, Any]] = []
+    for i in range(n):
+        if not np.isfinite(low[i]).all():
+            # No triangle here nor below: a tiny volume at the parent's centre.
+            low[i] = high[i] = low[parents[i]] if i else np.zeros(3)
+        tile: dict[str, Any] = {
+            "boundingVolume": _volume(frame, low[i], high[i], centers[i]),
+            "geometricError": float(errors[i]),
+            "refine": "REPLACE",
+        }
+        if i == 0:
+            tile["transform"] = _column_major(frame.matrix @ _translation(centers[0]))
+        else:
+            tile["transform"] = _column_major(_translation(centers[i] - centers[parents[i]]))
+        if contents[i] is not None:
+            tile["content"] = {"uri": tile_uri(int(levels[i]), i)}
+        tiles.append(tile)
+    # Children in node order: child_start + range(child_count).
+    for i in range(n):
+        count = int(tree.child_count[i])
+        if count:
+            s = int(tree.child_start[i])
+            tiles[i]["children"] = tiles[s : s + count]
+    root_error = float(errors[0])
+    return {
+        "asset": {"version": "1.1", "generator": "approxtree"},
+        "geometricError": 2.0 * root_error if root_error > 0 else max(relief, 1.0),
+        "root": tiles[0],
+    }
+
+
+def terrain_relief(tree: Any) -> float:
+    lo, hi = tree.terrain.z_range
+    return max(float(hi) - float(lo), 0.0)
+
+
+def _volume(frame: EarthFrame, low: np.ndarray, high: np.ndarray, center: np.ndarray) -> dict:
+    """A region (georeferenced) or a box in the tile's frame (relative to its centre)."""
+    if frame.georeferenced:
+        return {"region": [float(v) for v in (*low[:2], *high[:2], low[2], high[2])]}
+    mid = (low + high) / 2 - center
+    half = np.maximum((high - low) / 2, 1e-3)
+    return {
+        "box": [
+            *map(float, mid),
+            float(half[0]),
+            0.0,
+            0.0,
+            0.0,
+            float(half[1]),
+            0.0,
+            0.0,
+            0.0,
+            float(half[2]),
+        ]
+    }
