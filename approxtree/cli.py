@@ -916,6 +916,103 @@ def _check_mesh_strategy(path: str, terrain, strategy: str) -> None:
         )
 
 
+def _tiles_terrain(path: str, reader: dict[str, Any]):
+    """The terrain to tile: a tree store's stored terrain (windowed), a legacy tree's, or a
+    raster DEM read now."""
+    if _is_tree(path):
+        _no_reader_flags_for_tree(path, _given_reader_options(**reader))
+        if Path(path).suffix.lower() == ".atree":
+            from approxtree.tree import load_tree
+
+            return load_tree(path).terrain
+        from approxtree.tree.tree_store import load_store_terrain
+
+        return load_store_terrain(path)
+    return _open(path, **reader)
+
+
+@main.command()
+@click.argument("tree", type=click.Path())
+@click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder to write.")
+@click.option(
+    "--format",
+    "tile_format",
+    type=click.Choice(["3dtiles", "quantized-mesh"]),
+    required=True,
+    help="3dtiles: tileset.json + one GLB per node; quantized-mesh: Cesium terrain "
+    "(layer.json + z/x/y.terrain, gzip).",
+)
+@click.option(
+    "--samples",
+    type=click.Choice(["32", "152", "218"]),
+    default="152",
+    show_default=True,
+    help="quantized-mesh: samples along a tile side (samples − 1 divides 32767, so every "
+    "sample has an exact quantized position).",
+)
+@click.option("--minzoom", type=int, default=0, show_default=True, help="quantized-mesh.")
+@click.option(
+    "--maxzoom",
+    type=int,
+    help="quantized-mesh: deepest level [default: where the sample spacing reaches the DEM's "
+    "cell].",
+)
+@click.option(
+    "--water-mask",
+    type=click.Path(dir_okay=False),
+    help="quantized-mesh: land/water raster (nonzero = water) for the water-mask extension.",
+)
+@click.option("--workers", type=int, default=1, show_default=True, help="Processes writing tiles.")
+@reader_options
+@click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
+@_reports_errors
+def tiles(
+    tree: str,
+    out: str,
+    tile_format: str,
+    samples: str,
+    minzoom: int,
+    maxzoom: int | None,
+    water_mask: str | None,
+    workers: int,
+    encoding,
+    nodata_policy,
+    ground_only,
+    height_scale,
+    as_json: bool,
+) -> None:
+    """Write TREE (a tree store from `approxtree build`; for quantized-mesh also a raster DEM)
+    as web tiles into the folder --out, replaced as a whole when done."""
+    from approxtree.errors import InvalidParameterError
+
+    reader = {
+        "encoding": encoding,
+        "nodata_policy": nodata_policy,
+        "ground_only": ground_only,
+        "height_scale": height_scale,
+    }
+    if tile_format != "quantized-mesh":
+        raise InvalidParameterError(
+            "--format 3dtiles is not available in this build yet; use --format quantized-mesh."
+        )
+    from approxtree.tiles import write_quantized_mesh
+
+    t0 = time.perf_counter()
+    terrain = _tiles_terrain(tree, reader)
+    figures = write_quantized_mesh(
+        terrain,
+        out,
+        samples=int(samples),
+        minzoom=minzoom,
+        maxzoom=maxzoom,
+        workers=workers,
+        water_mask=water_mask,
+    )
+    figures.pop("results")
+    figures["seconds"] = round(time.perf_counter() - t0, 3)
+    _emit(figures, as_json)
+
+
 @main.command("bake")
 @click.argument("source", type=click.Path())
 @click.option(
