@@ -931,7 +931,8 @@ def _tiles_terrain(path: str, reader: dict[str, Any]):
     return _open(path, **reader)
 
 
-@main.command()
+# Merge glue (cesium branch): qmesh's command, reached through tiles3d's `tiles` below.
+@click.command("tiles")
 @click.argument("tree", type=click.Path())
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder to write.")
 @click.option(
@@ -966,7 +967,7 @@ def _tiles_terrain(path: str, reader: dict[str, Any]):
 @reader_options
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
 @_reports_errors
-def tiles(
+def _tiles_quantized_mesh(
     tree: str,
     out: str,
     tile_format: str,
@@ -1440,10 +1441,15 @@ def tiles(
     """Write web tiles of a tree store: a 3D Tiles tileset (geometricError = each node's exact
     ε_T(N)) or Cesium quantized-mesh terrain."""
     if tile_format == "quantized-mesh":
-        # The quantized-mesh writer lives in approxtree/tiles/quantized_mesh.py (issue 16 item 2).
-        from approxtree.errors import InvalidParameterError
-
-        raise InvalidParameterError("--format quantized-mesh is not available in this build.")
+        # Merge glue (cesium branch): qmesh's writer with its defaults.
+        return click.get_current_context().invoke(
+            _tiles_quantized_mesh,
+            tree=tree_path,
+            out=out,
+            tile_format=tile_format,
+            workers=workers,
+            as_json=as_json,
+        )
     from approxtree.tiles import write_3dtiles
     from approxtree.tree import load_tree
 
