@@ -119,8 +119,19 @@ async function main() {
   const bg = params.get("bg");
 
   // Terrain: the quantized-mesh folder, else the plain ellipsoid (never Cesium ion's).
+  // CesiumJS reads the tiles' metadata extension only for layers that give their availability
+  // per tile (metadataAvailability); with a full "available" list in layer.json it fails on
+  // it (CesiumTerrainProvider: layer.availabilityTilesLoaded undefined), so it is not asked for.
+  let layer = null;
+  if (terrainUrl) {
+    const folder = new URL(terrainUrl.replace(/\/?$/, "/"), window.location.href);
+    layer = await (await fetch(new URL("layer.json", folder))).json();
+  }
   const terrainProvider = terrainUrl
-    ? await C.CesiumTerrainProvider.fromUrl(terrainUrl, { requestVertexNormals: true })
+    ? await C.CesiumTerrainProvider.fromUrl(terrainUrl, {
+        requestVertexNormals: true,
+        requestMetadata: layer.metadataAvailability !== undefined,
+      })
     : new C.EllipsoidTerrainProvider();
 
   const viewer = new C.Viewer("view", {
@@ -178,7 +189,6 @@ async function main() {
   } else if (tileset) {
     await viewer.zoomTo(tileset);
   } else {
-    const layer = await (await fetch(new URL("layer.json", new URL(terrainUrl.replace(/\/?$/, "/"), window.location.href)))).json();
     const b = layer.bounds || [-180, -90, 180, 90];
     scene.camera.setView({ destination: C.Rectangle.fromDegrees(...b) });
   }
