@@ -70,7 +70,11 @@ def run_views(
     with serve.TileServer(serve.default_roots(tiles_dir)) as server:
         job_views = []
         for view in views:
-            params = {"cesium": "/cesium/", "bg": "#%02x%02x%02x" % BACKGROUND, **view["params"]}
+            params = {
+                "cesium": "/cesium/",
+                "bg": "#{:02x}{:02x}{:02x}".format(*BACKGROUND),
+                **view["params"],
+            }
             job_views.append(
                 {
                     "url": f"{server.url}/viewer/index.html?{urlencode(params, safe='/,')}",
@@ -96,7 +100,9 @@ def run_views(
     try:
         result = json.loads(proc.stdout)
     except json.JSONDecodeError as exc:
-        raise RuntimeError(f"browser driver failed: {proc.stdout[-2000:]} {proc.stderr[-2000:]}") from exc
+        raise RuntimeError(
+            f"browser driver failed: {proc.stdout[-2000:]} {proc.stderr[-2000:]}"
+        ) from exc
     if "error" in result:
         raise RuntimeError(f"browser driver failed: {result['error']}")
     for view, job_view, res in zip(views, job_views, result["views"], strict=True):
@@ -107,7 +113,9 @@ def run_views(
     return result["views"]
 
 
-def terrain_mask(png: Path | str, background: tuple[int, int, int] | None = BACKGROUND) -> np.ndarray:
+def terrain_mask(
+    png: Path | str, background: tuple[int, int, int] | None = BACKGROUND
+) -> np.ndarray:
     """(H, W) bool: pixels that are not background. With background None, the alpha channel
     (approxtree render writes alpha 0 where no terrain is drawn)."""
     from PIL import Image
@@ -154,9 +162,7 @@ def cesium_view(
     """
     from pyproj import Transformer
 
-    to_ecef = Transformer.from_crs(
-        _crs_3d(crs), "EPSG:4978", always_xy=True
-    )
+    to_ecef = Transformer.from_crs(_crs_3d(crs), "EPSG:4978", always_xy=True)
     e = np.array(to_ecef.transform(*eye))
     t = np.array(to_ecef.transform(*target))
     u_end = np.array(to_ecef.transform(*(np.asarray(eye, float) + np.asarray(up, float))))
@@ -214,5 +220,3 @@ def terrain_levels(tile_requests: list[str]) -> list[int]:
         if m:
             out.append(int(m.group(1)))
     return out
-
-

@@ -15,6 +15,7 @@ import argparse
 import http.server
 import threading
 from pathlib import Path
+from typing import ClassVar
 from urllib.parse import unquote, urlsplit
 
 HERE = Path(__file__).resolve().parent
@@ -41,7 +42,10 @@ def make_handler(roots: dict[str, Path], log: list[str] | None = None):
     """A request handler serving each URL prefix ("/tiles/") from its folder."""
 
     class Handler(http.server.SimpleHTTPRequestHandler):
-        extensions_map = {**http.server.SimpleHTTPRequestHandler.extensions_map, **TYPES}
+        extensions_map: ClassVar[dict[str, str]] = {
+            **http.server.SimpleHTTPRequestHandler.extensions_map,
+            **TYPES,
+        }
 
         def translate_path(self, path: str) -> str:
             # Longest prefix first, so "/" can be a fallback root.
