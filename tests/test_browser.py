@@ -127,13 +127,15 @@ def test_terrain_requests_finer_levels_nearer(terrain_shots: dict) -> None:
     assert deepest["near"] > deepest["far"], deepest
 
 
-@pytest.mark.parametrize("shots", ["tileset_shots", "terrain_shots"])
-def test_silhouette_matches_render(nc: dict, shots: str, request) -> None:
+# Bounds on the 99th percentile of the pixel distances. The terrain's are looser: its globe is
+# clipped to the lon/lat rectangle around the projected DEM, a few pixels larger at the edges.
+@pytest.mark.parametrize("shots, p99", [("tileset_shots", 4.0), ("terrain_shots", 6.0)])
+def test_silhouette_matches_render(nc: dict, shots: str, p99: float, request) -> None:
     """CesiumJS and `approxtree render` draw the terrain over the same pixels, within a few."""
     shot = request.getfixturevalue(shots)["far"]
     cesium = browser.terrain_mask(shot["screenshot"])
     ours = browser.terrain_mask(nc["render"], background=None)
     d = browser.silhouette_distance(cesium, ours)
     assert d["b_fraction"] > 0.1, d
-    assert d["p99_px"] <= 4.0 and d["max_px"] <= 8.0, d
+    assert d["p99_px"] <= p99 and d["max_px"] <= 8.0, d
     assert d["xor_fraction"] < 0.02, d
