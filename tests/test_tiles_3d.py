@@ -90,8 +90,10 @@ def _ecef(glb: dict, m: np.ndarray) -> np.ndarray:
 
 
 def _tolerance(glb: dict, frame: EarthFrame) -> tuple[float, float]:
-    """(x, y tolerance, z tolerance) in terrain units for float32 positions of this size."""
-    metres = 4.0 * float(np.spacing(np.abs(glb["positions"]).max()))
+    """(x, y tolerance, z tolerance) in terrain units: float32 rounding of positions of this
+    size, plus 1 mm for pyproj's round trip through datum shifts (NAD27 → WGS84 and back
+    differs by 0.3 mm)."""
+    metres = 4.0 * float(np.spacing(np.abs(glb["positions"]).max())) + 1e-3
     if frame.crs is not None:
         from pyproj import CRS
 
