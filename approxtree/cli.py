@@ -997,7 +997,10 @@ def _tiles_quantized_mesh(
             "--format 3dtiles is not available in this build yet; use --format quantized-mesh."
         )
     from approxtree.tiles import write_quantized_mesh
+    from approxtree.tiles.quantized_mesh import check_output
 
+    # The output folder is checked before the terrain is read.
+    check_output(out)
     t0 = time.perf_counter()
     terrain = _tiles_terrain(tree, reader)
     figures = write_quantized_mesh(

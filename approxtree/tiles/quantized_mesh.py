@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import gzip
 import json
+import multiprocessing
 import os
 from collections.abc import Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -118,16 +119,26 @@ def tin_of_samples(
     return vx, vy, tv.reshape(-1, 3).astype(np.int64), hq, decoded, worst
 
 
-def child_availability(level: int, x: int, y: int, written: set[tuple[int, int, int]]) -> list:
-    """The metadata extension's ``available``: the tile's children that exist (next level)."""
-    ranges = []
-    for cy in (2 * y, 2 * y + 1):
-        xs = [cx for cx in (2 * x, 2 * x + 1) if (level + 1, cx, cy) in written]
-        if len(xs) == 2:
-            ranges.append({"startX": xs[0], "startY": cy, "endX": xs[1], "endY": cy})
-        elif xs:
-            ranges.append({"startX": xs[0], "startY": cy, "endX": xs[0], "endY": cy})
-    return [ranges] if ranges else []
+#: layer.json's metadataAvailability (CesiumJS World Terrain's convention): tiles of levels
+#: 0, 10, 20... carry the availability of the next 10 levels of their subtree, which CesiumJS
+#: then takes instead of layer.json's list; every other tile carries its children's.
+METADATA_LEVELS = 10
+
+
+def subtree_availability(
+    level: int, x: int, y: int, plan: dict[int, np.ndarray], maxzoom: int
+) -> list[list[dict[str, int]]]:
+    """The metadata extension's ``available``: one list of ranges per level below the tile
+    (METADATA_LEVELS of them on levels that are multiples of it, else 1), clipped at maxzoom;
+    plan: (k, 2) int64 x, y of the tiles written at each level."""
+    depth = METADATA_LEVELS if level % METADATA_LEVELS == 0 else 1
+    out = []
+    for d in range(1, min(depth, maxzoom - level) + 1):
+        xy = plan.get(level + d, np.empty((0, 2), dtype=np.int64))
+        span = 2**d
+        inside = (xy[:, 0] // span == x) & (xy[:, 1] // span == y)
+        out.append(availability(map(tuple, xy[inside].tolist())))
+    return out
 
 
 def availability(tiles: Iterable[tuple[int, int]]) -> list[dict[str, int]]:
@@ -165,7 +176,8 @@ class _Job:
     water: WaterMask | None
     samples: int
     folder: str
-    written: set[tuple[int, int, int]]
+    plan: dict[int, np.ndarray]
+    maxzoom: int
 
 
 def make_tile(job: _Job, level: int, x: int, y: int) -> tuple[bytes, TileResult]:
@@ -176,7 +188,10 @@ def make_tile(job: _Job, level: int, x: int, y: int) -> tuple[bytes, TileResult]
     vx, vy, tri, hq, decoded, worst = tin_of_samples(h, err)
     k = QMAX // (job.samples - 1)
     water = job.water.tile_mask(bounds) if job.water is not None else None
-    meta = {"available": child_availability(level, x, y, job.written), "geometricError": worst}
+    meta = {
+        "available": subtree_availability(level, x, y, job.plan, job.maxzoom),
+        "geometricError": worst,
+    }
     raw = encode_tile(
         vx.astype(np.int64) * k,
         vy.astype(np.int64) * k,
@@ -202,6 +217,20 @@ def _write_batch(job: _Job, addresses: Sequence[tuple[int, int, int]]) -> list[T
         path.write_bytes(data)
         out.append(result)
     return out
+
+
+#: The job of a worker process, sent once when the process starts (the terrain is big).
+_WORKER_JOB: _Job | None = None
+
+
+def _init_worker(job: _Job) -> None:
+    global _WORKER_JOB
+    _WORKER_JOB = job
+
+
+def _worker_batch(addresses: Sequence[tuple[int, int, int]]) -> list[TileResult]:
+    assert _WORKER_JOB is not None
+    return _write_batch(_WORKER_JOB, addresses)
 
 
 def plan_tiles(
@@ -243,15 +272,17 @@ def layer_json(
         "bounds": [round(v, 9) for v in sampler.footprint.bounds],
         "minzoom": levels[0],
         "maxzoom": levels[-1],
+        "metadataAvailability": METADATA_LEVELS,
         "available": [availability(plan.get(level, [])) for level in range(levels[-1] + 1)],
         "extensions": extensions,
     }
 
 
-def _check_out(out: Path) -> None:
+def check_output(out: str | os.PathLike) -> None:
     """StoreError unless ``out`` is new, empty, or an earlier terrain tileset (it is replaced)."""
     from approxtree.io.output_path import check_output_folder
 
+    out = Path(out)
     check_output_folder(out, "terrain tileset folder")
     if out.is_dir() and any(out.iterdir()) and not (out / "layer.json").is_file():
         raise StoreError(
@@ -296,21 +327,27 @@ def write_quantized_mesh(
         )
     water = WaterMask.open(water_mask) if water_mask is not None else None
     out = Path(out)
-    _check_out(out)
+    check_output(out)
     plan = plan_tiles(sampler, minzoom, maxzoom)
     addresses = [(level, x, y) for level, tiles in plan.items() for x, y in tiles]
-    written = set(addresses)
+    arrays = {level: np.array(t, dtype=np.int64).reshape(-1, 2) for level, t in plan.items()}
     results: list[TileResult] = []
     with atomic_directory(out) as tmp:
-        job = _Job(sampler, water, samples, str(tmp), written)
+        job = _Job(sampler, water, samples, str(tmp), arrays, maxzoom)
         if workers == 1:
             results = _write_batch(job, addresses)
         else:
-            # Batches of a few tiles: the job (terrain reference, tile set) is pickled per batch.
-            size = max(1, min(64, len(addresses) // (4 * workers) or 1))
+            # Each worker gets the job (terrain, tile set) once; tiles go in batches of a few
+            # so that the workers stay busy to the end.
+            size = max(1, min(32, len(addresses) // (8 * workers)))
             batches = [addresses[i : i + size] for i in range(0, len(addresses), size)]
-            with ProcessPoolExecutor(max_workers=workers) as pool:
-                for part in pool.map(_write_batch, [job] * len(batches), batches):
+            # Spawned, not forked: a process that ran numba's OpenMP kernels (a build in the
+            # same process) is killed by libgomp when it forks.
+            context = multiprocessing.get_context("spawn")
+            with ProcessPoolExecutor(
+                max_workers=workers, mp_context=context, initializer=_init_worker, initargs=(job,)
+            ) as pool:
+                for part in pool.map(_worker_batch, batches):
                     results.extend(part)
         layer = layer_json(sampler, plan, water is not None, out.name)
         (tmp / "layer.json").write_text(json.dumps(layer, indent=1))

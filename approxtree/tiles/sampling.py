@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from functools import cached_property
 
+import numba
 import numpy as np
 
 from approxtree.errors import EmptyTerrainError, TerrainFormatError, UnsupportedStrategyError
@@ -144,11 +145,18 @@ class TileSampler:
         if inside.any():
             fr_in = np.clip(fr[inside], 0.0, rows - 1)
             fc_in = np.clip(fc[inside], 0.0, cols - 1)
-            # h_T at fractional indices, as Grid.height_at computes it after its own mapping.
-            if g.is_windowed:
-                h[inside] = g._windowed_height_at(fr_in, fc_in)
-            else:
-                h[inside] = grid_height_at(g.heights, fr_in, fc_in)
+            # h_T at fractional indices, as Grid.height_at computes it after its own mapping;
+            # on one thread: a tile's samples are too few to share (tiles run in parallel
+            # instead), and on a busy machine the kernel's threads cost 100× the work.
+            threads = numba.get_num_threads()
+            numba.set_num_threads(1)
+            try:
+                if g.is_windowed:
+                    h[inside] = g._windowed_height_at(fr_in, fc_in)
+                else:
+                    h[inside] = grid_height_at(g.heights, fr_in, fc_in)
+            finally:
+                numba.set_num_threads(threads)
         valid = np.isfinite(h) & inside
         holes = inside & ~valid
         n_valid = int(np.count_nonzero(valid))
