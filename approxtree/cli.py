@@ -859,7 +859,20 @@ def render(
     help="Mesh file to write (.ply, .obj or .glb). PLY and OBJ hold world coordinates; GLB "
     "holds float32 coordinates relative to a local origin (x, y centre, lowest z), stored in "
     "the GLB scene extras as 'origin' and printed in the figures: world = position + origin. "
-    "All formats are z-up.",
+    "PLY and OBJ are z-up; GLB is glTF's y-up (z-up positions under a root node rotating "
+    "z-up to y-up) with vertex normals.",
+)
+@click.option(
+    "--textures",
+    type=click.Path(file_okay=False),
+    default=None,
+    help="GLB: texture pyramid folder (approxtree bake); the patch covering the terrain is "
+    "embedded with texture coordinates.",
+)
+@click.option(
+    "--skirts",
+    is_flag=True,
+    help="Hang a wall from the mesh's border down to its lowest z minus its max error.",
 )
 @click.option(
     "--data-dependent",
@@ -876,6 +889,8 @@ def mesh(
     max_points: int | None,
     max_triangles: int | None,
     out: str | None,
+    textures: str | None,
+    skirts: bool,
     data_dependent: bool,
     encoding,
     nodata_policy,
@@ -891,7 +906,15 @@ def mesh(
     # Check the cheap things before reading and approximating the terrain.
     check_goal(max_error, max_points, max_triangles)
     if out is not None:
-        mesh_format(out)
+        kind = mesh_format(out)
+        if textures is not None and kind != "glb":
+            from approxtree.errors import InvalidParameterError
+
+            raise InvalidParameterError(f"--textures needs a .glb output; {out} is {kind}.")
+    elif textures is not None or skirts:
+        from approxtree.errors import InvalidParameterError
+
+        raise InvalidParameterError("--textures and --skirts shape the written mesh: give --out.")
     terrain = _open(dem, encoding, nodata_policy, ground_only, height_scale)
     _check_mesh_strategy(dem, terrain, strategy)
     result = approximate(
@@ -900,7 +923,26 @@ def mesh(
     figures = result.figures()
     if out is not None:
         meta = {"strategy": strategy, "crs": terrain.crs, "max_error": figures["max_error"]}
-        figures.update(write_mesh(out, result.vertices, result.triangles, meta))
+        verts, tris = result.vertices, result.triangles
+        surface = len(tris)
+        if skirts:
+            import numpy as np
+
+            from approxtree.patches.skirts import add_skirts
+
+            # One curtain to a common base: the lowest vertex minus the mesh's max error.
+            z = np.asarray(verts)[:, 2]
+            relief = float(z.max() - z.min())
+            base = float(z.min()) - max(float(figures["max_error"] or 0.0), 1e-3 * relief, 1e-3)
+            verts, tris, _ = add_skirts(verts, tris, np.inf, None, base)
+        texture = None
+        if textures is not None:
+            from approxtree.textures.embed import embedded_texture
+            from approxtree.textures.pyramid import TexturePyramid
+
+            d = terrain.domain
+            texture = embedded_texture(TexturePyramid(textures), d, verts)
+        figures.update(write_mesh(out, verts, tris, meta, surface, texture))
     _emit(figures, as_json)
 
 

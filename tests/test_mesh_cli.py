@@ -128,3 +128,78 @@ def test_unknown_strategy_is_a_usage_error(dem):
     """An unknown --strategy exits 2 naming the choices."""
     result = run("mesh", dem, "--strategy", "quadric", "--max-error", "1")
     assert result.exit_code == 2 and "nonregular" in result.output
+
+
+def test_glb_is_y_up_with_normals(dem, tmp_path):
+    """GLB follows glTF: z-up positions under a root node rotating z-up to y-up, so trimesh's
+    scene (node matrix applied) is y-up (height on +y, north on −z); unit vertex normals point
+    up (+z in the stored frame); trimesh keeps the faces and the origin."""
+    from tiles3d_checks import read_glb
+
+    from approxtree.io.gltf import Y_UP_MATRIX, z_up
+
+    out = tmp_path / "m.glb"
+    assert run("mesh", dem, "--max-points", "300", "--out", str(out)).exit_code == 0
+    mesh = approximate(at.open_terrain(dem), "tin", max_points=300)
+    glb = read_glb(out)
+    assert glb["matrix"] == Y_UP_MATRIX
+    origin = np.array(glb["extras"]["origin"])
+    world = trimesh.load(str(out), process=False).to_geometry().vertices
+    np.testing.assert_allclose(z_up(world) + origin, mesh.vertices, atol=1e-3)
+    assert np.ptp(world[:, 1]) == pytest.approx(np.ptp(mesh.vertices[:, 2]), abs=1e-3)
+    n = glb["normals"]
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-5)
+    assert (n[:, 2] > 0).all()
+
+
+def test_glb_with_skirts_and_texture(dem, tmp_path):
+    """--skirts adds walls below the border (the surface vertices first, unchanged);
+    --textures embeds the terrain's texture patch (PNG, identical texels) with texture
+    coordinates that map each vertex back to its x, y; a .ply with --textures exits 2."""
+    import io
+
+    from PIL import Image
+    from tiles3d_checks import read_glb
+
+    from approxtree.textures.bake import bake
+    from approxtree.textures.patch import TexturePatch
+    from approxtree.textures.pyramid import TexturePyramid
+
+    terrain = at.open_terrain(dem)
+    bake(terrain, tmp_path / "tex", max_texture_size=64, gl=False)
+    out = tmp_path / "m.glb"
+    args = ["mesh", dem, "--max-points", "300", "--out", str(out), "--textures"]
+    result = run(*args, str(tmp_path / "tex"), "--skirts", "--json")
+    assert result.exit_code == 0, result.output
+    mesh = approximate(terrain, "tin", max_points=300)
+    glb = read_glb(out)
+    origin = np.array(json.loads(result.output)["origin"])
+    p = glb["positions"].astype(np.float64) + origin
+    n = len(mesh.vertices)
+    np.testing.assert_allclose(p[:n], mesh.vertices, atol=1e-3)
+    assert len(p) > n and (p[n:, 2] < mesh.vertices[:, 2].min()).all()
+    np.testing.assert_array_equal(glb["triangles"][: len(mesh.triangles)], mesh.triangles)
+    patch = TexturePatch.for_rect(TexturePyramid(tmp_path / "tex"), terrain.domain)
+    image = np.asarray(Image.open(io.BytesIO(glb["image"])).convert("RGBA"))
+    np.testing.assert_array_equal(image, patch.texels())
+    ext = patch.extent
+    uv = glb["uvs"].astype(np.float64)
+    np.testing.assert_allclose(ext.xmin + uv[:, 0] * ext.width, p[:, 0], atol=1e-2)
+    np.testing.assert_allclose(ext.ymax - uv[:, 1] * ext.height, p[:, 1], atol=1e-2)
+    bad = run(*args[:4], "--out", str(tmp_path / "m.ply"), "--textures", str(tmp_path / "tex"))
+    assert bad.exit_code == 2 and "--textures needs a .glb" in bad.output
+
+
+def test_glb_passes_the_khronos_validator(dem, tmp_path):
+    """The Khronos glTF validator finds 0 errors in plain and textured, skirted GLB exports."""
+    from tiles3d_checks import validate_gltf
+
+    from approxtree.textures.bake import bake
+
+    bake(at.open_terrain(dem), tmp_path / "tex", max_texture_size=64, gl=False)
+    plain, full = tmp_path / "a.glb", tmp_path / "b.glb"
+    assert run("mesh", dem, "--max-points", "300", "--out", str(plain)).exit_code == 0
+    textured = ["--textures", str(tmp_path / "tex"), "--skirts"]
+    assert run("mesh", dem, "--max-points", "300", "--out", str(full), *textured).exit_code == 0
+    reports = validate_gltf([plain, full])
+    assert [r["errors"] for r in reports] == [0, 0], reports

@@ -146,3 +146,34 @@ def glb_bytes(
     )
     gltf.set_binary_blob(blob)
     return b"".join(gltf.save_to_bytes())
+
+
+def surface_normals(
+    points: np.ndarray, triangles: np.ndarray, surface: int, xy: np.ndarray
+) -> np.ndarray:
+    """(n, 3) unit vertex normals of a surface with skirts: normals of the first ``surface``
+    triangles (the surface's), and each vertex outside them (a skirt's bottom vertex) takes
+    the normal of the surface vertex with exactly its x, y, so walls do not tilt the border's
+    shading. points: (n, 3) where normals are wanted (any frame); xy: (n, 2) map x, y."""
+    t = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)[:surface]
+    normals = vertex_normals(points, t)
+    used = np.zeros(len(points), dtype=bool)
+    used[t.ravel()] = True
+    if used.all():
+        return normals
+    top, low = np.flatnonzero(used), np.flatnonzero(~used)
+    # Exact x, y match: sort the surface vertices by (x, y), search each skirt vertex.
+    keys = np.ascontiguousarray(xy[top], dtype=np.float64)
+    order = np.lexsort((keys[:, 1], keys[:, 0]))
+    sx, sy = keys[order, 0], keys[order, 1]
+    lo = np.searchsorted(sx, xy[low, 0], side="left")
+    hi = np.searchsorted(sx, xy[low, 0], side="right")
+    found = np.full(len(low), -1, dtype=np.int64)
+    # Runs of equal x are short (a few vertices): step through them all at once.
+    for j in range(int((hi - lo).max(initial=0))):
+        k = np.minimum(lo + j, len(sx) - 1)
+        hit = (found < 0) & (lo + j < hi) & (sy[k] == xy[low, 1])
+        found[hit] = k[hit]
+    ok = found >= 0
+    normals[low[ok]] = normals[top[order[found[ok]]]]
+    return normals

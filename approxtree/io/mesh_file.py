@@ -4,8 +4,14 @@ PLY and OBJ hold world coordinates (x east, y north, z up) as written: PLY as fl
 decimal text. GLB (glTF) stores float32 positions, too coarse for map coordinates such as
 UTM eastings, so GLB positions are relative to a local origin (the centre of the mesh's x, y
 extent and its lowest z) and the origin is recorded in the scene's extras as ``origin``
-(trimesh reads it back as ``scene.metadata["origin"]``); world = position + origin. Axes stay
-z-up in every format. Files are written atomically.
+(trimesh reads it back as ``scene.metadata["origin"]``); world = position + origin.
+
+PLY and OBJ are z-up. GLB follows glTF: y-up. Its positions stay z-up (float32, relative to
+the origin, as stored before) and the root node carries the z-up → y-up rotation
+(x, y, z) → (x, z, −y), so any glTF viewer shows the terrain upright; a reader applying the
+node's matrix gets y-up coordinates (``io.gltf.z_up`` turns them back). GLB also holds vertex
+normals, and optionally texture coordinates with an embedded texture. Files are written
+atomically.
 """
 
 from __future__ import annotations
@@ -49,27 +55,34 @@ def write_mesh(
     vertices: np.ndarray,
     triangles: np.ndarray,
     metadata: dict[str, Any] | None = None,
+    surface: int | None = None,
+    texture: tuple[np.ndarray, bytes, str] | None = None,
 ) -> dict[str, Any]:
     """Write a mesh atomically; returns {"out": path, "format": kind} (+ "origin" for GLB).
 
     vertices: (n, 3) float64 world coordinates; triangles: (m, 3) int, counter-clockwise seen
-    from above; metadata: JSON-serializable facts stored in the GLB scene extras.
+    from above; metadata: JSON-serializable facts stored in the GLB scene extras. GLB only:
+    surface: how many leading triangles are the surface (the rest are skirts; None: all),
+    for the normals; texture: (uvs (n, 2), encoded image, MIME type) to embed.
     """
     import trimesh
 
     kind = mesh_format(path)
+    if texture is not None and kind != "glb":
+        raise InvalidParameterError(f"Only GLB embeds a texture; {path} is {kind.upper()}.")
     v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
     t = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
     if len(v) == 0:
         raise InvalidParameterError("The mesh has no vertex to write.")
     out: dict[str, Any] = {"out": str(path), "format": kind}
     if kind == "glb":
+        from approxtree.io.gltf import Y_UP_MATRIX, glb_bytes, surface_normals
+
         origin = local_origin(v)
-        mesh = trimesh.Trimesh((v - origin).astype(np.float32), t, process=False)
-        scene = trimesh.Scene(mesh)
-        scene.metadata.update(metadata or {})
-        scene.metadata["origin"] = origin.tolist()
-        data = scene.export(file_type="glb")
+        normals = surface_normals(v, t, len(t) if surface is None else surface, v[:, :2])
+        uvs, image, mime = texture if texture is not None else (None, None, "image/png")
+        extras = {**(metadata or {}), "origin": origin.tolist()}
+        data = glb_bytes(v - origin, normals, t, uvs, image, mime, Y_UP_MATRIX, extras)
         out["origin"] = origin.tolist()
     else:
         data = trimesh.Trimesh(v, t, process=False).export(file_type=kind)

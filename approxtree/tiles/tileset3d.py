@@ -29,7 +29,6 @@ nothing (``atomic_directory``).
 
 from __future__ import annotations
 
-import io
 import json
 import os
 import time
@@ -41,16 +40,16 @@ from typing import Any
 import numpy as np
 
 from approxtree.errors import InvalidParameterError, StoreError
+from approxtree.geometry.rect import Rect
 from approxtree.io.atomic import atomic_directory
-from approxtree.io.gltf import glb_bytes, vertex_normals, y_up
+from approxtree.io.gltf import glb_bytes, surface_normals, y_up
 from approxtree.io.output_path import check_output_folder
 from approxtree.patches.skirts import add_skirts, patches_reach_rect, skirt_base, skirt_depths
+from approxtree.textures.embed import IMAGE_FORMATS, embedded_texture
 from approxtree.tiles.earth import WGS84_A, WGS84_B, EarthFrame
 
 #: Smallest radius of curvature of the WGS84 ellipsoid (m), for chord sagittas.
 _MIN_RADIUS = WGS84_B**2 / WGS84_A
-#: Texture encodings: name → (PIL format, MIME type).
-IMAGE_FORMATS = {"png": ("PNG", "image/png"), "jpeg": ("JPEG", "image/jpeg")}
 
 
 @dataclass(frozen=True)
@@ -179,14 +178,14 @@ class _TileWriter:
         points = self.frame.to_frame(verts)
         # Normals of the surface only; a skirt vertex takes the normal of the top vertex it
         # hangs from (same x, y), so walls do not tilt the shading of the border.
-        normals = vertex_normals(points, tris[:surface])
-        normals = _skirt_normals(verts, normals, tris[:surface])
+        normals = surface_normals(points, tris, surface, verts[:, :2])
         lo, hi = points.min(axis=0), points.max(axis=0)
         center = (lo + hi) / 2
         uvs = image = None
         mime = "image/png"
         if self.pyramid is not None:
-            uvs, image, mime = self._texture(i, verts)
+            rect = Rect(*map(float, self.tree.rects[i]))
+            uvs, image, mime = embedded_texture(self.pyramid, rect, verts, self.image_format)
         data = glb_bytes(
             y_up(points - center),
             y_up(normals),
@@ -221,53 +220,6 @@ class _TileWriter:
         high = np.array([np.radians(geo[:, 0].max()), lat.max(), geo[:, 2].max() + 1e-2])
         high[:2] += pad[:2]
         return low, high
-
-    def _texture(self, i: int, verts: np.ndarray) -> tuple[np.ndarray, bytes, str]:
-        """(uvs (n, 2), encoded image, MIME type) of node i's texture patch."""
-        from PIL import Image
-
-        from approxtree.geometry.rect import Rect
-        from approxtree.textures.patch import TexturePatch
-
-        patch = TexturePatch.for_rect(self.pyramid, Rect(*map(float, self.tree.rects[i])))
-        ext = patch.extent
-        # glTF's texture origin is the image's top-left texel: row 0 is the north edge.
-        uvs = np.column_stack(
-            [(verts[:, 0] - ext.xmin) / ext.width, (ext.ymax - verts[:, 1]) / ext.height]
-        )
-        texels = patch.texels()
-        kind, mime = IMAGE_FORMATS[self.image_format]
-        img = Image.fromarray(texels, "RGBA")
-        if kind == "JPEG":
-            img = img.convert("RGB")
-        buf = io.BytesIO()
-        img.save(buf, kind, **({"quality": 90} if kind == "JPEG" else {"compress_level": 6}))
-        return uvs, buf.getvalue(), mime
-
-
-def _skirt_normals(verts: np.ndarray, normals: np.ndarray, surface: np.ndarray) -> np.ndarray:
-    """normals (n, 3) with each vertex outside the surface triangles (a skirt's bottom vertex)
-    given the normal of the surface vertex at the same x, y."""
-    used = np.zeros(len(verts), dtype=bool)
-    used[surface.ravel()] = True
-    if used.all():
-        return normals
-    top = np.flatnonzero(used)
-    low = np.flatnonzero(~used)
-    # Match x, y exactly (a skirt vertex copies its top vertex's x, y): sort, then search.
-    key_top = verts[top, :2]
-    order = np.lexsort((key_top[:, 1], key_top[:, 0]))
-    sorted_top = key_top[order]
-    xs = sorted_top[:, 0]
-    out = normals.copy()
-    lo = np.searchsorted(xs, verts[low, 0], side="left")
-    hi = np.searchsorted(xs, verts[low, 0], side="right")
-    # Within the run of equal x, the y column is sorted: search it per run (vectorized).
-    for j in range(int((hi - lo).max(initial=0))):
-        k = np.minimum(lo + j, len(xs) - 1)
-        hit = (lo + j < hi) & (sorted_top[k, 1] == verts[low, 1])
-        out[low[hit]] = normals[top[order[k[hit]]]]
-    return out
 
 
 def _json_float(value: float) -> float | None:
