@@ -489,3 +489,64 @@ def test_bad_input_gets_clear_errors(tmp_path):
     write_quantized_mesh(ok, tmp_path / "ts", maxzoom=2)
     assert max(z for z, _, _ in written(tmp_path / "ts")) == 2
     assert issubclass(EmptyTerrainError, ApproxTreeError)
+
+
+def cesium_engine() -> Path:
+    """CesiumJS's engine module: web/node_modules of this checkout (APPROXTREE_CESIUM_ENGINE
+    overrides); the test skips when node or the npm package is absent."""
+    import os
+    import shutil
+
+    if shutil.which("node") is None:
+        pytest.skip("node is not installed")
+    default = Path(__file__).resolve().parents[1] / "web/node_modules/@cesium/engine/index.js"
+    engine = Path(os.environ.get("APPROXTREE_CESIUM_ENGINE", default))
+    if not engine.is_file():
+        pytest.skip(f"CesiumJS (npm @cesium/engine) is not installed at {engine}")
+    return engine
+
+
+def test_cesiumjs_terrain_provider_loads_every_tile(data_dir, tmp_path):
+    """CesiumJS's own CesiumTerrainProvider (in node) reads layer.json, walks the quadtree by
+    the availability it gets from the tiles' metadata, and decodes exactly the tiles written,
+    with their normals and water masks."""
+    import subprocess
+
+    engine = cesium_engine()
+    terrain = srtm_crop(data_dir)
+    d = terrain.domain
+    import rasterio
+    from rasterio.transform import from_origin
+
+    mask_file = tmp_path / "water.tif"
+    water = np.zeros((100, 100), dtype=np.uint8)
+    water[:30] = 1
+    with rasterio.open(
+        mask_file,
+        "w",
+        driver="GTiff",
+        width=100,
+        height=100,
+        count=1,
+        dtype="uint8",
+        crs="EPSG:4326",
+        transform=from_origin(d.xmin, d.ymax, (d.xmax - d.xmin) / 100, (d.ymax - d.ymin) / 100),
+    ) as ds:
+        ds.write(water, 1)
+    out = tmp_path / "t"
+    write_quantized_mesh(terrain, out, maxzoom=11, water_mask=mask_file)
+    script = Path(__file__).with_name("js") / "cesium_terrain_walk.mjs"
+    proc = subprocess.run(
+        ["node", str(script), str(engine), str(out)], capture_output=True, text=True, timeout=300
+    )
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert report["hasVertexNormals"] and report["hasWaterMask"] and report["hasMetadata"]
+    loaded = {(t["level"], t["x"], t["y"]) for t in report["tiles"]}
+    assert loaded == written(out)
+    for t in report["tiles"]:
+        mine = decode(out / str(t["level"]) / str(t["x"]) / f"{t['y']}.terrain")
+        assert t["vertices"] == t["normals"] == len(mine["u"])
+        assert t["waterMask"] == len(mine["ext"][2])
+        assert t["minimumHeight"] == pytest.approx(mine["min_h"])
+    assert {t["waterMask"] for t in report["tiles"]} == {1, 256 * 256}
