@@ -80,8 +80,19 @@ def write_heightmap_terrain(qm_dir: Path, tree: Path, out: Path) -> dict:
         path = out / str(level) / str(x) / f"{y}.terrain"
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_bytes(q.tobytes() + struct.pack("<B", mask))
+    # Availability listed in full (one range per tile): heightmap tiles carry no metadata.
     layer = json.loads((qm_dir / "layer.json").read_text())
-    layer.update(format="heightmap-1.0", extensions=[], description="uniform heightmap peer")
+    layer.pop("metadataAvailability", None)
+    levels = max(level for level, _, _ in tiles) + 1
+    available = [[] for _ in range(levels)]
+    for level, x, y in sorted(tiles):
+        available[level].append({"startX": x, "startY": y, "endX": x, "endY": y})
+    layer.update(
+        format="heightmap-1.0",
+        extensions=[],
+        available=available,
+        description="uniform heightmap peer",
+    )
     (out / "layer.json").write_text(json.dumps(layer))
     return {"tiles": len(tiles)}
 
