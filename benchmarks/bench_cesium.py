@@ -12,7 +12,8 @@ from the same cameras at the same maximumScreenSpaceError; the triangles are Ces
 
     python benchmarks/bench_cesium.py [--sse 2] [--tree NC.zarr] [--work DIR]
 
-Results: benchmarks/results/cesium.json (and the screenshots in the work folder).
+Results: benchmarks/results/cesium.json (cesium_sseN.json for another --sse), screenshots in
+the work folder.
 """
 
 from __future__ import annotations
@@ -174,7 +175,8 @@ def main() -> None:
         "work": str(work),
     }
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "cesium.json").write_text(json.dumps(result, indent=1))
+    name = "cesium.json" if args.sse == 2.0 else f"cesium_sse{args.sse:g}.json"
+    (RESULTS / name).write_text(json.dumps(result, indent=1))
     print(json.dumps(result, indent=1))
 
 

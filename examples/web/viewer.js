@@ -121,7 +121,8 @@ async function main() {
   // Terrain: the quantized-mesh folder, else the plain ellipsoid (never Cesium ion's).
   // CesiumJS reads the tiles' metadata extension only for layers that give their availability
   // per tile (metadataAvailability); with a full "available" list in layer.json it fails on
-  // it (CesiumTerrainProvider: layer.availabilityTilesLoaded undefined), so it is not asked for.
+  // it (CesiumTerrainProvider: layer.availabilityTilesLoaded undefined), so it is asked for
+  // only then.
   let layer = null;
   if (terrainUrl) {
     const folder = new URL(terrainUrl.replace(/\/?$/, "/"), window.location.href);
@@ -204,6 +205,27 @@ async function main() {
     const half = C.Math.toRadians(vfov) / 2;
     frustum.fov = aspect > 1 ? 2 * Math.atan(Math.tan(half) * aspect) : 2 * half;
   });
+
+  // Shading: a fixed light from the north-west, 35° high at the camera's place (not the sun of
+  // the clock's time), so the relief shows the same at any hour; light=0 leaves it unlit.
+  if (params.get("light") !== "0") {
+    const enu = C.Transforms.eastNorthUpToFixedFrame(scene.camera.positionWC);
+    const alt = C.Math.toRadians(35.0);
+    const toLight = new C.Cartesian3(
+      -Math.cos(alt) * Math.SQRT1_2,
+      Math.cos(alt) * Math.SQRT1_2,
+      Math.sin(alt),
+    );
+    const dir = C.Matrix4.multiplyByPointAsVector(enu, toLight, new C.Cartesian3());
+    scene.light = new C.DirectionalLight({
+      direction: C.Cartesian3.normalize(C.Cartesian3.negate(dir, dir), new C.Cartesian3()),
+    });
+    scene.globe.enableLighting = true;
+    scene.globe.dynamicAtmosphereLighting = false;
+    // Cesium fades the globe's shading out nearer than lightingFadeOutDistance: keep it.
+    scene.globe.lightingFadeOutDistance = 0.0;
+    scene.globe.lightingFadeInDistance = 1.0;
+  }
 
   let loadedFrames = 0;
   scene.postRender.addEventListener(() => {
