@@ -34,7 +34,7 @@ from approxtree.tree.tree_store import save_tree
 #: name → (data file or None for generated terrain, epsilon, max_points).
 TERRAINS = {
     "nc": ("nc/elev_ned_30m.tif", 2.0, 1089),
-    "srtm": ("srtm/N44W072.hgt", 25.0, 1089),
+    "srtm": ("srtm/N44W072.hgt", 50.0, 1089),
     "helens": ("edge/SainteHelens.dem", 10.0, 1089),
     "crater": ("scape/crater.stm", 10.0, 1089),
     "fractal": (None, 5.0, 289),

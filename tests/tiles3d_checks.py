@@ -96,6 +96,10 @@ def walk(tileset: dict) -> Iterator[tuple[dict, dict | None, np.ndarray]]:
         stack.extend((child, tile, m) for child in tile.get("children", []))
 
 
+#: glTF index component types.
+_INDEX = {5121: np.uint8, 5123: np.uint16, 5125: np.uint32}
+
+
 def read_glb(path: Path) -> dict[str, Any]:
     """The arrays of a GLB written by approxtree.io.gltf: positions, normals, uvs (or None),
     triangles (m, 3), image bytes (or None), the root node's matrix, scene extras."""
@@ -118,7 +122,7 @@ def read_glb(path: Path) -> dict[str, Any]:
         "positions": accessor(prim.attributes.POSITION, np.float32, 3),
         "normals": accessor(prim.attributes.NORMAL, np.float32, 3),
         "uvs": None if uv is None else accessor(uv, np.float32, 2),
-        "triangles": accessor(prim.indices, np.uint32, 3),
+        "triangles": accessor(prim.indices, _INDEX[gltf.accessors[prim.indices].componentType], 3),
         "image": view(gltf.images[0].bufferView) if gltf.images else None,
         "matrix": gltf.nodes[0].matrix,
         "extras": gltf.scenes[0].extras,

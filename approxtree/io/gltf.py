@@ -1,4 +1,4 @@
-"""GLB (binary glTF 2.0) of one triangle mesh, written with pygltflib the way clients read it.
+"""GLB (binary glTF 2.0) of one triangle mesh, written the way clients read it.
 
 glTF is y-up (its +y is "up", +z points at the viewer): terrain is z-up, so callers either
 rotate positions into glTF's axes themselves (3D Tiles content: the client applies glTF's
@@ -11,6 +11,8 @@ uint32 indices; a non-metallic rough material (textured, or a plain grey).
 
 from __future__ import annotations
 
+import json
+import struct
 from typing import Any
 
 import numpy as np
@@ -49,6 +51,12 @@ def vertex_normals(positions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     return out / length[:, None]
 
 
+#: glTF enums: component types, buffer view targets, sampler filters and wrap.
+_FLOAT, _UNSIGNED_INT, _UNSIGNED_SHORT = 5126, 5125, 5123
+_ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
+_LINEAR, _LINEAR_MIPMAP_LINEAR, _CLAMP_TO_EDGE = 9729, 9987, 33071
+
+
 def glb_bytes(
     positions: np.ndarray,
     normals: np.ndarray,
@@ -62,90 +70,109 @@ def glb_bytes(
     """The GLB of one mesh.
 
     positions: (n, 3) float32 (glTF axes); normals: (n, 3) unit vectors; triangles: (m, 3)
-    counter-clockwise (front faces); uvs: (n, 2) texture coordinates (origin top-left) and
-    image: the encoded texture (``mime``), both or neither; matrix: 16 floats, column-major,
-    of the root node; extras: JSON facts stored in the scene's extras.
-    """
-    import pygltflib as g
+    counter-clockwise (front faces), stored as uint16 when n <= 65535; uvs: (n, 2) texture
+    coordinates (origin top-left) and image: the encoded texture (``mime``), both or neither;
+    matrix: 16 floats, column-major, of the root node; extras: JSON facts stored in the
+    scene's extras.
 
-    pos = np.ascontiguousarray(positions, dtype=np.float32).reshape(-1, 3)
-    nrm = np.ascontiguousarray(normals, dtype=np.float32).reshape(-1, 3)
-    idx = np.ascontiguousarray(triangles, dtype=np.uint32).reshape(-1)
+    The glTF JSON and the GLB container (header, JSON chunk, BIN chunk; glTF 2.0 §4.4) are
+    assembled here: a generic glTF object model costs more per tile than the arrays it wraps
+    (the tests read every file back with pygltflib and trimesh and run the Khronos validator).
+    """
+    pos = np.ascontiguousarray(positions, dtype="<f4").reshape(-1, 3)
+    nrm = np.ascontiguousarray(normals, dtype="<f4").reshape(-1, 3)
+    # 16-bit indices when every vertex fits (a node's patch: always), else 32-bit.
+    small = len(pos) <= 65535
+    idx = np.ascontiguousarray(triangles, dtype="<u2" if small else "<u4").reshape(-1)
     blobs: list[tuple[bytes, int | None]] = [
-        (idx.tobytes(), g.ELEMENT_ARRAY_BUFFER),
-        (pos.tobytes(), g.ARRAY_BUFFER),
-        (nrm.tobytes(), g.ARRAY_BUFFER),
+        (idx.tobytes(), _ELEMENT_ARRAY_BUFFER),
+        (pos.tobytes(), _ARRAY_BUFFER),
+        (nrm.tobytes(), _ARRAY_BUFFER),
     ]
-    accessors = [
-        g.Accessor(bufferView=0, componentType=g.UNSIGNED_INT, count=len(idx), type=g.SCALAR),
-        g.Accessor(
-            bufferView=1,
-            componentType=g.FLOAT,
-            count=len(pos),
-            type=g.VEC3,
-            min=[float(v) for v in pos.min(axis=0)],
-            max=[float(v) for v in pos.max(axis=0)],
-        ),
-        g.Accessor(bufferView=2, componentType=g.FLOAT, count=len(nrm), type=g.VEC3),
+    accessors: list[dict[str, Any]] = [
+        {
+            "bufferView": 0,
+            "componentType": _UNSIGNED_SHORT if small else _UNSIGNED_INT,
+            "count": len(idx),
+            "type": "SCALAR",
+        },
+        {
+            "bufferView": 1,
+            "componentType": _FLOAT,
+            "count": len(pos),
+            "type": "VEC3",
+            "min": [float(v) for v in pos.min(axis=0)],
+            "max": [float(v) for v in pos.max(axis=0)],
+        },
+        {"bufferView": 2, "componentType": _FLOAT, "count": len(nrm), "type": "VEC3"},
     ]
-    attributes = g.Attributes(POSITION=1, NORMAL=2)
-    pbr = g.PbrMetallicRoughness(
-        baseColorFactor=[0.8, 0.8, 0.8, 1.0], metallicFactor=0.0, roughnessFactor=1.0
-    )
-    textures: list[Any] = []
-    images: list[Any] = []
-    samplers: list[Any] = []
+    attributes = {"POSITION": 1, "NORMAL": 2}
+    pbr: dict[str, Any] = {
+        "baseColorFactor": [0.8, 0.8, 0.8, 1.0],
+        "metallicFactor": 0.0,
+        "roughnessFactor": 1.0,
+    }
+    gltf: dict[str, Any] = {"asset": {"version": "2.0", "generator": "approxtree"}}
     if uvs is not None and image is not None:
-        uv = np.ascontiguousarray(uvs, dtype=np.float32).reshape(-1, 2)
-        blobs.append((uv.tobytes(), g.ARRAY_BUFFER))
+        uv = np.ascontiguousarray(uvs, dtype="<f4").reshape(-1, 2)
+        blobs.append((uv.tobytes(), _ARRAY_BUFFER))
         accessors.append(
-            g.Accessor(bufferView=3, componentType=g.FLOAT, count=len(uv), type=g.VEC2)
+            {"bufferView": 3, "componentType": _FLOAT, "count": len(uv), "type": "VEC2"}
         )
-        attributes.TEXCOORD_0 = 3
+        attributes["TEXCOORD_0"] = 3
         blobs.append((bytes(image), None))
-        images.append(g.Image(bufferView=4, mimeType=mime))
-        samplers.append(
-            g.Sampler(
-                magFilter=g.LINEAR,
-                minFilter=g.LINEAR_MIPMAP_LINEAR,
-                wrapS=g.CLAMP_TO_EDGE,
-                wrapT=g.CLAMP_TO_EDGE,
-            )
-        )
-        textures.append(g.Texture(sampler=0, source=0))
-        pbr.baseColorFactor = [1.0, 1.0, 1.0, 1.0]
-        pbr.baseColorTexture = g.TextureInfo(index=0)
+        gltf["images"] = [{"bufferView": 4, "mimeType": mime}]
+        gltf["samplers"] = [
+            {
+                "magFilter": _LINEAR,
+                "minFilter": _LINEAR_MIPMAP_LINEAR,
+                "wrapS": _CLAMP_TO_EDGE,
+                "wrapT": _CLAMP_TO_EDGE,
+            }
+        ]
+        gltf["textures"] = [{"sampler": 0, "source": 0}]
+        pbr["baseColorFactor"] = [1.0, 1.0, 1.0, 1.0]
+        pbr["baseColorTexture"] = {"index": 0}
     # One binary buffer; every view starts on a 4-byte boundary.
     views, chunks, offset = [], [], 0
     for data, target in blobs:
-        views.append(g.BufferView(buffer=0, byteOffset=offset, byteLength=len(data), target=target))
+        view = {"buffer": 0, "byteOffset": offset, "byteLength": len(data)}
+        if target is not None:
+            view["target"] = target
+        views.append(view)
         pad = (-len(data)) % 4
         chunks.append(data + b"\0" * pad)
         offset += len(data) + pad
     blob = b"".join(chunks)
-    node = g.Node(mesh=0, matrix=list(matrix) if matrix is not None else None)
-    gltf = g.GLTF2(
-        asset=g.Asset(version="2.0", generator="approxtree"),
+    node: dict[str, Any] = {"mesh": 0}
+    if matrix is not None:
+        node["matrix"] = [float(v) for v in matrix]
+    scene: dict[str, Any] = {"nodes": [0]}
+    if extras:
+        scene["extras"] = extras
+    primitive = {"attributes": attributes, "indices": 0, "material": 0, "mode": 4}
+    gltf.update(
         scene=0,
-        scenes=[g.Scene(nodes=[0], extras=dict(extras or {}))],
+        scenes=[scene],
         nodes=[node],
-        meshes=[
-            g.Mesh(
-                primitives=[
-                    g.Primitive(attributes=attributes, indices=0, material=0, mode=g.TRIANGLES)
-                ]
-            )
-        ],
-        materials=[g.Material(pbrMetallicRoughness=pbr, doubleSided=False)],
-        textures=textures,
-        images=images,
-        samplers=samplers,
+        meshes=[{"primitives": [primitive]}],
+        materials=[{"pbrMetallicRoughness": pbr}],
         accessors=accessors,
         bufferViews=views,
-        buffers=[g.Buffer(byteLength=len(blob))],
+        buffers=[{"byteLength": len(blob)}],
     )
-    gltf.set_binary_blob(blob)
-    return b"".join(gltf.save_to_bytes())
+    text = json.dumps(gltf, separators=(",", ":")).encode("utf-8")
+    text += b" " * ((-len(text)) % 4)
+    total = 12 + 8 + len(text) + 8 + len(blob)
+    return b"".join(
+        [
+            struct.pack("<4sII", b"glTF", 2, total),
+            struct.pack("<I4s", len(text), b"JSON"),
+            text,
+            struct.pack("<I4s", len(blob), b"BIN\0"),
+            blob,
+        ]
+    )
 
 
 def surface_normals(
@@ -162,18 +189,12 @@ def surface_normals(
     if used.all():
         return normals
     top, low = np.flatnonzero(used), np.flatnonzero(~used)
-    # Exact x, y match: sort the surface vertices by (x, y), search each skirt vertex.
-    keys = np.ascontiguousarray(xy[top], dtype=np.float64)
-    order = np.lexsort((keys[:, 1], keys[:, 0]))
-    sx, sy = keys[order, 0], keys[order, 1]
-    lo = np.searchsorted(sx, xy[low, 0], side="left")
-    hi = np.searchsorted(sx, xy[low, 0], side="right")
-    found = np.full(len(low), -1, dtype=np.int64)
-    # Runs of equal x are short (a few vertices): step through them all at once.
-    for j in range(int((hi - lo).max(initial=0))):
-        k = np.minimum(lo + j, len(sx) - 1)
-        hit = (found < 0) & (lo + j < hi) & (sy[k] == xy[low, 1])
-        found[hit] = k[hit]
+    # Exact x, y match: one np.unique over the (x, y) pairs of both sets, as 16-byte keys.
+    keys = np.ascontiguousarray(np.concatenate([xy[top], xy[low]]), dtype=np.float64)
+    _, inverse = np.unique(keys.view(np.dtype((np.void, 16))).ravel(), return_inverse=True)
+    owner = np.full(int(inverse.max()) + 1, -1, dtype=np.int64)
+    owner[inverse[: len(top)]] = top
+    found = owner[inverse[len(top) :]]
     ok = found >= 0
-    normals[low[ok]] = normals[top[order[found[ok]]]]
+    normals[low[ok]] = normals[found[ok]]
     return normals

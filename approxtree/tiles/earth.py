@@ -7,6 +7,10 @@ not corrected). Terrain without a CRS is placed in a local east-north-up frame: 
 metres, the domain's centre at (lon, lat) = ``origin`` (default 0, 0) on the ellipsoid:
 ECEF = ``enu_matrix`` @ (x − cx, y − cy, z, 1).
 
+With a CRS, pyproj takes points to WGS84 longitude, latitude and height (EPSG:4979) and the
+closed-form geodetic → ECEF formula does the rest (one pyproj call per tile serves both the
+ECEF positions and the tile's region).
+
 pyproj transformers are not thread-safe: each thread gets its own (``threading.local``).
 """
 
@@ -109,8 +113,8 @@ class EarthFrame:
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         if self.crs is None:
             return np.column_stack([p[:, 0] - self.center[0], p[:, 1] - self.center[1], p[:, 2]])
-        x, y, z = self._transformer("EPSG:4978").transform(p[:, 0], p[:, 1], p[:, 2])
-        return np.column_stack([x, y, z])
+        geo = self.to_geodetic(p)
+        return geodetic_to_ecef(geo[:, 0], geo[:, 1], geo[:, 2])
 
     def to_geodetic(self, points: np.ndarray) -> np.ndarray:
         """(n, 3) float64 WGS84 longitude, latitude (degrees) and ellipsoidal height (m) of

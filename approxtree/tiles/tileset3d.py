@@ -46,7 +46,7 @@ from approxtree.io.gltf import glb_bytes, surface_normals, y_up
 from approxtree.io.output_path import check_output_folder
 from approxtree.patches.skirts import add_skirts, patches_reach_rect, skirt_base, skirt_depths
 from approxtree.textures.embed import IMAGE_FORMATS, embedded_texture
-from approxtree.tiles.earth import WGS84_A, WGS84_B, EarthFrame
+from approxtree.tiles.earth import WGS84_A, WGS84_B, EarthFrame, geodetic_to_ecef
 
 #: Smallest radius of curvature of the WGS84 ellipsoid (m), for chord sagittas.
 _MIN_RADIUS = WGS84_B**2 / WGS84_A
@@ -175,7 +175,12 @@ class _TileWriter:
         verts, tris, surface = self.mesh(i)
         if surface == 0:
             return None
-        points = self.frame.to_frame(verts)
+        geo = None
+        if self.frame.georeferenced:
+            geo = self.frame.to_geodetic(verts)
+            points = geodetic_to_ecef(geo[:, 0], geo[:, 1], geo[:, 2])
+        else:
+            points = self.frame.to_frame(verts)
         # Normals of the surface only; a skirt vertex takes the normal of the top vertex it
         # hangs from (same x, y), so walls do not tilt the shading of the border.
         normals = surface_normals(points, tris, surface, verts[:, :2])
@@ -200,18 +205,19 @@ class _TileWriter:
         path.parent.mkdir(exist_ok=True)
         path.write_bytes(data)
         if self.frame.georeferenced:
-            low, high = self._region(verts, points, tris)
+            low, high = self._region(geo, points, tris)
         else:
             low, high = lo, hi
         return TileContent(i, center, low, high, len(data), len(verts), len(tris))
 
-    def _region(self, verts: np.ndarray, points: np.ndarray, tris: np.ndarray):
+    def _region(self, geo: np.ndarray, points: np.ndarray, tris: np.ndarray):
         """(west, south, min height), (east, north, max height) in radians and metres holding
-        the vertices and the straight edges between them (lowered by the longest chord's
-        sagitta) and a float32 rounding margin."""
-        geo = self.frame.to_geodetic(verts)
+        the vertices (geo: (n, 3) lon, lat degrees, height; points: (n, 3) ECEF) and the
+        straight edges between them (lowered by the longest chord's sagitta) and a float32
+        rounding margin."""
         edges = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
-        chord = float(np.linalg.norm(points[edges[:, 0]] - points[edges[:, 1]], axis=1).max())
+        d = points[edges[:, 0]] - points[edges[:, 1]]
+        chord = float(np.sqrt(np.einsum("ij,ij->i", d, d).max()))
         sag = chord * chord / (8.0 * _MIN_RADIUS) + 1e-2
         lat = np.radians(geo[:, 1])
         coslat = max(float(np.cos(np.abs(lat).max())), 1e-6)
