@@ -993,12 +993,24 @@ def _tiles_terrain(path: str, reader: dict[str, Any]):
     help="quantized-mesh: samples along a tile side (samples − 1 divides 32767, so every "
     "sample has an exact quantized position).",
 )
-@click.option("--minzoom", type=int, default=0, show_default=True, help="quantized-mesh.")
+@click.option(
+    "--minzoom",
+    type=int,
+    default=0,
+    show_default=True,
+    help="quantized-mesh: shallowest level written (CesiumJS asks for level 0).",
+)
 @click.option(
     "--maxzoom",
     type=int,
     help="quantized-mesh: deepest level [default: where the sample spacing reaches the DEM's "
     "cell].",
+)
+@click.option(
+    "--max-error",
+    type=float,
+    help="quantized-mesh: go deeper than the DEM's cell until the deepest level's error "
+    "(77 067 m / 2^level, CesiumJS's) is at most this many metres.",
 )
 @click.option(
     "--water-mask",
@@ -1016,6 +1028,7 @@ def _tiles_quantized_mesh(
     samples: str,
     minzoom: int,
     maxzoom: int | None,
+    max_error: float | None,
     water_mask: str | None,
     workers: int,
     encoding,
@@ -1051,6 +1064,7 @@ def _tiles_quantized_mesh(
         samples=int(samples),
         minzoom=minzoom,
         maxzoom=maxzoom,
+        max_error=max_error,
         workers=workers,
         water_mask=water_mask,
     )

@@ -473,6 +473,19 @@ def test_bad_input_gets_clear_errors(tmp_path):
     )
     with pytest.raises(EmptyTerrainError, match="nodata only"):
         write_quantized_mesh(nodata_only, tmp_path / "a")
+    # A windowed one is not scanned beforehand: found when no tile sampled a height, and
+    # nothing is left behind.
+    from approxtree.geometry.windowed import ArraySource, WindowedHeights
+
+    windowed = Grid(
+        WindowedHeights(ArraySource(np.full((20, 20), np.nan))),
+        Affine(0.01, 0, -72, 0, -0.01, 45),
+        crs="EPSG:4326",
+        allow_empty=True,
+    )
+    with pytest.raises(EmptyTerrainError, match="nodata only"):
+        write_quantized_mesh(windowed, tmp_path / "w", maxzoom=12)
+    assert not (tmp_path / "w").exists()
     ok = Grid(np.zeros((20, 20)), Affine(0.01, 0, -72, 0, -0.01, 45), crs="EPSG:4326")
     with pytest.raises(InvalidParameterError, match="32767"):
         write_quantized_mesh(ok, tmp_path / "a", samples=65)
@@ -550,3 +563,34 @@ def test_cesiumjs_terrain_provider_loads_every_tile(data_dir, tmp_path):
         assert t["waterMask"] == len(mine["ext"][2])
         assert t["minimumHeight"] == pytest.approx(mine["min_h"])
     assert {t["waterMask"] for t in report["tiles"]} == {1, 256 * 256}
+
+
+def test_max_error_chooses_a_deeper_maxzoom(data_dir, tmp_path):
+    """--max-error 20: the 3″ crop's default deepest level 11 (37.6 m) is not enough, level 12
+    (18.8 m) is; every tile of it is within 20 m, measured on the decoded tile."""
+    terrain = srtm_crop(data_dir)
+    out = tmp_path / "e"
+    r = CliRunner().invoke(
+        main,
+        [
+            "tiles",
+            str(data_file(data_dir, "srtm/N44W072.hgt")),
+            "--out",
+            str(out),
+            "--format",
+            "quantized-mesh",
+            "--max-error",
+            "20",
+            "--json",
+        ],
+    )
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.output)["levels"] == "0..12"
+    out2 = tmp_path / "e2"
+    write_quantized_mesh(terrain, out2, max_error=20.0)
+    found = check_tileset(out2, terrain, 152)
+    assert max(z for z, _, _ in found["tiles"]) == 12
+    with pytest.raises(InvalidParameterError, match="not both"):
+        write_quantized_mesh(terrain, tmp_path / "x", max_error=20.0, maxzoom=3)
+    with pytest.raises(InvalidParameterError, match="at least"):
+        write_quantized_mesh(terrain, tmp_path / "x", max_error=0.0)

@@ -91,9 +91,10 @@ def horizon_occlusion_point(xyz: np.ndarray, centre: np.ndarray) -> np.ndarray:
     """The horizon occlusion point in ellipsoid-scaled ECEF (EllipsoidalOccluder's
     computeHorizonCullingPoint towards the bounding sphere's centre).
 
-    When no such point exists (a tile wider than a hemisphere's horizon), a point 1000 radii
-    out along the centre's direction: hidden only when the whole tile is behind the globe
-    from the camera's side, so the tile is never culled wrongly, at worst drawn needlessly.
+    When no such point exists (a tile wider than a hemisphere's horizon, levels 0–1), a point
+    1000 radii out along the centre's direction: hidden only when the camera is in the
+    globe's shadow on the far side, from where (argued, not tested in a browser) no part of
+    so wide a tile shows; elsewhere the tile is drawn, at worst needlessly.
     """
     scale = np.array([WGS84_A, WGS84_A, WGS84_B])
     p = xyz / scale

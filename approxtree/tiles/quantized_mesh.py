@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import gzip
 import json
+import math
 import multiprocessing
 import os
 from collections.abc import Iterable, Sequence
@@ -27,19 +28,20 @@ from pathlib import Path
 
 import numpy as np
 
-from approxtree.errors import InvalidParameterError, StoreError
+from approxtree.errors import EmptyTerrainError, InvalidParameterError, StoreError
 from approxtree.geometry.grid import Grid
 from approxtree.kernels.greedy_tin import mesh_error
 from approxtree.patches.lattice import Window
 from approxtree.patches.tin import grid_tin
 from approxtree.tiles.encoding import QMAX, encode_tile
 from approxtree.tiles.geographic import (
+    MAX_LEVEL,
     deepest_level,
     level_error,
     tile_bounds,
     tiles_touching,
 )
-from approxtree.tiles.sampling import TileSampler, check_has_data
+from approxtree.tiles.sampling import NO_DATA, TileSampler, check_has_data
 from approxtree.tiles.water_mask import WaterMask
 
 #: Samples along a tile side: (samples − 1) divides 32767 = 7 · 31 · 151, so every sample has
@@ -298,13 +300,15 @@ def write_quantized_mesh(
     samples: int = DEFAULT_SAMPLES,
     minzoom: int = 0,
     maxzoom: int | None = None,
+    max_error: float | None = None,
     workers: int = 1,
     water_mask: str | os.PathLike | None = None,
 ) -> dict:
     """Write the Cesium terrain tileset of ``terrain`` into the folder ``out`` (atomically).
 
     samples: samples along a tile side (one of SAMPLE_CHOICES); maxzoom: deepest level, by
-    default the first whose sample spacing reaches the terrain's cell; workers > 1: tiles are
+    default the first whose sample spacing reaches the terrain's cell, or deeper until the
+    level's error is <= ``max_error`` metres when that is given; workers > 1: tiles are
     made in that many processes. Returns the figures (tiles, bytes, levels, worst error
     ratio, per-level counts).
     """
@@ -319,8 +323,21 @@ def write_quantized_mesh(
         raise InvalidParameterError(f"workers must be >= 1, got {workers}.")
     sampler = TileSampler(terrain)
     check_has_data(sampler)
+    if max_error is not None:
+        if maxzoom is not None:
+            raise InvalidParameterError(
+                "Give --maxzoom or --max-error, not both: --max-error chooses the deepest level."
+            )
+        if not (math.isfinite(max_error) and max_error >= level_error(MAX_LEVEL)):
+            raise InvalidParameterError(
+                f"max_error must be at least {level_error(MAX_LEVEL):.4g} m (the error of "
+                f"level {MAX_LEVEL}), got {max_error}."
+            )
     if maxzoom is None:
         maxzoom = max(deepest_level(sampler.cell_degrees, samples), minzoom)
+        # Deeper still until the level's error reaches the wanted one.
+        while max_error is not None and level_error(maxzoom) > max_error:
+            maxzoom += 1
     if not (0 <= minzoom <= maxzoom <= 22):
         raise InvalidParameterError(
             f"Levels must satisfy 0 <= minzoom <= maxzoom <= 22, got {minzoom}..{maxzoom}."
@@ -349,6 +366,10 @@ def write_quantized_mesh(
             ) as pool:
                 for part in pool.map(_worker_batch, batches):
                     results.extend(part)
+        if not any(r.valid_samples for r in results) and terrain.point_count == 0:
+            # A windowed terrain of nodata only: scanned only now that no tile sampled a
+            # height (tiles too coarse to hit the data need not mean nodata); nothing is kept.
+            raise EmptyTerrainError(NO_DATA)
         layer = layer_json(sampler, plan, water is not None, out.name)
         (tmp / "layer.json").write_text(json.dumps(layer, indent=1))
     return {

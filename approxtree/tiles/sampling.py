@@ -171,7 +171,13 @@ class TileSampler:
         return h, n_valid
 
 
+#: What a nodata-only terrain is told.
+NO_DATA = "The terrain holds no valid height (nodata only): no tiles written."
+
+
 def check_has_data(sampler: TileSampler) -> None:
-    """EmptyTerrainError when the terrain has no valid height at all."""
-    if sampler.terrain.point_count == 0:
-        raise EmptyTerrainError("The terrain holds no valid height (nodata only): no tiles.")
+    """EmptyTerrainError when an in-memory terrain has no valid height at all (its count is
+    known). A windowed terrain is not scanned for it (a whole read of a band that may be
+    bigger than memory): the tile writer counts only when no tile sampled any height."""
+    if not sampler.terrain.is_windowed and sampler.terrain.point_count == 0:
+        raise EmptyTerrainError(NO_DATA)
