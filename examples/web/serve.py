@@ -1,0 +1,132 @@
+"""Serve `approxtree tiles` output and this viewer page on 127.0.0.1 (standard library only).
+
+    python examples/web/serve.py OUT_DIR [--port 8000]
+
+URL layout: /viewer/ is this folder, /tiles/ is OUT_DIR, /cesium/ is CesiumJS's Build/Cesium
+from web/node_modules (npm install --prefix web). It prints the URL to open. Unlike plain
+`python -m http.server`, it sends .terrain files stored gzip-compressed with
+`Content-Encoding: gzip`, which CesiumTerrainProvider needs, and the MIME types of glTF.
+The browser test (tests/browser.py) uses the same server.
+"""
+
+from __future__ import annotations
+
+import argparse
+import http.server
+import threading
+from pathlib import Path
+from typing import ClassVar
+from urllib.parse import unquote, urlsplit
+
+HERE = Path(__file__).resolve().parent
+CESIUM_BUILD = HERE.parent.parent / "web" / "node_modules" / "cesium" / "Build" / "Cesium"
+
+# MIME types the defaults lack or get wrong for tiles.
+TYPES = {
+    ".glb": "model/gltf-binary",
+    ".gltf": "model/gltf+json",
+    ".b3dm": "application/octet-stream",
+    ".subtree": "application/octet-stream",
+    ".json": "application/json",
+    ".terrain": "application/vnd.quantized-mesh",
+    ".js": "text/javascript",
+    ".mjs": "text/javascript",
+    ".wasm": "application/wasm",
+    ".ktx2": "image/ktx2",
+    ".webp": "image/webp",
+}
+GZIP_MAGIC = b"\x1f\x8b"
+
+
+def make_handler(roots: dict[str, Path], log: list[str] | None = None):
+    """A request handler serving each URL prefix ("/tiles/") from its folder."""
+
+    class Handler(http.server.SimpleHTTPRequestHandler):
+        extensions_map: ClassVar[dict[str, str]] = {
+            **http.server.SimpleHTTPRequestHandler.extensions_map,
+            **TYPES,
+        }
+
+        def translate_path(self, path: str) -> str:
+            # Longest prefix first, so "/" can be a fallback root.
+            url_path = unquote(urlsplit(path).path)
+            for prefix in sorted(roots, key=len, reverse=True):
+                if url_path.startswith(prefix):
+                    rel = url_path[len(prefix) :]
+                    root = roots[prefix].resolve()
+                    full = (root / rel).resolve()
+                    if full != root and root not in full.parents:
+                        return str(root / "__outside__")
+                    return str(full)
+            return str(Path("/nonexistent"))
+
+        def end_headers(self) -> None:
+            # Tiles stored gzip-compressed on disk are sent as such, the browser inflates them.
+            path = getattr(self, "_served", None)
+            if path is not None and path.endswith(".terrain"):
+                with open(path, "rb") as f:
+                    if f.read(2) == GZIP_MAGIC:
+                        self.send_header("Content-Encoding", "gzip")
+            self.send_header("Access-Control-Allow-Origin", "*")
+            self.send_header("Cache-Control", "no-store")
+            super().end_headers()
+
+        def send_head(self):
+            self._served = self.translate_path(self.path)
+            if log is not None:
+                log.append(self.path)
+            return super().send_head()
+
+        def log_message(self, format: str, *args) -> None:
+            pass
+
+    return Handler
+
+
+class TileServer:
+    """A threaded HTTP server on 127.0.0.1 (port 0: any free port); use as a context manager.
+
+    roots: URL prefix ("/tiles/") -> folder. requests: the paths requested, in order.
+    """
+
+    def __init__(self, roots: dict[str, Path | str], port: int = 0) -> None:
+        self.requests: list[str] = []
+        handler = make_handler({k: Path(v) for k, v in roots.items()}, self.requests)
+        self.httpd = http.server.ThreadingHTTPServer(("127.0.0.1", port), handler)
+        self.url = f"http://127.0.0.1:{self.httpd.server_address[1]}"
+        self._thread = threading.Thread(target=self.httpd.serve_forever, daemon=True)
+
+    def __enter__(self) -> TileServer:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.httpd.shutdown()
+        self.httpd.server_close()
+
+
+def default_roots(tiles_dir: Path | str) -> dict[str, Path]:
+    """The URL layout of the viewer: /viewer/, /tiles/ and /cesium/."""
+    return {"/viewer/": HERE, "/tiles/": Path(tiles_dir), "/cesium/": CESIUM_BUILD}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("out_dir", help="output folder of `approxtree tiles`")
+    parser.add_argument("--port", type=int, default=8000)
+    args = parser.parse_args()
+    out = Path(args.out_dir)
+    server = TileServer(default_roots(out), args.port)
+    kind = "tileset=/tiles/tileset.json" if (out / "tileset.json").exists() else "terrain=/tiles/"
+    cesium = "&cesium=/cesium/" if CESIUM_BUILD.is_dir() else ""
+    print(f"Open {server.url}/viewer/index.html?{kind}{cesium}  (Ctrl-C stops)")
+    try:
+        server.httpd.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.httpd.server_close()
+
+
+if __name__ == "__main__":
+    main()
