@@ -1069,8 +1069,7 @@ def _tiles_terrain(path: str, reader: dict[str, Any]):
     return _open(path, **reader)
 
 
-# Merge glue (cesium branch): qmesh's command, reached through tiles3d's `tiles` below.
-@click.command("tiles")
+@main.command()
 @click.argument("tree", type=click.Path())
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder to write.")
 @click.option(
@@ -1148,7 +1147,7 @@ def _tiles_terrain(path: str, reader: dict[str, Any]):
 @reader_options
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
 @_reports_errors
-def _tiles_quantized_mesh(
+def tiles(
     tree: str,
     out: str,
     tile_format: str,
