@@ -7,8 +7,9 @@ and refines by screen-space error exactly as the paging renderer refines by α:
   at least its children's errors; the 3D Tiles spec wants a child's error no larger than its
   parent's, and claiming more only refines sooner). Nodes of infinite error (patches missing
   data points) claim relief + largest finite error + 1, so clients always refine them. The
-  tileset's own geometricError is twice the root's (the error of the root's missing parent),
-  or the relief (at least 1) when the root is exact.
+  tileset's own geometricError is the error of drawing nothing: the terrain's extent in metres
+  (at least twice the root's error and the relief), so clients draw the root whenever the
+  terrain is on screen.
 - Content: ``{level}/{node}.glb``, the node's patch with its skirts (patches/skirts.py, as the
   renderer draws it), positions relative to the tile's centre in the tileset frame (RTC: the
   centre is the tile's ``transform``, relative to its parent's), written in glTF's y-up axes
@@ -340,12 +341,26 @@ def _tileset_json(tree: Any, frame: EarthFrame, contents: list[TileContent | Non
         if count:
             s = int(tree.child_start[i])
             tiles[i]["children"] = tiles[s : s + count]
-    root_error = float(errors[0])
     return {
         "asset": {"version": "1.1", "generator": "approxtree"},
-        "geometricError": 2.0 * root_error if root_error > 0 else max(relief, 1.0),
+        "geometricError": tileset_error(tree, frame, float(errors[0]), relief),
         "root": tiles[0],
     }
+
+
+def tileset_error(tree: Any, frame: EarthFrame, root_error: float, relief: float) -> float:
+    """The tileset's own geometricError: the error of drawing nothing at all, i.e. the
+    terrain's extent (the diagonal of its domain in the tileset frame, metres), and never less
+    than twice the root's error or the relief. A client draws the root only while this error
+    projects above its screen-space threshold, so it must be large: twice the root's error
+    (25 m on the NC DEM) projects under 2 px in an overview and CesiumJS drew an empty scene."""
+    x0, y0, x1, y1 = (float(v) for v in np.asarray(tree.rects, dtype=np.float64)[0])
+    corners = frame.to_frame(np.array([[x0, y0, 0.0], [x1, y1, 0.0], [x0, y1, 0.0], [x1, y0, 0.0]]))
+    extent = max(
+        float(np.linalg.norm(corners[1] - corners[0])),
+        float(np.linalg.norm(corners[3] - corners[2])),
+    )
+    return max(extent, 2.0 * root_error, relief, 1.0)
 
 
 def terrain_relief(tree: Any) -> float:
