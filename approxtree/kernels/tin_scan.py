@@ -77,25 +77,47 @@ def _grid_row_max(heights: np.ndarray, r: int, start: int, n: int, base: float, 
     return m
 
 
-@njit(cache=True, _nrt=False)
-def scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy):
-    """(key, candidate y, candidate x) of a triangle on a grid without nodata.
+@njit(cache=True, inline="always")
+def _edge_at(x0: int, y0: int, x1: int, y1: int, y: int):
+    """Edge walk state at row y of the edge (x0, y0)–(x1, y1), y1 > y0.
 
-    The grid is indexed in place and the kernel compiled without the reference-counting
-    runtime: row views, or reference counts on the arguments, would cost atomic updates per row
-    and per call, which dominate on the small triangles of a fine mesh.
+    The edge's x at row y is q + r / d exactly (0 <= r < d = y1 − y0); each next row adds
+    sq + sr / d (0 <= sr < d). Returns (q, r, d, sq, sr): integers only, one division here,
+    none per row.
     """
-    za = np.float64(heights[r0 + ay, c0 + ax])
-    zb = np.float64(heights[r0 + by, c0 + bx])
-    zc = np.float64(heights[r0 + cy, c0 + cx])
-    gx, gy = plane(za, zb, zc, ax, ay, bx, by, cx, cy)
-    best = NO_CANDIDATE
-    best_x = -1
-    best_y = -1
-    y0 = min(ay, min(by, cy))
-    y1 = max(ay, max(by, cy))
-    for y in range(y0, y1 + 1):
-        lo, hi = row_span(ax, ay, bx, by, cx, cy, y)
+    d = y1 - y0
+    num = x0 * d + (x1 - x0) * (y - y0)
+    q = num // d
+    sq = (x1 - x0) // d
+    return q, num - q * d, d, sq, (x1 - x0) - sq * d
+
+
+@njit(cache=True, inline="always")
+def _scan_rows(
+    heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ya, yb, left, right, best, bestx, besty
+):
+    """Candidate search over rows ya..yb between a left and a right edge walk.
+
+    left, right: (x0, y0, x1, y1, mid x, ...) edges whose x bounds the rows from the left
+    (ceiling) and the right (floor). Points are visited in the order of ``row_span``'s row
+    loop, with the same arithmetic, so ties and values are those of a row-span scan.
+    """
+    lq, lr, ld, lsq, lsr = _edge_at(left[0], left[1], left[2], left[3], ya)
+    rq, rr, rd, rsq, rsr = _edge_at(right[0], right[1], right[2], right[3], ya)
+    for y in range(ya, yb + 1):
+        lo = lq + (lr > 0)
+        hi = rq
+        # Next row: add the slopes, carrying the remainders.
+        lq += lsq
+        lr += lsr
+        if lr >= ld:
+            lr -= ld
+            lq += 1
+        rq += rsq
+        rr += rsr
+        if rr >= rd:
+            rr -= rd
+            rq += 1
         if lo > hi:
             continue
         n = hi - lo + 1
@@ -114,8 +136,96 @@ def scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy):
                 if (x == ax and y == ay) or (x == bx and y == by) or (x == cx and y == cy):
                     continue
                 best = e
-                best_x = x
-                best_y = y
+                bestx = x
+                besty = y
+    return best, bestx, besty
+
+
+@njit(cache=True, inline="always")
+def _by_rows(ax, ay, bx, by, cx, cy):
+    """The corners sorted by row (top, middle, bottom), and whether the middle one lies left
+    of the top–bottom edge."""
+    tx, ty, mx, my, lx, ly = ax, ay, bx, by, cx, cy
+    if my < ty:
+        tx, ty, mx, my = mx, my, tx, ty
+    if ly < my:
+        mx, my, lx, ly = lx, ly, mx, my
+        if my < ty:
+            tx, ty, mx, my = mx, my, tx, ty
+    # The middle corner against the long edge's x at its row (cross-multiplied, exact).
+    mid_left = mx * (ly - ty) < tx * (ly - ty) + (lx - tx) * (my - ty)
+    return tx, ty, mx, my, lx, ly, mid_left
+
+
+@njit(cache=True, _nrt=False)
+def scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy):
+    """(key, candidate y, candidate x) of a triangle on a grid without nodata.
+
+    Rows are bounded by walking the triangle's left and right edges with integer steps (the
+    exact spans of ``row_span`` without its divisions per row); the grid is indexed in place
+    and the kernel compiled without the reference-counting runtime: row views, or reference
+    counts on the arguments, would cost atomic updates per row and per call, which dominate
+    on the small triangles of a fine mesh.
+    """
+    za = np.float64(heights[r0 + ay, c0 + ax])
+    zb = np.float64(heights[r0 + by, c0 + bx])
+    zc = np.float64(heights[r0 + cy, c0 + cx])
+    gx, gy = plane(za, zb, zc, ax, ay, bx, by, cx, cy)
+    best = NO_CANDIDATE
+    best_x = -1
+    best_y = -1
+    tx, ty, mx, my, lx, ly, mid_left = _by_rows(ax, ay, bx, by, cx, cy)
+    long_edge = (tx, ty, lx, ly)
+    # Upper part (rows of the top–middle edge), then the lower part (middle–bottom edge).
+    if my > ty:
+        upper = (tx, ty, mx, my)
+        left, right = (upper, long_edge) if mid_left else (long_edge, upper)
+        best, best_x, best_y = _scan_rows(
+            heights,
+            r0,
+            c0,
+            za,
+            gx,
+            gy,
+            ax,
+            ay,
+            bx,
+            by,
+            cx,
+            cy,
+            ty,
+            my,
+            left,
+            right,
+            best,
+            best_x,
+            best_y,
+        )
+    if ly > my:
+        lower = (mx, my, lx, ly)
+        left, right = (lower, long_edge) if mid_left else (long_edge, lower)
+        ya = my + 1 if my > ty else ty
+        best, best_x, best_y = _scan_rows(
+            heights,
+            r0,
+            c0,
+            za,
+            gx,
+            gy,
+            ax,
+            ay,
+            bx,
+            by,
+            cx,
+            cy,
+            ya,
+            ly,
+            left,
+            right,
+            best,
+            best_x,
+            best_y,
+        )
     return best, best_y, best_x
 
 
