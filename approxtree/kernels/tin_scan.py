@@ -262,57 +262,41 @@ def _edge_weight(ax, ay, bx, by, cx, cy, x, y, wab, wbc, wca) -> float:
     return 1.0
 
 
-@njit(cache=True, _nrt=False)
-def scan_triangle_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca):
-    """``scan_candidate`` plus the triangle's owned sum of squared errors, no nodata.
-
-    wab, wbc, wca: the share of a point on edge ab, bc, ca this triangle owns (½ when the edge
-    is shared with a neighbour, 1 on the border), so the sums over a mesh's triangles count
-    every non-vertex point once (up to round-off: both neighbours interpolate the same line).
-    Returns (key, candidate y, candidate x, sum of squared errors). Compiled without the
-    reference-counting runtime: its row views then cost no atomic updates.
-    """
-    za = np.float64(heights[r0 + ay, c0 + ax])
-    zb = np.float64(heights[r0 + by, c0 + bx])
-    zc = np.float64(heights[r0 + cy, c0 + cx])
-    gx, gy = plane(za, zb, zc, ax, ay, bx, by, cx, cy)
-    best = NO_CANDIDATE
-    best_x = -1
-    best_y = -1
-    sse = 0.0
-    y0 = min(ay, min(by, cy))
-    y1 = max(ay, max(by, cy))
-    for y in range(y0, y1 + 1):
-        lo, hi = row_span(ax, ay, bx, by, cx, cy, y)
+@njit(cache=True, inline="always")
+def _sse_rows(
+    heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, wab, wbc, wca, ya, yb, left, right, sse
+):
+    """``sse`` plus the owned squared errors over rows ya..yb between a left and a right
+    edge walk (see ``_scan_rows``, ``triangle_sse``), added row by row in row order."""
+    lq, lr, ld, lsq, lsr = _edge_at(left[0], left[1], left[2], left[3], ya)
+    rq, rr, rd, rsq, rsr = _edge_at(right[0], right[1], right[2], right[3], ya)
+    for y in range(ya, yb + 1):
+        lo = lq + (lr > 0)
+        hi = rq
+        lq += lsq
+        lr += lsr
+        if lr >= ld:
+            lr -= ld
+            lq += 1
+        rq += rsq
+        rr += rsr
+        if rr >= rd:
+            rr -= rd
+            rq += 1
         if lo > hi:
             continue
         n = hi - lo + 1
         base = za + gy * (y - ay) + gx * (lo - ax)
-        row = heights[r0 + y]
+        r = r0 + y
         start = c0 + lo
-        # Long rows: a vectorized pass gives the row's maximum (with slack for its fused
-        # arithmetic) and sum; the position is searched only when it may beat the best.
-        # Short rows: one plain pass does both.
+        # Long rows: a vectorized sum; short rows: a plain one.
         if n >= 16:
-            m, s = _row_max_sse(row, start, n, base, gx)
-            search = m + 1e-9 > best
+            s = _row_max_sse(heights[r], start, n, base, gx)[1]
         else:
             s = 0.0
             for i in range(n):
-                e = abs(float(row[start + i]) - (base + gx * i))
+                e = abs(float(heights[r, start + i]) - (base + gx * i))
                 s += e * e
-            search = True
-        if search:
-            for i in range(n):
-                e = abs(float(row[start + i]) - (base + gx * i))
-                if e > best:
-                    x = lo + i
-                    # Corners are reproduced exactly; round-off must not make them candidates.
-                    if (x == ax and y == ay) or (x == bx and y == by) or (x == cx and y == cy):
-                        continue
-                    best = e
-                    best_x = x
-                    best_y = y
         # Edge points are shared: a row along a horizontal edge lies wholly on it, otherwise
         # only the row's two ends can touch an edge.
         if ay == by == y:
@@ -322,14 +306,84 @@ def scan_triangle_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca):
         elif cy == ay == y:
             s *= wca
         else:
-            e = abs(float(row[start]) - base)
+            e = abs(float(heights[r, start]) - base)
             s -= (1.0 - _edge_weight(ax, ay, bx, by, cx, cy, lo, y, wab, wbc, wca)) * e * e
             if hi > lo:
-                e = abs(float(row[c0 + hi]) - (base + gx * (n - 1)))
+                e = abs(float(heights[r, c0 + hi]) - (base + gx * (n - 1)))
                 w = _edge_weight(ax, ay, bx, by, cx, cy, hi, y, wab, wbc, wca)
                 s -= (1.0 - w) * e * e
         sse += s
-    return best, best_y, best_x, max(sse, 0.0)
+    return sse
+
+
+@njit(cache=True, _nrt=False)
+def triangle_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca) -> float:
+    """The triangle's owned sum of squared errors on a grid without nodata.
+
+    wab, wbc, wca: the share of a point on edge ab, bc, ca this triangle owns (½ when the edge
+    is shared with a neighbour, 1 on the border), so the sums over a mesh's triangles count
+    every non-vertex point once (up to round-off: both neighbours interpolate the same line).
+    Rows are walked as in ``scan_candidate``; the sum runs in row order.
+    """
+    za = np.float64(heights[r0 + ay, c0 + ax])
+    zb = np.float64(heights[r0 + by, c0 + bx])
+    zc = np.float64(heights[r0 + cy, c0 + cx])
+    gx, gy = plane(za, zb, zc, ax, ay, bx, by, cx, cy)
+    sse = 0.0
+    tx, ty, mx, my, lx, ly, mid_left = _by_rows(ax, ay, bx, by, cx, cy)
+    long_edge = (tx, ty, lx, ly)
+    if my > ty:
+        upper = (tx, ty, mx, my)
+        left, right = (upper, long_edge) if mid_left else (long_edge, upper)
+        sse = _sse_rows(
+            heights,
+            r0,
+            c0,
+            za,
+            gx,
+            gy,
+            ax,
+            ay,
+            bx,
+            by,
+            cx,
+            cy,
+            wab,
+            wbc,
+            wca,
+            ty,
+            my,
+            left,
+            right,
+            sse,
+        )
+    if ly > my:
+        lower = (mx, my, lx, ly)
+        left, right = (lower, long_edge) if mid_left else (long_edge, lower)
+        ya = my + 1 if my > ty else ty
+        sse = _sse_rows(
+            heights,
+            r0,
+            c0,
+            za,
+            gx,
+            gy,
+            ax,
+            ay,
+            bx,
+            by,
+            cx,
+            cy,
+            wab,
+            wbc,
+            wca,
+            ya,
+            ly,
+            left,
+            right,
+            sse,
+        )
+    return max(sse, 0.0)
 
 
 @njit(cache=True, _nrt=False)
