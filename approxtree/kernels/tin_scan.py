@@ -78,18 +78,43 @@ def _grid_row_max(heights: np.ndarray, r: int, start: int, n: int, base: float, 
 
 
 @njit(cache=True, inline="always")
-def _edge_at(x0: int, y0: int, x1: int, y1: int, y: int):
-    """Edge walk state at row y of the edge (x0, y0)–(x1, y1), y1 > y0.
+def _floor_div(num: int, d: int):
+    """(q, r) with num = q·d + r, 0 <= r < d (d > 0): a float quotient fixed up exactly
+    (cheaper than an integer division; |num| < 2^53 keeps it within one of the truth)."""
+    q = math.floor(num / d)
+    r = num - q * d
+    if r < 0:
+        q -= 1
+        r += d
+    elif r >= d:
+        q += 1
+        r -= d
+    return q, r
+
+
+@njit(cache=True, inline="always")
+def _edge_walk(x0: int, y0: int, x1: int, y1: int, y: int):
+    """Walk state at row y of the edge (x0, y0)–(x1, y1), y1 > y0.
 
     The edge's x at row y is q + r / d exactly (0 <= r < d = y1 − y0); each next row adds
-    sq + sr / d (0 <= sr < d). Returns (q, r, d, sq, sr): integers only, one division here,
-    none per row.
+    sq + sr / d (0 <= sr < d). Returns (q, r, d, sq, sr): integers only, so the walk is exact.
     """
     d = y1 - y0
-    num = x0 * d + (x1 - x0) * (y - y0)
-    q = num // d
-    sq = (x1 - x0) // d
-    return q, num - q * d, d, sq, (x1 - x0) - sq * d
+    q, r = _floor_div(x0 * d + (x1 - x0) * (y - y0), d)
+    sq, sr = _floor_div(x1 - x0, d)
+    return q, r, d, sq, sr
+
+
+@njit(cache=True, inline="always")
+def _step(w):
+    """The walk state of the next row."""
+    q, r, d, sq, sr = w
+    q += sq
+    r += sr
+    if r >= d:
+        r -= d
+        q += 1
+    return q, r, d, sq, sr
 
 
 @njit(cache=True, inline="always")
@@ -98,26 +123,16 @@ def _scan_rows(
 ):
     """Candidate search over rows ya..yb between a left and a right edge walk.
 
-    left, right: (x0, y0, x1, y1, mid x, ...) edges whose x bounds the rows from the left
-    (ceiling) and the right (floor). Points are visited in the order of ``row_span``'s row
-    loop, with the same arithmetic, so ties and values are those of a row-span scan.
+    left, right: ``_edge_walk`` states at row ya of the edges bounding the rows from the left
+    (ceiling) and the right (floor). Points are visited in the order of a ``row_span`` scan,
+    with the same arithmetic, so ties and values are those of a row-span scan. Returns the
+    best so far and both walks at row yb + 1.
     """
-    lq, lr, ld, lsq, lsr = _edge_at(left[0], left[1], left[2], left[3], ya)
-    rq, rr, rd, rsq, rsr = _edge_at(right[0], right[1], right[2], right[3], ya)
     for y in range(ya, yb + 1):
-        lo = lq + (lr > 0)
-        hi = rq
-        # Next row: add the slopes, carrying the remainders.
-        lq += lsq
-        lr += lsr
-        if lr >= ld:
-            lr -= ld
-            lq += 1
-        rq += rsq
-        rr += rsr
-        if rr >= rd:
-            rr -= rd
-            rq += 1
+        lo = left[0] + (left[1] > 0)
+        hi = right[0]
+        left = _step(left)
+        right = _step(right)
         if lo > hi:
             continue
         n = hi - lo + 1
@@ -138,7 +153,7 @@ def _scan_rows(
                 best = e
                 bestx = x
                 besty = y
-    return best, bestx, besty
+    return best, bestx, besty, left, right
 
 
 @njit(cache=True, inline="always")
@@ -175,57 +190,35 @@ def scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy):
     best_x = -1
     best_y = -1
     tx, ty, mx, my, lx, ly, mid_left = _by_rows(ax, ay, bx, by, cx, cy)
-    long_edge = (tx, ty, lx, ly)
-    # Upper part (rows of the top–middle edge), then the lower part (middle–bottom edge).
+    # The long edge bounds every row on one side; the top–middle edge, then the middle–bottom
+    # one, on the other.
+    long_w = _edge_walk(tx, ty, lx, ly, ty)
+    ya = ty
     if my > ty:
-        upper = (tx, ty, mx, my)
-        left, right = (upper, long_edge) if mid_left else (long_edge, upper)
-        best, best_x, best_y = _scan_rows(
-            heights,
-            r0,
-            c0,
-            za,
-            gx,
-            gy,
-            ax,
-            ay,
-            bx,
-            by,
-            cx,
-            cy,
-            ty,
-            my,
-            left,
-            right,
-            best,
-            best_x,
-            best_y,
-        )
-    if ly > my:
-        lower = (mx, my, lx, ly)
-        left, right = (lower, long_edge) if mid_left else (long_edge, lower)
-        ya = my + 1 if my > ty else ty
-        best, best_x, best_y = _scan_rows(
-            heights,
-            r0,
-            c0,
-            za,
-            gx,
-            gy,
-            ax,
-            ay,
-            bx,
-            by,
-            cx,
-            cy,
-            ya,
-            ly,
-            left,
-            right,
-            best,
-            best_x,
-            best_y,
-        )
+        short = _edge_walk(tx, ty, mx, my, ty)
+        if mid_left:
+            best, best_x, best_y, short, long_w = _scan_rows(
+                heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ty, my, short, long_w,
+                best, best_x, best_y,
+            )  # fmt: skip
+        else:
+            best, best_x, best_y, long_w, short = _scan_rows(
+                heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ty, my, long_w, short,
+                best, best_x, best_y,
+            )  # fmt: skip
+        ya = my + 1
+    if ly >= ya and ly > my:
+        short = _edge_walk(mx, my, lx, ly, ya)
+        if mid_left:
+            best, best_x, best_y, short, long_w = _scan_rows(
+                heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ya, ly, short, long_w,
+                best, best_x, best_y,
+            )  # fmt: skip
+        else:
+            best, best_x, best_y, long_w, short = _scan_rows(
+                heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ya, ly, long_w, short,
+                best, best_x, best_y,
+            )  # fmt: skip
     return best, best_y, best_x
 
 
@@ -268,8 +261,8 @@ def _sse_rows(
 ):
     """``sse`` plus the owned squared errors over rows ya..yb between a left and a right
     edge walk (see ``_scan_rows``, ``triangle_sse``), added row by row in row order."""
-    lq, lr, ld, lsq, lsr = _edge_at(left[0], left[1], left[2], left[3], ya)
-    rq, rr, rd, rsq, rsr = _edge_at(right[0], right[1], right[2], right[3], ya)
+    lq, lr, ld, lsq, lsr = _edge_walk(left[0], left[1], left[2], left[3], ya)
+    rq, rr, rd, rsq, rsr = _edge_walk(right[0], right[1], right[2], right[3], ya)
     for y in range(ya, yb + 1):
         lo = lq + (lr > 0)
         hi = rq
