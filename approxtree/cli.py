@@ -516,6 +516,70 @@ def _build_point_quadtree(path: str, terrain, delta: int | None, out: str) -> di
     return {**tree.stats(), "seconds": round(seconds, 4), "bytes": nbytes}
 
 
+def cartographic_options(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """The picture options of render and demo: exaggeration, sun, palette, background,
+    lighting (passed to the command as keyword ``style``, a dict for ``_render_to_png``)."""
+    options = [
+        click.option(
+            "--exaggeration",
+            type=float,
+            default=1.0,
+            show_default=True,
+            help="Vertical exaggeration (z × factor; the α bound accounts for it).",
+        ),
+        click.option(
+            "--sun-azimuth",
+            type=float,
+            default=315.0,
+            show_default=True,
+            help="Sun azimuth, degrees clockwise from north (lighting and side walls).",
+        ),
+        click.option(
+            "--sun-altitude",
+            type=float,
+            default=45.0,
+            show_default=True,
+            help="Sun altitude, degrees above the horizon.",
+        ),
+        click.option(
+            "--palette",
+            "relief_palette",
+            default="relief",
+            show_default=True,
+            help="Hypsometric palette by elevation: relief, atlas, grey or stretched (min..max).",
+        ),
+        click.option(
+            "--background",
+            default="sky",
+            show_default=True,
+            help="Behind the terrain: sky, transparent, a colour name or #rrggbb.",
+        ),
+        click.option(
+            "--lighting",
+            type=click.Choice(["auto", "on", "off"]),
+            default="auto",
+            show_default=True,
+            help="Light the colours: auto lights untextured terrain only (baked shading is "
+            "drawn once).",
+        ),
+    ]
+    for option in reversed(options):
+        fn = option(fn)
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        kwargs["style"] = {
+            "exaggeration": kwargs.pop("exaggeration"),
+            "sun": (kwargs.pop("sun_azimuth"), kwargs.pop("sun_altitude")),
+            "palette": kwargs.pop("relief_palette"),
+            "background": kwargs.pop("background"),
+            "lighting": kwargs.pop("lighting"),
+        }
+        return fn(*args, **kwargs)
+
+    return wrapper
+
+
 @main.command()
 @click.option(
     "--out",
@@ -533,15 +597,23 @@ def _build_point_quadtree(path: str, terrain, delta: int | None, out: str) -> di
     default=None,
     help="Where to write the rendered overview [default: --out with .png, i.e. demo.png].",
 )
+@cartographic_options
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
 @_reports_errors
-def demo(out: str, epsilon: float, png: str | None, as_json: bool) -> None:
+def demo(out: str, epsilon: float, png: str | None, as_json: bool, style: dict[str, Any]) -> None:
     """Build the tree of the sample terrain (matplotlib's Jacksboro fault DEM), bake its
-    hillshade pyramid (next to the tree, <out>_textures/) and render it textured."""
+    hillshade pyramid (next to the tree, <out>_textures/) and render it: the baked shading
+    over the hypsometric palette, fitted to the frame, in front of a sky."""
     from approxtree.datasets import sample_terrain
     from approxtree.io.output_path import check_output_file, check_output_folder
+    from approxtree.render.style import Background, Sun
+    from approxtree.textures.palettes import get_palette
     from approxtree.tree import ApproximationTree
 
+    # Bad picture options fail before the build and the bake.
+    Sun(*style["sun"])
+    Background.parse(style["background"])
+    get_palette(style["palette"])
     png_path = Path(png) if png else Path(out).with_suffix(".png")
     folder = Path(out).with_name(Path(out).stem + "_textures")
     _check_tree_output(out)
@@ -556,11 +628,14 @@ def demo(out: str, epsilon: float, png: str | None, as_json: bool) -> None:
     figures.update(terrain_figures(terrain))
     figures.update(tree_figures(tree, seconds, nbytes))
     figures["tree_file"] = str(Path(out))
-    # Bake the hillshade pyramid next to the tree, then render the oblique overview with it,
-    # unlit: the baked hillshade is the shading (decal mode, core paper 5.1).
+    # Bake the hillshade pyramid next to the tree, then render the oblique overview with it:
+    # the baked hillshade is the shading, drawn once (core paper 5.1), over the palette.
     from approxtree.textures.bake import bake as bake_textures
 
-    baked = bake_textures(terrain, folder)
+    # The baked light is the one asked for (sun and exaggeration, z factor of gdaldem).
+    az, alt = style["sun"]
+    shading = {"azimuth": az, "altitude": alt, "z_factor": style["exaggeration"]}
+    baked = bake_textures(terrain, folder, shading_options=shading)
     figures.update(textures=str(folder), bake_seconds=round(baked.seconds, 4), bake_gl=baked.gl)
     figures.update(
         _render_to_png(
@@ -573,7 +648,7 @@ def demo(out: str, epsilon: float, png: str | None, as_json: bool) -> None:
             1.0,
             2.0,
             textures=str(folder),
-            lighting=False,
+            style=style,
         )
     )
     _emit(figures, as_json)
@@ -723,27 +798,43 @@ def _render_to_png(
     wireframe: bool = False,
     full_resolution: bool = False,
     textures: str | None = None,
-    lighting: bool = True,
+    lighting: bool | str = "auto",
     max_triangles: int | None = None,
+    style: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Render one frame of ``tree`` to an RGBA PNG at ``path``; returns the frame's stats.
 
-    Without ``eye``: the oblique overview of the whole terrain. Without ``target``: the centre
-    of the tree's root box. textures: folder of a texture pyramid; lighting: False draws the
-    texture unlit (decal).
+    Without ``eye``: the terrain fitted to the frame (``framing_camera``, from the south).
+    Without ``target``: the centre of the tree's root box. textures: folder of a texture
+    pyramid; lighting: "auto", "on"/True or "off"/False (decal). style: exaggeration, sun,
+    palette, background, lighting (``cartographic_options``; its lighting wins).
     """
     from PIL import Image
 
     from approxtree.io.atomic import atomic_write
-    from approxtree.render import Camera, Engine, overview_camera
+    from approxtree.render import Camera, Engine, framing_camera
     from approxtree.render.engine import EmptyFrameWarning
+    from approxtree.render.style import Background, Sun
 
+    style = dict(style or {})
+    lighting = style.pop("lighting", lighting)
+    # Bad style values fail before any GL work.
+    sun = Sun(*style.pop("sun", (315.0, 45.0)))
+    background = Background.parse(style.pop("background", "transparent"))
     # An empty frame is reported below as one Warning line, not as Python's warning text.
-    with warnings.catch_warnings(), Engine(tree, textures=textures) as engine:
+    with (
+        warnings.catch_warnings(),
+        Engine(
+            tree,
+            textures=textures,
+            exaggeration=style.pop("exaggeration", 1.0),
+            palette=style.pop("palette", None),
+        ) as engine,
+    ):
         warnings.simplefilter("ignore", EmptyFrameWarning)
         box = tree.bboxes[0]
         if eye is None:
-            camera = overview_camera(box, engine.scale, fov=fov)
+            camera = framing_camera(box, engine.scale, size, fov=fov)
             if target is not None:
                 camera.update(target=target)
         else:
@@ -758,6 +849,8 @@ def _render_to_png(
             full_resolution=full_resolution,
             lighting=lighting,
             max_triangles=max_triangles,
+            sun=sun,
+            background=background,
         )
     with atomic_write(path) as f:
         Image.fromarray(frame.image, mode="RGBA").save(f, format="PNG")
@@ -797,7 +890,8 @@ def _render_to_png(
     default=None,
     help="Folder of a texture pyramid (approxtree bake) to texture the terrain with.",
 )
-@click.option("--no-lighting", is_flag=True, help="Draw the texture unlit (decal mode).")
+@click.option("--no-lighting", is_flag=True, help="Same as --lighting off (decal mode).")
+@cartographic_options
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
 @_reports_errors
 def render(
@@ -815,9 +909,11 @@ def render(
     textures: str | None,
     no_lighting: bool,
     as_json: bool,
+    style: dict[str, Any],
 ) -> None:
-    """Render a saved tree (store or .atree) to a PNG (alpha 0 where no terrain is drawn) and
-    print the stats."""
+    """Render a saved tree (store or .atree) to a PNG and print the stats. Without --eye the
+    terrain is fitted to the frame, seen from the south; --background transparent leaves
+    alpha 0 where no terrain is drawn."""
     from approxtree.io.output_path import check_output_file
     from approxtree.tree import load_tree
 
@@ -835,8 +931,8 @@ def render(
         wireframe,
         full_resolution,
         textures=textures,
-        lighting=not no_lighting,
         max_triangles=max_triangles,
+        style={**style, "lighting": "off" if no_lighting else style["lighting"]},
     )
     _emit(stats, as_json)
 
@@ -916,6 +1012,120 @@ def _check_mesh_strategy(path: str, terrain, strategy: str) -> None:
         )
 
 
+def _tiles_terrain(path: str, reader: dict[str, Any]):
+    """The terrain to tile: a tree store's stored terrain (windowed), a legacy tree's, or a
+    raster DEM read now."""
+    if _is_tree(path):
+        _no_reader_flags_for_tree(path, _given_reader_options(**reader))
+        if Path(path).suffix.lower() == ".atree":
+            from approxtree.tree import load_tree
+
+            return load_tree(path).terrain
+        from approxtree.tree.tree_store import load_store_terrain
+
+        return load_store_terrain(path)
+    return _open(path, **reader)
+
+
+@main.command()
+@click.argument("tree", type=click.Path())
+@click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder to write.")
+@click.option(
+    "--format",
+    "tile_format",
+    type=click.Choice(["3dtiles", "quantized-mesh"]),
+    required=True,
+    help="3dtiles: tileset.json + one GLB per node; quantized-mesh: Cesium terrain "
+    "(layer.json + z/x/y.terrain, gzip).",
+)
+@click.option(
+    "--samples",
+    type=click.Choice(["32", "152", "218"]),
+    default="152",
+    show_default=True,
+    help="quantized-mesh: samples along a tile side (samples − 1 divides 32767, so every "
+    "sample has an exact quantized position).",
+)
+@click.option(
+    "--minzoom",
+    type=int,
+    default=0,
+    show_default=True,
+    help="quantized-mesh: shallowest level written (CesiumJS asks for level 0).",
+)
+@click.option(
+    "--maxzoom",
+    type=int,
+    help="quantized-mesh: deepest level [default: where the sample spacing reaches the DEM's "
+    "cell].",
+)
+@click.option(
+    "--max-error",
+    type=float,
+    help="quantized-mesh: go deeper than the DEM's cell until the deepest level's error "
+    "(77 067 m / 2^level, CesiumJS's) is at most this many metres.",
+)
+@click.option(
+    "--water-mask",
+    type=click.Path(dir_okay=False),
+    help="quantized-mesh: land/water raster (nonzero = water) for the water-mask extension.",
+)
+@click.option("--workers", type=int, default=1, show_default=True, help="Processes writing tiles.")
+@reader_options
+@click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
+@_reports_errors
+def tiles(
+    tree: str,
+    out: str,
+    tile_format: str,
+    samples: str,
+    minzoom: int,
+    maxzoom: int | None,
+    max_error: float | None,
+    water_mask: str | None,
+    workers: int,
+    encoding,
+    nodata_policy,
+    ground_only,
+    height_scale,
+    as_json: bool,
+) -> None:
+    """Write TREE (a tree store from `approxtree build`; for quantized-mesh also a raster DEM)
+    as web tiles into the folder --out, replaced as a whole when done."""
+    from approxtree.errors import InvalidParameterError
+
+    reader = {
+        "encoding": encoding,
+        "nodata_policy": nodata_policy,
+        "ground_only": ground_only,
+        "height_scale": height_scale,
+    }
+    if tile_format != "quantized-mesh":
+        raise InvalidParameterError(
+            "--format 3dtiles is not available in this build yet; use --format quantized-mesh."
+        )
+    from approxtree.tiles import write_quantized_mesh
+    from approxtree.tiles.quantized_mesh import check_output
+
+    # The output folder is checked before the terrain is read.
+    check_output(out)
+    t0 = time.perf_counter()
+    terrain = _tiles_terrain(tree, reader)
+    figures = write_quantized_mesh(
+        terrain,
+        out,
+        samples=int(samples),
+        minzoom=minzoom,
+        maxzoom=maxzoom,
+        max_error=max_error,
+        workers=workers,
+        water_mask=water_mask,
+    )
+    figures.pop("results")
+    figures["seconds"] = round(time.perf_counter() - t0, 3)
+    _emit(figures, as_json)
+
+
 @main.command("bake")
 @click.argument("source", type=click.Path())
 @click.option(
@@ -940,7 +1150,8 @@ def _check_mesh_strategy(path: str, terrain, strategy: str) -> None:
 @click.option(
     "--palette",
     default=None,
-    help="gdaldem colour file or matplotlib colormap for --thematic [default: its colour table].",
+    help="Land-cover legend (nlcd, landclass96), gdaldem colour file or matplotlib colormap "
+    "for --thematic [default: its colour table, softened].",
 )
 @click.option(
     "--roads",
@@ -949,11 +1160,29 @@ def _check_mesh_strategy(path: str, terrain, strategy: str) -> None:
     help="Vector layer drawn on top (repeatable).",
 )
 @click.option(
-    "--blend",
-    type=click.Choice(["multiply", "overlay", "soft-light", "over"]),
-    default="multiply",
+    "--overlay-colour",
+    default="#2864c8",
     show_default=True,
-    help="How shading combines with the thematic layer.",
+    help="Colour of the --roads lines (#rrggbb).",
+)
+@click.option(
+    "--overlay-width",
+    type=float,
+    default=None,
+    help="Width of the --roads lines in world units [default: 2 texels, the least].",
+)
+@click.option(
+    "--water",
+    multiple=True,
+    type=click.Path(exists=True, dir_okay=False),
+    help="Water polygon layer drawn over the --roads lines (repeatable).",
+)
+@click.option(
+    "--blend",
+    type=click.Choice(["shade", "multiply", "overlay", "soft-light", "over"]),
+    default="shade",
+    show_default=True,
+    help="How shading combines with the thematic layer (shade: legend colour on flat ground).",
 )
 @click.option("--texel", type=float, default=None, help="Texel size in world units.")
 @click.option(
@@ -982,6 +1211,9 @@ def bake_command(
     thematic: str | None,
     palette: str | None,
     roads: tuple[str, ...],
+    overlay_colour: str,
+    overlay_width: float | None,
+    water: tuple[str, ...],
     blend: str,
     texel: float | None,
     max_texture_size: int,
@@ -1034,12 +1266,28 @@ def bake_command(
         thematic=thematic,
         palette=palette,
         overlays=list(roads),
+        overlay_colour=_rgba(overlay_colour),
+        overlay_width=overlay_width,
+        water=list(water),
         blend=blend,
         texel_size=texel,
         max_texture_size=max_texture_size,
         gl=not no_gl,
     )
     _emit(result.figures(), as_json)
+
+
+def _rgba(text: str) -> tuple[int, int, int, int]:
+    """ "#rrggbb" (or a Background colour name) as an opaque RGBA tuple 0..255."""
+    from approxtree.render.style import Background
+
+    bg = Background.parse(text)
+    if bg.kind != "colour":
+        from approxtree.errors import InvalidParameterError
+
+        raise InvalidParameterError(f"Expected a colour (#rrggbb or a name), got {text!r}.")
+    r, g, b = (round(v * 255) for v in bg.colour)
+    return (r, g, b, 255)
 
 
 def _open_tree(path: str, epsilon: float, reader: dict[str, Any]):

@@ -1,6 +1,7 @@
 #version 330 core
 // Terrain surface and skirts textured by a texture patch: uv from world x, y through the
-// patch's extent; the texel is drawn as it is (decal) or modulated by the light.
+// patch's extent; the texel is drawn as it is (decal) or modulated by the light. A grey
+// shading texture (baked hillshade) shades the hypsometric palette instead.
 
 #if defined VERTEX_SHADER
 
@@ -24,7 +25,7 @@ uniform sampler2D u_texture; // RGBA8 texture patch with mipmaps, row 0 at v = 0
 uniform vec4 u_tex_uv;       // uv = local.xy * u_tex_uv.xy + u_tex_uv.zw
 uniform sampler2D u_normals; // RG8: normal x, y in display units, encoded as n * 0.5 + 0.5
 uniform vec4 u_normal_uv;    // uv = local.xy * u_normal_uv.xy + u_normal_uv.zw
-uniform vec2 u_z_range;      // local z of the lowest and highest data point
+uniform float u_shade_texture; // 1: the texture is grey shading (hillshade), 0: colours
 uniform float u_line;        // 1 when drawing wireframe lines
 uniform float u_lighting;    // 1: GL_MODULATE with the light, 0: decal
 in vec3 v_local;
@@ -33,12 +34,17 @@ out vec4 f_color;
 
 void main() {
     vec4 texel = texture(u_texture, v_local.xy * u_tex_uv.xy + u_tex_uv.zw);
-    // Transparent texels (no texture data) show the hypsometric ramp instead.
-    float t = (v_local.z - u_z_range.x) / max(u_z_range.y - u_z_range.x, 1e-6);
-    vec3 base = mix(hypsometric(t), texel.rgb, texel.a);
+    // Transparent texels (no texture data) show the hypsometric palette instead. A shading
+    // texture is the light baked once: the palette times the shade, flat ground (the shade
+    // of a 45° sun, 0.707) keeping the palette's colour.
+    vec3 tint = hypsometric(v_local.z);
+    vec3 shaded = tint * clamp(0.3 + 0.7 * texel.r / 0.7071, 0.0, 1.25);
+    vec3 base = mix(tint, mix(texel.rgb, shaded, u_shade_texture), texel.a);
     vec2 nxy = texture(u_normals, v_local.xy * u_normal_uv.xy + u_normal_uv.zw).rg * 2.0 - 1.0;
     vec3 normal = vec3(nxy, sqrt(max(1.0 - dot(nxy, nxy), 0.0)));
     vec3 colour = mix(base, lit(base, normal), u_lighting);
+    vec4 wall = side_wall(v_local, v_skirt);
+    colour = mix(colour, wall.rgb, wall.a);
     f_color = vec4(mix(colour, colour * 0.35, u_line), 1.0);
 }
 

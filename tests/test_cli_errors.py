@@ -157,6 +157,7 @@ def output_commands(folder, out_file, out_dir):
         (["build", dem, "--out", out_file("t.atree")], "t.atree"),
         (["mesh", dem, "--max-error", "1", "--out", out_file("m.ply")], "m.ply"),
         (["bake", dem, "--out", out_dir("tex")], "tex"),
+        (["tiles", dem, "--format", "quantized-mesh", "--out", out_dir("qm")], "qm"),
         (["render", tree, "--out", out_file("r.png")], "r.png"),
         (["rd", dem, "--plot", out_file("rd.png")], "rd.png"),
         (["demo", "--out", out_file("d.atree")], "d.atree"),

@@ -294,7 +294,8 @@ def test_shader_loader_injects_stage_and_line(tmp_path, gl_context):
 
 
 def test_cli_render_writes_rgba_png_and_stats(tmp_path, fractal_tree):
-    """`approxtree render --json` writes an RGBA PNG (alpha 0 off the terrain) and prints
+    """`approxtree render --json` writes an RGBA PNG (with --background transparent, alpha 0
+    off the terrain; opaque sky by default) and prints
     the frame's stats; --eye/--target, --wireframe and --full-resolution are honoured."""
     import json
 
@@ -307,15 +308,17 @@ def test_cli_render_writes_rgba_png_and_stats(tmp_path, fractal_tree):
     fractal_tree.save(tree_file)
     png = tmp_path / "r.png"
     runner = CliRunner()
-    res = runner.invoke(
-        main, ["render", str(tree_file), "--out", str(png), "--size", "160x120", "--json"]
-    )
+    # The default background is the sky (opaque, issue 17); transparent stays available.
+    base = ["render", str(tree_file), "--out", str(png), "--size", "160x120", "--json"]
+    res = runner.invoke(main, [*base, "--background", "transparent"])
     assert res.exit_code == 0, res.output
     stats = json.loads(res.output)
     assert set(stats) == {*STAT_KEYS, "image"}
     img = np.asarray(Image.open(png))
     assert img.shape == (120, 160, 4)
     assert (img[..., 3] == 0).any() and (img[..., 3] == 255).any()
+    assert runner.invoke(main, base).exit_code == 0
+    assert (np.asarray(Image.open(png))[..., 3] == 255).all()
     c = fractal_tree.terrain.domain.center
     args = [
         "render",

@@ -25,6 +25,7 @@ from approxtree.render.texture_sharing import texture_nodes
 from approxtree.textures import TexturePatch, TexturePyramid, TopographicShading
 from approxtree.textures.bake import bake
 from approxtree.textures.patch import patch_levels, patch_texel_sizes
+from approxtree.textures.thematic import ClassTable
 
 
 @pytest.fixture(scope="module")
@@ -185,8 +186,10 @@ def test_textured_frames_under_a_small_cache_and_at_full_resolution(gl_context, 
 
 
 def test_decal_mode_draws_the_texture_unlit(gl_context, tree, pyramid):
-    """Seen straight from above, the unlit picture shows the baked hillshade's grey levels:
-    R = G = B and equal, up to filtering, to the texel under each pixel."""
+    """Seen straight from above, the unlit picture shows the baked hillshade's grey levels
+    drawn once over the hypsometric palette (issue 17: a grey shading pyramid shades the
+    palette, palette × (0.3 + 0.7 · shade / 0.707)), up to filtering, for the texel under
+    each pixel; lighting on top only darkens."""
     c = tree.terrain.domain.center
     cam = Camera.look_at((c[0], c[1], 9000), (c[0], c[1], 0), fov=40)
     with Engine(tree, textures=pyramid, context=gl_context, offscreen=True) as eng:
@@ -206,9 +209,11 @@ def test_decal_mode_draws_the_texture_unlit(gl_context, tree, pyramid):
     inside = (cols > 2) & (rows > 2) & (cols < 510) & (rows < 510)
     assert inside.mean() > 0.9
     drawn = img[surface][inside]
-    assert np.array_equal(drawn[:, 0], drawn[:, 1]) and np.array_equal(drawn[:, 0], drawn[:, 2])
-    expected = level0[rows[inside], cols[inside], 0].astype(int)
-    diff = np.abs(drawn[:, 0] - expected)
+    shade = level0[rows[inside], cols[inside], 0] / 255.0
+    z = unlit.positions[surface][inside][:, 2]
+    tint = eng.palette.colours(z, tree.terrain.z_range)
+    expected = 255.0 * tint * np.clip(0.3 + 0.7 * shade / 0.7071, 0.0, 1.25)[:, None]
+    diff = np.abs(drawn[:, :3] - np.minimum(expected, 255.0))
     assert np.median(diff) <= 8
     # Lighting modulates: never brighter than the texel, darker on average.
     assert (lit.image[surface][:, 0].astype(int) <= img[surface][:, 0] + 1).all()
@@ -249,8 +254,10 @@ def test_nc_land_use_lands_at_its_map_positions(gl_context, nc_tree, data_dir, t
     # Per window size w: texels whose w × w land-use neighbourhood holds one class.
     windows = (5, 9, 17, 33)
     uniform = {w: maximum_filter(classes, w) == minimum_filter(classes, w) for w in windows}
+    # The bake softens the embedded colour table by default (issue 17: legend colours quiet
+    # enough for the shading); the pixels show the softened colours.
     lut = np.zeros((256, 3), dtype=np.int64)
-    for k, c in table.items():
+    for k, c in ClassTable(table).softened().colours.items():
         lut[k] = c[:3]
     c = nc_tree.terrain.domain.center
     cams = [

@@ -88,6 +88,17 @@ GROW_HEAP = 3
 
 
 @njit(cache=True)
+def _store_state(state, nv, nt, size, sp, n_pending):
+    """state[:] = (nv, nt, size, sp, n_pending), item by item: a slice assignment would compile
+    numba's shape-mismatch error formatting (seconds on a cold start)."""
+    state[0] = nv
+    state[1] = nt
+    state[2] = size
+    state[3] = sp
+    state[4] = n_pending
+
+
+@njit(cache=True)
 def _insert_until(
     heights,
     r0,
@@ -128,7 +139,7 @@ def _insert_until(
         # Restore the mesh: test every suspect edge, flipping until none is left.
         while sp > 0:
             if sp + 2 > stack.shape[0]:
-                state[:] = (nv, nt, size, sp, n_pending)
+                _store_state(state, nv, nt, size, sp, n_pending)
                 return GROW_STACK
             sp -= 1
             e = stack[sp]
@@ -163,7 +174,7 @@ def _insert_until(
 
         # Rescan the changed triangles and put them back in the heap.
         if size + n_pending > heap.shape[0]:
-            state[:] = (nv, nt, size, sp, n_pending)
+            _store_state(state, nv, nt, size, sp, n_pending)
             return GROW_HEAP
         for i in range(n_pending):
             t = pending[i]
@@ -187,13 +198,13 @@ def _insert_until(
 
         # Stopping rules: the worst candidate is good enough, or a budget is spent.
         if size == 0 or hkey[0] <= done or 0 < max_points <= nv or 0 < max_triangles < nt + 2:
-            state[:] = (nv, nt, size, sp, n_pending)
+            _store_state(state, nv, nt, size, sp, n_pending)
             return FINISHED
         t = heap[0]
 
         # Room for one more vertex and two more triangles.
         if nv + 1 > vx.shape[0] or nt + 2 > key.shape[0]:
-            state[:] = (nv, nt, size, sp, n_pending)
+            _store_state(state, nv, nt, size, sp, n_pending)
             return GROW_MESH
 
         # Insert the candidate: inside t (three triangles) or on one of its edges (four, or two

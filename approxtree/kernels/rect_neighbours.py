@@ -12,18 +12,19 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from approxtree.kernels._jit import readonly
+
 
 @njit(cache=True)
-def _across(key_a, key_b, lo, hi, errors, out):
+def _across(key_a, key_b, oa, ob, lo, hi, errors, out):
     """Nodes whose side a (at coordinate key_a) faces the opposite side b (key_b) of others.
 
-    key_a, key_b: (n,) the coordinate of the facing sides (e.g. xmax and xmin); lo, hi: (n,)
-    the extent along that line (e.g. ymin, ymax); errors: (n,); out: (n,) raised in place to
-    the largest finite error across, for both nodes of each facing pair.
+    key_a, key_b: (n,) the coordinate of the facing sides (e.g. xmax and xmin); oa, ob: (n,)
+    int64 their sort orders (argsort); lo, hi: (n,) the extent along that line (e.g. ymin,
+    ymax); errors: (n,); out: (n,) raised in place to the largest finite error across, for
+    both nodes of each facing pair.
     """
     n = key_a.shape[0]
-    oa = np.argsort(key_a)
-    ob = np.argsort(key_b)
     i = 0
     j = 0
     while i < n and j < n:
@@ -54,19 +55,28 @@ def _across(key_a, key_b, lo, hi, errors, out):
             j = j1
 
 
-@njit(cache=True)
 def neighbour_max_errors(rects: np.ndarray, errors: np.ndarray) -> np.ndarray:
     """(n,) largest finite error of a node across any side of each node (0 when none).
 
     rects: (n, 4) float64 (xmin, ymin, xmax, ymax); errors: (n,) float64 ε_T(N), inf skipped.
     """
-    n = rects.shape[0]
-    out = np.zeros(n)
+    # Sorting happens here in numpy, not in the kernel: numba's sort compiles for seconds on a
+    # cold start. The result does not depend on the order among equal keys (a max over each
+    # group of facing sides), so any correct argsort gives the same bits.
+    rects = np.asarray(rects, dtype=np.float64)
+    errors = readonly(errors, np.float64)
+    out = np.zeros(rects.shape[0])
     # East sides against west sides (vertical lines), then north against south.
-    _across(
-        rects[:, 2].copy(), rects[:, 0].copy(), rects[:, 1].copy(), rects[:, 3].copy(), errors, out
-    )
-    _across(
-        rects[:, 3].copy(), rects[:, 1].copy(), rects[:, 0].copy(), rects[:, 2].copy(), errors, out
-    )
+    for a, b, lo, hi in ((2, 0, 1, 3), (3, 1, 0, 2)):
+        key_a, key_b = readonly(rects[:, a]), readonly(rects[:, b])
+        _across(
+            key_a,
+            key_b,
+            readonly(np.argsort(key_a), np.int64),
+            readonly(np.argsort(key_b), np.int64),
+            readonly(rects[:, lo]),
+            readonly(rects[:, hi]),
+            errors,
+            out,
+        )
     return out

@@ -148,7 +148,9 @@ def flip(tv, he, e) -> None:
 def grow(a: np.ndarray, size: int, fill) -> np.ndarray:
     """A copy of ``a`` with room for ``size`` items, new slots set to ``fill``."""
     out = np.full(size, fill, dtype=a.dtype)
-    out[: a.shape[0]] = a
+    # A loop, not out[:n] = a: slice assignment compiles numba's shape-error formatting.
+    for k in range(a.shape[0]):
+        out[k] = a[k]
     return out
 
 

@@ -19,6 +19,7 @@ from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
 from approxtree.geometry.windowed import check_whole_band
+from approxtree.kernels._jit import readonly
 from approxtree.kernels.grid_patch import grid_patch_errors, grid_patch_mesh
 from approxtree.kernels.row_column import coarsest_uniform_step, lattice_error
 from approxtree.patches.base import GeometryPatch
@@ -121,7 +122,7 @@ class GridPatch(GeometryPatch):
         threads = numba.get_num_threads()
         numba.set_num_threads(max(1, min(threads, len(ranges))))
         try:
-            error, zmin, zmax, count = grid_patch_errors(heights, ranges, steps)
+            error, zmin, zmax, count = grid_patch_errors(readonly(heights), ranges, steps)
         finally:
             numba.set_num_threads(threads)
         patches: list[GeometryPatch] = [
@@ -161,9 +162,9 @@ class GridPatch(GeometryPatch):
             r0, r1, c0, c1 = self.index[:4]
             check_whole_band((r1 - r0 + 1, c1 - c0 + 1), g.heights.dtype, "GridPatch.rms_error")
             z = g.heights[r0 : r1 + 1, c0 : c1 + 1]
-            _, sumsq, count, _, _ = lattice_error(z, rows - r0, cols - c0)
+            _, sumsq, count, _, _ = lattice_error(readonly(z), rows - r0, cols - c0)
         else:
-            _, sumsq, count, _, _ = lattice_error(g.heights, rows, cols)
+            _, sumsq, count, _, _ = lattice_error(readonly(g.heights), rows, cols)
         return float(np.sqrt(sumsq / max(count, 1)))
 
     @property
@@ -186,9 +187,9 @@ class GridPatch(GeometryPatch):
             # it with steps 1.
             rows, cols = self.lines
             z = self.lattice_heights()
-            _, _, tris = grid_patch_mesh(z, 0, len(rows) - 1, 0, len(cols) - 1, 1, 1)
+            _, _, tris = grid_patch_mesh(readonly(z), 0, len(rows) - 1, 0, len(cols) - 1, 1, 1)
             return lattice_world_mesh(g, rows, cols, tris, z)
-        rows, cols, tris = grid_patch_mesh(g.heights, r0, r1, c0, c1, sr, sc)
+        rows, cols, tris = grid_patch_mesh(readonly(g.heights), r0, r1, c0, c1, sr, sc)
         return lattice_world_mesh(g, rows, cols, tris)
 
     @property
@@ -327,7 +328,7 @@ def uniform_step(
                 return step
         return longest
     z = grid.heights_array("the uniform grid approximation")
-    return int(coarsest_uniform_step(z, float(max_error)))
+    return int(coarsest_uniform_step(readonly(z), float(max_error)))
 
 
 def approximate_grid(
@@ -342,7 +343,7 @@ def approximate_grid(
     rows, cols = grid.shape
     index = np.array([[0, rows - 1, 0, cols - 1]], dtype=np.int64)
     error, zmin, zmax, count = grid_patch_errors(
-        grid.heights_array("the uniform grid approximation"),
+        readonly(grid.heights_array("the uniform grid approximation")),
         index,
         np.array([[step, step]], dtype=np.int64),
     )

@@ -21,6 +21,7 @@ from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
 from approxtree.geometry.refinement import GridRefinement
 from approxtree.geometry.tin import TIN
+from approxtree.kernels._jit import readonly
 from approxtree.kernels.greedy_tin import greedy_tin
 from approxtree.patches.base import GeometryPatch
 from approxtree.patches.lattice import LatticePatch, Window, grid_window
@@ -40,8 +41,9 @@ def grid_tin(
         raise UnsupportedStrategyError(
             f"A TIN needs a window of at least 2 × 2 grid points, got {win.rows} × {win.cols}."
         )
+    # Read-only view: in-memory and windowed (read-only) heights share one compiled signature.
     return greedy_tin(
-        grid.heights_array("building TIN patches"),
+        readonly(grid.heights_array("building TIN patches")),
         win.r0,
         win.c0,
         win.rows,

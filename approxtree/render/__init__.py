@@ -7,8 +7,14 @@ without a GPU; the provider (provider.py) loads node payloads on background thre
 """
 
 from approxtree.render.camera import Camera, Projection
-from approxtree.render.frame_state import FrameState, display_scale, overview_camera
+from approxtree.render.frame_state import (
+    FrameState,
+    display_scale,
+    framing_camera,
+    overview_camera,
+)
 from approxtree.render.selector import Selection, SelectionResult, select
+from approxtree.render.style import Background, Sun
 from approxtree.render.traversal import Cut
 from approxtree.render.visual_error import texel_sizes, visual_errors
 
@@ -23,6 +29,7 @@ def __getattr__(name: str):
 
 
 __all__ = [
+    "Background",
     "Camera",
     "Cut",
     "Engine",
@@ -31,7 +38,9 @@ __all__ = [
     "Projection",
     "Selection",
     "SelectionResult",
+    "Sun",
     "display_scale",
+    "framing_camera",
     "overview_camera",
     "select",
     "texel_sizes",

@@ -28,6 +28,7 @@ import numpy as np
 from numba import njit
 
 from approxtree.errors import InvalidParameterError
+from approxtree.kernels._jit import readonly
 from approxtree.render.frame_state import FrameState
 from approxtree.render.frustum import box_in_frustum
 from approxtree.render.selector import Selection, SelectionResult, _stats, eye_below_ground
@@ -84,15 +85,16 @@ def select_budget(
         stats.update(alpha_reached=0.0, budget_triangles=0)
         return Selection(empty_i, empty_f, empty_f, empty_i, np.empty(0, np.uint8), True, stats)
     vw, vh = frame.viewport
+    # Read-only views: one compiled signature for built and memory-mapped trees.
     ids, first, alphas, gammas, visible = _visible_tree(
-        np.ascontiguousarray(tree.bboxes, dtype=np.float64),
-        np.ascontiguousarray(tree.errors, dtype=np.float64),
-        np.ascontiguousarray(texels, dtype=np.float64),
-        np.ascontiguousarray(tree.child_start, dtype=np.int64),
-        np.ascontiguousarray(tree.child_count, dtype=np.int64),
-        np.ascontiguousarray(frame.planes),
-        np.ascontiguousarray(frame.eye, dtype=np.float64),
-        np.ascontiguousarray(frame.world_to_clip),
+        readonly(tree.bboxes, np.float64),
+        readonly(tree.errors, np.float64),
+        readonly(texels, np.float64),
+        readonly(tree.child_start, np.int64),
+        readonly(tree.child_count, np.int64),
+        readonly(frame.planes, np.float64),
+        readonly(frame.eye, np.float64),
+        readonly(frame.world_to_clip, np.float64),
         float(vw),
         float(vh),
         frame.lens,
@@ -177,7 +179,9 @@ def _visible_tree(bboxes, errors, texels, child_start, child_count, planes, eye,
 @njit(cache=True)
 def _grow(a, cap, fill):
     out = np.full(cap, fill, dtype=a.dtype)
-    out[: a.shape[0]] = a
+    # A loop, not out[:n] = a: slice assignment compiles numba's shape-error formatting.
+    for k in range(a.shape[0]):
+        out[k] = a[k]
     return out
 
 

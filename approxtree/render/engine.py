@@ -27,11 +27,15 @@ A frame:
    ``ctx.finish()`` (draw_ms).
 6. Read back the RGBA image (offscreen) and, on request, a world-position buffer.
 
-Lighting: per-pixel normals from a normal map computed once from the height field (central
-differences in display units, at most NORMAL_MAP_MAX texels per side). The base colour is the
-texture patch's texel (trilinear), or a hypsometric colour ramp by height without a pyramid.
-``lighting=True`` modulates the base colour by the Lambert light (GL_MODULATE with a white
-surface); ``lighting=False`` draws it as it is (decal mode, what baked shading textures want).
+Lighting and style (render/style.py): per-pixel normals from a normal map computed once from
+the height field (central differences in display units, exaggeration included, at most
+NORMAL_MAP_MAX texels per side), lit by a Sun (azimuth, altitude) given per frame. The base
+colour is the texture patch's texel (trilinear); without a pyramid, the hypsometric palette
+(textures/palettes.py) at the fragment's elevation; a pyramid of grey shading (a baked
+hillshade) shades that palette. ``lighting`` "auto" (the default) lights untextured terrain
+only: baked shading is drawn once (decal); True / "on" modulates the colour by the light.
+Walls along the domain's outer border are drawn in a neutral wall colour, lit from their
+outward normal; the background is transparent, a sky gradient or one colour.
 With a pyramid the node's texel size is its texture patch's (γ_N); without one, its data
 spacing.
 """
@@ -68,9 +72,11 @@ from approxtree.render.provider import DEFAULT_CPU_CACHE_BYTES, Payload, Payload
 from approxtree.render.renderer import Renderer
 from approxtree.render.selector import Selection, check_thresholds, eye_below_ground, select
 from approxtree.render.skirts import add_skirts, patches_reach_rect, skirt_base, skirt_depths
+from approxtree.render.style import Background, Sun, as_sun, resolve_lighting
 from approxtree.render.texture_sharing import texture_nodes
 from approxtree.render.traversal import Cut, plan_frame
 from approxtree.render.visual_error import texel_sizes
+from approxtree.textures.palettes import get_palette
 
 #: Default GPU cache budget (bytes).
 DEFAULT_CACHE_BYTES = 1 << 30
@@ -236,10 +242,14 @@ class Engine:
         skirts: bool = True,
         cpu_cache_bytes: int = DEFAULT_CPU_CACHE_BYTES,
         loader_threads: int = 2,
+        exaggeration: float = 1.0,
+        palette: Any = None,
     ) -> None:
         # Bad textures and a tree with nothing to draw fail before any GPU object exists.
         _check_drawable(tree)
         textures = _as_pyramid(textures, tree.terrain)
+        _check_exaggeration(exaggeration)
+        palette = get_palette(palette)
         provider = PayloadProvider(self._load_payload, cpu_cache_bytes, loader_threads)
         self._open_gpu(tree, context, cache_bytes, offscreen, skirts)
         self.provider = provider
@@ -254,6 +264,9 @@ class Engine:
         self.skirt_base = skirt_base(tree.errors, tree.terrain.z_range, extents)
         d = tree.terrain.domain
         self._domain = (d.xmin, d.ymin, d.xmax, d.ymax)
+        self.set_palette(palette)
+        if exaggeration != 1.0:
+            self.set_vertical_exaggeration(exaggeration)
         self.set_textures(textures)
         # Load the compiled selection kernels now, so select_ms of the first frame is honest.
         warm = overview_camera(tree.bboxes[0], self.scale)
@@ -282,6 +295,13 @@ class Engine:
         self.programs = self.renderer.programs
         self.cache: GpuCache = self.renderer.cache
         self.renderer.set_normal_map(*self._normal_map_data())
+        # Side walls are the skirts on the domain's border (local coordinates).
+        d = tree.terrain.domain
+        ox, oy, _ = tree.origin
+        self.renderer.domain = (d.xmin - ox, d.ymin - oy, d.xmax - ox, d.ymax - oy)
+        self.renderer.domain_tol = 1e-5 * max(d.xmax - d.xmin, d.ymax - d.ymin, 1e-9)
+        self.set_palette(None)
+        self.shade_texture = False
         self.pyramid = None
         self._texture_patches: dict[tuple[str, int], Any] = {}
         #: The PayloadProvider (None for engines that build their meshes per frame).
@@ -304,11 +324,28 @@ class Engine:
             self.provider.drop(lambda key: key[0] == "tex")
         self._texture_patches.clear()
         self.pyramid = textures
+        self.shade_texture = textures is not None and _is_shading(textures)
         self.texels = (
             self._data_texels
             if textures is None
             else patch_texel_sizes(textures, np.asarray(self.tree.rects, dtype=np.float64))
         )
+
+    def set_palette(self, palette: Any) -> None:
+        """Colour untextured terrain (and tint baked shading) with a hypsometric palette: a
+        name of ``approxtree.textures.palettes.PALETTES``, a Palette, or None (the default)."""
+        self._check_alive()
+        palette = get_palette(palette)
+        oz = self.tree.origin[2]
+        z0, z1 = self.tree.terrain.z_range
+        lut, (p0, p1) = palette.lookup_table((z0, z1))
+        self.renderer.set_palette(lut, (p0 - oz, p1 - oz))
+        self.palette = palette
+
+    @property
+    def exaggeration(self) -> float:
+        """The vertical exaggeration: displayed z = z × this factor (see ``display_scale``)."""
+        return float(self.scale[2] / display_scale(self.tree.terrain)[2])
 
     def texture_patch(self, node: int) -> Any:
         """The TexturePatch of ``node`` (made on first use; references the pyramid's data)."""
@@ -347,12 +384,14 @@ class Engine:
         target: Any = None,
         read_image: bool | None = None,
         world_positions: bool = False,
-        lighting: bool = True,
+        lighting: bool | str | None = "auto",
         share_textures: bool = True,
         max_triangles: int | None = None,
         wait: bool = True,
         max_uploads: int | None = None,
         upload_ms: float | None = None,
+        sun: Sun | tuple[float, float] | None = None,
+        background: Background | str | tuple | None = None,
     ) -> Frame:
         """Draw one frame; see the module docstring for the steps.
 
@@ -364,7 +403,9 @@ class Engine:
         framebuffer, or, for an engine made with context=, into the framebuffer bound there.
         read_image: read the image back (default: only from the engine's own framebuffer).
         world_positions: also fill Frame.positions (an extra pass into a float buffer).
-        lighting: modulate the colour by the light (True) or draw it unlit (decal mode).
+        lighting: modulate the colour by the light (True or "on") or draw it unlit (False or
+        "off", decal mode); "auto" lights untextured terrain only (a baked shading texture is
+        drawn once, as it is).
         share_textures: let nodes use an ancestor's texture patch (section 4.2); off only to
         measure what sharing saves.
         max_triangles: triangle budget instead of the alpha threshold: draw the cut of
@@ -375,8 +416,15 @@ class Engine:
         nodes not yet loaded are requested in the background and their nearest resident
         ancestors drawn meanwhile (stats "stand_ins", "pending"). max_uploads, upload_ms:
         such a frame's upload budget (meshes, milliseconds after the first; None: no limit).
+        sun: a Sun or (azimuth, altitude) in degrees (default 315°, 45°): the light of
+        ``lighting`` and of the side walls. background: "transparent" (default: alpha 0 where
+        no terrain is drawn), "sky", a colour name, "#rrggbb" or (r, g, b); an opaque
+        background makes the read-back image opaque.
         """
         self._check_alive()
+        sun = as_sun(sun)
+        background = Background.parse(background)
+        lighting = resolve_lighting(lighting, self.pyramid is not None)
         # A Cut object (DESIGN.md) in place of alpha sets every cut option at once.
         if isinstance(alpha, Cut):
             cut = alpha
@@ -438,7 +486,7 @@ class Engine:
             read_image = own
         program = "terrain" if self.pyramid is None else "textured"
         draw_ms, triangles, switches = self._draw(
-            target, fs, groups, resident, wireframe, program, lighting
+            target, fs, groups, resident, wireframe, program, lighting, sun, background
         )
         image = None
         if read_image:
@@ -465,6 +513,9 @@ class Engine:
         }
         # 7. A frame without terrain says so (stats and a warning) instead of a silent blank.
         reason = empty_frame_reason(selection, triangles, image)
+        if image is not None and background.opaque:
+            # The background pass left alpha 0 off the terrain (for the check above).
+            image[..., 3] = 255
         stats["empty"] = reason is not None
         stats["warning"] = reason
         if reason is not None:
@@ -661,6 +712,8 @@ class Engine:
         wireframe: bool,
         program: str,
         lighting: bool = True,
+        sun: Sun | None = None,
+        background: Background | None = None,
     ):
         """Clear ``target`` and draw the groups (Renderer.draw); returns (ms incl.
         ctx.finish(), triangles, texture binds)."""
@@ -678,6 +731,9 @@ class Engine:
             self._get_mesh,
             self._get_texture,
             self._texture_uv,
+            light=(sun or Sun()).direction,
+            background=background,
+            shade_texture=program == "textured" and self.shade_texture,
         )
 
     def _positions(self, fs: FrameState, groups) -> np.ndarray:
@@ -876,14 +932,32 @@ class Engine:
                 self.provider.drop(lambda key: key[0] == "node")
 
     def set_vertical_exaggeration(self, factor: float) -> None:
-        """Draw z times ``factor`` (> 0): α, the normals and near/far follow the new scale."""
-        if not (isinstance(factor, int | float) and math.isfinite(factor) and factor > 0):
-            raise InvalidParameterError(
-                f"vertical exaggeration must be a finite number > 0, got {factor!r}."
-            )
+        """Draw z times ``factor`` (> 0): α, the normals and near/far follow the new scale.
+
+        The factor is part of the display scale (FrameState.scale, lens): the α bound measures
+        error segments ε_T(N) · factor long on screen, so a cut for α stays within α pixels of
+        the exaggerated terrain (tests/test_cartography.py renders and measures it)."""
+        _check_exaggeration(factor)
         self._check_alive()
         self.scale = display_scale(self.tree.terrain) * np.array([1.0, 1.0, float(factor)])
         self.renderer.set_normal_map(*self._normal_map_data())
+
+
+def _check_exaggeration(factor: Any) -> None:
+    if not (isinstance(factor, int | float) and math.isfinite(factor) and factor > 0):
+        raise InvalidParameterError(
+            f"vertical exaggeration must be a finite number > 0, got {factor!r}."
+        )
+
+
+def _is_shading(pyramid: Any) -> bool:
+    """True when a pyramid holds grey shading (R = G = B on every texel of its coarsest
+    level, e.g. a baked hillshade): the renderer then shades the palette with it."""
+    texels = np.asarray(pyramid.level(len(pyramid) - 1))
+    if texels.ndim != 3 or texels.shape[-1] < 3:
+        return False
+    rgb = texels[..., :3]
+    return bool((rgb[..., 0] == rgb[..., 1]).all() and (rgb[..., 1] == rgb[..., 2]).all())
 
 
 def _read_patch(tree, i: int) -> Any:

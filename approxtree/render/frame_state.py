@@ -242,3 +242,104 @@ def overview_camera(
     el = math.radians(elevation)
     offset_d = dist * np.array([0.0, -math.cos(el), math.sin(el)])
     return Camera.look_at(centre + offset_d / scale, centre, fov=fov)
+
+
+#: Elevation angles (degrees) tried by ``framing_camera`` when none is given.
+FRAMING_ELEVATIONS = (20.0, 25.0, 30.0, 35.0, 40.0, 45.0, 50.0)
+
+
+def framing_camera(
+    bounds: np.ndarray,
+    scale: np.ndarray,
+    size: tuple[int, int] = (1280, 720),
+    fov: float = 45.0,
+    elevation: float | None = None,
+    azimuth: float = 180.0,
+    margin: float = 0.02,
+) -> Camera:
+    """An oblique view that fits the box ``bounds`` (6,) world to a ``size`` = (w, h) frame.
+
+    The eye looks from ``azimuth`` (degrees clockwise from north; 180: from the south, north
+    up) at ``elevation`` degrees above the horizon. Unlike ``overview_camera`` (bounding sphere
+    in the vertical field of view), the eight corners of the box (display units, exaggeration
+    included) are projected: the distance is the smallest that keeps them inside the frame
+    less ``margin`` (a fraction of each half-side), and the target is shifted so their
+    projection is centred. Without ``elevation`` the angle among FRAMING_ELEVATIONS whose
+    fitted box top covers the most of the frame is taken.
+    """
+    Projection(fov)
+    w, h = check_viewport(size)
+    b = np.asarray(bounds, dtype=np.float64).reshape(2, 3)
+    b = np.where(np.isfinite(b), b, 0.0)
+    scale = np.asarray(scale, dtype=np.float64)
+    centre = b.mean(axis=0)
+    lo, hi = (b[0] - centre) * scale, (b[1] - centre) * scale
+    corners = np.array(
+        [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
+    )
+    tan_y = math.tan(math.radians(fov) / 2.0)
+    tan_x = tan_y * w / h
+    angles = FRAMING_ELEVATIONS if elevation is None else (float(elevation),)
+    best = None
+    for el in angles:
+        eye_d, target_d, cover = _fit(corners, hi[2], el, azimuth, tan_x, tan_y, margin)
+        if best is None or cover > best[2] + 1e-9:
+            best = (eye_d, target_d, cover)
+    eye_d, target_d, _ = best
+    return Camera.look_at(centre + eye_d / scale, centre + target_d / scale, fov=fov)
+
+
+def _fit(
+    corners: np.ndarray,
+    top: float,
+    elevation: float,
+    azimuth: float,
+    tan_x: float,
+    tan_y: float,
+    margin: float,
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """(eye, target, covered fraction of the frame by the box's top face) in display units
+    relative to the box centre, for one elevation (see ``framing_camera``)."""
+    el, az = math.radians(elevation), math.radians(azimuth)
+    # u: from the target towards the eye; basis of the view (right, up, forward).
+    u = np.array([math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el)])
+    f = -u
+    r = np.cross(f, [0.0, 0.0, 1.0])
+    r /= np.linalg.norm(r)
+    up = np.cross(r, f)
+    radius = float(np.linalg.norm(corners, axis=1).max()) or 1e-6
+    limit = 1.0 - margin
+    target = np.zeros(3)
+
+    def extents(dist: float, target: np.ndarray) -> np.ndarray:
+        q = corners - (target + dist * u)
+        d = q @ f
+        if (d <= 1e-9 * radius).any():
+            return np.array([np.inf, -np.inf, np.inf, -np.inf])
+        x, y = (q @ r) / (d * tan_x), (q @ up) / (d * tan_y)
+        return np.array([x.min(), x.max(), y.min(), y.max()])
+
+    dist = radius / math.sin(min(math.atan(tan_x), math.atan(tan_y))) * 1.02
+    for _ in range(4):
+        # Smallest distance with every corner inside the frame (the extent shrinks with it).
+        near, far = radius * 1e-3, dist * 4.0
+        for _ in range(50):
+            mid = 0.5 * (near + far)
+            e = extents(mid, target)
+            if max(-e[0], e[1], -e[2], e[3]) <= limit:
+                far = mid
+            else:
+                near = mid
+        dist = far
+        # Centre the projection: move the target across the view by the offset it shows.
+        e = extents(dist, target)
+        cx, cy = 0.5 * (e[0] + e[1]), 0.5 * (e[2] + e[3])
+        target = target + dist * (cx * tan_x * r + cy * tan_y * up)
+    # Fraction of the frame covered by the box's top face (shoelace over its projection).
+    top_face = np.array([c for c in corners if c[2] == top][:4])
+    top_face = top_face[[0, 1, 3, 2]]
+    q = top_face - (target + dist * u)
+    d = q @ f
+    x, y = (q @ r) / (d * tan_x), (q @ up) / (d * tan_y)
+    area = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+    return target + dist * u, target, area / 4.0

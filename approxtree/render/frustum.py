@@ -9,6 +9,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from approxtree.kernels._jit import readonly
+
 
 @njit(cache=True)
 def box_in_frustum(box: np.ndarray, planes: np.ndarray) -> bool:
@@ -41,6 +43,5 @@ def _boxes_in_frustum(bboxes: np.ndarray, planes: np.ndarray) -> np.ndarray:
 
 def boxes_in_frustum(bboxes: np.ndarray, planes: np.ndarray) -> np.ndarray:
     """(n,) bool: ``box_in_frustum`` for each of bboxes (n, 6) against planes (6, 4)."""
-    return _boxes_in_frustum(
-        np.ascontiguousarray(bboxes, dtype=np.float64), np.ascontiguousarray(planes)
-    )
+    # Read-only views: one compiled signature for built and memory-mapped trees.
+    return _boxes_in_frustum(readonly(bboxes, np.float64), readonly(planes, np.float64))

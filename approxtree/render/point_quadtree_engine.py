@@ -67,12 +67,18 @@ class PointQuadtreeEngine(Engine):
         skirts: bool = True,
         cpu_cache_bytes: int | None = None,
         loader_threads: int | None = None,
+        exaggeration: float = 1.0,
+        palette: Any = None,
     ) -> None:
         # A point quadtree's cut is a per-view mesh built in one kernel call per frame: no
         # payloads to page (cpu_cache_bytes and loader_threads accepted for the same call).
         # Bad arguments fail before any GPU object exists.
         _no_textures(textures)
         self._open_gpu(tree, context, cache_bytes, offscreen, skirts)
+        # The Engine's picture settings (render/style.py, textures/palettes.py).
+        self.set_palette(palette)
+        if exaggeration != 1.0:
+            self.set_vertical_exaggeration(exaggeration)
         self._data_texels = self.texels = np.zeros((len(tree), 2))
         #: The LODCut of the last frame (None before the first).
         self.last_cut = None

@@ -19,6 +19,10 @@ import numpy as np
 from approxtree.render.frame_state import FrameState
 from approxtree.render.gpu_cache import GpuCache, GpuMesh, GpuTexture
 from approxtree.render.shaders import create_program
+from approxtree.render.style import WALL_COLOUR, Background
+
+#: moderngl.TRIANGLES (moderngl is imported where GL is used).
+_TRIANGLES = 0x0004
 
 #: build() -> (vertex data (n, 4) float32, triangles (m, 3) uint32)
 MeshBuild = Callable[[], tuple[np.ndarray, np.ndarray]]
@@ -37,7 +41,20 @@ class Renderer:
             "terrain": create_program(ctx, "terrain"),
             "position": create_program(ctx, "position"),
             "textured": create_program(ctx, "textured"),
+            "sky": create_program(ctx, "sky"),
         }
+        # The background pass: one triangle covering the viewport (NDC).
+        corners = np.array([-1, -1, 0, 3, -1, 0, -1, 3, 0], dtype="f4")
+        self._sky_vbo = ctx.buffer(corners.tobytes())
+        self._sky_vao = ctx.vertex_array(
+            self.programs["sky"], [(self._sky_vbo, "3f", "in_position")]
+        )
+        self.palette: Any = None
+        self.palette_z = (0.0, 1.0)
+        #: The terrain's domain in local coordinates (xmin, ymin, xmax, ymax) and the distance
+        #: within which a skirt fragment counts as a side wall on its border.
+        self.domain = (0.0, 0.0, 0.0, 0.0)
+        self.domain_tol = 0.0
         self.cache = GpuCache(ctx, cache_bytes)
         self.targets: dict[tuple[str, int, int], Any] = {}
         self.normal_map: Any = None
@@ -55,6 +72,17 @@ class Renderer:
         tex.repeat_x = False
         tex.repeat_y = False
         self.normal_map, self.normal_uv = tex, np.asarray(uv, dtype=np.float64)
+
+    def set_palette(self, lut: np.ndarray, z_local: tuple[float, float]) -> None:
+        """Replace the hypsometric palette by ``lut`` (n, 3) uint8, whose first and last
+        texel centres sit at local heights ``z_local``."""
+        if self.palette is not None:
+            self.palette.release()
+        lut = np.ascontiguousarray(lut, dtype=np.uint8)
+        tex = self.ctx.texture((len(lut), 1), 3, lut.tobytes(), dtype="f1")
+        tex.repeat_x = False
+        tex.repeat_y = False
+        self.palette, self.palette_z = tex, (float(z_local[0]), float(z_local[1]))
 
     def mesh(self, key: Hashable, build: MeshBuild) -> GpuMesh:
         """The GPU mesh of ``key``, uploaded from ``build()`` on a miss."""
@@ -119,12 +147,19 @@ class Renderer:
         fetch_mesh: Callable[[Hashable], GpuMesh],
         fetch_texture: Callable[[Hashable], GpuTexture],
         texture_uv: Callable[[Hashable], tuple[float, float, float, float]],
+        light: Sequence[float] = (-0.5, 0.5, 0.70710678),
+        background: Background | None = None,
+        shade_texture: bool = False,
     ) -> tuple[float, int, int]:
         """Clear ``target`` and draw the groups [(texture key or None, mesh keys)].
 
         resident: per group (texture, meshes) already uploaded, or None to fetch each entry
-        while drawing (a frame larger than the cache budget). z_range: local z of the colour
-        ramp. Returns (ms incl. ctx.finish(), triangles, texture binds).
+        while drawing (a frame larger than the cache budget). z_range: local z range of the
+        terrain (unused by the palette, which carries its own). light: (3,) unit vector
+        towards the sun (display coordinates). background: drawn behind the terrain (its
+        colour channels only: alpha stays 0 there); None or transparent: nothing.
+        shade_texture: the textures are grey shading that shades the palette.
+        Returns (ms incl. ctx.finish(), triangles, texture binds).
         """
         import moderngl
 
@@ -133,7 +168,13 @@ class Renderer:
         w, h = fs.viewport
         prog["u_mvp"].write(fs.local_to_clip.T.astype("f4").tobytes())
         if program in ("terrain", "textured"):
-            prog["u_z_range"].value = z_range
+            prog["u_palette_z"].value = self.palette_z
+            prog["u_light"].value = tuple(float(v) for v in light)
+            prog["u_wall"].value = WALL_COLOUR
+            prog["u_domain"].value = self.domain
+            prog["u_domain_tol"].value = self.domain_tol
+            prog["u_palette"].value = 2
+            self.palette.use(location=2)
             prog["u_normal_uv"].value = tuple(self.normal_uv)
             prog["u_line"].value = 1.0 if wireframe else 0.0
             prog["u_lighting"].value = 1.0 if lighting else 0.0
@@ -141,6 +182,7 @@ class Renderer:
             self.normal_map.use(location=0)
         if program == "textured":
             prog["u_texture"].value = 1
+            prog["u_shade_texture"].value = 1.0 if shade_texture else 0.0
         triangles = 0
         switches = 0
         t0 = time.perf_counter()
@@ -168,8 +210,25 @@ class Renderer:
             finally:
                 ctx.wireframe = False
                 self.cache.pinned = set()
+            if background is not None and background.opaque and program != "position":
+                self._draw_background(target, background)
             ctx.finish()
         return (time.perf_counter() - t0) * 1e3, triangles, switches
+
+    def _draw_background(self, target: Any, background: Background) -> None:
+        """The background where no terrain was drawn (depth still 1), colour channels only."""
+        sky = self.programs["sky"]
+        top, bottom = background.colours
+        sky["u_top"].value = top
+        sky["u_bottom"].value = bottom
+        self.ctx.depth_func = "<="
+        mask = target.color_mask
+        target.color_mask = (True, True, True, False)
+        try:
+            self._sky_vao.render(_TRIANGLES)
+        finally:
+            target.color_mask = mask
+            self.ctx.depth_func = "<"
 
     # -- housekeeping -------------------------------------------------------------------------
 
@@ -185,6 +244,11 @@ class Renderer:
         if self.normal_map is not None:
             self.normal_map.release()
             self.normal_map = None
+        if self.palette is not None:
+            self.palette.release()
+            self.palette = None
+        self._sky_vao.release()
+        self._sky_vbo.release()
         for prog in self.programs.values():
             prog.release()
         if self.owns_context:

@@ -29,6 +29,7 @@ import numpy as np
 from numba import njit
 
 from approxtree.errors import InvalidParameterError
+from approxtree.kernels._jit import readonly
 from approxtree.render.frame_state import FrameState
 from approxtree.render.frustum import box_in_frustum
 from approxtree.render.visual_error import (
@@ -123,15 +124,16 @@ def select(
             empty_i, empty_f, empty_f, empty_i, np.empty(0, np.uint8), True, _stats(0, 0, [], [])
         )
     vw, vh = frame.viewport
+    # Read-only views: a built tree and a memory-mapped one share one compiled signature.
     visited, results, a, g = _traverse(
-        np.ascontiguousarray(tree.bboxes, dtype=np.float64),
-        np.ascontiguousarray(tree.errors, dtype=np.float64),
-        np.ascontiguousarray(texels, dtype=np.float64),
-        np.ascontiguousarray(tree.child_start, dtype=np.int64),
-        np.ascontiguousarray(tree.child_count, dtype=np.int64),
-        np.ascontiguousarray(frame.planes),
-        np.ascontiguousarray(frame.eye, dtype=np.float64),
-        np.ascontiguousarray(frame.world_to_clip),
+        readonly(tree.bboxes, np.float64),
+        readonly(tree.errors, np.float64),
+        readonly(texels, np.float64),
+        readonly(tree.child_start, np.int64),
+        readonly(tree.child_count, np.int64),
+        readonly(frame.planes, np.float64),
+        readonly(frame.eye, np.float64),
+        readonly(frame.world_to_clip, np.float64),
         float(vw),
         float(vh),
         frame.lens,
@@ -198,7 +200,9 @@ def _traverse(
 def _grow(a, cap):
     """A copy of ``a`` with room for ``cap`` items."""
     out = np.empty(cap, dtype=a.dtype)
-    out[: a.shape[0]] = a
+    # A loop, not out[:n] = a: slice assignment compiles numba's shape-error formatting.
+    for k in range(a.shape[0]):
+        out[k] = a[k]
     return out
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from approxtree.kernels._jit import readonly
 from approxtree.render.selector import Selection
 
 
@@ -28,7 +29,8 @@ def texture_nodes(
         return nodes.copy(), np.asarray(selection.gammas, dtype=np.float64).copy()
     g = np.full(len(parents), np.inf)
     g[selection.visited] = selection.visited_gammas
-    out = _closest_to_root(nodes, np.ascontiguousarray(parents, dtype=np.int64), g, gamma)
+    # Read-only views: one compiled signature for built and memory-mapped trees.
+    out = _closest_to_root(readonly(nodes), readonly(parents, np.int64), readonly(g), float(gamma))
     return out, g[out]
 
 
@@ -44,7 +46,9 @@ def _closest_to_root(nodes, parents, g, gamma):
         while i >= 0:
             if depth == chain.shape[0]:
                 bigger = np.empty(2 * depth, dtype=np.int64)
-                bigger[:depth] = chain
+                # A loop, not a slice assignment (no shape-error code to compile).
+                for k in range(depth):
+                    bigger[k] = chain[k]
                 chain = bigger
             chain[depth] = i
             depth += 1

@@ -51,6 +51,7 @@ import math
 import numpy as np
 from numba import njit
 
+from approxtree.kernels._jit import readonly
 from approxtree.render.frame_state import FrameState
 
 
@@ -229,12 +230,13 @@ def visual_errors(
     and height in world x, y units; frame: the FrameState of the frame.
     """
     vw, vh = frame.viewport
+    # Read-only views: one compiled signature for built and memory-mapped trees.
     return _visual_errors_many(
-        np.ascontiguousarray(bboxes, dtype=np.float64),
-        np.ascontiguousarray(errors, dtype=np.float64),
-        np.ascontiguousarray(texels, dtype=np.float64),
-        np.ascontiguousarray(frame.eye, dtype=np.float64),
-        np.ascontiguousarray(frame.world_to_clip),
+        readonly(bboxes, np.float64),
+        readonly(errors, np.float64),
+        readonly(texels, np.float64),
+        readonly(frame.eye, np.float64),
+        readonly(frame.world_to_clip, np.float64),
         float(vw),
         float(vh),
         frame.lens,

@@ -3,6 +3,7 @@
 from approxtree.textures.base import TextureData
 from approxtree.textures.blend import BLEND_MODES, MultiTexture, blend
 from approxtree.textures.gl_bake import GLTopographicShading
+from approxtree.textures.palettes import PALETTES, Palette, get_palette
 from approxtree.textures.patch import TexturePatch
 from approxtree.textures.pyramid import PyramidLevel, TexturePyramid
 from approxtree.textures.shading import (
@@ -12,21 +13,26 @@ from approxtree.textures.shading import (
     TopographicShading,
 )
 from approxtree.textures.thematic import (
+    LEGENDS,
     ClassTable,
     ColourRamp,
     ColourReliefFile,
     ThematicTexture,
     rasterize_lines,
+    soften,
 )
 
 __all__ = [
     "BLEND_MODES",
+    "LEGENDS",
+    "PALETTES",
     "ClassTable",
     "ColourRamp",
     "ColourReliefFile",
     "GLTopographicShading",
     "GouraudShading",
     "MultiTexture",
+    "Palette",
     "PhongShading",
     "PyramidLevel",
     "ShadingTexture",
@@ -36,5 +42,7 @@ __all__ = [
     "ThematicTexture",
     "TopographicShading",
     "blend",
+    "get_palette",
     "rasterize_lines",
+    "soften",
 ]

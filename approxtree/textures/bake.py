@@ -34,12 +34,20 @@ from approxtree.textures.blend import BLEND_MODES, MultiTexture
 from approxtree.textures.pyramid import TexturePyramid, check_pyramid_target
 from approxtree.textures.shading import GouraudShading, PhongShading, TopographicShading
 from approxtree.textures.thematic import (
+    LEGENDS,
+    WATER_CLASSES,
     ClassTable,
     ColourRamp,
     ColourReliefFile,
     ThematicTexture,
     rasterize_lines,
 )
+
+#: Overlay lines (streams, roads) by default: a clear blue, and their least width in texels.
+OVERLAY_COLOUR = (40, 100, 200, 255)
+MIN_OVERLAY_TEXELS = 2.0
+#: Water polygons: the softened NLCD open-water blue.
+WATER_COLOUR = (110, 148, 190, 255)
 
 SHADINGS = {"topographic": TopographicShading, "phong": PhongShading, "gouraud": GouraudShading}
 
@@ -92,13 +100,18 @@ def _resample_heights(grid: Grid, transform: Affine, shape: tuple[int, int]) -> 
 def _thematic_on_lattice(
     path: Path, palette: str | None, transform: Affine, shape: tuple[int, int], crs: str | None
 ) -> ThematicTexture:
-    """A thematic raster resampled onto the lattice with the mapper the palette names."""
+    """A thematic raster resampled onto the lattice with the mapper the palette names: a
+    legend of ``LEGENDS`` (softened), a colour file, a matplotlib colormap, or None for the
+    raster's embedded colour table, softened."""
     import rasterio
     from rasterio.warp import Resampling, reproject
 
-    src = ThematicTexture.from_raster(path, mapper=ColourRamp() if palette else None)
+    legend = palette in LEGENDS
+    src = ThematicTexture.from_raster(path, mapper=ColourRamp() if palette and not legend else None)
     if palette is None:
-        mapper = src.mapper
+        mapper = src.mapper.softened() if isinstance(src.mapper, ClassTable) else src.mapper
+    elif legend:
+        mapper = ClassTable.legend(palette)
     elif Path(palette).is_file():
         mapper = ColourReliefFile(palette)
     else:
@@ -121,6 +134,31 @@ def _thematic_on_lattice(
     return ThematicTexture(values, transform, mapper, crs=crs, valid=np.isfinite(values))
 
 
+def _coarsen(mask: np.ndarray, level: int, shape: tuple[int, int]) -> np.ndarray:
+    """(rows, cols) of a level: True where any level-0 texel under it is True."""
+    k = 1 << level
+    rows, cols = mask.shape
+    padded = np.zeros((shape[0] * k, shape[1] * k), dtype=bool)
+    padded[:rows, :cols] = mask
+    return padded.reshape(shape[0], k, shape[1], k).any(axis=(1, 3))
+
+
+def _water_mask(thematic: ThematicTexture, palette: str | None) -> np.ndarray | None:
+    """(rows, cols) bool: texels of the thematic layer's water classes (the legend's, or the
+    classes of a colour table coloured blue), or None when it has none."""
+    mapper = thematic.mapper
+    if not isinstance(mapper, ClassTable):
+        return None
+    if palette in WATER_CLASSES:
+        water = WATER_CLASSES[palette]
+    else:
+        water = tuple(k for k, c in mapper.colours.items() if c[2] >= c[1] and c[2] > c[0] + 60)
+    if not water:
+        return None
+    values = np.where(thematic.valid, thematic.values, np.nan)
+    return np.isin(values, np.array(water, dtype=np.float64))
+
+
 def bake(
     terrain: GeometryData,
     folder: str | os.PathLike,
@@ -129,21 +167,30 @@ def bake(
     thematic: str | os.PathLike | None = None,
     palette: str | None = None,
     overlays: list[str | os.PathLike] | None = None,
-    blend: str = "multiply",
+    blend: str = "shade",
     texel_size: float | None = None,
     max_texture_size: int = 4096,
     gl: bool = True,
     context: Any = None,
     tile_size: int | None = None,
+    overlay_colour: tuple[int, ...] = OVERLAY_COLOUR,
+    overlay_width: float | None = None,
+    min_overlay_texels: float = MIN_OVERLAY_TEXELS,
+    water: list[str | os.PathLike] | None = None,
 ) -> BakeResult:
     """Bake the terrain's textures into a pyramid in ``folder`` and return what was written.
 
     terrain: a Grid, or any terrain (TIN, point cloud), rasterized first (``rasterize``).
 
     shading: "topographic", "phong", "gouraud" or None; shading_options: keyword arguments of
-    that shading class. thematic: a raster of classes or values; palette: a gdaldem colour file
-    or a matplotlib colormap name (None: the raster's embedded colour table). overlays: vector
-    layers (roads, rivers) drawn on top. blend: how shading combines with the thematic layer.
+    that shading class. thematic: a raster of classes or values; palette: a land-cover legend
+    ("nlcd", "landclass96"), a gdaldem colour file or a matplotlib colormap name (None: the
+    raster's embedded colour table, softened). overlays: vector layers (roads, rivers) drawn on
+    top, overlay_colour RGB(A) 0..255, overlay_width world units (None: none asked), at least
+    ``min_overlay_texels`` texels wide so that they survive the hardware mipmaps of an
+    overview; the water classes of the thematic layer and the ``water`` polygon layers are
+    drawn over them (a stream does not cross a lake). blend: how shading combines with the
+    thematic layer ("shade" keeps the legend colour on flat ground).
     gl: bake topographic shading with OpenGL when possible (context: a moderngl Context, or
     None for a standalone EGL one; tile_size: forced tile side, see ``gl_hillshade``);
     False always uses numpy.
@@ -198,13 +245,42 @@ def bake(
             used_gl, texture = _gl_shading(texture, options, context, tile_size)
         layers.append(texture)
         names.append(f"shading:{shading}")
+    # Overlays: at least min_overlay_texels wide; water (thematic classes, polygons) over them.
+    texel_w = max(abs(transform.a), abs(transform.e))
+    width = max(overlay_width or 0.0, min_overlay_texels * texel_w)
+    water_mask = None
+    if thematic_path is not None and overlays:
+        water_mask = _water_mask(layers[0], palette)
     for path in overlays or []:
-        layers.append(rasterize_lines(path, transform, shape, terrain.crs))
+        line = rasterize_lines(path, transform, shape, terrain.crs, overlay_colour, width)
+        if water_mask is not None:
+            line.valid = line.valid & ~water_mask
+        layers.append(line)
         names.append(f"overlay:{Path(path).name}")
+    for path in water or []:
+        layers.append(rasterize_lines(path, transform, shape, terrain.crs, WATER_COLOUR, 0.0))
+        names.append(f"water:{Path(path).name}")
     modes = [blend] if len(layers) > 1 and thematic_path is not None and shading else []
     modes += ["over"] * (len(layers) - 1 - len(modes))
     texture = layers[0] if len(layers) == 1 else MultiTexture(layers, modes)
-    pyramid = TexturePyramid.build(texture, folder, max_texture_size=max_texture_size)
+    # Coarser levels redraw the overlays at their own texel size (least width kept there).
+    redraw = None
+    if overlays:
+
+        def redraw(level: int, t: Affine, level_shape: tuple[int, int]) -> np.ndarray:
+            w = max(overlay_width or 0.0, min_overlay_texels * max(abs(t.a), abs(t.e)))
+            out = np.zeros((*level_shape, 4), dtype=np.uint8)
+            for path in overlays:
+                line = rasterize_lines(path, t, level_shape, terrain.crs, overlay_colour, w)
+                if water_mask is not None:
+                    line.valid = line.valid & ~_coarsen(water_mask, level, level_shape)
+                rgba = line.rgba()
+                out = np.where(rgba[..., 3:] > 0, rgba, out)
+            return out
+
+    pyramid = TexturePyramid.build(
+        texture, folder, max_texture_size=max_texture_size, level_overlay=redraw
+    )
     return BakeResult(pyramid, time.perf_counter() - t0, names, used_gl)
 
 

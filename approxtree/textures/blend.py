@@ -1,7 +1,13 @@
-"""MultiTexture: layers blended into one texture (multiply, overlay, soft light, alpha over).
+"""MultiTexture: layers blended into one texture (multiply, overlay, soft light, alpha over,
+shade).
 
 Formulas are the W3C compositing ones, on colours in [0, 1]; a layer only acts where its alpha
 is non-zero, weighted by that alpha. All layers must share the first layer's lattice.
+
+"shade" is the relief-map blend of a thematic layer with a hillshade: flat ground (the shade
+of a 45° sun, 0.707) keeps the legend colour, lit slopes lighten it a little and shadowed ones
+darken it (colour × (0.3 + 0.7 · shade / 0.707), at most × 1.25). Plain multiply darkens
+every colour by the flat-ground shade and lets saturated legends drown the relief.
 """
 
 from __future__ import annotations
@@ -19,8 +25,17 @@ def _soft_light(b: np.ndarray, s: np.ndarray) -> np.ndarray:
     return np.where(s <= 0.5, b - (1 - 2 * s) * b * (1 - b), b + (2 * s - 1) * (d - b))
 
 
+#: Shade of flat ground under a 45° sun (sin 45°): "shade" keeps the backdrop there.
+FLAT_SHADE = 0.7071
+
+
+def _shade(b: np.ndarray, s: np.ndarray) -> np.ndarray:
+    return np.clip(b * np.clip(0.3 + 0.7 * s / FLAT_SHADE, 0.0, 1.25), 0.0, 1.0)
+
+
 #: Blend mode → function (backdrop, source) of colours in [0, 1].
 BLEND_MODES = {
+    "shade": _shade,
     "multiply": lambda b, s: b * s,
     "overlay": lambda b, s: np.where(b <= 0.5, 2 * b * s, 1 - 2 * (1 - b) * (1 - s)),
     "soft-light": _soft_light,

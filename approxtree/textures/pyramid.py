@@ -22,7 +22,7 @@ import json
 import os
 import re
 import uuid
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -125,6 +125,27 @@ def _write_level(
     # set on a streamed file before its pixels, tags longer than 4 bytes shift its strips.
     with rasterio.open(path, "r+") as ds:
         ds.update_tags(**{_TAG_BUILD: build, _TAG_LEVEL: str(level)})
+
+
+#: fn(level, transform, (rows, cols)) -> (rows, cols, 4) uint8 drawn over that level, or None.
+LevelOverlay = Callable[[int, Affine, tuple[int, int]], "np.ndarray | None"]
+
+
+def _over(strips: list[np.ndarray], rgba: np.ndarray | None) -> list[np.ndarray]:
+    """Band-order strips (4, n, cols) of a level with ``rgba`` (rows, cols, 4) drawn over
+    them (alpha over, straight alpha); the strips unchanged without an overlay."""
+    if rgba is None:
+        return strips
+    out, r0 = [], 0
+    for strip in strips:
+        n = strip.shape[1]
+        top = np.moveaxis(rgba[r0 : r0 + n], -1, 0).astype(np.float32)
+        a = top[3:] / 255.0
+        mixed = top * a + strip.astype(np.float32) * (1.0 - a)
+        mixed[3:] = np.maximum(strip[3:], top[3:])
+        out.append(np.clip(np.rint(mixed), 0, 255).astype(np.uint8))
+        r0 += n
+    return out
 
 
 def _strips(rgba: np.ndarray) -> Iterator[np.ndarray]:
@@ -277,10 +298,15 @@ class TexturePyramid:
         max_texture_size: int = 4096,
         transform: Affine | None = None,
         crs: str | None = None,
+        level_overlay: LevelOverlay | None = None,
     ) -> TexturePyramid:
         """Write level 0 from ``texture`` and halve it until a level fits; return the pyramid.
 
         texture: a TextureData, or a (rows, cols, 4) uint8 array with ``transform`` and ``crs``.
+        level_overlay: fn(level, transform, (rows, cols)) -> (rows, cols, 4) uint8 or None,
+        drawn over every level after the first (alpha over) before it is written and halved:
+        vector overlays redrawn at each level's texel size keep a least width there instead
+        of fading in the averages.
         """
         if max_texture_size < 1 or max_texture_size & (max_texture_size - 1):
             raise InvalidParameterError(
@@ -335,6 +361,8 @@ class TexturePyramid:
                 strips, shape = halved, (-(-rows // 2), -(-cols // 2))
                 t = t @ Affine.scale(2.0)
                 level += 1
+                if level_overlay is not None:
+                    strips = _over(strips, level_overlay(level, t, shape))
             meta = {
                 "format": PYRAMID_FORMAT,
                 "build": build,

@@ -7,6 +7,10 @@ Mappers (each a callable (rows, cols) values + valid mask → (rows, cols, 4) ui
 - ``ColourReliefFile``: a ``gdaldem color-relief`` colour file (``value R G B [A]``, ``nv``,
   percentages, GRASS colour names), interpolated exactly as gdaldem does.
 
+Land-cover legends (``LEGENDS``): the standard NLCD colours and the GRASS landclass96 classes
+(the NC sample's land use) in NLCD's colours. Maps soften legend colours (``soften``: less
+saturated, lighter) so the shading they are blended with stays readable.
+
 Vector layers (roads, rivers) become thematic layers by rasterization (``rasterize_lines``).
 """
 
@@ -46,6 +50,53 @@ NAMED_COLOURS: dict[str, tuple[int, int, int]] = {
 }
 
 
+#: Land-cover legends: class value → (name, RGB). NLCD: the USGS National Land Cover Database
+#: legend (mrlc.gov); landclass96: GRASS's North Carolina land classes in NLCD's colours.
+LEGENDS: dict[str, dict[int, tuple[str, tuple[int, int, int]]]] = {
+    "nlcd": {
+        11: ("Open water", (70, 107, 159)),
+        12: ("Perennial ice/snow", (209, 222, 248)),
+        21: ("Developed, open space", (222, 197, 197)),
+        22: ("Developed, low intensity", (217, 146, 130)),
+        23: ("Developed, medium intensity", (235, 0, 0)),
+        24: ("Developed, high intensity", (171, 0, 0)),
+        31: ("Barren land", (179, 172, 159)),
+        41: ("Deciduous forest", (104, 171, 95)),
+        42: ("Evergreen forest", (28, 95, 44)),
+        43: ("Mixed forest", (181, 197, 143)),
+        52: ("Shrub/scrub", (204, 184, 121)),
+        71: ("Grassland/herbaceous", (223, 223, 194)),
+        81: ("Pasture/hay", (220, 217, 57)),
+        82: ("Cultivated crops", (171, 108, 40)),
+        90: ("Woody wetlands", (184, 217, 235)),
+        95: ("Emergent herbaceous wetlands", (108, 159, 184)),
+    },
+    "landclass96": {
+        1: ("Developed", (217, 146, 130)),
+        2: ("Agriculture", (220, 217, 57)),
+        3: ("Herbaceous", (223, 223, 194)),
+        4: ("Shrubland", (204, 184, 121)),
+        5: ("Forest", (104, 171, 95)),
+        6: ("Water", (70, 107, 159)),
+        7: ("Sediment", (179, 172, 159)),
+    },
+}
+#: The water class of each legend (drawn over streams).
+WATER_CLASSES = {"nlcd": (11,), "landclass96": (6,)}
+#: How much ``soften`` moves a legend colour towards a light grey by default.
+SOFTEN = 0.35
+
+
+def soften(rgb: tuple[int, ...], amount: float = SOFTEN) -> tuple[int, int, int]:
+    """A legend colour made quieter for blending with shading: its saturation reduced and its
+    lightness raised by ``amount`` (0: unchanged, 1: the light grey (235, 235, 230))."""
+    c = np.asarray(rgb[:3], dtype=np.float64)
+    grey = c.mean()
+    c = grey + (1.0 - 0.5 * amount) * (c - grey)
+    c = c + amount * (np.array([235.0, 235.0, 230.0]) - c)
+    return tuple(int(v) for v in np.clip(np.rint(c), 0, 255))  # type: ignore[return-value]
+
+
 class ClassTable:
     """Class value → RGBA colour; unknown classes and nodata are transparent."""
 
@@ -66,6 +117,19 @@ class ClassTable:
                 return cls(ds.colormap(band))
         except ValueError as exc:
             raise TerrainFormatError(f"{path} has no embedded colour table: {exc}") from exc
+
+    @classmethod
+    def legend(cls, name: str, amount: float = SOFTEN) -> ClassTable:
+        """The softened colours of a legend of ``LEGENDS`` ("nlcd", "landclass96")."""
+        if name not in LEGENDS:
+            raise InvalidParameterError(
+                f"Unknown legend {name!r}; choose one of {', '.join(LEGENDS)}."
+            )
+        return cls({k: soften(rgb, amount) for k, (_, rgb) in LEGENDS[name].items()})
+
+    def softened(self, amount: float = SOFTEN) -> ClassTable:
+        """This table with every colour softened (``soften``), alphas kept."""
+        return ClassTable({k: (*soften(c, amount), c[3]) for k, c in self.colours.items()})
 
     def __call__(self, values: np.ndarray, valid: np.ndarray) -> np.ndarray:
         keys = np.array(sorted(self.colours), dtype=np.int64)
@@ -246,7 +310,8 @@ def rasterize_lines(
     """A vector layer (lines or polygons, read with pyogrio) as a thematic texture.
 
     The geometries are reprojected to ``crs`` when the layer's CRS differs, buffered to
-    ``width`` world units (default: one texel) and burnt into a (rows, cols) lattice.
+    ``width`` world units (default: one texel; 0: not buffered) and burnt into a (rows, cols)
+    lattice in ``colour`` (RGBA 0..255).
     """
     import pyogrio
     import shapely
@@ -274,7 +339,8 @@ def rasterize_lines(
                 for g in geoms
             ]
     w = width if width is not None else max(abs(transform.a), abs(transform.e))
-    shapes = [(shapely.buffer(g, w / 2.0), 1) for g in geoms]
+    # Width 0 burns polygons as they are (water bodies) and lines one texel wide.
+    shapes = [(shapely.buffer(g, w / 2.0) if w > 0 else g, 1) for g in geoms]
     burnt = (
         rasterize(
             shapes, out_shape=shape, transform=transform, fill=0, dtype="uint8", all_touched=False

@@ -495,3 +495,11 @@ def store_info(path: str | os.PathLike) -> dict[str, Any]:
     out["bytes_raw"] = sizes["raw"]
     out["ratio"] = round(sizes["stored"] / sizes["raw"], 4) if sizes["raw"] else None
     return out
+
+
+def load_store_terrain(path: str | os.PathLike) -> GeometryData:
+    """The terrain of a tree store alone, without its nodes: a grid's heights stay in the
+    store and are read by windows as asked for (web tiles sample it tile by tile)."""
+    reader = StoreReader(path)
+    _check_meta(reader)
+    return _read_terrain(reader)

@@ -1,0 +1,384 @@
+"""Cesium terrain (quantized-mesh-1.0) from a height grid: ``layer.json`` + ``z/x/y.terrain``.
+
+Each tile of Cesium's geographic tiling (``tiles.geographic``) is its own TIN: the terrain is
+sampled on the tile's regular lon/lat grid (``tiles.sampling``), and our greedy insertion
+(``patches.tin.grid_tin`` → ``kernels.greedy_tin``) inserts sample points until the mesh is
+within the level's geometric error (CesiumJS's levelMaximumGeometricError) of every sample.
+The guarantee holds for the tile as CesiumJS decodes it: ``samples − 1`` divides 32767, so
+every sample sits on an exact quantized (u, v); the greedy target leaves room for the height
+quantization; and the decoded mesh is measured against every sample before it is written
+(``TileResult.max_error``).
+
+Tiles are gzip-compressed (serve them with ``Content-Encoding: gzip``), carry oct-encoded
+vertex normals, a metadata extension with the availability of their children, and an
+optional water mask. The whole folder is written beside the target and renamed over it.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import math
+import multiprocessing
+import os
+from collections.abc import Iterable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from approxtree.errors import EmptyTerrainError, InvalidParameterError, StoreError
+from approxtree.geometry.grid import Grid
+from approxtree.kernels.greedy_tin import mesh_error
+from approxtree.patches.lattice import Window
+from approxtree.patches.tin import grid_tin
+from approxtree.tiles.encoding import QMAX, encode_tile
+from approxtree.tiles.geographic import (
+    MAX_LEVEL,
+    deepest_level,
+    level_error,
+    tile_bounds,
+    tiles_touching,
+)
+from approxtree.tiles.sampling import NO_DATA, TileSampler, check_has_data
+from approxtree.tiles.water_mask import WaterMask
+
+#: Samples along a tile side: (samples − 1) divides 32767 = 7 · 31 · 151, so every sample has
+#: an exact quantized coordinate.
+SAMPLE_CHOICES = (32, 152, 218)
+DEFAULT_SAMPLES = 152
+
+
+@dataclass
+class TileResult:
+    """What was written for one tile: its address, mesh size, bytes on disk (gzip), the
+    decoded tile's exact max error over its samples, and the level's error it had to meet."""
+
+    level: int
+    x: int
+    y: int
+    vertices: int
+    triangles: int
+    bytes: int
+    max_error: float
+    level_error: float
+    valid_samples: int
+
+
+def _float32_outward(lo: float, hi: float) -> tuple[float, float]:
+    """lo, hi rounded to float32 (the header's type) outward, so they still enclose the data."""
+    lo32, hi32 = np.float32(lo), np.float32(hi)
+    if lo32 > lo:
+        lo32 = np.nextafter(lo32, np.float32(-np.inf))
+    if hi32 < hi:
+        hi32 = np.nextafter(hi32, np.float32(np.inf))
+    return float(lo32), float(hi32)
+
+
+def _quantize_heights(z: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """(hq, decoded, lo, hi): heights quantized to 0..QMAX between the float32 header bounds
+    and the heights CesiumJS decodes from them (lerp(lo, hi, hq / QMAX))."""
+    lo, hi = _float32_outward(float(z.min()), float(z.max()))
+    span = hi - lo
+    if span <= 0.0:
+        return np.zeros(len(z), dtype=np.int64), np.full(len(z), lo), lo, hi
+    hq = np.clip(np.rint((z - lo) / span * QMAX), 0, QMAX).astype(np.int64)
+    return hq, lo + span * (hq / QMAX), lo, hi
+
+
+def tin_of_samples(
+    h: np.ndarray, max_error: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+    """Greedy TIN of one tile's samples within ``max_error`` as CesiumJS decodes it.
+
+    h: (s, s) float64 heights, row 0 south. Returns vx, vy (n,) lattice column/row of the
+    vertices, triangles (m, 3) counter-clockwise in lon/lat, hq (n,) quantized heights,
+    decoded (n,) their decoded heights, and the decoded mesh's exact max error over all
+    samples (vertices included).
+    """
+    s = h.shape[0]
+    grid = Grid(h)
+    win = Window(0, s - 1, 0, s - 1, s * s, (float(h.min()), float(h.max())), False)
+    lo, hi = _float32_outward(float(h.min()), float(h.max()))
+    # Room for the height quantization: a decoded vertex is off by at most half a step, and
+    # a triangle's plane by at most the largest of its corners' offsets.
+    target = max_error - (hi - lo) / (2 * QMAX) * (1.0 + 1e-9) - 1e-9 * max(abs(lo), abs(hi))
+    while True:
+        vx, vy, tv, he, _worst, _sse = grid_tin(grid, win, max(target, 0.0))
+        z = h[vy, vx]
+        hq, decoded, _, _ = _quantize_heights(z)
+        # Exact error of the decoded mesh: the planes through the decoded corners against
+        # every sample (vertices' own offsets taken separately).
+        hd = h.copy()
+        hd[vy, vx] = decoded
+        worst, _, _, _ = mesh_error(hd, 0, 0, s, s, vx, vy, tv, he)
+        worst = max(float(worst), float(np.abs(decoded - z).max()))
+        if worst <= max_error or target <= 0.0:
+            break
+        # Never seen (the target's margin covers quantization); tighten and insert more.
+        target = min(target - (worst - max_error), 0.5 * target)
+    return vx, vy, tv.reshape(-1, 3).astype(np.int64), hq, decoded, worst
+
+
+#: layer.json's metadataAvailability (CesiumJS World Terrain's convention): tiles of levels
+#: 0, 10, 20... carry the availability of the next 10 levels of their subtree, which CesiumJS
+#: then takes instead of layer.json's list; every other tile carries its children's.
+METADATA_LEVELS = 10
+
+
+def subtree_availability(
+    level: int, x: int, y: int, plan: dict[int, np.ndarray], maxzoom: int
+) -> list[list[dict[str, int]]]:
+    """The metadata extension's ``available``: one list of ranges per level below the tile
+    (METADATA_LEVELS of them on levels that are multiples of it, else 1), clipped at maxzoom;
+    plan: (k, 2) int64 x, y of the tiles written at each level."""
+    depth = METADATA_LEVELS if level % METADATA_LEVELS == 0 else 1
+    out = []
+    for d in range(1, min(depth, maxzoom - level) + 1):
+        xy = plan.get(level + d, np.empty((0, 2), dtype=np.int64))
+        span = 2**d
+        inside = (xy[:, 0] // span == x) & (xy[:, 1] // span == y)
+        out.append(availability(map(tuple, xy[inside].tolist())))
+    return out
+
+
+def availability(tiles: Iterable[tuple[int, int]]) -> list[dict[str, int]]:
+    """layer.json ranges of one level: runs of x per row, rows with equal runs merged."""
+    rows: dict[int, list[int]] = {}
+    for x, y in tiles:
+        rows.setdefault(y, []).append(x)
+    runs_of: dict[int, tuple[tuple[int, int], ...]] = {}
+    for y, xs in rows.items():
+        xs = sorted(xs)
+        runs, start = [], xs[0]
+        for a, b in zip(xs, [*xs[1:], None], strict=True):
+            if b != a + 1:
+                runs.append((start, a))
+                start = b
+        runs_of[y] = tuple(runs)
+    out = []
+    ys = sorted(runs_of)
+    i = 0
+    while i < len(ys):
+        j = i
+        while j + 1 < len(ys) and ys[j + 1] == ys[j] + 1 and runs_of[ys[j + 1]] == runs_of[ys[i]]:
+            j += 1
+        for x0, x1 in runs_of[ys[i]]:
+            out.append({"startX": x0, "startY": ys[i], "endX": x1, "endY": ys[j]})
+        i = j + 1
+    return out
+
+
+@dataclass
+class _Job:
+    """Everything a worker needs for a batch of tiles (pickled once per batch)."""
+
+    sampler: TileSampler
+    water: WaterMask | None
+    samples: int
+    folder: str
+    plan: dict[int, np.ndarray]
+    maxzoom: int
+
+
+def make_tile(job: _Job, level: int, x: int, y: int) -> tuple[bytes, TileResult]:
+    """The gzip-compressed bytes of tile (level, x, y) and its figures."""
+    bounds = tile_bounds(level, x, y)
+    h, n_valid = job.sampler.sample(bounds, job.samples)
+    err = level_error(level)
+    vx, vy, tri, hq, decoded, worst = tin_of_samples(h, err)
+    k = QMAX // (job.samples - 1)
+    water = job.water.tile_mask(bounds) if job.water is not None else None
+    meta = {
+        "available": subtree_availability(level, x, y, job.plan, job.maxzoom),
+        "geometricError": worst,
+    }
+    raw = encode_tile(
+        vx.astype(np.int64) * k,
+        vy.astype(np.int64) * k,
+        hq,
+        decoded,
+        tri,
+        bounds,
+        water_mask=water,
+        metadata=meta,
+    )
+    data = gzip.compress(raw, compresslevel=6, mtime=0)
+    result = TileResult(level, x, y, len(vx), len(tri), len(data), worst, err, n_valid)
+    return data, result
+
+
+def _write_batch(job: _Job, addresses: Sequence[tuple[int, int, int]]) -> list[TileResult]:
+    """Make and write a batch of tiles into ``job.folder``; their figures."""
+    out = []
+    for level, x, y in addresses:
+        data, result = make_tile(job, level, x, y)
+        path = Path(job.folder, str(level), str(x), f"{y}.terrain")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(data)
+        out.append(result)
+    return out
+
+
+#: The job of a worker process, sent once when the process starts (the terrain is big).
+_WORKER_JOB: _Job | None = None
+
+
+def _init_worker(job: _Job) -> None:
+    global _WORKER_JOB
+    _WORKER_JOB = job
+
+
+def _worker_batch(addresses: Sequence[tuple[int, int, int]]) -> list[TileResult]:
+    assert _WORKER_JOB is not None
+    return _write_batch(_WORKER_JOB, addresses)
+
+
+def plan_tiles(
+    sampler: TileSampler, minzoom: int, maxzoom: int
+) -> dict[int, list[tuple[int, int]]]:
+    """(x, y) of the tiles to write at each level: those meeting the terrain's footprint,
+    and at level 0 both tiles (CesiumJS asks for every root tile)."""
+    plan = {}
+    for level in range(minzoom, maxzoom + 1):
+        tiles = tiles_touching(sampler.footprint, level)
+        if level == 0:
+            tiles = [(0, 0), (1, 0)]
+        plan[level] = tiles
+    return plan
+
+
+def layer_json(
+    sampler: TileSampler,
+    plan: dict[int, list[tuple[int, int]]],
+    water: bool,
+    name: str,
+) -> dict:
+    """The tileset's layer.json (TileJSON 2.1.0 as CesiumTerrainProvider reads it)."""
+    extensions = ["octvertexnormals", "metadata"]
+    if water:
+        extensions.insert(1, "watermask")
+    levels = sorted(plan)
+    return {
+        "tilejson": "2.1.0",
+        "name": name,
+        "description": "Greedy-insertion TINs made by approxtree, each within CesiumJS's "
+        "geometric error of its level.",
+        "version": "1.0.0",
+        "format": "quantized-mesh-1.0",
+        "attribution": "",
+        "scheme": "tms",
+        "tiles": ["{z}/{x}/{y}.terrain"],
+        "projection": "EPSG:4326",
+        "bounds": [round(v, 9) for v in sampler.footprint.bounds],
+        "minzoom": levels[0],
+        "maxzoom": levels[-1],
+        "metadataAvailability": METADATA_LEVELS,
+        "available": [availability(plan.get(level, [])) for level in range(levels[-1] + 1)],
+        "extensions": extensions,
+    }
+
+
+def check_output(out: str | os.PathLike) -> None:
+    """StoreError unless ``out`` is new, empty, or an earlier terrain tileset (it is replaced)."""
+    from approxtree.io.output_path import check_output_folder
+
+    out = Path(out)
+    check_output_folder(out, "terrain tileset folder")
+    if out.is_dir() and any(out.iterdir()) and not (out / "layer.json").is_file():
+        raise StoreError(
+            f"{out} exists and is not a terrain tileset (no layer.json): it would be replaced. "
+            "Choose a new or empty folder."
+        )
+
+
+def write_quantized_mesh(
+    terrain: Grid,
+    out: str | os.PathLike,
+    *,
+    samples: int = DEFAULT_SAMPLES,
+    minzoom: int = 0,
+    maxzoom: int | None = None,
+    max_error: float | None = None,
+    workers: int = 1,
+    water_mask: str | os.PathLike | None = None,
+) -> dict:
+    """Write the Cesium terrain tileset of ``terrain`` into the folder ``out`` (atomically).
+
+    samples: samples along a tile side (one of SAMPLE_CHOICES); maxzoom: deepest level, by
+    default the first whose sample spacing reaches the terrain's cell, or deeper until the
+    level's error is <= ``max_error`` metres when that is given; workers > 1: tiles are
+    made in that many processes. Returns the figures (tiles, bytes, levels, worst error
+    ratio, per-level counts).
+    """
+    from approxtree.io.atomic import atomic_directory
+
+    if samples not in SAMPLE_CHOICES:
+        raise InvalidParameterError(
+            f"samples must be one of {SAMPLE_CHOICES} (samples − 1 must divide 32767), "
+            f"got {samples}."
+        )
+    if workers < 1:
+        raise InvalidParameterError(f"workers must be >= 1, got {workers}.")
+    sampler = TileSampler(terrain)
+    check_has_data(sampler)
+    if max_error is not None:
+        if maxzoom is not None:
+            raise InvalidParameterError(
+                "Give --maxzoom or --max-error, not both: --max-error chooses the deepest level."
+            )
+        if not (math.isfinite(max_error) and max_error >= level_error(MAX_LEVEL)):
+            raise InvalidParameterError(
+                f"max_error must be at least {level_error(MAX_LEVEL):.4g} m (the error of "
+                f"level {MAX_LEVEL}), got {max_error}."
+            )
+    if maxzoom is None:
+        maxzoom = max(deepest_level(sampler.cell_degrees, samples), minzoom)
+        # Deeper still until the level's error reaches the wanted one.
+        while max_error is not None and level_error(maxzoom) > max_error:
+            maxzoom += 1
+    if not (0 <= minzoom <= maxzoom <= 22):
+        raise InvalidParameterError(
+            f"Levels must satisfy 0 <= minzoom <= maxzoom <= 22, got {minzoom}..{maxzoom}."
+        )
+    water = WaterMask.open(water_mask) if water_mask is not None else None
+    out = Path(out)
+    check_output(out)
+    plan = plan_tiles(sampler, minzoom, maxzoom)
+    addresses = [(level, x, y) for level, tiles in plan.items() for x, y in tiles]
+    arrays = {level: np.array(t, dtype=np.int64).reshape(-1, 2) for level, t in plan.items()}
+    results: list[TileResult] = []
+    with atomic_directory(out) as tmp:
+        job = _Job(sampler, water, samples, str(tmp), arrays, maxzoom)
+        if workers == 1:
+            results = _write_batch(job, addresses)
+        else:
+            # Each worker gets the job (terrain, tile set) once; tiles go in batches of a few
+            # so that the workers stay busy to the end.
+            size = max(1, min(32, len(addresses) // (8 * workers)))
+            batches = [addresses[i : i + size] for i in range(0, len(addresses), size)]
+            # Spawned, not forked: a process that ran numba's OpenMP kernels (a build in the
+            # same process) is killed by libgomp when it forks.
+            context = multiprocessing.get_context("spawn")
+            with ProcessPoolExecutor(
+                max_workers=workers, mp_context=context, initializer=_init_worker, initargs=(job,)
+            ) as pool:
+                for part in pool.map(_worker_batch, batches):
+                    results.extend(part)
+        if not any(r.valid_samples for r in results) and terrain.point_count == 0:
+            # A windowed terrain of nodata only: scanned only now that no tile sampled a
+            # height (tiles too coarse to hit the data need not mean nodata); nothing is kept.
+            raise EmptyTerrainError(NO_DATA)
+        layer = layer_json(sampler, plan, water is not None, out.name)
+        (tmp / "layer.json").write_text(json.dumps(layer, indent=1))
+    return {
+        "tiles": len(results),
+        "levels": f"{minzoom}..{maxzoom}",
+        "samples": samples,
+        "bytes": sum(r.bytes for r in results),
+        "vertices": sum(r.vertices for r in results),
+        "worst_error_ratio": max(r.max_error / r.level_error for r in results),
+        "tiles_per_level": {str(level): len(t) for level, t in plan.items()},
+        "results": [asdict(r) for r in results],
+    }
