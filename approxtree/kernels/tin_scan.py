@@ -2,7 +2,9 @@
 
 A triangle's grid points are visited row by row between the exact integer bounds given by its
 three edge functions (no bounding-box waste, no rounding), and the plane through its corners is
-evaluated relative to corner a so that thin triangles far from the origin stay accurate.
+evaluated relative to corner a so that thin triangles far from the origin stay accurate. The hot
+scans (``scan_candidate``, ``triangle_sse``) get those bounds by walking the left and right
+edges with exact integer steps (``_edge_walk``); ``row_span`` computes one row's bounds alone.
 
 Keys returned for the heap:
 
