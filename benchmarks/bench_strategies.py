@@ -14,7 +14,11 @@ compile of the warm-up call is reported separately (``compile_seconds``). Writes
 ``results/strategies.json`` and plots ``strategies_tin.png``, ``strategies_rtin.png``.
 
     python benchmarks/bench_strategies.py [--sizes 1025 2049 4097] [--rtin-sizes 257 1025 4097]
-        [--tile-sizes 256 512] [--repeats 5] [--out strategies]
+        [--tile-sizes 256 512] [--tin-errors 1 5 10 30] [--tile-errors 1 2 5 10] [--repeats 5]
+        [--tin-only] [--out strategies]
+
+``--tin-only`` runs just the greedy TIN rows of issue 15 (real 256²/512² tiles, fractal sizes
+× errors) against pydelatin and writes their JSON (with the range of the CPU-time ratios).
 """
 
 from __future__ import annotations
@@ -104,6 +108,8 @@ def bench_tin(terrain, repeats, errors=TIN_ERRORS):
                 "vertices": len(ours.vertices),
                 "pydelatin_vertices": len(them.vertices),
                 "vertex_ratio": len(ours.vertices) / len(them.vertices),
+                "triangles": len(ours.triangles),
+                "pydelatin_triangles": len(them.triangles),
                 "true_max_error": ours.max_error,
             }
         )
@@ -228,9 +234,9 @@ def plot(out: dict, name: str = "strategies") -> None:
 
     fig, ax = plt.subplots(figsize=(12, 4))
     labels, ratios = [], []
-    for name, rows in out.get("tin_tiles", {}).items():
+    for tile, rows in out.get("tin_tiles", {}).items():
         for r in rows:
-            labels.append(f"{name}\n{r['max_error']:g}")
+            labels.append(f"{tile}\n{r['max_error']:g}")
             ratios.append(r["time_ratio"])
     for n, rows in out["tin"].items():
         for r in rows:
@@ -247,6 +253,8 @@ def plot(out: dict, name: str = "strategies") -> None:
     fig.savefig(RESULTS / f"{name}_tin.png", dpi=120)
     plt.close(fig)
 
+    if not out["rtin"]:
+        return
     fig, ax = plt.subplots(figsize=(6, 4))
     for n, rows in out["rtin"].items():
         e = [r["pymartini_true_max_error"] for r in rows]
@@ -261,12 +269,28 @@ def plot(out: dict, name: str = "strategies") -> None:
     plt.close(fig)
 
 
+def _ratio_range(out: dict) -> dict[str, float]:
+    """Smallest and largest CPU-time ratio ours / pydelatin over all greedy TIN rows."""
+    rows = [r for group in ("tin_tiles", "tin") for rs in out[group].values() for r in rs]
+    if not rows:
+        return {}
+    ratios = [r["cpu_ratio"] for r in rows]
+    return {"min": min(ratios), "max": max(ratios), "rows": len(ratios)}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sizes", type=int, nargs="+", default=[1025, 2049, 4097])
     ap.add_argument("--rtin-sizes", type=int, nargs="+", default=[257, 1025, 4097])
     ap.add_argument("--tile-sizes", type=int, nargs="*", default=[256, 512])
+    ap.add_argument("--tin-errors", type=float, nargs="+", default=TIN_ERRORS)
+    ap.add_argument("--tile-errors", type=float, nargs="+", default=TILE_ERRORS)
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument(
+        "--tin-only",
+        action="store_true",
+        help="only the greedy TIN rows (real tiles and fractal sizes) against pydelatin",
+    )
     ap.add_argument("--memory-error", type=float, default=5.0)
     ap.add_argument("--out", default="strategies", help="name of the JSON and plots")
     args = ap.parse_args()
@@ -296,9 +320,17 @@ def main() -> None:
     }
     print("compile", out["compile_seconds"], flush=True)
     for name, grid in tile_crops(args.tile_sizes):
-        out["tin_tiles"][name] = bench_tin(grid, args.repeats, TILE_ERRORS)
+        out["tin_tiles"][name] = bench_tin(grid, args.repeats, args.tile_errors)
     for n in args.sizes:
-        out["tin"][n] = bench_tin(fractal_terrain(n, seed=1, relief=1000.0), args.repeats)
+        terrain = fractal_terrain(n, seed=1, relief=1000.0)
+        out["tin"][n] = bench_tin(terrain, args.repeats, args.tin_errors)
+    out["tin_ratio_range"] = _ratio_range(out)
+    print("TIN ours / pydelatin (CPU time):", out["tin_ratio_range"], flush=True)
+    if args.tin_only:
+        RESULTS.mkdir(exist_ok=True)
+        (RESULTS / f"{args.out}.json").write_text(json.dumps(out, indent=1))
+        plot(out, args.out)
+        return
     for n in args.rtin_sizes:
         terrain = fractal_terrain(n, seed=1, relief=1000.0)
         out["rtin"][n] = bench_rtin(terrain, args.repeats)

@@ -38,9 +38,9 @@ from approxtree.kernels.tin_mesh import (
 from approxtree.kernels.tin_scan import (
     row_span,
     scan_candidate,
-    scan_triangle_sse,
     scan_with_holes,
     triangle_error,
+    triangle_sse,
 )
 from approxtree.kernels.tri_heap import heap_remove, heap_update
 
@@ -283,7 +283,7 @@ def greedy_tin(
     he (3m,) int32 the triangles (orient > 0 in (column, row) space) and their twins, and the
     mesh's exact max error and sum of squared errors over the window's points (both only
     meaningful without nodata: every triangle's candidate key is the true maximum over its
-    points, and each point is owned once, see ``scan_triangle_sse``).
+    points, and each point is owned once, see ``triangle_sse``).
     """
     cap_v = 64
     cap_t = 128
@@ -395,7 +395,7 @@ def greedy_tin(
         for t in range(nt):
             a, b, c = tv[3 * t], tv[3 * t + 1], tv[3 * t + 2]
             # An edge point is half this triangle's when the edge is shared.
-            sse[t] = scan_triangle_sse(
+            sse[t] = triangle_sse(
                 heights,
                 r0,
                 c0,
@@ -408,7 +408,7 @@ def greedy_tin(
                 0.5 if he[3 * t] >= 0 else 1.0,
                 0.5 if he[3 * t + 1] >= 0 else 1.0,
                 0.5 if he[3 * t + 2] >= 0 else 1.0,
-            )[3]
+            )
     # Views, not copies: the work arrays are freed on return, so the peak stays lower.
     return (
         vx[:nv],

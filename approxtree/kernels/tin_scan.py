@@ -2,7 +2,9 @@
 
 A triangle's grid points are visited row by row between the exact integer bounds given by its
 three edge functions (no bounding-box waste, no rounding), and the plane through its corners is
-evaluated relative to corner a so that thin triangles far from the origin stay accurate.
+evaluated relative to corner a so that thin triangles far from the origin stay accurate. The hot
+scans (``scan_candidate``, ``triangle_sse``) get those bounds by walking the left and right
+edges with exact integer steps (``_edge_walk``); ``row_span`` computes one row's bounds alone.
 
 Keys returned for the heap:
 
@@ -77,25 +79,62 @@ def _grid_row_max(heights: np.ndarray, r: int, start: int, n: int, base: float, 
     return m
 
 
-@njit(cache=True, _nrt=False)
-def scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy):
-    """(key, candidate y, candidate x) of a triangle on a grid without nodata.
+@njit(cache=True, inline="always")
+def _floor_div(num: int, d: int):
+    """(q, r) with num = q·d + r, 0 <= r < d (d > 0): a float quotient fixed up exactly
+    (cheaper than an integer division; |num| < 2^53 keeps it within one of the truth)."""
+    q = math.floor(num / d)
+    r = num - q * d
+    if r < 0:
+        q -= 1
+        r += d
+    elif r >= d:
+        q += 1
+        r -= d
+    return q, r
 
-    The grid is indexed in place and the kernel compiled without the reference-counting
-    runtime: row views, or reference counts on the arguments, would cost atomic updates per row
-    and per call, which dominate on the small triangles of a fine mesh.
+
+@njit(cache=True, inline="always")
+def _edge_walk(x0: int, y0: int, x1: int, y1: int, y: int):
+    """Walk state at row y of the edge (x0, y0)–(x1, y1), y1 > y0.
+
+    The edge's x at row y is q + r / d exactly (0 <= r < d = y1 − y0); each next row adds
+    sq + sr / d (0 <= sr < d). Returns (q, r, d, sq, sr): integers only, so the walk is exact.
     """
-    za = np.float64(heights[r0 + ay, c0 + ax])
-    zb = np.float64(heights[r0 + by, c0 + bx])
-    zc = np.float64(heights[r0 + cy, c0 + cx])
-    gx, gy = plane(za, zb, zc, ax, ay, bx, by, cx, cy)
-    best = NO_CANDIDATE
-    best_x = -1
-    best_y = -1
-    y0 = min(ay, min(by, cy))
-    y1 = max(ay, max(by, cy))
-    for y in range(y0, y1 + 1):
-        lo, hi = row_span(ax, ay, bx, by, cx, cy, y)
+    d = y1 - y0
+    q, r = _floor_div(x0 * d + (x1 - x0) * (y - y0), d)
+    sq, sr = _floor_div(x1 - x0, d)
+    return q, r, d, sq, sr
+
+
+@njit(cache=True, inline="always")
+def _step(w):
+    """The walk state of the next row."""
+    q, r, d, sq, sr = w
+    q += sq
+    r += sr
+    if r >= d:
+        r -= d
+        q += 1
+    return q, r, d, sq, sr
+
+
+@njit(cache=True, inline="always")
+def _scan_rows(
+    heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ya, yb, left, right, best, bestx, besty
+):
+    """Candidate search over rows ya..yb between a left and a right edge walk.
+
+    left, right: ``_edge_walk`` states at row ya of the edges bounding the rows from the left
+    (ceiling) and the right (floor). Points are visited in the order of a ``row_span`` scan,
+    with the same arithmetic, so ties and values are those of a row-span scan. Returns the
+    best so far and both walks at row yb + 1.
+    """
+    for y in range(ya, yb + 1):
+        lo = left[0] + (left[1] > 0)
+        hi = right[0]
+        left = _step(left)
+        right = _step(right)
         if lo > hi:
             continue
         n = hi - lo + 1
@@ -114,8 +153,74 @@ def scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy):
                 if (x == ax and y == ay) or (x == bx and y == by) or (x == cx and y == cy):
                     continue
                 best = e
-                best_x = x
-                best_y = y
+                bestx = x
+                besty = y
+    return best, bestx, besty, left, right
+
+
+@njit(cache=True, inline="always")
+def _by_rows(ax, ay, bx, by, cx, cy):
+    """The corners sorted by row (top, middle, bottom), and whether the middle one lies left
+    of the top–bottom edge."""
+    tx, ty, mx, my, lx, ly = ax, ay, bx, by, cx, cy
+    if my < ty:
+        tx, ty, mx, my = mx, my, tx, ty
+    if ly < my:
+        mx, my, lx, ly = lx, ly, mx, my
+        if my < ty:
+            tx, ty, mx, my = mx, my, tx, ty
+    # The middle corner against the long edge's x at its row (cross-multiplied, exact).
+    mid_left = mx * (ly - ty) < tx * (ly - ty) + (lx - tx) * (my - ty)
+    return tx, ty, mx, my, lx, ly, mid_left
+
+
+@njit(cache=True, _nrt=False)
+def scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy):
+    """(key, candidate y, candidate x) of a triangle on a grid without nodata.
+
+    Rows are bounded by walking the triangle's left and right edges with integer steps (the
+    exact spans of ``row_span`` without its divisions per row); the grid is indexed in place
+    and the kernel compiled without the reference-counting runtime: row views, or reference
+    counts on the arguments, would cost atomic updates per row and per call, which dominate
+    on the small triangles of a fine mesh.
+    """
+    za = np.float64(heights[r0 + ay, c0 + ax])
+    zb = np.float64(heights[r0 + by, c0 + bx])
+    zc = np.float64(heights[r0 + cy, c0 + cx])
+    gx, gy = plane(za, zb, zc, ax, ay, bx, by, cx, cy)
+    best = NO_CANDIDATE
+    best_x = -1
+    best_y = -1
+    tx, ty, mx, my, lx, ly, mid_left = _by_rows(ax, ay, bx, by, cx, cy)
+    # The long edge bounds every row on one side; the top–middle edge, then the middle–bottom
+    # one, on the other.
+    long_w = _edge_walk(tx, ty, lx, ly, ty)
+    ya = ty
+    if my > ty:
+        short = _edge_walk(tx, ty, mx, my, ty)
+        if mid_left:
+            best, best_x, best_y, short, long_w = _scan_rows(
+                heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ty, my, short, long_w,
+                best, best_x, best_y,
+            )  # fmt: skip
+        else:
+            best, best_x, best_y, long_w, short = _scan_rows(
+                heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ty, my, long_w, short,
+                best, best_x, best_y,
+            )  # fmt: skip
+        ya = my + 1
+    if ly >= ya and ly > my:
+        short = _edge_walk(mx, my, lx, ly, ya)
+        if mid_left:
+            best, best_x, best_y, short, long_w = _scan_rows(
+                heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ya, ly, short, long_w,
+                best, best_x, best_y,
+            )  # fmt: skip
+        else:
+            best, best_x, best_y, long_w, short = _scan_rows(
+                heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ya, ly, long_w, short,
+                best, best_x, best_y,
+            )  # fmt: skip
     return best, best_y, best_x
 
 
@@ -152,57 +257,41 @@ def _edge_weight(ax, ay, bx, by, cx, cy, x, y, wab, wbc, wca) -> float:
     return 1.0
 
 
-@njit(cache=True, _nrt=False)
-def scan_triangle_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca):
-    """``scan_candidate`` plus the triangle's owned sum of squared errors, no nodata.
-
-    wab, wbc, wca: the share of a point on edge ab, bc, ca this triangle owns (½ when the edge
-    is shared with a neighbour, 1 on the border), so the sums over a mesh's triangles count
-    every non-vertex point once (up to round-off: both neighbours interpolate the same line).
-    Returns (key, candidate y, candidate x, sum of squared errors). Compiled without the
-    reference-counting runtime: its row views then cost no atomic updates.
-    """
-    za = np.float64(heights[r0 + ay, c0 + ax])
-    zb = np.float64(heights[r0 + by, c0 + bx])
-    zc = np.float64(heights[r0 + cy, c0 + cx])
-    gx, gy = plane(za, zb, zc, ax, ay, bx, by, cx, cy)
-    best = NO_CANDIDATE
-    best_x = -1
-    best_y = -1
-    sse = 0.0
-    y0 = min(ay, min(by, cy))
-    y1 = max(ay, max(by, cy))
-    for y in range(y0, y1 + 1):
-        lo, hi = row_span(ax, ay, bx, by, cx, cy, y)
+@njit(cache=True, inline="always")
+def _sse_rows(
+    heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, wab, wbc, wca, ya, yb, left, right, sse
+):
+    """``sse`` plus the owned squared errors over rows ya..yb between a left and a right
+    edge walk (see ``_scan_rows``, ``triangle_sse``), added row by row in row order."""
+    lq, lr, ld, lsq, lsr = _edge_walk(left[0], left[1], left[2], left[3], ya)
+    rq, rr, rd, rsq, rsr = _edge_walk(right[0], right[1], right[2], right[3], ya)
+    for y in range(ya, yb + 1):
+        lo = lq + (lr > 0)
+        hi = rq
+        lq += lsq
+        lr += lsr
+        if lr >= ld:
+            lr -= ld
+            lq += 1
+        rq += rsq
+        rr += rsr
+        if rr >= rd:
+            rr -= rd
+            rq += 1
         if lo > hi:
             continue
         n = hi - lo + 1
         base = za + gy * (y - ay) + gx * (lo - ax)
-        row = heights[r0 + y]
+        r = r0 + y
         start = c0 + lo
-        # Long rows: a vectorized pass gives the row's maximum (with slack for its fused
-        # arithmetic) and sum; the position is searched only when it may beat the best.
-        # Short rows: one plain pass does both.
+        # Long rows: a vectorized sum; short rows: a plain one.
         if n >= 16:
-            m, s = _row_max_sse(row, start, n, base, gx)
-            search = m + 1e-9 > best
+            s = _row_max_sse(heights[r], start, n, base, gx)[1]
         else:
             s = 0.0
             for i in range(n):
-                e = abs(float(row[start + i]) - (base + gx * i))
+                e = abs(float(heights[r, start + i]) - (base + gx * i))
                 s += e * e
-            search = True
-        if search:
-            for i in range(n):
-                e = abs(float(row[start + i]) - (base + gx * i))
-                if e > best:
-                    x = lo + i
-                    # Corners are reproduced exactly; round-off must not make them candidates.
-                    if (x == ax and y == ay) or (x == bx and y == by) or (x == cx and y == cy):
-                        continue
-                    best = e
-                    best_x = x
-                    best_y = y
         # Edge points are shared: a row along a horizontal edge lies wholly on it, otherwise
         # only the row's two ends can touch an edge.
         if ay == by == y:
@@ -212,14 +301,84 @@ def scan_triangle_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca):
         elif cy == ay == y:
             s *= wca
         else:
-            e = abs(float(row[start]) - base)
+            e = abs(float(heights[r, start]) - base)
             s -= (1.0 - _edge_weight(ax, ay, bx, by, cx, cy, lo, y, wab, wbc, wca)) * e * e
             if hi > lo:
-                e = abs(float(row[c0 + hi]) - (base + gx * (n - 1)))
+                e = abs(float(heights[r, c0 + hi]) - (base + gx * (n - 1)))
                 w = _edge_weight(ax, ay, bx, by, cx, cy, hi, y, wab, wbc, wca)
                 s -= (1.0 - w) * e * e
         sse += s
-    return best, best_y, best_x, max(sse, 0.0)
+    return sse
+
+
+@njit(cache=True, _nrt=False)
+def triangle_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca) -> float:
+    """The triangle's owned sum of squared errors on a grid without nodata.
+
+    wab, wbc, wca: the share of a point on edge ab, bc, ca this triangle owns (½ when the edge
+    is shared with a neighbour, 1 on the border), so the sums over a mesh's triangles count
+    every non-vertex point once (up to round-off: both neighbours interpolate the same line).
+    Rows are walked as in ``scan_candidate``; the sum runs in row order.
+    """
+    za = np.float64(heights[r0 + ay, c0 + ax])
+    zb = np.float64(heights[r0 + by, c0 + bx])
+    zc = np.float64(heights[r0 + cy, c0 + cx])
+    gx, gy = plane(za, zb, zc, ax, ay, bx, by, cx, cy)
+    sse = 0.0
+    tx, ty, mx, my, lx, ly, mid_left = _by_rows(ax, ay, bx, by, cx, cy)
+    long_edge = (tx, ty, lx, ly)
+    if my > ty:
+        upper = (tx, ty, mx, my)
+        left, right = (upper, long_edge) if mid_left else (long_edge, upper)
+        sse = _sse_rows(
+            heights,
+            r0,
+            c0,
+            za,
+            gx,
+            gy,
+            ax,
+            ay,
+            bx,
+            by,
+            cx,
+            cy,
+            wab,
+            wbc,
+            wca,
+            ty,
+            my,
+            left,
+            right,
+            sse,
+        )
+    if ly > my:
+        lower = (mx, my, lx, ly)
+        left, right = (lower, long_edge) if mid_left else (long_edge, lower)
+        ya = my + 1 if my > ty else ty
+        sse = _sse_rows(
+            heights,
+            r0,
+            c0,
+            za,
+            gx,
+            gy,
+            ax,
+            ay,
+            bx,
+            by,
+            cx,
+            cy,
+            wab,
+            wbc,
+            wca,
+            ya,
+            ly,
+            left,
+            right,
+            sse,
+        )
+    return max(sse, 0.0)
 
 
 @njit(cache=True, _nrt=False)
