@@ -184,3 +184,23 @@ def test_tin_modules_do_not_import_each_other():
             if isinstance(node, ast.ImportFrom) and node.module is not None
         }
         assert f"approxtree.patches.{other}" not in imported
+
+
+def test_a_policy_choosing_per_rectangle_is_asked_per_node():
+    """A StrategyPolicy subclass overriding ``candidates`` gets each node's own rectangle."""
+    from approxtree.tree.policy import StrategyPolicy
+
+    grid = fractal_terrain(65, 65, seed=2)
+    middle = grid.domain.center[0]
+
+    class WestTin(StrategyPolicy):
+        def candidates(self, terrain, level, rect):
+            return ("tin",) if rect.xmax <= middle else ("grid",)
+
+    tree = ApproximationTree.build(
+        grid, epsilon=1.0, max_points=25, policy=WestTin(), progress=False
+    )
+    kinds = np.array([tree.node(i).strategy for i in range(len(tree))])
+    expected = np.where(tree.rects[:, 2] <= middle, "tin", "grid")
+    np.testing.assert_array_equal(kinds, expected)
+    assert set(kinds) == {"tin", "grid"}

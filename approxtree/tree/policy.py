@@ -76,6 +76,13 @@ class StrategyPolicy:
         """``candidates`` of a whole level: (names, node indices (j,) int64) per group of nodes
         sharing their candidates; rects (k, 4) float64. Python runs per group, not per node."""
         everyone = np.arange(len(rects), dtype=np.int64)
+        if type(self).candidates is not StrategyPolicy.candidates:
+            # A subclass choosing per rectangle: ask it node by node, then group.
+            per_node = [self.candidates(terrain, level, Rect(*b)) for b in rects.tolist()]
+            groups: dict[tuple[str, ...], list[int]] = {}
+            for i, names in enumerate(per_node):
+                groups.setdefault(tuple(names), []).append(i)
+            return [(n, np.array(i, dtype=np.int64)) for n, i in groups.items()]
         if self.name == "type":
             return _by_type_level(terrain, level, rects)
         return [(self.candidates(terrain, level, _NO_RECT), everyone)]
