@@ -7,6 +7,12 @@ building) above its resident size before building. Results go to
 benchmarks/results/build.json and build.png.
 
     python benchmarks/bench_build.py [--sizes 1025 2049 4097] [--epsilons 1 5]
+
+The issue-15 targets run too (``--targets`` alone runs only them; ``--no-targets`` skips them),
+in one fresh worker on the 4097² DEM: the 349,525-node tree (ε = 0, s = 81) built and saved
+(medians of ``--target-repeats``, a cProfile top-10 of one build), and ε = 1 at the default s;
+the first build of a tiny grid (numba compile or cache load) is reported separately. Results go
+to benchmarks/results/build_targets.json.
 """
 
 from __future__ import annotations
@@ -78,6 +84,78 @@ def worker(npy: str, epsilon: float, repeats: int) -> dict:
     }
 
 
+def _profile_top(fn, count: int = 10) -> list[dict]:
+    """cProfile of one call of ``fn``: the ``count`` functions of largest own time."""
+    import cProfile
+    import pstats
+
+    prof = cProfile.Profile()
+    prof.enable()
+    fn()
+    prof.disable()
+    stats = pstats.Stats(prof).stats  # type: ignore[attr-defined]
+    rows = [
+        {
+            "function": f"{Path(file).name}:{line}({name})",
+            "ncalls": int(nc),
+            "tottime": round(tt, 4),
+            "cumtime": round(ct, 4),
+        }
+        for (file, line, name), (_, nc, tt, ct, _) in stats.items()
+    ]
+    return sorted(rows, key=lambda r: -r["tottime"])[:count]
+
+
+def target_worker(npy: str, repeats: int) -> dict:
+    """The issue-15 build targets on one DEM, in this process (see the module docstring)."""
+    import shutil
+
+    from affine import Affine
+
+    from approxtree import ApproximationTree, Grid
+    from approxtree.datasets import fractal_terrain
+
+    # Numba compile (or cache load) on the clock of the first build only.
+    t0 = time.perf_counter()
+    ApproximationTree.build(fractal_terrain(65, seed=0), epsilon=0.0, max_points=81, progress=False)
+    first_call = time.perf_counter() - t0
+    z = np.load(npy)
+    grid = Grid(z, transform=Affine(10.0, 0, 0, 0, -10.0, z.shape[0] * 10.0))
+    out: dict = {"size": int(z.shape[0]), "first_build_seconds": first_call}
+    cases = {"eps0_s81": {"epsilon": 0.0, "max_points": 81}, "eps1": {"epsilon": 1.0}}
+    # Interleaved repeats, so load on the machine spreads over both cases alike.
+    times: dict[str, list[float]] = {k: [] for k in cases}
+    saves: list[float] = []
+    nodes: dict[str, int] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for r in range(repeats):
+            for name, kw in cases.items():
+                t0 = time.perf_counter()
+                tree = ApproximationTree.build(grid, progress=False, **kw)
+                times[name].append(time.perf_counter() - t0)
+                nodes[name] = len(tree)
+                if name == "eps0_s81" and r < max(3, repeats // 2):
+                    path = Path(tmp) / f"t{r}.zarr"
+                    t0 = time.perf_counter()
+                    tree.save(path)
+                    saves.append(time.perf_counter() - t0)
+                    shutil.rmtree(path, ignore_errors=True)
+                del tree
+    for name, kw in cases.items():
+        out[name] = {
+            **kw,
+            "nodes": nodes[name],
+            "build_seconds_median": statistics.median(times[name]),
+            "build_seconds_all": times[name],
+        }
+    out["eps0_s81"]["save_seconds_median"] = statistics.median(saves)
+    out["eps0_s81"]["save_seconds_all"] = saves
+    out["eps0_s81"]["build_profile_top10"] = _profile_top(
+        lambda: ApproximationTree.build(grid, epsilon=0.0, max_points=81, progress=False)
+    )
+    return out
+
+
 def plot(rows: list[dict], out: Path) -> None:
     """Build time and memory ratio against DEM size, one line per epsilon."""
     import matplotlib
@@ -109,10 +187,17 @@ def main() -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[1025, 2049, 4097])
     parser.add_argument("--epsilons", type=float, nargs="+", default=[1.0, 5.0])
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--targets", action="store_true", help="run only the issue-15 targets")
+    parser.add_argument("--no-targets", action="store_true", help="skip the issue-15 targets")
+    parser.add_argument("--target-repeats", type=int, default=5)
     parser.add_argument("--worker", nargs=2, metavar=("NPY", "EPSILON"), help=argparse.SUPPRESS)
+    parser.add_argument("--target-worker", metavar="NPY", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
         print(json.dumps(worker(args.worker[0], float(args.worker[1]), args.repeats)))
+        return
+    if args.target_worker:
+        print(json.dumps(target_worker(args.target_worker, args.target_repeats)))
         return
 
     from approxtree.datasets import fractal_heights
@@ -120,6 +205,25 @@ def main() -> None:
     rows = []
     RESULTS.mkdir(exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
+        if not args.no_targets:
+            npy = Path(tmp) / "fractal_4097.npy"
+            np.save(npy, fractal_heights(4097, seed=4097))
+            cmd = [sys.executable, __file__, "--target-worker", str(npy)]
+            cmd += ["--target-repeats", str(args.target_repeats)]
+            out = subprocess.run(cmd, check=True, capture_output=True, text=True)
+            targets = json.loads(out.stdout.strip().splitlines()[-1])
+            targets["targets"] = {"eps0_s81_build_s": 3.0, "eps1_build_s": 0.3}
+            (RESULTS / "build_targets.json").write_text(json.dumps(targets, indent=2))
+            a, b = targets["eps0_s81"], targets["eps1"]
+            print(
+                f"4097² ε=0 s=81: {a['nodes']} nodes, build {a['build_seconds_median']:.2f} s, "
+                f"save {a['save_seconds_median']:.2f} s; ε=1: {b['nodes']} nodes, build "
+                f"{b['build_seconds_median']:.3f} s; first build "
+                f"{targets['first_build_seconds']:.2f} s",
+                flush=True,
+            )
+            if args.targets:
+                return
         for size in args.sizes:
             npy = Path(tmp) / f"fractal_{size}.npy"
             np.save(npy, fractal_heights(size, seed=size))

@@ -58,6 +58,16 @@ class GeometryData(ABC):
         Grids cut on a data line so that neighbouring patches share their border points.
         """
 
+    def split_positions(self, rects: np.ndarray, axis: int) -> np.ndarray:
+        """(k,) float64 ``split_position`` of (k, 4) rectangles (xmin, ymin, xmax, ymax), NaN
+        where a rectangle cannot be cut; grids override it with one array pass."""
+        out = np.full(len(rects), np.nan)
+        for i, box in enumerate(np.asarray(rects, dtype=np.float64).reshape(-1, 4).tolist()):
+            at = self.split_position(Rect(*box), axis)
+            if at is not None:
+                out[i] = at
+        return out
+
     @abstractmethod
     def to_record(self) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
         """(JSON-able attributes, named arrays) that ``from_record`` turns back into the terrain."""

@@ -260,19 +260,27 @@ class Grid(GeometryData):
 
         Empty ranges come back with r1 < r0 or c1 < c0.
         """
-        fr_a, fc_a = self.fractional_index(np.array(rect.xmin), np.array(rect.ymin))
-        fr_b, fc_b = self.fractional_index(np.array(rect.xmax), np.array(rect.ymax))
+        r0, r1, c0, c1 = self.index_ranges(np.array([rect.as_tuple()], dtype=np.float64))[0]
+        return int(r0), int(r1), int(c0), int(c1)
+
+    def index_ranges(self, rects: np.ndarray) -> np.ndarray:
+        """(k, 4) int64 (r0, r1, c0, c1) of ``index_range`` for (k, 4) float64 rectangles
+        (xmin, ymin, xmax, ymax), in one array pass (a level of a tree at once)."""
+        rects = np.asarray(rects, dtype=np.float64).reshape(-1, 4)
+        fr_a, fc_a = self.fractional_index(rects[:, 0], rects[:, 1])
+        fr_b, fc_b = self.fractional_index(rects[:, 2], rects[:, 3])
         # A tolerance keeps points on the rectangle's border inside it despite round-off in
         # world coordinates: 1e-9 cells, or a few units in the last place of the coordinates
         # where they are large against the cell size (an origin of 1e9 and 1 cm cells).
         t = self.transform
-        ulp = np.spacing(max(abs(rect.xmin), abs(rect.xmax), abs(rect.ymin), abs(rect.ymax)))
-        eps = max(1e-9, 16.0 * ulp / min(abs(t.a), abs(t.e)))
-        r0 = max(int(np.ceil(min(fr_a, fr_b) - eps)), 0)
-        r1 = min(int(np.floor(max(fr_a, fr_b) + eps)), self.height - 1)
-        c0 = max(int(np.ceil(min(fc_a, fc_b) - eps)), 0)
-        c1 = min(int(np.floor(max(fc_a, fc_b) + eps)), self.width - 1)
-        return r0, r1, c0, c1
+        ulp = np.spacing(np.abs(rects).max(axis=1))
+        eps = np.maximum(1e-9, 16.0 * ulp / min(abs(t.a), abs(t.e)))
+        out = np.empty((len(rects), 4), dtype=np.int64)
+        out[:, 0] = np.maximum(np.ceil(np.minimum(fr_a, fr_b) - eps), 0)
+        out[:, 1] = np.minimum(np.floor(np.maximum(fr_a, fr_b) + eps), self.height - 1)
+        out[:, 2] = np.maximum(np.ceil(np.minimum(fc_a, fc_b) - eps), 0)
+        out[:, 3] = np.minimum(np.floor(np.maximum(fc_a, fc_b) + eps), self.width - 1)
+        return out
 
     def window(self, r0: int, r1: int, c0: int, c1: int) -> Grid:
         """The sub-grid of the inclusive index range rows r0..r1, columns c0..c1.
@@ -421,10 +429,15 @@ class Grid(GeometryData):
         return grid
 
     def split_position(self, rect: Rect, axis: int) -> float | None:
-        r0, r1, c0, c1 = self.index_range(rect)
-        lo, hi = (c0, c1) if axis == 0 else (r0, r1)
+        at = float(self.split_positions(np.array([rect.as_tuple()], dtype=np.float64), axis)[0])
+        return None if np.isnan(at) else at
+
+    def split_positions(self, rects: np.ndarray, axis: int) -> np.ndarray:
+        ranges = self.index_ranges(rects)
+        lo, hi = (ranges[:, 2], ranges[:, 3]) if axis == 0 else (ranges[:, 0], ranges[:, 1])
+        coords = self.x_coords if axis == 0 else self.y_coords
         # A single cell (two data lines) cannot be cut further.
-        if hi - lo < 2:
-            return None
-        mid = (lo + hi) // 2
-        return float(self.x_coords[mid] if axis == 0 else self.y_coords[mid])
+        out = np.full(len(ranges), np.nan)
+        ok = hi - lo >= 2
+        out[ok] = coords[(lo[ok] + hi[ok]) // 2]
+        return out

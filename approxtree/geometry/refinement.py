@@ -146,3 +146,6 @@ class GridRefinement(GeometryData):
 
     def split_position(self, rect: Rect, axis: int) -> float | None:
         return self.grid.split_position(rect, axis)
+
+    def split_positions(self, rects: np.ndarray, axis: int) -> np.ndarray:
+        return self.grid.split_positions(rects, axis)

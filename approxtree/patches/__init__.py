@@ -4,9 +4,10 @@ from approxtree.patches.base import GeometryPatch
 from approxtree.patches.grid import GridPatch
 from approxtree.patches.nonregular import NonRegularGridPatch
 from approxtree.patches.rtin import RTINPatch
-from approxtree.patches.tin import TINPatch
+from approxtree.patches.table import TINPatch, patch_class
 
-#: Strategy name → patch class. A new strategy is one new GeometryPatch subclass added here.
+#: Strategy name → patch class by name; the class that builds a strategy on a given data type
+#: is ``patch_class``'s, from the strategy table (``patches.table``).
 STRATEGIES: dict[str, type[GeometryPatch]] = {
     GridPatch.kind: GridPatch,
     TINPatch.kind: TINPatch,
@@ -21,4 +22,5 @@ __all__ = [
     "NonRegularGridPatch",
     "RTINPatch",
     "TINPatch",
+    "patch_class",
 ]

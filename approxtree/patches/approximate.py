@@ -90,22 +90,11 @@ def approximate(
             f"data_dependent applies to the tin strategy only, not {strategy!r}."
         )
     t0 = time.perf_counter()
-    if strategy == "grid":
-        from approxtree.patches.grid import approximate_grid
+    # The strategy table picks the class for this data type (or says it cannot).
+    from approxtree.patches.table import patch_class
 
-        patch = approximate_grid(terrain, max_error, max_points, max_triangles)
-    elif strategy == "nonregular":
-        from approxtree.patches.nonregular import approximate_nonregular
-
-        patch = approximate_nonregular(terrain, max_error, max_points, max_triangles)
-    elif strategy == "tin":
-        from approxtree.patches.tin import approximate_tin
-
-        patch = approximate_tin(terrain, max_error, max_points, max_triangles, data_dependent)
-    else:
-        from approxtree.patches.rtin import approximate_rtin
-
-        patch = approximate_rtin(terrain, max_error, max_points, max_triangles)
+    cls = patch_class(terrain, strategy)
+    patch = cls.approximate(terrain, max_error, max_points, max_triangles, data_dependent)
     seconds = time.perf_counter() - t0
     vertices = patch.vertices
     triangles = patch.triangles

@@ -65,11 +65,41 @@ class GeometryPatch(ABC):
         """
 
     @classmethod
+    def build_level(
+        cls,
+        terrain: GeometryData,
+        rects: np.ndarray,
+        max_points: int,
+        epsilon: float = 0.0,
+    ) -> list[GeometryPatch]:
+        """``build_many`` of a level's (k, 4) float64 rectangles (xmin, ymin, xmax, ymax);
+        strategies whose kernels take arrays override it and make no Rect per node."""
+        boxes = np.asarray(rects, dtype=np.float64).reshape(-1, 4).tolist()
+        return cls.build_many(terrain, [Rect(*b) for b in boxes], max_points, epsilon)
+
+    @classmethod
     def build(
         cls, terrain: GeometryData, rect: Rect, max_points: int, epsilon: float = 0.0
     ) -> GeometryPatch:
         """Build the patch of a single rectangle."""
         return cls.build_many(terrain, [rect], max_points, epsilon)[0]
+
+    @classmethod
+    def approximate(
+        cls,
+        terrain: GeometryData,
+        max_error: float | None,
+        max_points: int | None,
+        max_triangles: int | None,
+        data_dependent: bool = False,
+    ) -> GeometryPatch:
+        """The patch of the whole terrain meeting one goal (see ``patches.approximate``);
+        strategies that approximate whole terrains override it."""
+        from approxtree.errors import UnsupportedStrategyError
+
+        raise UnsupportedStrategyError(
+            f"The {cls.kind} strategy cannot approximate a {type(terrain).__name__}."
+        )
 
     @property
     @abstractmethod

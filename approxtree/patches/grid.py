@@ -8,6 +8,7 @@ are the smallest that keep at most k lines per direction.
 
 from __future__ import annotations
 
+import gc
 import math
 from collections.abc import Sequence
 
@@ -106,16 +107,27 @@ class GridPatch(GeometryPatch):
         max_points: int,
         epsilon: float = 0.0,
     ) -> list[GeometryPatch]:
+        boxes = np.array([r.as_tuple() for r in rects], dtype=np.float64).reshape(-1, 4)
+        patches = cls.build_level(terrain, boxes, max_points, epsilon)
+        for p, rect in zip(patches, rects, strict=True):
+            p.__dict__["_rect"] = rect
+        return patches
+
+    @classmethod
+    def build_level(
+        cls,
+        terrain: GeometryData,
+        rects: np.ndarray,
+        max_points: int,
+        epsilon: float = 0.0,
+    ) -> list[GeometryPatch]:
         # The steps depend on s alone: a regular grid cannot stop early at epsilon.
         grid = cls._require_grid(terrain)
         k = math.isqrt(max_points)
-        ranges = np.array([grid.index_range(r) for r in rects], dtype=np.int64).reshape(-1, 4)
-        steps = np.column_stack(
-            [
-                [grid_steps(r1 - r0 + 1, k) for r0, r1, _, _ in ranges],
-                [grid_steps(c1 - c0 + 1, k) for _, _, c0, c1 in ranges],
-            ]
-        ).astype(np.int64)
+        ranges = grid.index_ranges(rects)
+        # grid_steps of every range at once: ceil((lines − 1) / (k − 1)), at least 1.
+        spans = np.column_stack([ranges[:, 1] - ranges[:, 0], ranges[:, 3] - ranges[:, 2]])
+        steps = np.maximum(1, -(-spans // (k - 1))).astype(np.int64)
         heights = grid.heights_array("building grid patches")
         # No more threads than nodes: an idle thread still costs a hand-off per call, which
         # dominates when a small subtree (a block of a blocked build) is built level by level.
@@ -125,15 +137,86 @@ class GridPatch(GeometryPatch):
             error, zmin, zmax, count = grid_patch_errors(readonly(heights), ranges, steps)
         finally:
             numba.set_num_threads(threads)
-        patches: list[GeometryPatch] = [
-            cls(grid, rect, (*ranges[i], *steps[i]), error[i], (zmin[i], zmax[i]), count[i])
-            for i, rect in enumerate(rects)
-        ]
+        patches = cls.from_arrays(
+            grid, rects, np.column_stack([ranges, steps]), error, zmin, zmax, count
+        )
         if terrain is not grid:
             from approxtree.patches.refined import refine_grid_patches
 
             refine_grid_patches(terrain, patches)  # type: ignore[arg-type]
-        return patches
+        return patches  # type: ignore[return-value]
+
+    @classmethod
+    def from_arrays(
+        cls,
+        grid: Grid,
+        rects: np.ndarray,
+        index: np.ndarray,
+        error: np.ndarray,
+        zmin: np.ndarray,
+        zmax: np.ndarray,
+        count: np.ndarray,
+    ) -> list[GridPatch]:
+        """The patches of k nodes from their arrays: rects (k, 4), index (k, 6) (r0, r1, c0,
+        c1, sr, sc), error, zmin, zmax, count (k,). Equal to calling the constructor per node;
+        the objects are filled directly (a level of a tree holds up to millions)."""
+        new = object.__new__
+        out: list[GridPatch] = []
+        append = out.append
+        # Millions of new objects, none cyclic: the cyclic collector would rescan all of them
+        # many times over (most of the time spent here without this).
+        collecting = gc.isenabled()
+        gc.disable()
+        try:
+            columns = (
+                np.asarray(rects, dtype=np.float64).tolist(),
+                np.asarray(index, dtype=np.int64).tolist(),
+                np.asarray(error, dtype=np.float64).tolist(),
+                np.asarray(zmin, dtype=np.float64).tolist(),
+                np.asarray(zmax, dtype=np.float64).tolist(),
+                np.asarray(count, dtype=np.int64).tolist(),
+            )
+            for box, idx, e, lo, hi, n in zip(*columns, strict=True):
+                p = new(cls)
+                p.__dict__.update(
+                    grid=grid,
+                    _rect=None,
+                    _box=box,
+                    index=tuple(idx),
+                    error=e,
+                    z_range=(lo, hi),
+                    data_count=n,
+                    _mesh=None,
+                    _lattice_z=None,
+                )
+                append(p)
+        finally:
+            if collecting:
+                gc.enable()
+        return out
+
+    @property
+    def rect(self) -> Rect:  # type: ignore[override]
+        """D_N (made from the level's array row on first access)."""
+        r = self._rect
+        if r is None:
+            r = self._rect = Rect(*self._box)
+        return r
+
+    @rect.setter
+    def rect(self, value: Rect) -> None:
+        self._rect = value
+
+    @classmethod
+    def approximate(
+        cls,
+        terrain: GeometryData,
+        max_error: float | None,
+        max_points: int | None,
+        max_triangles: int | None,
+        data_dependent: bool = False,
+    ) -> GeometryPatch:
+        return approximate_grid(terrain, max_error, max_points, max_triangles)
 
     @property
     def steps(self) -> tuple[int, int]:

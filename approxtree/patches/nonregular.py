@@ -150,6 +150,17 @@ class NonRegularGridPatch(GeometryPatch):
         lines = refine_windows(grid, ranges, epsilon, max_points)
         return list(cls.from_lines(grid, rects, lines))
 
+    @classmethod
+    def approximate(
+        cls,
+        terrain: GeometryData,
+        max_error: float | None,
+        max_points: int | None,
+        max_triangles: int | None,
+        data_dependent: bool = False,
+    ) -> GeometryPatch:
+        return approximate_nonregular(terrain, max_error, max_points, max_triangles)
+
     @property
     def is_full_resolution(self) -> bool:
         """True when every data line of the rectangle is chosen (the patch equals T there)."""

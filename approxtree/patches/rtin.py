@@ -173,6 +173,17 @@ class RTINPatch(LatticePatch):
         grid = require_grid(terrain, cls.kind)
         return [rtin_patch(grid, r, epsilon, max_points) for r in rects]
 
+    @classmethod
+    def approximate(
+        cls,
+        terrain: GeometryData,
+        max_error: float | None,
+        max_points: int | None,
+        max_triangles: int | None,
+        data_dependent: bool = False,
+    ) -> GeometryPatch:
+        return approximate_rtin(terrain, max_error, max_points, max_triangles)
+
 
 def approximate_rtin(
     terrain: GeometryData,

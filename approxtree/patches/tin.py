@@ -1,12 +1,12 @@
-"""TINPatch: greedy insertion TIN (Garland & Heckbert), on grids and on scattered points.
+"""GridTINPatch: greedy insertion TIN (Garland & Heckbert) on grids.
 
-On a Grid the patch runs ``kernels.greedy_tin`` over the window of its rectangle: vertices are
+The patch runs ``kernels.greedy_tin`` over the window of its rectangle: vertices are
 grid points of the window (so vertices on the node border are data points of that border),
-nodata stays out of the mesh (triangles never span a hole once refinement is done). On a
-TIN / TINPointSet the data points are scattered: ``patches.tin_points`` runs
-``kernels.greedy_points`` (per-triangle buckets of input points) over each rectangle's points.
+nodata stays out of the mesh (triangles never span a hole once refinement is done). Scattered
+points have ``patches.tin_points``; ``patches.table`` says which class builds ``tin`` on which
+data type.
 
-Stored: (row, col) grid indices or point indices of the vertices, and the triangles.
+Stored: (row, col) grid indices of the vertices, and the triangles.
 """
 
 from __future__ import annotations
@@ -19,12 +19,10 @@ from approxtree.errors import UnsupportedStrategyError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
-from approxtree.geometry.refinement import GridRefinement
-from approxtree.geometry.tin import TIN
 from approxtree.kernels._jit import readonly
 from approxtree.kernels.greedy_tin import greedy_tin
 from approxtree.patches.base import GeometryPatch
-from approxtree.patches.lattice import LatticePatch, Window, grid_window
+from approxtree.patches.lattice import LatticePatch, Window, grid_window, require_grid
 
 
 def grid_tin(
@@ -90,84 +88,27 @@ class GridTINPatch(LatticePatch):
     def build_many(
         cls, terrain: GeometryData, rects: Sequence[Rect], max_points: int, epsilon: float = 0.0
     ) -> list[GeometryPatch]:
-        return TINPatch.build_many(terrain, rects, max_points, epsilon)
-
-
-class TINPatch(GeometryPatch):
-    """Greedy insertion TIN: a ``GridTINPatch`` on grids, a ``PointTINPatch`` on point sets."""
-
-    kind = "tin"
-    #: Algorithm IV (data-dependent flips) instead of Delaunay; off for tree nodes.
-    data_dependent = False
-
-    @classmethod
-    def build_many(
-        cls,
-        terrain: GeometryData,
-        rects: Sequence[Rect],
-        max_points: int,
-        epsilon: float = 0.0,
-    ) -> list[GeometryPatch]:
-        if isinstance(terrain, GridRefinement):
-            from approxtree.patches.refined import RefinedTINPatch
-
-            return RefinedTINPatch.build_many(terrain, rects, max_points, epsilon)
-        if isinstance(terrain, TIN):
-            from approxtree.patches.tin_points import PointTINPatch
-
-            # Scattered points: every rectangle of the level in one kernel call.
-            return list(PointTINPatch.build_points(terrain, rects, max_points, epsilon))
+        # One greedy run per window (tree nodes use Delaunay flips, not Algorithm IV).
+        grid = require_grid(terrain, cls.kind)
         out: list[GeometryPatch] = []
         for rect in rects:
-            if isinstance(terrain, Grid):
-                win = grid_window(terrain, rect)
-                result = grid_tin(
-                    terrain, win, epsilon, max_points, data_dependent=cls.data_dependent
-                )
-                out.append(GridTINPatch.from_greedy(terrain, rect, win, result))
-            else:
-                raise UnsupportedStrategyError(
-                    f"The tin strategy needs a Grid, TIN, TINPointSet or GridRefinement, got a "
-                    f"{type(terrain).__name__}."
-                )
+            win = grid_window(grid, rect)
+            result = grid_tin(grid, win, epsilon, max_points)
+            out.append(cls.from_greedy(grid, rect, win, result))
         return out
 
     @classmethod
-    def from_record(
-        cls, terrain: GeometryData, rect: Rect, record: dict[str, np.ndarray]
+    def approximate(
+        cls,
+        terrain: GeometryData,
+        max_error: float | None,
+        max_points: int | None,
+        max_triangles: int | None,
+        data_dependent: bool = False,
     ) -> GeometryPatch:
-        if isinstance(terrain, Grid):
-            return GridTINPatch.from_record(terrain, rect, record)
-        if isinstance(terrain, GridRefinement):
-            from approxtree.patches.refined import RefinedTINPatch
-
-            return RefinedTINPatch.from_record(terrain, rect, record)
-        from approxtree.patches.tin_points import PointTINPatch
-
-        return PointTINPatch.from_record(terrain, rect, record)
-
-
-def approximate_tin(
-    terrain: GeometryData,
-    max_error: float | None,
-    max_points: int | None,
-    max_triangles: int | None,
-    data_dependent: bool = False,
-) -> GeometryPatch:
-    """The greedy TIN of a whole terrain (see ``patches.approximate``)."""
-    rect = terrain.domain
-    if isinstance(terrain, Grid):
-        win = grid_window(terrain, rect)
-        result = grid_tin(terrain, win, max_error, max_points, max_triangles, data_dependent)
-        return GridTINPatch.from_greedy(terrain, rect, win, result)
-    if isinstance(terrain, TIN):
-        from approxtree.patches.tin_points import PointTINPatch
-
-        if max_triangles is not None:
-            # A triangulation of v points has fewer than 2v triangles.
-            max_points = max(3, max_triangles // 2)
-        err = -1.0 if max_error is None else max_error
-        return PointTINPatch.build_rect(terrain, rect, max_points or 0, err)
-    raise UnsupportedStrategyError(
-        f"The tin strategy cannot approximate a {type(terrain).__name__}."
-    )
+        """The greedy TIN of a whole grid (see ``patches.approximate``)."""
+        grid = require_grid(terrain, cls.kind)
+        rect = grid.domain
+        win = grid_window(grid, rect)
+        result = grid_tin(grid, win, max_error, max_points, max_triangles, data_dependent)
+        return cls.from_greedy(grid, rect, win, result)

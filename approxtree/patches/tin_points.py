@@ -118,9 +118,24 @@ class PointTINPatch(GeometryPatch):
     def build_many(
         cls, terrain: GeometryData, rects: Sequence[Rect], max_points: int, epsilon: float = 0.0
     ) -> list[GeometryPatch]:
-        from approxtree.patches.tin import TINPatch
+        # Scattered points: every rectangle of the level in one kernel call.
+        return list(cls.build_points(terrain, rects, max_points, epsilon))  # type: ignore[arg-type]
 
-        return TINPatch.build_many(terrain, rects, max_points, epsilon)
+    @classmethod
+    def approximate(
+        cls,
+        terrain: GeometryData,
+        max_error: float | None,
+        max_points: int | None,
+        max_triangles: int | None,
+        data_dependent: bool = False,
+    ) -> GeometryPatch:
+        """The greedy TIN of all the data points (see ``patches.approximate``)."""
+        if max_triangles is not None:
+            # A triangulation of v points has fewer than 2v triangles.
+            max_points = max(3, max_triangles // 2)
+        err = -1.0 if max_error is None else max_error
+        return cls.build_rect(terrain, terrain.domain, max_points or 0, err)  # type: ignore[arg-type]
 
     @property
     def vertices(self) -> np.ndarray:

@@ -18,7 +18,7 @@ from approxtree.errors import InvalidParameterError, StoreError
 from approxtree.geometry import TERRAIN_TYPES, TIN, Grid, GridRefinement
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
-from approxtree.patches import STRATEGIES, GeometryPatch
+from approxtree.patches import STRATEGIES, GeometryPatch, patch_class
 from approxtree.tree.builder import build_levels
 from approxtree.tree.node import Node
 from approxtree.tree.policy import StrategyPolicy
@@ -157,7 +157,7 @@ class ApproximationTree:
         n = len(built.patches)
         names = list(dict.fromkeys(p.kind for p in built.patches))
         bboxes = np.empty((n, 6))
-        rects = np.array([r.as_tuple() for r in built.rects], dtype=np.float64).reshape(n, 4)
+        rects = np.asarray(built.rects, dtype=np.float64).reshape(n, 4)
         bboxes[:, [0, 1, 3, 4]] = rects
         bboxes[:, 2] = [p.z_range[0] for p in built.patches]
         bboxes[:, 5] = [p.z_range[1] for p in built.patches]
@@ -215,7 +215,7 @@ class ApproximationTree:
             _, arrays = self._source.patch_record(index)
             kind = self.strategy_names[int(self.strategies[index])]
             rect = Rect(*(float(v) for v in self.rects[index]))
-            p = STRATEGIES[kind].from_record(self.terrain, rect, arrays)
+            p = patch_class(self.terrain, kind).from_record(self.terrain, rect, arrays)
             self._patches[index] = p
         return p
 
@@ -228,7 +228,7 @@ class ApproximationTree:
         _, arrays = self._source.patch_record(index)
         kind = self.strategy_names[int(self.strategies[index])]
         rect = Rect(*(float(v) for v in self.rects[index]))
-        return STRATEGIES[kind].from_record(self.terrain, rect, arrays)
+        return patch_class(self.terrain, kind).from_record(self.terrain, rect, arrays)
 
     @property
     def epsilon(self) -> float:

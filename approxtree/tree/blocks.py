@@ -29,9 +29,9 @@ from approxtree.errors import InvalidParameterError
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
 from approxtree.kernels.grid_patch import grid_patch_part
-from approxtree.patches import STRATEGIES
 from approxtree.patches.base import GeometryPatch
 from approxtree.patches.grid import GridPatch, grid_steps
+from approxtree.patches.table import patch_class
 from approxtree.tree.builder import BuiltLevels, build_levels, validate_parameters
 from approxtree.tree.policy import StrategyPolicy
 from approxtree.tree.subdivision import subdivide
@@ -326,7 +326,7 @@ def run_block(task: BlockTask) -> BlockResult:
     ).reshape(-1, 4)
     return BlockResult(
         block=task.block,
-        rects=np.array([r.as_tuple() for r in built.rects], dtype=np.float64).reshape(n, 4),
+        rects=np.asarray(built.rects, dtype=np.float64).reshape(n, 4),
         levels=np.array(built.levels, dtype=np.int32),
         parents=np.array(built.parents, dtype=np.int64),
         child_start=np.array(built.child_start, dtype=np.int64),
@@ -496,15 +496,15 @@ def assemble(
                 index, (error, lo, hi, cnt) = next(grid_rows)
                 patches[g] = GridPatch(grid, rect, index, error, (lo, hi), int(cnt))
             else:
-                patches[g] = STRATEGIES[kind].from_record(grid, rect, record)
-    out = BuiltLevels()
-    out.rects = rects  # type: ignore[assignment]
-    out.patches = patches  # type: ignore[assignment]
-    out.levels = levels.tolist()
-    out.parents = parents.tolist()
-    out.child_start = child_start.tolist()
-    out.child_count = child_count.tolist()
-    return out
+                patches[g] = patch_class(grid, kind).from_record(grid, rect, record)
+    return BuiltLevels(
+        rects=np.array([r.as_tuple() for r in rects], dtype=np.float64).reshape(n, 4),  # type: ignore[union-attr]
+        patches=patches,  # type: ignore[arg-type]
+        levels=levels,
+        parents=parents,
+        child_start=child_start,
+        child_count=child_count,
+    )
 
 
 def build_blocked(

@@ -17,22 +17,26 @@ from tqdm.auto import tqdm
 from approxtree.errors import InvalidParameterError, UnsupportedStrategyError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
-from approxtree.patches import STRATEGIES
 from approxtree.patches.base import GeometryPatch
+from approxtree.patches.table import patch_class
 from approxtree.tree.policy import StrategyPolicy
-from approxtree.tree.subdivision import FANOUTS, subdivide
+from approxtree.tree.subdivision import FANOUTS, subdivide_level
 
 
 @dataclass
 class BuiltLevels:
-    """The flat arrays of a freshly built tree (see ApproximationTree for their meaning)."""
+    """The flat arrays of a freshly built tree (see ApproximationTree for their meaning).
 
-    rects: list[Rect] = field(default_factory=list)
+    rects: (n, 4) float64; levels, parents, child_start, child_count: (n,) int64; patches: the
+    n patch objects, in the same breadth-first order.
+    """
+
+    rects: np.ndarray = field(default_factory=lambda: np.empty((0, 4)))
     patches: list[GeometryPatch] = field(default_factory=list)
-    levels: list[int] = field(default_factory=list)
-    parents: list[int] = field(default_factory=list)
-    child_start: list[int] = field(default_factory=list)
-    child_count: list[int] = field(default_factory=list)
+    levels: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
+    parents: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
+    child_start: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
+    child_count: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
     seconds: float = 0.0
 
 
@@ -54,25 +58,40 @@ def _build_level(
     terrain: GeometryData,
     policy: StrategyPolicy,
     level: int,
-    frontier: list[tuple[Rect, int]],
+    rects: np.ndarray,
     max_points: int,
     epsilon: float,
 ) -> list[GeometryPatch]:
-    """The patch of every node of one level, as the policy chooses among its candidates."""
-    wanted = [policy.candidates(terrain, level, rect) for rect, _ in frontier]
-    built: list[list[GeometryPatch]] = [[] for _ in frontier]
+    """The patch of every node of one level, as the policy chooses among its candidates.
+
+    rects: (k, 4) float64 rectangles of the level's nodes. Python runs per group of nodes
+    sharing their candidates and per strategy; the strategies build whole arrays of nodes.
+    """
+    k = len(rects)
+    groups = policy.candidates_level(terrain, level, rects)
+    if len(groups) == 1 and len(groups[0][0]) == 1:
+        # The common case: one strategy for the whole level.
+        name = groups[0][0][0]
+        return patch_class(terrain, name).build_level(terrain, rects, max_points, epsilon)
+    # Candidate names per node, strategies in the order the nodes first name them.
+    wanted: list[tuple[str, ...]] = [()] * k
+    for names, idx in groups:
+        for i in idx.tolist():
+            wanted[i] = names
+    order = sorted(groups, key=lambda g: int(g[1].min()) if len(g[1]) else k)
+    built: list[list[GeometryPatch]] = [[] for _ in range(k)]
     refused: dict[str, UnsupportedStrategyError] = {}
     # One batch per strategy so every kernel sees the whole level at once.
-    for name in dict.fromkeys(n for names in wanted for n in names):
-        idx = [i for i, names in enumerate(wanted) if name in names]
-        rects = [frontier[i][0] for i in idx]
+    for name in dict.fromkeys(n for names, _ in order for n in names):
+        idx = np.sort(np.concatenate([i for names, i in groups if name in names]))
         try:
-            patches = STRATEGIES[name].build_many(terrain, rects, max_points, epsilon)
+            cls = patch_class(terrain, name)
+            patches = cls.build_level(terrain, rects[idx], max_points, epsilon)
         except UnsupportedStrategyError as exc:
             # A strategy that cannot build this data type drops out of multi-candidate choices.
             refused[name] = exc
             continue
-        for i, p in zip(idx, patches, strict=True):
+        for i, p in zip(idx.tolist(), patches, strict=True):
             built[i].append(p)
     out: list[GeometryPatch] = []
     for names, options in zip(wanted, built, strict=True):
@@ -83,7 +102,7 @@ def _build_level(
                 f"No approximation strategy can build a {type(terrain).__name__} "
                 f"(tried {', '.join(names)}); convert the data to a regular grid."
             )
-        out.append(policy.choose(options, epsilon))
+        out.append(options[0] if len(options) == 1 else policy.choose(options, epsilon))
     return out
 
 
@@ -102,10 +121,12 @@ def build_levels(
     root: the rectangle of the first node (default the terrain's domain) and root_level its
     level, so that a subtree of a larger tree can be built on its own (a block of a blocked
     build, on the window of its rectangle); ``levels`` then count from root_level.
+
+    Every level is a set of arrays (rects, parents); its patches are built per strategy, its
+    children cut in one array pass (``subdivide_level``): Python runs per level, not per node.
     """
     validate_parameters(epsilon, max_points, fanout)
     t0 = time.perf_counter()
-    out = BuiltLevels()
     show = terrain.point_count > 1_000_000 if progress is None else progress
     # Progress is the share of the domain's area already covered by finished leaves.
     root = terrain.domain if root is None else root
@@ -118,28 +139,47 @@ def build_levels(
         leave=False,
         bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f}% [{elapsed}<{remaining}]",
     )
-    # Each entry of the frontier: (rect, parent index); the root has no parent.
-    frontier: list[tuple[Rect, int]] = [(root, -1)]
+    # The frontier: rects (k, 4) of the level's nodes and their parents (−1 for the root).
+    rects = np.array([root.as_tuple()], dtype=np.float64)
+    parents = np.array([-1], dtype=np.int64)
     level = int(root_level)
-    while frontier:
-        patches = _build_level(terrain, policy, level, frontier, max_points, epsilon)
-        first = len(out.rects)
-        next_frontier: list[tuple[Rect, int]] = []
-        next_first = first + len(frontier)
-        for i, ((rect, parent), patch) in enumerate(zip(frontier, patches, strict=True)):  # type: ignore[assignment]
-            node = first + i
-            out.rects.append(rect)
-            out.patches.append(patch)
-            out.levels.append(level)
-            out.parents.append(parent)
-            children = subdivide(terrain, rect, fanout) if patch.error > epsilon else []
-            out.child_start.append(next_first + len(next_frontier) if children else 0)
-            out.child_count.append(len(children))
-            next_frontier.extend((c, node) for c in children)
-            if not children:
-                bar.update(100.0 * rect.area / domain_area)
-        frontier = next_frontier
+    first = 0
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("rects", "levels", "parents", "cs", "cc")}
+    patches_out: list[GeometryPatch] = []
+    while len(rects):
+        patches = _build_level(terrain, policy, level, rects, max_points, epsilon)
+        errors = np.fromiter((p.error for p in patches), dtype=np.float64, count=len(patches))
+        split = np.flatnonzero(errors > epsilon)
+        children, counts = subdivide_level(terrain, rects[split], fanout)
+        count = np.zeros(len(rects), dtype=np.int64)
+        count[split] = counts
+        # Children of the level are numbered right after it, in their parents' order.
+        next_first = first + len(rects)
+        start = np.where(count > 0, next_first + np.cumsum(count) - count, 0)
+        parts["rects"].append(rects)
+        parts["levels"].append(np.full(len(rects), level, dtype=np.int64))
+        parts["parents"].append(parents)
+        parts["cs"].append(start)
+        parts["cc"].append(count)
+        patches_out.extend(patches)
+        leaf = count == 0
+        if leaf.any():
+            r = rects[leaf]
+            bar.update(
+                100.0 * float(((r[:, 2] - r[:, 0]) * (r[:, 3] - r[:, 1])).sum()) / domain_area
+            )
+        parents = np.repeat(np.arange(first, next_first, dtype=np.int64), count)
+        rects = children
+        first = next_first
         level += 1
     bar.close()
+    out = BuiltLevels(
+        rects=np.concatenate(parts["rects"]),
+        patches=patches_out,
+        levels=np.concatenate(parts["levels"]),
+        parents=np.concatenate(parts["parents"]),
+        child_start=np.concatenate(parts["cs"]),
+        child_count=np.concatenate(parts["cc"]),
+    )
     out.seconds = time.perf_counter() - t0
     return out

@@ -25,10 +25,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numpy as np
+
 from approxtree.errors import InvalidParameterError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
 from approxtree.patches import STRATEGIES, GeometryPatch
+from approxtree.patches.table import type_strategy
 
 
 def _check_name(name: str) -> str:
@@ -66,6 +69,23 @@ class StrategyPolicy:
         if self.name == "type":
             return _by_type(terrain, level, rect)
         return (self.name,)
+
+    def candidates_level(
+        self, terrain: GeometryData, level: int, rects: np.ndarray
+    ) -> list[tuple[tuple[str, ...], np.ndarray]]:
+        """``candidates`` of a whole level: (names, node indices (j,) int64) per group of nodes
+        sharing their candidates; rects (k, 4) float64. Python runs per group, not per node."""
+        everyone = np.arange(len(rects), dtype=np.int64)
+        if type(self).candidates is not StrategyPolicy.candidates:
+            # A subclass choosing per rectangle: ask it node by node, then group.
+            per_node = [self.candidates(terrain, level, Rect(*b)) for b in rects.tolist()]
+            groups: dict[tuple[str, ...], list[int]] = {}
+            for i, names in enumerate(per_node):
+                groups.setdefault(tuple(names), []).append(i)
+            return [(n, np.array(i, dtype=np.int64)) for n, i in groups.items()]
+        if self.name == "type":
+            return _by_type_level(terrain, level, rects)
+        return [(self.candidates(terrain, level, _NO_RECT), everyone)]
 
     def choose(self, patches: Sequence[GeometryPatch], epsilon: float) -> GeometryPatch:
         """The patch the node keeps among its candidates' patches (see ``choose_patch``)."""
@@ -130,6 +150,12 @@ class LevelPolicy(StrategyPolicy):
         name = next((n for r, n in self.ranges if level in r), self.default)
         return self._inner[name].candidates(terrain, level, rect)
 
+    def candidates_level(
+        self, terrain: GeometryData, level: int, rects: np.ndarray
+    ) -> list[tuple[tuple[str, ...], np.ndarray]]:
+        name = next((n for r, n in self.ranges if level in r), self.default)
+        return self._inner[name].candidates_level(terrain, level, rects)
+
     @classmethod
     def parse(cls, spec: str) -> LevelPolicy:
         ranges: list[tuple[range, str]] = []
@@ -155,18 +181,30 @@ class LevelPolicy(StrategyPolicy):
 
 def _by_type(terrain: GeometryData, level: int, rect: Rect) -> tuple[str, ...]:
     """The ``type`` policy: the strategy made for the terrain's data type."""
-    from approxtree.geometry.grid import Grid
     from approxtree.geometry.refinement import GridRefinement
-    from approxtree.geometry.tin import TIN
 
-    if isinstance(terrain, Grid):
-        return ("grid",)
-    if isinstance(terrain, TIN):
-        return ("tin",)
+    name = type_strategy(terrain)
+    if name is not None:
+        return (name,)
     if isinstance(terrain, GridRefinement):
         return _MICRO_TIN.candidates(terrain, level, rect)
     # Any other data type: every strategy, the builder keeps those that accept it.
     return tuple(STRATEGIES)
+
+
+def _by_type_level(
+    terrain: GeometryData, level: int, rects: np.ndarray
+) -> list[tuple[tuple[str, ...], np.ndarray]]:
+    """``_by_type`` of a whole level (see ``StrategyPolicy.candidates_level``)."""
+    from approxtree.geometry.refinement import GridRefinement
+
+    if isinstance(terrain, GridRefinement):
+        return _MICRO_TIN.candidates_level(terrain, level, rects)
+    return [(_by_type(terrain, level, _NO_RECT), np.arange(len(rects), dtype=np.int64))]
+
+
+#: Stands for the rectangle of policies whose candidates do not depend on it.
+_NO_RECT = Rect(0.0, 0.0, 0.0, 0.0)
 
 
 class SemanticPolicy(StrategyPolicy):
@@ -190,6 +228,24 @@ class SemanticPolicy(StrategyPolicy):
         if level >= self.from_level and self.holds_microstructure(terrain, rect):
             return self._fine.candidates(terrain, level, rect)
         return self._other.candidates(terrain, level, rect)
+
+    def candidates_level(
+        self, terrain: GeometryData, level: int, rects: np.ndarray
+    ) -> list[tuple[tuple[str, ...], np.ndarray]]:
+        fine = np.zeros(len(rects), dtype=bool)
+        if level >= self.from_level:
+            # Microstructure terrains only: one index query per node.
+            fine[:] = [
+                self.holds_microstructure(terrain, Rect(*box)) for box in np.asarray(rects).tolist()
+            ]
+        groups = []
+        for mask, inner in ((fine, self._fine), (~fine, self._other)):
+            idx = np.flatnonzero(mask)
+            if len(idx):
+                groups += [
+                    (n, idx[i]) for n, i in inner.candidates_level(terrain, level, rects[idx])
+                ]
+        return groups
 
     @classmethod
     def parse(cls, spec: str) -> SemanticPolicy:

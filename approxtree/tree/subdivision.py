@@ -10,6 +10,8 @@ share their border data lines. The children's rectangles tile the parent exactly
 
 from __future__ import annotations
 
+import numpy as np
+
 from approxtree.errors import InvalidParameterError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
@@ -46,3 +48,44 @@ def subdivide(terrain: GeometryData, rect: Rect, fanout: int) -> list[Rect]:
     for band in rows:
         children.extend(_cut(band, 0, cut_x) if cut_x is not None else [band])
     return children if len(children) > 1 else []
+
+
+def subdivide_level(
+    terrain: GeometryData, rects: np.ndarray, fanout: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The children of every rectangle of a level in one array pass: ``subdivide`` of each.
+
+    rects: (k, 4) float64 (xmin, ymin, xmax, ymax). Returns (child rects (m, 4) float64, in
+    the parents' order and each parent's children in ``subdivide``'s order; counts (k,) int64,
+    0 for a rectangle that cannot be cut).
+    """
+    if fanout not in FANOUTS:
+        raise InvalidParameterError(f"fanout must be one of {FANOUTS}, got {fanout}.")
+    rects = np.asarray(rects, dtype=np.float64).reshape(-1, 4)
+    cut_x = terrain.split_positions(rects, 0)
+    cut_y = terrain.split_positions(rects, 1)
+    has_x, has_y = ~np.isnan(cut_x), ~np.isnan(cut_y)
+    # Per parent: does the x cut / the y cut apply (k-d: one axis, quadtree: both).
+    if fanout == 2:
+        wide = rects[:, 2] - rects[:, 0] >= rects[:, 3] - rects[:, 1]
+        use_x = np.where(wide, has_x, has_x & ~has_y)
+        use_y = ~use_x & has_y
+    else:
+        use_x, use_y = has_x, has_y
+    counts = (1 + use_x.astype(np.int64)) * (1 + use_y.astype(np.int64))
+    counts[counts == 1] = 0
+    parent = np.repeat(np.arange(len(rects)), counts)
+    starts = np.cumsum(counts) - counts
+    j = np.arange(len(parent)) - starts[parent]
+    ux, uy = use_x[parent], use_y[parent]
+    # Child j's side of each cut: 0 = low (west/south), 1 = high, -1 = that axis left whole;
+    # quadtree order SW, SE, NW, NE puts the x side in j's low bit when both axes are cut.
+    col = np.where(ux, np.where(uy, j % 2, j), -1)
+    row = np.where(uy, np.where(ux, j // 2, j), -1)
+    cx, cy = cut_x[parent], cut_y[parent]
+    out = rects[parent].copy()
+    out[:, 0] = np.where(col == 1, cx, out[:, 0])
+    out[:, 2] = np.where(col == 0, cx, out[:, 2])
+    out[:, 1] = np.where(row == 1, cy, out[:, 1])
+    out[:, 3] = np.where(row == 0, cy, out[:, 3])
+    return out, counts
