@@ -12,13 +12,13 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from approxtree.errors import InvalidParameterError, UnsupportedStrategyError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
 from approxtree.patches import STRATEGIES
 from approxtree.patches.base import GeometryPatch
+from approxtree.progress import ProgressCallback, no_progress
 from approxtree.tree.policy import StrategyPolicy
 from approxtree.tree.subdivision import FANOUTS, subdivide
 
@@ -93,11 +93,12 @@ def build_levels(
     max_points: int,
     fanout: int,
     policy: StrategyPolicy,
-    progress: bool | None = None,
+    progress: ProgressCallback | None = None,
     root: Rect | None = None,
     root_level: int = 0,
 ) -> BuiltLevels:
-    """Build the nodes level by level; ``progress`` None shows a bar only for large terrains.
+    """Build the nodes level by level; ``progress(done, total)`` after each level, in data
+    points of the root's rectangle covered by finished leaves (``approxtree.progress``).
 
     root: the rectangle of the first node (default the terrain's domain) and root_level its
     level, so that a subtree of a larger tree can be built on its own (a block of a blocked
@@ -106,18 +107,15 @@ def build_levels(
     validate_parameters(epsilon, max_points, fanout)
     t0 = time.perf_counter()
     out = BuiltLevels()
-    show = terrain.point_count > 1_000_000 if progress is None else progress
-    # Progress is the share of the domain's area already covered by finished leaves.
+    # Progress: the points (area share of the root's points) covered by finished leaves,
+    # reported once a level is done; the last report is exactly the total.
+    report = progress or no_progress
     root = terrain.domain if root is None else root
     domain_area = root.area or 1.0
-    bar = tqdm(
-        total=100.0,
-        unit="%",
-        desc="building tree",
-        disable=not show,
-        leave=False,
-        bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f}% [{elapsed}<{remaining}]",
-    )
+    share = min(1.0, root.area / (terrain.domain.area or 1.0))
+    total = max(1, round(terrain.point_count * share)) if progress else 1
+    covered = 0.0
+    report(0, total)
     # Each entry of the frontier: (rect, parent index); the root has no parent.
     frontier: list[tuple[Rect, int]] = [(root, -1)]
     level = int(root_level)
@@ -137,9 +135,9 @@ def build_levels(
             out.child_count.append(len(children))
             next_frontier.extend((c, node) for c in children)
             if not children:
-                bar.update(100.0 * rect.area / domain_area)
+                covered += rect.area
         frontier = next_frontier
         level += 1
-    bar.close()
+        report(total if not frontier else min(total - 1, int(total * covered / domain_area)), total)
     out.seconds = time.perf_counter() - t0
     return out
