@@ -142,7 +142,10 @@ def run_on_terminal(args: list[str], cwd: Path) -> tuple[int, str, str]:
     [
         (["build", "dem.tif", "--out", "t.zarr", "--epsilon", "0.5"], "point"),
         (["bake", "dem.tif", "--out", "pyr", "--no-gl", "--max-texture-size", "64"], "row"),
+        (["mesh", "dem.tif", "--max-points", "300"], "stage"),
+        (["rd", "dem.tif", "--rates", "64,128", "--methods", "uniform,tin"], "stage"),
     ],
+    ids=["build", "bake", "mesh", "rd"],
 )
 def test_cli_bar_on_a_terminal_reaches_its_total(tmp_path, command, unit):
     write_dem(tmp_path / "dem.tif")
