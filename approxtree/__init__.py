@@ -29,6 +29,33 @@ __version__ = "0.1.0"
 _TREE_NAMES = ("ApproximationTree", "Node", "PointQuadtree", "StrategyPolicy", "load_tree")
 
 
+def _notebook_png(obj: object) -> bytes | None:
+    from approxtree.notebook import repr_png
+
+    return repr_png(obj)
+
+
+def _register_notebook_formatters() -> None:
+    """Inside IPython (a notebook), show trees and terrains as PNG previews
+    (``approxtree.notebook``); the classes are named, nothing heavy is imported here."""
+    import sys
+
+    ipython = sys.modules.get("IPython")
+    ip = ipython.get_ipython() if ipython is not None else None
+    if ip is None:
+        return
+    png = ip.display_formatter.formatters["image/png"]
+    for module, name in (
+        ("approxtree.tree.approximation_tree", "ApproximationTree"),
+        ("approxtree.tree.point_quadtree", "PointQuadtree"),
+        ("approxtree.geometry.base", "GeometryData"),
+    ):
+        png.for_type_by_name(module, name, _notebook_png)
+
+
+_register_notebook_formatters()
+
+
 def __getattr__(name: str):
     if name in _TREE_NAMES:
         from approxtree import tree

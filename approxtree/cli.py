@@ -295,6 +295,16 @@ def tree_figures(tree, seconds: float, nbytes: int) -> dict[str, Any]:
     return stats
 
 
+def quiet_option(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """-q/--quiet (keyword ``quiet``): no progress bar. Without it a command shows its bar on
+    stderr only when stderr is a terminal; use it as
+    ``with progress_bar("desc", unit="…", quiet=quiet) as report: work(..., progress=report)``
+    (``approxtree.progress``)."""
+    return click.option(
+        "-q", "--quiet", is_flag=True, help="No progress bar (none either off a terminal)."
+    )(fn)
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="approxtree")
 def main() -> None:
@@ -432,6 +442,7 @@ def info(dem: str, encoding, nodata_policy, ground_only, height_scale, as_json: 
     help="Write the dask performance report (task stream of the blocks) to this HTML file.",
 )
 @reader_options
+@quiet_option
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
 @_reports_errors
 def build(
@@ -455,9 +466,11 @@ def build(
     nodata_policy,
     ground_only,
     height_scale,
+    quiet: bool,
     as_json: bool,
 ) -> None:
     """Build the approximation tree of a terrain file and save it."""
+    from approxtree.progress import progress_bar
     from approxtree.tree import ApproximationTree
 
     if out is None:
@@ -482,17 +495,22 @@ def build(
         # A windowed terrain is large: build its blocks on every core.
         workers = os.cpu_count() or 1
     t0 = time.perf_counter()
-    tree = ApproximationTree.build(
-        terrain,
-        epsilon=epsilon,
-        max_points=max_points,
-        fanout=int(fanout),
-        policy=policy,
-        workers=workers,
-        scheduler=scheduler,
-        block_size=block_size,
-        report=report,
-    )
+    # The bar counts data points covered by finished leaves, or blocks of a blocked build.
+    blocked = workers is not None or scheduler is not None or block_size is not None
+    unit = "block" if blocked or getattr(terrain, "is_windowed", False) else "point"
+    with progress_bar("building tree", unit=unit, quiet=quiet) as on_progress:
+        tree = ApproximationTree.build(
+            terrain,
+            epsilon=epsilon,
+            max_points=max_points,
+            fanout=int(fanout),
+            policy=policy,
+            workers=workers,
+            scheduler=scheduler,
+            block_size=block_size,
+            report=report,
+            progress=on_progress,
+        )
     seconds = time.perf_counter() - t0
     nbytes = tree.save(out)
     _emit(tree_figures(tree, seconds, nbytes), as_json)
@@ -976,6 +994,7 @@ def render(
     help="tin on grids: data-dependent triangulation (edge flips by error) instead of Delaunay.",
 )
 @reader_options
+@quiet_option
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
 @_reports_errors
 def mesh(
@@ -992,12 +1011,14 @@ def mesh(
     nodata_policy,
     ground_only,
     height_scale,
+    quiet: bool,
     as_json: bool,
 ) -> None:
     """Approximate a whole terrain with one strategy to exactly one goal (--max-error,
     --max-points or --max-triangles); print its exact max and RMS errors, optionally write it."""
     from approxtree.io.mesh_file import mesh_format, write_mesh
     from approxtree.patches.approximate import approximate, check_goal
+    from approxtree.progress import progress_bar
 
     # Check the cheap things before reading and approximating the terrain.
     check_goal(max_error, max_points, max_triangles)
@@ -1013,9 +1034,16 @@ def mesh(
         raise InvalidParameterError("--textures and --skirts shape the written mesh: give --out.")
     terrain = _open(dem, encoding, nodata_policy, ground_only, height_scale)
     _check_mesh_strategy(dem, terrain, strategy)
-    result = approximate(
-        terrain, strategy, max_error, max_points, max_triangles, data_dependent=data_dependent
-    )
+    with progress_bar(f"mesh ({strategy})", unit="stage", quiet=quiet) as on_progress:
+        result = approximate(
+            terrain,
+            strategy,
+            max_error,
+            max_points,
+            max_triangles,
+            data_dependent=data_dependent,
+            progress=on_progress,
+        )
     figures = result.figures()
     if out is not None:
         meta = {"strategy": strategy, "crs": terrain.crs, "max_error": figures["max_error"]}
@@ -1303,6 +1331,7 @@ def _tiles_3dtiles(
     "--out", required=True, type=click.Path(file_okay=False), help="Folder of the pyramid."
 )
 @reader_options
+@quiet_option
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
 @_reports_errors
 def bake_command(
@@ -1329,6 +1358,7 @@ def bake_command(
     nodata_policy,
     ground_only,
     height_scale,
+    quiet: bool,
     as_json: bool,
 ) -> None:
     """Bake a terrain's textures (DEM file or saved tree) into a pyramid folder.
@@ -1342,6 +1372,7 @@ def bake_command(
     """
     from approxtree.errors import InvalidParameterError
     from approxtree.io.output_path import check_output_folder
+    from approxtree.progress import progress_bar
     from approxtree.textures.bake import bake
 
     check_output_folder(out, "texture pyramid folder")
@@ -1365,22 +1396,24 @@ def bake_command(
         )
     if palette is not None and thematic is None:
         raise InvalidParameterError("--palette colours a --thematic raster; give one.")
-    result = bake(
-        terrain,
-        out,
-        shading=None if shading == "none" else shading,
-        shading_options=options if shading != "none" else None,
-        thematic=thematic,
-        palette=palette,
-        overlays=list(roads),
-        overlay_colour=_rgba(overlay_colour),
-        overlay_width=overlay_width,
-        water=list(water),
-        blend=blend,
-        texel_size=texel,
-        max_texture_size=max_texture_size,
-        gl=not no_gl,
-    )
+    with progress_bar("baking pyramid", unit="row", quiet=quiet) as on_progress:
+        result = bake(
+            terrain,
+            out,
+            progress=on_progress,
+            shading=None if shading == "none" else shading,
+            shading_options=options if shading != "none" else None,
+            thematic=thematic,
+            palette=palette,
+            overlays=list(roads),
+            overlay_colour=_rgba(overlay_colour),
+            overlay_width=overlay_width,
+            water=list(water),
+            blend=blend,
+            texel_size=texel,
+            max_texture_size=max_texture_size,
+            gl=not no_gl,
+        )
     _emit(result.figures(), as_json)
 
 
@@ -1592,6 +1625,7 @@ def _rates(ctx: click.Context, param: click.Parameter, value: str) -> list[int]:
 )
 @click.option("--plot", type=click.Path(dir_okay=False), help="PNG of the L2 and L∞ curves.")
 @reader_options
+@quiet_option
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
 @_reports_errors
 def rd(
@@ -1604,11 +1638,13 @@ def rd(
     nodata_policy,
     ground_only,
     height_scale,
+    quiet: bool,
     as_json: bool,
 ) -> None:
     """Rate–distortion comparison: binary-tree decimation and refinement, uniform grid, TIN
     and RTIN at the same triangle counts (L2, max error, SNR in dB, seconds)."""
     from approxtree.geometry import Grid
+    from approxtree.progress import progress_bar
     from approxtree.rd import lattice_heights, rd_curves
     from approxtree.rd.curves import json_ready, plot_rd
 
@@ -1624,7 +1660,9 @@ def rd(
             f"The rd command needs a raster grid, {dem} reads as a {terrain.kind}."
         )
     heights = lattice_heights(terrain, size)
-    result = rd_curves(heights, rates, [m.strip() for m in methods.split(",") if m.strip()])
+    names = [m.strip() for m in methods.split(",") if m.strip()]
+    with progress_bar("rate-distortion", unit="stage", quiet=quiet) as on_progress:
+        result = rd_curves(heights, rates, names, progress=on_progress)
     if plot:
         plot_rd(result, plot, title=f"{Path(dem).name} ({heights.shape[0]}²)")
     figures = json_ready(result)

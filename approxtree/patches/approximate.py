@@ -16,6 +16,7 @@ import numpy as np
 from approxtree.errors import InvalidParameterError
 from approxtree.geometry.base import GeometryData
 from approxtree.patches.base import GeometryPatch
+from approxtree.progress import ProgressCallback, Stages
 
 #: Strategies ``approximate`` knows.
 MESH_STRATEGIES = ("grid", "nonregular", "tin", "rtin")
@@ -73,12 +74,14 @@ def approximate(
     max_points: int | None = None,
     max_triangles: int | None = None,
     data_dependent: bool = False,
+    progress: ProgressCallback | None = None,
 ) -> Mesh:
     """Approximate the whole terrain with one strategy (grid, nonregular, tin or rtin).
 
     grid: one uniform step in both directions (see ``patches.grid.uniform_step``);
     nonregular: row–column insertion; data_dependent: for ``tin`` on grids, Algorithm IV's
-    data-dependent flips.
+    data-dependent flips. progress(done, total): stages done (the insertion — one numba
+    kernel —, then the mesh arrays), ``approxtree.progress``.
     """
     check_goal(max_error, max_points, max_triangles)
     if strategy not in MESH_STRATEGIES:
@@ -89,6 +92,7 @@ def approximate(
         raise InvalidParameterError(
             f"data_dependent applies to the tin strategy only, not {strategy!r}."
         )
+    stages = Stages(progress, 2)
     t0 = time.perf_counter()
     # The strategy table picks the class for this data type (or says it cannot).
     from approxtree.patches.table import patch_class
@@ -96,7 +100,9 @@ def approximate(
     cls = patch_class(terrain, strategy)
     patch = cls.approximate(terrain, max_error, max_points, max_triangles, data_dependent)
     seconds = time.perf_counter() - t0
+    stages.done()
     vertices = patch.vertices
     triangles = patch.triangles
+    stages.done()
     rms = float(getattr(patch, "rms_error", float("nan")))
     return Mesh(strategy, vertices, triangles, patch.error, rms, seconds, patch)

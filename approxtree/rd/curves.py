@@ -20,6 +20,7 @@ import numpy as np
 from approxtree.errors import InvalidParameterError
 from approxtree.geometry.grid import Grid
 from approxtree.kernels import bintree_rd as kr
+from approxtree.progress import ProgressCallback, Stages
 from approxtree.rd.bintree import BinTree
 from approxtree.rd.sequence import EmbeddedSequence, decimate, refine, uniform
 
@@ -75,11 +76,13 @@ def rd_curves(
     terrain: BinTree | np.ndarray,
     rates: Sequence[int] = (512, 1024, 2048, 4096),
     methods: Sequence[str] = METHODS,
+    progress: ProgressCallback | None = None,
 ) -> dict[str, Any]:
     """Figures of every method at every rate (the finest mesh with at most that many triangles).
 
     Returns {"size", "e_max", "rates", "methods": {name: {"seconds", "rows": [...]}},
     "sequences": {name: EmbeddedSequence}} (sequences are not JSON; drop them to dump).
+    progress(done, total): stages done, the binary tree then one per method.
     """
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
@@ -87,9 +90,11 @@ def rd_curves(
     rates = sorted({int(r) for r in rates})
     if not rates or rates[0] < 2:
         raise InvalidParameterError(f"Rates must be triangle counts >= 2, got {rates}.")
+    stages = Stages(progress, 1 + len(methods))
     t0 = time.perf_counter()
     tree = terrain if isinstance(terrain, BinTree) else BinTree(np.asarray(terrain))
     setup = time.perf_counter() - t0
+    stages.done()
     out: dict[str, Any] = {
         "size": tree.size,
         "e_max": tree.root_distortion,
@@ -111,6 +116,7 @@ def rd_curves(
         else:
             rows, seconds = _strategy_rows(tree, name, rates)
         out["methods"][name] = {"seconds": round(seconds, 4), "rows": rows}
+        stages.done()
     return out
 
 

@@ -201,6 +201,18 @@ class Frame:
     texture_nodes: np.ndarray | None = None
     texture_gammas: np.ndarray | None = None
 
+    def _repr_png_(self) -> bytes | None:
+        """The image as a PNG, for Jupyter (None when it was not read back)."""
+        if self.image is None:
+            return None
+        import io
+
+        from PIL import Image
+
+        buf = io.BytesIO()
+        Image.fromarray(np.ascontiguousarray(self.image), "RGBA").save(buf, format="PNG")
+        return buf.getvalue()
+
 
 class Engine:
     """Renderer of one ApproximationTree.

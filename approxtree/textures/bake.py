@@ -29,6 +29,7 @@ from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rasterize import rasterize
 from approxtree.io.output_path import check_output_folder
+from approxtree.progress import ProgressCallback
 from approxtree.textures.base import TextureData
 from approxtree.textures.blend import BLEND_MODES, MultiTexture
 from approxtree.textures.pyramid import TexturePyramid, check_pyramid_target
@@ -177,6 +178,7 @@ def bake(
     overlay_width: float | None = None,
     min_overlay_texels: float = MIN_OVERLAY_TEXELS,
     water: list[str | os.PathLike] | None = None,
+    progress: ProgressCallback | None = None,
 ) -> BakeResult:
     """Bake the terrain's textures into a pyramid in ``folder`` and return what was written.
 
@@ -193,7 +195,9 @@ def bake(
     thematic layer ("shade" keeps the legend colour on flat ground).
     gl: bake topographic shading with OpenGL when possible (context: a moderngl Context, or
     None for a standalone EGL one; tile_size: forced tile side, see ``gl_hillshade``);
-    False always uses numpy.
+    False always uses numpy. progress(done, total): texel rows of the pyramid written, all
+    levels together, after each strip (``approxtree.progress``; the numpy shading is computed
+    strip by strip, an OpenGL one before the first strip).
     """
     t0 = time.perf_counter()
     # The pyramid's folder must be writable before any work (its parents are never created).
@@ -279,7 +283,11 @@ def bake(
             return out
 
     pyramid = TexturePyramid.build(
-        texture, folder, max_texture_size=max_texture_size, level_overlay=redraw
+        texture,
+        folder,
+        max_texture_size=max_texture_size,
+        level_overlay=redraw,
+        progress=progress,
     )
     return BakeResult(pyramid, time.perf_counter() - t0, names, used_gl)
 

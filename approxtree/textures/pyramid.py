@@ -34,6 +34,7 @@ from affine import Affine
 from approxtree.errors import InvalidParameterError, StoreError
 from approxtree.io.atomic import atomic_directory
 from approxtree.kernels.rgba import bands_into_rgba, halve_bands
+from approxtree.progress import ProgressCallback, no_progress
 from approxtree.textures.base import TextureData
 
 #: Rows handled at once while halving a level, bounding memory for huge textures.
@@ -92,12 +93,14 @@ def _write_level(
     build: str,
     level: int,
     halved: list[np.ndarray] | None,
+    on_rows: Callable[[int], None] | None = None,
 ) -> None:
     """Write the (bands, rows, cols) uint8 band-order strips of a level (RGBA, or grey and
     alpha), top to bottom, as a tiled compressed GeoTIFF tagged with the pyramid's build id and
     the level number (into the pyramid's temp folder); when ``halved`` is a list, append to it
     the strips of the level's halving, made while each strip is at hand (strips of even
-    height)."""
+    height);
+    ``on_rows(n)`` after each strip of n rows is written."""
     import rasterio
 
     rows, cols = shape
@@ -129,6 +132,8 @@ def _write_level(
             # Contiguous band-order strips go to GDAL without a copy.
             strip = np.ascontiguousarray(strip)
             ds.write(strip, window=rasterio.windows.Window(0, r0, cols, n))
+            if on_rows is not None:
+                on_rows(n)
             # The halving of a strip depends on that strip only (its rows pair up).
             if halved is not None:
                 half = np.empty((bands, (n + 1) // 2, (cols + 1) // 2), dtype=np.uint8)
@@ -164,6 +169,16 @@ def _strips(rgba: np.ndarray) -> Iterator[np.ndarray]:
     """A (rows, cols, 4) array as band-order strips of ``_CHUNK_ROWS`` rows (``_write_level``)."""
     for r0 in range(0, rgba.shape[0], _CHUNK_ROWS):
         yield np.ascontiguousarray(np.moveaxis(rgba[r0 : r0 + _CHUNK_ROWS], -1, 0))
+
+
+def _pyramid_rows(shape: tuple[int, ...], max_texture_size: int) -> int:
+    """Texel rows of every level of a pyramid whose level 0 has ``shape`` (rows, cols)."""
+    rows, cols = int(shape[0]), int(shape[1])
+    total = rows
+    while max(rows, cols) > max_texture_size:
+        rows, cols = -(-rows // 2), -(-cols // 2)
+        total += rows
+    return total
 
 
 def _check_level(path: Path, level: PyramidLevel, bands: int, build: str, k: int) -> None:
@@ -303,6 +318,7 @@ class TexturePyramid:
         transform: Affine | None = None,
         crs: str | None = None,
         level_overlay: LevelOverlay | None = None,
+        progress: ProgressCallback | None = None,
     ) -> TexturePyramid:
         """Write level 0 from ``texture`` and halve it until a level fits; return the pyramid.
 
@@ -310,7 +326,8 @@ class TexturePyramid:
         level_overlay: fn(level, transform, (rows, cols)) -> (rows, cols, 4) uint8 or None,
         drawn over every level after the first (alpha over) before it is written and halved:
         vector overlays redrawn at each level's texel size keep a least width there instead
-        of fading in the averages.
+        of fading in the averages. progress(done, total): texel rows written, all levels
+        together, after each strip (``approxtree.progress``).
         """
         if max_texture_size < 1 or max_texture_size & (max_texture_size - 1):
             raise InvalidParameterError(
@@ -339,6 +356,16 @@ class TexturePyramid:
         check_pyramid_target(folder)
         folder.absolute().parent.mkdir(parents=True, exist_ok=True)
         build = uuid.uuid4().hex
+        # Progress in texel rows over every level (the level sizes are known beforehand).
+        report = progress or no_progress
+        total = _pyramid_rows(shape, max_texture_size)
+        written = [0]
+
+        def on_rows(n: int) -> None:
+            written[0] += n
+            report(min(written[0], total), total)
+
+        report(0, total)
         # All or nothing: the levels and pyramid.json go to a temp folder swapped in at the end.
         with atomic_directory(folder) as tmp:
             levels = []
@@ -352,7 +379,9 @@ class TexturePyramid:
                 # further.
                 last = max(rows, cols) <= max_texture_size
                 halved: list[np.ndarray] | None = None if last else []
-                _write_level(path, strips, (rows, cols), bands, t, crs, build, level, halved)
+                _write_level(
+                    path, strips, (rows, cols), bands, t, crs, build, level, halved, on_rows
+                )
                 levels.append(
                     {
                         "file": path.name,

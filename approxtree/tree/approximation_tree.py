@@ -19,6 +19,7 @@ from approxtree.geometry import TERRAIN_TYPES, TIN, Grid, GridRefinement
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
 from approxtree.patches import STRATEGIES, GeometryPatch, patch_class
+from approxtree.progress import ProgressCallback, as_callback
 from approxtree.tree.builder import build_levels
 from approxtree.tree.node import Node
 from approxtree.tree.policy import StrategyPolicy
@@ -101,7 +102,7 @@ class ApproximationTree:
         max_points: int = 33 * 33,
         fanout: int = 4,
         policy: str | StrategyPolicy = "type",
-        progress: bool | None = None,
+        progress: bool | ProgressCallback | None = None,
         microstructures: Sequence[TIN | str | os.PathLike] | None = None,
         workers: int | None = None,
         scheduler: str | None = None,
@@ -111,7 +112,9 @@ class ApproximationTree:
         """Build A(s,d)(T): split nodes while ε_T(N) > epsilon, patches of at most s points.
 
         epsilon: threshold ε in z units (>= 0); max_points: s (>= 4); fanout: d (4 quadtree,
-        2 k-d tree); policy: strategy name or "auto"; progress: tqdm bar (None = when large).
+        2 k-d tree); policy: strategy name or "auto"; progress: a ``ProgressCallback`` called with
+        (done, total) — points covered by finished leaves, or blocks done in a blocked build —,
+        True for a tqdm bar on a terminal, None/False for nothing (``approxtree.progress``).
 
         Blocked builds (same tree, node for node; Grid terrains): ``workers`` N builds the
         blocks on a dask LocalCluster of N processes, ``scheduler`` "tcp://host:8786" on an
@@ -134,6 +137,41 @@ class ApproximationTree:
             raise InvalidParameterError(
                 "A performance report records a dask build: give workers or a scheduler too."
             )
+        unit = "block" if blocked else "point"
+        on_progress, close = as_callback(progress, "building tree", unit)
+        try:
+            built = cls._build_nodes(
+                terrain,
+                epsilon,
+                max_points,
+                fanout,
+                policy_obj,
+                blocked,
+                workers,
+                scheduler,
+                block_size,
+                report,
+                on_progress,
+            )
+        finally:
+            close()
+        return cls._from_built(terrain, built, epsilon, max_points, fanout, policy_obj)
+
+    @staticmethod
+    def _build_nodes(
+        terrain: GeometryData,
+        epsilon: float,
+        max_points: int,
+        fanout: int,
+        policy_obj: StrategyPolicy,
+        blocked: bool,
+        workers: int | None,
+        scheduler: str | None,
+        block_size: int | None,
+        report: str | os.PathLike | None,
+        on_progress: ProgressCallback,
+    ):
+        """The BuiltLevels of a serial or blocked build (``build``)."""
         if blocked:
             from approxtree.tree.blocks import build_blocked
 
@@ -141,9 +179,8 @@ class ApproximationTree:
             if workers is not None or scheduler is not None:
                 from approxtree.tree.distributed import dask_runner
 
-                show = terrain.point_count > 1_000_000 if progress is None else progress
-                run = dask_runner(workers, scheduler, report, show)
-            built = build_blocked(
+                run = dask_runner(workers, scheduler, report, on_progress)
+            return build_blocked(
                 terrain,
                 epsilon,
                 max_points,
@@ -151,9 +188,21 @@ class ApproximationTree:
                 policy_obj,
                 block_size,
                 run=run,  # type: ignore[arg-type]
+                progress=on_progress,
             )
-        else:
-            built = build_levels(terrain, epsilon, max_points, fanout, policy_obj, progress)
+        return build_levels(terrain, epsilon, max_points, fanout, policy_obj, on_progress)
+
+    @classmethod
+    def _from_built(
+        cls,
+        terrain: GeometryData,
+        built,
+        epsilon: float,
+        max_points: int,
+        fanout: int,
+        policy_obj: StrategyPolicy,
+    ) -> ApproximationTree:
+        """The tree of the nodes of a build (``build``)."""
         n = len(built.patches)
         names = list(dict.fromkeys(p.kind for p in built.patches))
         bboxes = np.empty((n, 6))

@@ -23,7 +23,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from approxtree.errors import InvalidParameterError
 from approxtree.geometry.grid import Grid
@@ -32,6 +31,7 @@ from approxtree.kernels.grid_patch import grid_patch_part
 from approxtree.patches.base import GeometryPatch
 from approxtree.patches.grid import GridPatch, grid_steps
 from approxtree.patches.table import patch_class
+from approxtree.progress import ProgressCallback, no_progress
 from approxtree.tree.builder import BuiltLevels, build_levels, validate_parameters
 from approxtree.tree.policy import StrategyPolicy
 from approxtree.tree.subdivision import subdivide
@@ -516,12 +516,13 @@ def build_blocked(
     block_size: int | None = None,
     block_level: int | None = None,
     run: Any = None,
-    progress: bool = False,
+    progress: ProgressCallback | None = None,
 ) -> BuiltLevels:
     """The serial build's nodes, built block by block.
 
     run: callable(tasks) -> results (``tree.distributed`` passes a dask runner); None runs the
-    tasks here, one after the other (a tqdm bar of blocks done when ``progress``).
+    tasks here, one after the other; progress(done, total) in blocks (``approxtree.progress``;
+    a ``run`` reports its own).
     """
     validate_parameters(epsilon, max_points, fanout)
     if not isinstance(grid, Grid):
@@ -534,8 +535,12 @@ def build_blocked(
     check_policy(grid, plan, policy)
     tasks = make_tasks(grid, plan, epsilon, max_points, fanout, policy)
     if run is None:
-        bar = tqdm(tasks, unit="block", desc="blocks", disable=not progress, leave=False)
-        results = [run_block(t) for t in bar]
+        report = progress or no_progress
+        report(0, len(tasks))
+        results = []
+        for i, t in enumerate(tasks):
+            results.append(run_block(t))
+            report(i + 1, len(tasks))
     else:
         results = run(tasks)
     out = assemble(grid, plan, results, epsilon, max_points)

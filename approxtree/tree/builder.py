@@ -12,13 +12,13 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from approxtree.errors import InvalidParameterError, UnsupportedStrategyError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
 from approxtree.patches.base import GeometryPatch
 from approxtree.patches.table import patch_class
+from approxtree.progress import ProgressCallback, no_progress
 from approxtree.tree.policy import StrategyPolicy
 from approxtree.tree.subdivision import FANOUTS, subdivide_level
 
@@ -112,11 +112,12 @@ def build_levels(
     max_points: int,
     fanout: int,
     policy: StrategyPolicy,
-    progress: bool | None = None,
+    progress: ProgressCallback | None = None,
     root: Rect | None = None,
     root_level: int = 0,
 ) -> BuiltLevels:
-    """Build the nodes level by level; ``progress`` None shows a bar only for large terrains.
+    """Build the nodes level by level; ``progress(done, total)`` after each level, in data
+    points of the root's rectangle covered by finished leaves (``approxtree.progress``).
 
     root: the rectangle of the first node (default the terrain's domain) and root_level its
     level, so that a subtree of a larger tree can be built on its own (a block of a blocked
@@ -127,18 +128,15 @@ def build_levels(
     """
     validate_parameters(epsilon, max_points, fanout)
     t0 = time.perf_counter()
-    show = terrain.point_count > 1_000_000 if progress is None else progress
-    # Progress is the share of the domain's area already covered by finished leaves.
+    # Progress: the points (area share of the root's points) covered by finished leaves,
+    # reported once a level is done; the last report is exactly the total.
+    report = progress or no_progress
     root = terrain.domain if root is None else root
     domain_area = root.area or 1.0
-    bar = tqdm(
-        total=100.0,
-        unit="%",
-        desc="building tree",
-        disable=not show,
-        leave=False,
-        bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f}% [{elapsed}<{remaining}]",
-    )
+    share = min(1.0, root.area / (terrain.domain.area or 1.0))
+    total = max(1, round(terrain.point_count * share)) if progress else 1
+    covered = 0.0
+    report(0, total)
     # The frontier: rects (k, 4) of the level's nodes and their parents (−1 for the root).
     rects = np.array([root.as_tuple()], dtype=np.float64)
     parents = np.array([-1], dtype=np.int64)
@@ -165,14 +163,13 @@ def build_levels(
         leaf = count == 0
         if leaf.any():
             r = rects[leaf]
-            bar.update(
-                100.0 * float(((r[:, 2] - r[:, 0]) * (r[:, 3] - r[:, 1])).sum()) / domain_area
-            )
+            covered += float(((r[:, 2] - r[:, 0]) * (r[:, 3] - r[:, 1])).sum())
         parents = np.repeat(np.arange(first, next_first, dtype=np.int64), count)
         rects = children
         first = next_first
         level += 1
-    bar.close()
+        done = total if not len(rects) else min(total - 1, int(total * covered / domain_area))
+        report(done, total)
     out = BuiltLevels(
         rects=np.concatenate(parts["rects"]),
         patches=patches_out,

@@ -1,9 +1,9 @@
 """Block tasks on dask.distributed: a LocalCluster of N processes, or an existing scheduler.
 
 ``dask_runner`` returns the ``run`` callable of ``tree.blocks.build_blocked``: it submits one
-task per block, shows a tqdm bar of blocks done (as they complete), optionally records a dask
-performance report (an HTML file with the task stream: where the time goes), and turns a
-failed task or a lost worker into an ApproxTreeError naming the block.
+task per block, reports blocks done (as they complete) to a progress callback, optionally
+records a dask performance report (an HTML file with the task stream: where the time goes),
+and turns a failed task or a lost worker into an ApproxTreeError naming the block.
 """
 
 from __future__ import annotations
@@ -14,9 +14,8 @@ import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from tqdm.auto import tqdm
-
 from approxtree.errors import ApproxTreeError, InvalidParameterError
+from approxtree.progress import ProgressCallback, as_callback
 from approxtree.tree.blocks import BlockResult, BlockTask, run_block
 
 
@@ -84,7 +83,7 @@ def dask_runner(
     workers: int | None = None,
     scheduler: str | None = None,
     report: str | os.PathLike | None = None,
-    progress: bool | None = True,
+    progress: ProgressCallback | bool | None = None,
     client: object | None = None,
 ) -> Callable[[list[BlockTask]], list[BlockResult]]:
     """The ``run`` of ``build_blocked`` on dask (an existing ``client``, else one made from
@@ -108,7 +107,8 @@ def dask_runner(
             ]
             block_of = {f.key: t.block for f, t in zip(futures, tasks, strict=True)}
             results: list[BlockResult] = []
-            bar = tqdm(total=len(futures), unit="block", desc="blocks", disable=not progress)
+            on_progress, close = as_callback(progress, "blocks", "block")
+            on_progress(0, len(futures))
             try:
                 for fut in as_completed(futures):
                     try:
@@ -124,9 +124,9 @@ def dask_runner(
                             f"{type(exc).__name__}: {exc}. Check the workers' memory and logs "
                             "(a smaller --block-size needs less memory per task)."
                         ) from exc
-                    bar.update(1)
+                    on_progress(len(results), len(futures))
             finally:
-                bar.close()
+                close()
                 for fut in futures:
                     fut.release()
             return results
