@@ -17,8 +17,9 @@ from PIL import Image
 
 from approxtree import ApproximationTree
 from approxtree.datasets import sample_terrain
-from approxtree.render.frame_state import display_scale
-from approxtree.viewer.controllers import cursor_ray, pick_terrain, to_display
+from approxtree.render.camera import Camera
+from approxtree.render.frame_state import FrameState, display_scale
+from approxtree.viewer.app import FLIGHT_FRAMES
 from approxtree.viewer.map_tools import LonLat, nice_length
 from approxtree.viewer.xvfb import virtual_display
 
@@ -66,14 +67,17 @@ def session(display, tmp_path_factory):
         {"eye": east, "target": target, "frames": 1, "actions": [{"shot": "east.png"}]},
         {"eye": down, "target": target, "frames": 4},
         {"eye": down, "target": target, "frames": 1, "actions": [
-            {"cursor": [w * 0.55, h * 0.45]},
             {"click": [w * 0.35, h * 0.40]},
             {"click": [w * 0.62, h * 0.66]},
+            # After the clicks (a click moves the cursor too).
+            {"cursor": [w * 0.55, h * 0.45]},
             {"shot": "measure.png"},
         ]},
         {"eye": down, "target": target, "frames": 1, "actions": [{"bookmark": "straight down"}]},
         {"eye": south, "target": target, "frames": 1},
-        {"eye": south, "target": target, "frames": 40, "actions": [{"fly_to": "straight down"}]},
+        # The flight takes FLIGHT_FRAMES frames: the keyframe ends as it lands.
+        {"eye": south, "target": target, "frames": FLIGHT_FRAMES,
+         "actions": [{"fly_to": "straight down"}]},
     ]  # fmt: skip
     (tmp / "path.json").write_text(json.dumps(script))
     env = dict(os.environ, DISPLAY=display, XDG_CONFIG_HOME=str(tmp / "config"))
@@ -112,7 +116,7 @@ def test_legend_and_scale_bar_are_drawn(session):
     assert box_change(ui, noui, boxes["legend"]) > 0.3
     assert box_change(ui, noui, boxes["scale_bar"]) > 0.3
     # Away from every interface box the two screenshots are the same terrain.
-    assert np.abs(ui[150:250, 250:400] - noui[150:250, 250:400]).max() == 0
+    assert np.abs(ui[250:340, 290:470] - noui[250:340, 290:470]).max() == 0
     # The bar's length is a nice number and its pixels fit the box.
     length, px = boxes["scale_length"], boxes["scale_px"]
     assert length == nice_length(length) and 0 < px <= 160
@@ -143,17 +147,31 @@ def test_north_arrow_turns_with_the_heading(session):
     assert abs(east - 90) < 10
 
 
+def _frame_state(tree, stats):
+    cam = Camera.look_at(tuple(stats["eye"]), tuple(stats["target"]), fov=45.0)
+    return FrameState.from_camera(
+        cam, SIZE, tree.bboxes[0], tree.origin, display_scale(tree.terrain)
+    )
+
+
 def _picked(tree, stats, pixel):
-    """World point where the ray through image ``pixel`` meets h_T (independent of GL)."""
-    scale = display_scale(tree.terrain)
-    o = tree.origin
-    eye = to_display(np.asarray(stats["eye"]), o, scale)
-    target = to_display(np.asarray(stats["target"]), o, scale)
-    gl_pixel = (int(pixel[0]) + 0.5, SIZE[1] - (int(pixel[1]) + 0.5))
-    ray = cursor_ray(eye, target, 45.0, SIZE, gl_pixel)
-    p = pick_terrain(tree.terrain, o, scale, eye, ray, 1e9)
-    assert p is not None
-    return p / scale + o
+    """World point where the ray through image ``pixel``'s centre meets h_T: the frame's own
+    matrix inverted at the near and far planes, h_T sampled densely along the segment, the
+    first crossing interpolated (independent of the viewer's code)."""
+    fs = _frame_state(tree, stats)
+    c, r = int(pixel[0]) + 0.5, SIZE[1] - (int(pixel[1]) + 0.5)
+    ndc = np.array([2 * c / SIZE[0] - 1, 2 * r / SIZE[1] - 1])
+    inv = np.linalg.inv(fs.world_to_clip)
+    ends = []
+    for z in (-1.0, 1.0):
+        p = inv @ np.array([*ndc, z, 1.0])
+        ends.append(p[:3] / p[3])
+    t = np.linspace(0.0, 1.0, 200001)
+    pts = ends[0] + t[:, None] * (ends[1] - ends[0])
+    above = pts[:, 2] - tree.terrain.height_at(pts[:, 0], pts[:, 1])
+    k = int(np.nonzero(np.nan_to_num(above, nan=1.0) <= 0)[0][0])
+    f = above[k - 1] / (above[k - 1] - above[k])
+    return pts[k - 1] + f * (pts[k] - pts[k - 1])
 
 
 def test_cursor_readout_reports_the_terrain_elevation(session):
@@ -163,15 +181,16 @@ def test_cursor_readout_reports_the_terrain_elevation(session):
     s = by_key[6]
     r = s["cursor"]
     assert r is not None
-    pixel = script[6]["actions"][0]["cursor"]
+    pixel = script[6]["actions"][2]["cursor"]
     expected = _picked(tree, s, pixel)
     assert abs(r["z_drawn"] - r["elevation"]) <= EPSILON + 1e-6
     assert r["elevation"] == pytest.approx(
         float(tree.terrain.height_at(np.array([r["x"]]), np.array([r["y"]]))[0])
     )
     assert abs(r["elevation"] - expected[2]) <= EPSILON
-    # One pixel's footprint straight down is a few metres: x, y agree to a pixel.
-    assert math.hypot(r["x"] - expected[0], r["y"] - expected[1]) < 20.0
+    # The readout's point is drawn in the cursor's pixel.
+    px, _ = _frame_state(tree, s).world_to_pixels(np.array([[r["x"], r["y"], r["z_drawn"]]]))
+    assert np.allclose(px[0], [int(pixel[0]) + 0.5, SIZE[1] - int(pixel[1]) - 0.5], atol=0.5)
 
 
 def test_measure_and_profile(session):
@@ -181,7 +200,7 @@ def test_measure_and_profile(session):
     s = by_key[6]
     m = s["measure"]
     assert m is not None
-    clicks = [a["click"] for a in script[6]["actions"][1:3]]
+    clicks = [a["click"] for a in script[6]["actions"][0:2]]
     a, b = (_picked(tree, s, p) for p in clicks)
     scale = display_scale(tree.terrain)
     d = (b - a) * scale
@@ -214,7 +233,7 @@ def test_bookmarks_round_trip(session):
     last = lines[-1]
     assert np.allclose(last["eye"], saved["eye"]) and not last["flying"]
     # The flight moved through the frames in between, not in one jump.
-    start = len(lines) - 40
+    start = len(lines) - FLIGHT_FRAMES
     eyes = np.array([s["eye"] for s in lines[start - 1 :]])
     assert len({tuple(e) for e in eyes.round(6)}) > 10
 

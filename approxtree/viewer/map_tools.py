@@ -182,7 +182,7 @@ def save_profile(samples: np.ndarray, path: str | os.PathLike, unit: str = "m") 
         fig.savefig(f, format="png")
     csv = path.with_suffix(".csv")
     with atomic_write(csv) as f:
-        np.savetxt(f, samples, delimiter=",", header="distance,x,y,elevation", fmt="%.9g")
+        np.savetxt(f, samples, delimiter=",", header="distance,x,y,elevation", fmt="%.17g")
     return path
 
 
