@@ -243,3 +243,29 @@ def test_lonlat_of_a_projected_point():
     lon, lat = LonLat("EPSG:32617")(500000.0, 4000000.0)
     assert lon == pytest.approx(-81.0, abs=1e-6) and 36.0 < lat < 36.2
     assert LonLat(None)(1.0, 2.0) == (None, None)
+
+
+def test_nice_lengths_and_bookmark_errors(tmp_path):
+    """Scale bar lengths are 1, 2 or 5 × 10^k; a broken bookmark file, an unknown bookmark
+    and a bad script action each get a clear error."""
+    from approxtree.errors import InvalidParameterError
+    from approxtree.viewer.map_tools import Bookmarks
+    from approxtree.viewer.script import parse_script
+
+    assert [nice_length(v) for v in (1.0, 1.9, 2.0, 4.99, 7.0, 999.0, 0.03)] == [
+        1.0, 1.0, 2.0, 2.0, 5.0, 500.0, 0.02,
+    ]  # fmt: skip
+    marks = Bookmarks(tmp_path / "b.json", "t")
+    marks.save("a", np.zeros(3), np.ones(3))
+    assert Bookmarks(tmp_path / "b.json", "t").names() == ["a"]
+    assert Bookmarks(tmp_path / "b.json", "other").names() == []
+    with pytest.raises(InvalidParameterError, match="No bookmark 'b'"):
+        marks.get("b")
+    (tmp_path / "bad.json").write_text("{")
+    with pytest.raises(InvalidParameterError, match="not valid JSON"):
+        Bookmarks(tmp_path / "bad.json", "t")
+    frame = {"eye": [0, 0, 1], "target": [0, 0, 0]}
+    with pytest.raises(InvalidParameterError, match="unknown action 'zoom'"):
+        parse_script([{**frame, "actions": [{"zoom": 2}]}])
+    with pytest.raises(InvalidParameterError, match="bad value for action 'click'"):
+        parse_script([{**frame, "actions": [{"click": [1]}]}])

@@ -146,6 +146,7 @@ class MapUI:
         s = v.settings
         imgui.set_next_window_pos(imgui.ImVec2(MARGIN, MARGIN), imgui.Cond_.first_use_ever)
         imgui.set_next_window_size(imgui.ImVec2(260, 0), imgui.Cond_.first_use_ever)
+        imgui.set_next_window_bg_alpha(0.75)
         imgui.begin("Map")
         imgui.push_item_width(120.0)
         r = v.cursor_readout
@@ -153,7 +154,9 @@ class MapUI:
         if r is None:
             imgui.text("cursor: off the terrain")
         else:
-            imgui.text(f"x {r.x:,.2f}  y {r.y:,.2f}")
+            # Degrees need more digits than metres for the same precision on the ground.
+            digits = 6 if v.unit_scale[0] != 1.0 else 2
+            imgui.text(f"x {r.x:,.{digits}f}  y {r.y:,.{digits}f}")
             imgui.text_disabled(crs[:40])
             if r.lon is not None:
                 imgui.text(f"lon {r.lon:.5f}  lat {r.lat:.5f}")
