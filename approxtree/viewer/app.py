@@ -494,7 +494,8 @@ class Viewer:
 
     def on_mouse_button(self, window, button: int, action: int, mods: int) -> None:
         glfw = self.glfw
-        self.gui.button(button, action == glfw.PRESS)
+        if button < 5:  # imgui knows five mouse buttons
+            self.gui.button(button, action == glfw.PRESS)
         if action == glfw.RELEASE:
             self._drag = None
             # A press and release in place with the measure tool is a measure click.

@@ -145,9 +145,9 @@ class MapUI:
         v = self.viewer
         s = v.settings
         imgui.set_next_window_pos(imgui.ImVec2(MARGIN, MARGIN), imgui.Cond_.first_use_ever)
-        imgui.set_next_window_size(imgui.ImVec2(260, 0), imgui.Cond_.first_use_ever)
         imgui.set_next_window_bg_alpha(0.75)
-        imgui.begin("Map")
+        # Sized to its content: the measure section and bookmarks come and go.
+        imgui.begin("Map", None, imgui.WindowFlags_.always_auto_resize)
         imgui.push_item_width(120.0)
         r = v.cursor_readout
         crs = v.tree.terrain.crs or "no CRS"
