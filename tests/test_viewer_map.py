@@ -73,7 +73,11 @@ def session(display, tmp_path_factory):
             {"cursor": [w * 0.55, h * 0.45]},
             {"shot": "measure.png"},
         ]},
-        {"eye": down, "target": target, "frames": 1, "actions": [{"bookmark": "straight down"}]},
+        {"eye": down, "target": target, "frames": 1, "actions": [
+            # A hover without a click: read from the depth buffer.
+            {"cursor": [w * 0.3, h * 0.7]},
+            {"bookmark": "straight down"},
+        ]},
         {"eye": south, "target": target, "frames": 1},
         # The flight takes FLIGHT_FRAMES frames: the keyframe ends as it lands.
         {"eye": south, "target": target, "frames": FLIGHT_FRAMES,
@@ -174,14 +178,16 @@ def _picked(tree, stats, pixel):
     return pts[k - 1] + f * (pts[k] - pts[k - 1])
 
 
-def test_cursor_readout_reports_the_terrain_elevation(session):
+@pytest.mark.parametrize("key, action", [(6, 2), (7, 0)], ids=["positions", "depth"])
+def test_cursor_readout_reports_the_terrain_elevation(session, key, action):
     """The readout's elevation is h_T where the cursor's ray meets the terrain, within ε; the
-    drawn point lies within ε of it."""
+    drawn point lies within ε of it. On a click frame the readout comes from the Engine's
+    position pass, on a hover frame from the window's depth buffer."""
     tree, _, by_key, _, script = session
-    s = by_key[6]
+    s = by_key[key]
     r = s["cursor"]
     assert r is not None
-    pixel = script[6]["actions"][2]["cursor"]
+    pixel = script[key]["actions"][action]["cursor"]
     expected = _picked(tree, s, pixel)
     assert abs(r["z_drawn"] - r["elevation"]) <= EPSILON + 1e-6
     assert r["elevation"] == pytest.approx(

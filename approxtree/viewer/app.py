@@ -55,6 +55,7 @@ from approxtree.viewer.map_tools import (
     read_point,
     readout,
     save_profile,
+    unproject,
 )
 from approxtree.viewer.script import ScriptFrame
 
@@ -453,13 +454,31 @@ class Viewer:
         px, py = self._window_to_pixel(x, y)
         return px, self.framebuffer_size()[1] - py
 
+    def _hover_readout(self, fs) -> None:
+        """The cursor readout from the window's depth buffer: the depth texel under the
+        cursor unprojected with the frame's matrix (depth 1: the sky, off the terrain)."""
+        assert self.mouse is not None
+        self._mouse_read = self.mouse
+        # The image pixel under the cursor (as the position pass reads it), as a GL row.
+        ix, iy = self._window_to_image(*self.mouse)
+        w, h = self.framebuffer_size()
+        c, r = int(ix), h - 1 - int(iy)
+        self.cursor_readout = None
+        if not (0 <= c < w and 0 <= r < h):
+            return
+        raw = self.ctx.fbo.read(
+            viewport=(c, r, 1, 1), components=1, attachment=-1, dtype="f4", alignment=1
+        )
+        point = unproject(fs, (c + 0.5, r + 0.5), float(np.frombuffer(raw, dtype="f4")[0]))
+        if point is not None:
+            self.cursor_readout = readout(self.tree.terrain, point, self.lonlat)
+
     def _map_tools(self, frame) -> None:
         """After a frame with world positions: the cursor readout and pending clicks."""
         positions = frame.positions
         if positions is None:
             return
         if self.mouse is not None:
-            self._mouse_read = self.mouse
             p = read_point(positions, self._window_to_image(*self.mouse))
             self.cursor_readout = None if p is None else readout(self.tree.terrain, p, self.lonlat)
         for x, y in self._clicks:
@@ -599,12 +618,15 @@ class Viewer:
         size = self.framebuffer_size()
         self.ctx.fbo.use()
         pose = tuple(np.concatenate(self.pose_world()).round(9))
-        want_positions = bool(self._clicks) or (
+        # Hover readouts unproject one depth texel (cheap); measure clicks ask the Engine
+        # for the drawn world positions (an extra pass, exact, only on click frames).
+        want_positions = bool(self._clicks)
+        want_depth = (
             s.ui
             and self.mouse is not None
             and (self.mouse != self._mouse_read or pose != self._pose_read)
         )
-        if want_positions:
+        if want_depth:
             self._pose_read = pose
         frame = self.engine.render(
             self._camera(),
@@ -623,6 +645,8 @@ class Viewer:
         )
         self.ctx.fbo.use()
         self.frame_state = frame.frame_state
+        if want_depth:
+            self._hover_readout(frame.frame_state)
         self._map_tools(frame)
         stats = dict(frame.stats)
         # The names of the former upload queue's figures, kept for stats files and benchmarks.

@@ -133,6 +133,17 @@ def read_point(positions: np.ndarray, pixel: tuple[float, float]) -> np.ndarray 
     return p[:3].copy()
 
 
+def unproject(fs: Any, pixel: tuple[float, float], depth: float) -> np.ndarray | None:
+    """World point (3,) at GL window ``pixel`` (x, y up) and depth-buffer value ``depth``
+    (0..1) of the frame ``fs``; None at the far plane (nothing drawn: the sky)."""
+    if not (0.0 <= depth < 1.0):
+        return None
+    w, h = fs.viewport
+    ndc = np.array([2.0 * pixel[0] / w - 1.0, 2.0 * pixel[1] / h - 1.0, 2.0 * depth - 1.0, 1.0])
+    p = np.linalg.solve(fs.world_to_clip, ndc)
+    return p[:3] / p[3]
+
+
 def readout(terrain: Any, point: np.ndarray, lonlat: LonLat) -> Readout:
     """The readout of a drawn world point: h_T at its (x, y) and its lon/lat."""
     x, y, z = (float(v) for v in point)
