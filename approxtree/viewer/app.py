@@ -79,7 +79,9 @@ _INSTALL_HINT = (
 
 @dataclass
 class ViewSettings:
-    """What the keys change. alpha: px; gamma: px²; exaggeration: z factor."""
+    """What the keys and the panel change. alpha: px; gamma: px²; exaggeration: z factor;
+    lighting: "auto", "on" or "off"; sun: degrees; ui: the map interface shown; tool: the
+    active map tool ("measure") or None."""
 
     alpha: float = 1.0
     gamma: float = 2.0
