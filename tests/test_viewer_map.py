@@ -78,7 +78,7 @@ def session(display, tmp_path_factory):
             {"cursor": [w * 0.3, h * 0.7]},
             {"bookmark": "straight down"},
         ]},
-        {"eye": south, "target": target, "frames": 1},
+        {"eye": south, "target": target, "frames": 1, "keys": ["RIGHT", "UP", "UP"]},
         # The flight takes FLIGHT_FRAMES frames: the keyframe ends as it lands.
         {"eye": south, "target": target, "frames": FLIGHT_FRAMES,
          "actions": [{"fly_to": "straight down"}]},
@@ -242,6 +242,19 @@ def test_bookmarks_round_trip(session):
     start = len(lines) - FLIGHT_FRAMES
     eyes = np.array([s["eye"] for s in lines[start - 1 :]])
     assert len({tuple(e) for e in eyes.round(6)}) > 10
+
+
+def test_sun_keys_and_default_lighting(session):
+    """RIGHT turns the sun 15° clockwise, UP raises it 5°, and the image changes; the viewer
+    lights "auto" (untextured terrain lit, baked shading never twice) on a sky."""
+    _, tmp, by_key, _, _ = session
+    assert by_key[1]["sun"] == [315.0, 45.0] and by_key[1]["lighting"] == "auto"
+    assert by_key[8]["sun"] == [330.0, 55.0]
+    before, after = shot(tmp, "keyframe_001.png"), shot(tmp, "keyframe_008.png")
+    assert np.abs(before - after).max(axis=2).mean() > 2
+    # The sky: the top row is blue, not the black of an empty framebuffer.
+    top = before[0].mean(axis=0)
+    assert top[2] > top[0] + 30 and top[2] > 150
 
 
 def test_lonlat_of_a_projected_point():
