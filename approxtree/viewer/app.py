@@ -55,7 +55,6 @@ from approxtree.viewer.map_tools import (
     read_point,
     readout,
     save_profile,
-    unproject,
 )
 from approxtree.viewer.script import ScriptFrame
 
@@ -427,7 +426,8 @@ class Viewer:
 
     def legend_entries(self) -> dict[str, Any]:
         """What the legend shows: the thematic layer's classes (its legend name) when it is
-        drawn, else the hypsometric palette's colours at LEGEND_STOPS elevations."""
+        drawn, a note when a coloured layer has no legend named, else (untextured or baked
+        shading only) the hypsometric palette's colours at LEGEND_STOPS elevations."""
         from approxtree.viewer.map_ui import LEGEND_STOPS
 
         s = self.settings
@@ -441,6 +441,13 @@ class Viewer:
                 if k in table.colours
             ]
             return {"kind": "classes", "title": self.legend, "items": items}
+        if self.pyramids and s.thematic and not getattr(self.engine, "shade_texture", True):
+            # A coloured layer whose legend was not named: the palette would mislead.
+            return {
+                "kind": "classes",
+                "title": "colours of the texture layer (name a legend: --legend)",
+                "items": [],
+            }
         z0, z1 = self.tree.terrain.z_range
         zs = np.linspace(z1, z0, LEGEND_STOPS)
         palette = self.engine.palette
@@ -456,24 +463,28 @@ class Viewer:
         px, py = self._window_to_pixel(x, y)
         return px, self.framebuffer_size()[1] - py
 
-    def _hover_readout(self, fs) -> None:
-        """The cursor readout from the window's depth buffer: the depth texel under the
-        cursor unprojected with the frame's matrix (depth 1: the sky, off the terrain)."""
+    def _hover_readout(self) -> None:
+        """The cursor readout by a ray cast against h_T (``pick_terrain``, as the wheel's zoom
+        does): the ray through the cursor's pixel centre, its first crossing of the terrain.
+        (Reading the window's depth buffer instead garbled the default framebuffer's colour
+        read-back under Xvfb/llvmpipe, and a position pass per hover frame costs a second
+        draw.) The drawn z is only known on click frames (position pass)."""
         assert self.mouse is not None
         self._mouse_read = self.mouse
-        # The image pixel under the cursor (as the position pass reads it), as a GL row.
         ix, iy = self._window_to_image(*self.mouse)
         w, h = self.framebuffer_size()
-        c, r = int(ix), h - 1 - int(iy)
+        c, r = int(ix), int(iy)
         self.cursor_readout = None
         if not (0 <= c < w and 0 <= r < h):
             return
-        raw = self.ctx.fbo.read(
-            viewport=(c, r, 1, 1), components=1, attachment=-1, dtype="f4", alignment=1
-        )
-        point = unproject(fs, (c + 0.5, r + 0.5), float(np.frombuffer(raw, dtype="f4")[0]))
-        if point is not None:
-            self.cursor_readout = readout(self.tree.terrain, point, self.lonlat)
+        cam = self.controller
+        ray = cursor_ray(cam.eye, cam.target, self.fov, (w, h), (c + 0.5, h - (r + 0.5)))
+        far = np.linalg.norm(cam.eye - cam.target) + 2.0 * self._diagonal()
+        o, scale = self.tree.origin, self.engine.scale
+        hit = pick_terrain(self.tree.terrain, o, scale, cam.eye, ray, far)
+        if hit is not None:
+            point = to_world(hit, o, scale)
+            self.cursor_readout = readout(self.tree.terrain, point, self.lonlat, drawn=False)
 
     def _map_tools(self, frame) -> None:
         """After a frame with world positions: the cursor readout and pending clicks."""
@@ -620,8 +631,8 @@ class Viewer:
         size = self.framebuffer_size()
         self.ctx.fbo.use()
         pose = tuple(np.concatenate(self.pose_world()).round(9))
-        # Hover readouts unproject one depth texel (cheap); measure clicks ask the Engine
-        # for the drawn world positions (an extra pass, exact, only on click frames).
+        # Hover readouts ray-cast h_T (no GL work); measure clicks ask the Engine for the
+        # drawn world positions (an extra pass, exact, only on click frames).
         want_positions = bool(self._clicks)
         want_depth = (
             s.ui
@@ -648,7 +659,7 @@ class Viewer:
         self.ctx.fbo.use()
         self.frame_state = frame.frame_state
         if want_depth:
-            self._hover_readout(frame.frame_state)
+            self._hover_readout()
         self._map_tools(frame)
         stats = dict(frame.stats)
         # The names of the former upload queue's figures, kept for stats files and benchmarks.

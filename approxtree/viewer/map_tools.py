@@ -87,7 +87,7 @@ class Readout:
 
     x: float
     y: float
-    z_drawn: float
+    z_drawn: float | None
     elevation: float
     lon: float | None = None
     lat: float | None = None
@@ -133,23 +133,13 @@ def read_point(positions: np.ndarray, pixel: tuple[float, float]) -> np.ndarray 
     return p[:3].copy()
 
 
-def unproject(fs: Any, pixel: tuple[float, float], depth: float) -> np.ndarray | None:
-    """World point (3,) at GL window ``pixel`` (x, y up) and depth-buffer value ``depth``
-    (0..1) of the frame ``fs``; None at the far plane (nothing drawn: the sky)."""
-    if not (0.0 <= depth < 1.0):
-        return None
-    w, h = fs.viewport
-    ndc = np.array([2.0 * pixel[0] / w - 1.0, 2.0 * pixel[1] / h - 1.0, 2.0 * depth - 1.0, 1.0])
-    p = np.linalg.solve(fs.world_to_clip, ndc)
-    return p[:3] / p[3]
-
-
-def readout(terrain: Any, point: np.ndarray, lonlat: LonLat) -> Readout:
-    """The readout of a drawn world point: h_T at its (x, y) and its lon/lat."""
+def readout(terrain: Any, point: np.ndarray, lonlat: LonLat, drawn: bool = True) -> Readout:
+    """The readout of a world point: h_T at its (x, y) and its lon/lat; ``drawn``: the point
+    is on the drawn mesh (its z is kept as z_drawn), else z_drawn is None."""
     x, y, z = (float(v) for v in point)
     h = float(terrain.height_at(np.array([x]), np.array([y]))[0])
     lon, lat = lonlat(x, y)
-    return Readout(x, y, z, h, lon, lat)
+    return Readout(x, y, z if drawn else None, h, lon, lat)
 
 
 def distances(a: np.ndarray, b: np.ndarray, unit_scale: np.ndarray) -> tuple[float, float]:

@@ -161,7 +161,8 @@ class MapUI:
             if r.lon is not None:
                 imgui.text(f"lon {r.lon:.5f}  lat {r.lat:.5f}")
             imgui.text(f"elevation {r.elevation:,.2f} {self.unit}")
-            imgui.text_disabled(f"(drawn {r.z_drawn:,.2f})")
+            if r.z_drawn is not None:
+                imgui.text_disabled(f"(drawn {r.z_drawn:,.2f})")
         imgui.separator()
         if imgui.checkbox("measure (M)", s.tool == "measure")[0]:
             v.do("measure")
