@@ -52,6 +52,7 @@ from approxtree.viewer.map_tools import (
     default_bookmarks_path,
     distances,
     profile,
+    ray_hit,
     read_point,
     readout,
     save_profile,
@@ -464,8 +465,8 @@ class Viewer:
         return px, self.framebuffer_size()[1] - py
 
     def _hover_readout(self) -> None:
-        """The cursor readout by a ray cast against h_T (``pick_terrain``, as the wheel's zoom
-        does): the ray through the cursor's pixel centre, its first crossing of the terrain.
+        """The cursor readout by a ray cast against h_T (``map_tools.ray_hit``): the ray
+        through the cursor's pixel centre, its first crossing of the terrain.
         (Reading the window's depth buffer instead garbled the default framebuffer's colour
         read-back under Xvfb/llvmpipe, and a position pass per hover frame costs a second
         draw.) The drawn z is only known on click frames (position pass)."""
@@ -480,11 +481,13 @@ class Viewer:
         cam = self.controller
         ray = cursor_ray(cam.eye, cam.target, self.fov, (w, h), (c + 0.5, h - (r + 0.5)))
         far = np.linalg.norm(cam.eye - cam.target) + 2.0 * self._diagonal()
+        # The ray in world units: display → world divides each axis by the scale.
         o, scale = self.tree.origin, self.engine.scale
-        hit = pick_terrain(self.tree.terrain, o, scale, cam.eye, ray, far)
+        eye = to_world(cam.eye, o, scale)
+        direction = to_world(cam.eye + ray, o, scale) - eye
+        hit = ray_hit(self.tree.terrain, eye, direction, far)
         if hit is not None:
-            point = to_world(hit, o, scale)
-            self.cursor_readout = readout(self.tree.terrain, point, self.lonlat, drawn=False)
+            self.cursor_readout = readout(self.tree.terrain, hit, self.lonlat, drawn=False)
 
     def _map_tools(self, frame) -> None:
         """After a frame with world positions: the cursor readout and pending clicks."""
