@@ -1501,6 +1501,20 @@ def _open_tree(path: str, epsilon: float, reader: dict[str, Any]):
     default=None,
     help="Stop uploading meshes after this many milliseconds in a frame (after one).",
 )
+@click.option(
+    "--legend",
+    type=click.Choice(["nlcd", "landclass96"]),
+    default=None,
+    help="Land-cover legend of the --textures layer (default: the elevation palette's).",
+)
+@click.option(
+    "--bookmarks",
+    "bookmarks_path",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Bookmark file [default: $XDG_CONFIG_HOME/approxtree/bookmarks.json].",
+)
+@cartographic_options
 @reader_options
 @_reports_errors
 def view(
@@ -1518,6 +1532,9 @@ def view(
     frames: int | None,
     max_uploads: int,
     upload_ms: float | None,
+    legend: str | None,
+    bookmarks_path: str | None,
+    style: dict[str, Any],
     encoding,
     nodata_policy,
     ground_only,
@@ -1534,6 +1551,11 @@ def view(
         check_output_file(stats_path, "stats file")
     if screenshots is not None:
         check_output_folder(screenshots, "screenshot folder")
+    from approxtree.render.style import Background, Sun
+
+    # Bad picture options fail before the window opens.
+    Sun(*style["sun"])
+    Background.parse(style["background"])
     presses = parse_key_presses(keys_text)
     script = script_frames(load_script(script_path)) if script_path else None
     reader = dict(
@@ -1552,6 +1574,10 @@ def view(
         fov=fov,
         max_uploads=max_uploads,
         budget_ms=upload_ms,
+        legend=legend,
+        bookmarks=bookmarks_path,
+        source=source,
+        **style,
     ) as viewer:
         drawn = viewer.run(script, presses, stats_path, screenshots, max_frames=frames)
     if script is not None:

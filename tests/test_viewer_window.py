@@ -79,7 +79,7 @@ def test_replay_keys_screenshots_and_stats(display, sample_tree, tmp_path):
         "--screenshots", "shots",
         "--size", f"{SIZE[0]}x{SIZE[1]}",
         "--keys", "1:F1,2:F1,3:2,4:1",
-        "--max-uploads", "16",
+        "--max-uploads", "16", "--background", "transparent",
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     shots = [np.asarray(Image.open(tmp_path / "shots" / f"keyframe_{i:03d}.png")) for i in range(3)]
@@ -118,7 +118,7 @@ def test_skirts_and_exaggeration_keys_change_the_image(display, sample_tree, tmp
     (tmp_path / "path.json").write_text(json.dumps(script))
     result = run_viewer(
         display, tmp_path, str(path), "--script", "path.json", "--screenshots", "shots",
-        "--size", f"{SIZE[0]}x{SIZE[1]}", "--max-uploads", "0",
+        "--size", f"{SIZE[0]}x{SIZE[1]}", "--max-uploads", "0", "--background", "transparent",
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     flat, tall = (

@@ -3,8 +3,9 @@
 Pure parts, usable and tested without a window: camera controllers (controllers.py), key
 bindings and scripted presses (keys.py), camera scripts (script.py), the upload queue that
 bounds uploads per frame (upload_queue.py) and feature detection of the Engine
-(features.py). The window itself (app.py) and the text overlay (overlay.py) need glfw and GL,
-and are imported on first use.
+(features.py), the map tools (map_tools.py: scale bar, north arrow, readout, measure,
+profile, bookmarks). The window itself (app.py) and its imgui interface (imgui_renderer.py,
+map_ui.py) need glfw, GL and imgui-bundle, and are imported on first use.
 """
 
 from approxtree.viewer.controllers import FlyController, OrbitController, cursor_ray, pick_terrain

@@ -14,8 +14,10 @@ A frame:
    missing patches from its provider (background loads) and draws their nearest resident
    ancestors meanwhile, uploading at most ``max_uploads`` meshes (``budget_ms``) per frame;
    the frozen frustum, when on, replaces the selection's view (the selection filter);
-4. screenshots read the window's back buffer (terrain only, before the overlay);
-5. overlay text and window title; swap buffers; one JSON line of stats when asked.
+4. screenshots read the window's back buffer (terrain only, before the interface);
+5. the map interface (imgui, map_ui.py): cursor readout from the frame's world positions,
+   measure clicks, scale bar, north arrow, legend, panels; window title; swap buffers; one
+   JSON line of stats when asked.
 """
 
 from __future__ import annotations
@@ -43,6 +45,18 @@ from approxtree.viewer.controllers import (
 )
 from approxtree.viewer.features import EngineFeatures
 from approxtree.viewer.keys import FLY_KEYS, MOD_SHIFT, KeyPress, action_for, help_lines
+from approxtree.viewer.map_tools import (
+    Bookmarks,
+    LonLat,
+    Readout,
+    default_bookmarks_path,
+    distances,
+    profile,
+    ray_hit,
+    read_point,
+    readout,
+    save_profile,
+)
 from approxtree.viewer.script import ScriptFrame
 
 #: Threshold and exaggeration steps of one key press.
@@ -51,6 +65,11 @@ THRESHOLD_STEP, EXAGGERATION_STEP = 1.5, 1.25
 ZOOM_STEP, FLY_SPEED, FAST = 0.85, 0.1, 4.0
 #: Time step of scripted frames (seconds), so replays move the same on any machine.
 SCRIPT_DT = 1.0 / 30.0
+#: Sun steps of one key press (degrees); frames of a fly-to flight; lighting cycle (H).
+SUN_AZIMUTH_STEP, SUN_ALTITUDE_STEP, FLIGHT_FRAMES = 15.0, 5.0, 30
+LIGHTING_MODES = ("auto", "on", "off")
+#: A press and release closer than this (window pixels) is a click, not a drag.
+CLICK_SLOP = 4.0
 
 _INSTALL_HINT = (
     "The viewer needs a display: run it on a desktop, or under a virtual X server "
@@ -60,7 +79,9 @@ _INSTALL_HINT = (
 
 @dataclass
 class ViewSettings:
-    """What the keys change. alpha: px; gamma: px²; exaggeration: z factor."""
+    """What the keys and the panel change. alpha: px; gamma: px²; exaggeration: z factor;
+    lighting: "auto", "on" or "off"; sun: degrees; ui: the map interface shown; tool: the
+    active map tool ("measure") or None."""
 
     alpha: float = 1.0
     gamma: float = 2.0
@@ -69,10 +90,14 @@ class ViewSettings:
     exaggeration: float = 1.0
     thematic: bool = True
     texture_index: int = 0
-    lighting: bool = True
+    lighting: str = "auto"
     frozen: bool = False
     help: bool = False
     fly: bool = False
+    sun_azimuth: float = 315.0
+    sun_altitude: float = 45.0
+    ui: bool = True
+    tool: str | None = None
 
 
 def _glfw():
@@ -89,8 +114,13 @@ class Viewer:
     textures: texture pyramid folders (thematic layers, cycled with TAB); size: window
     (w, h); alpha, gamma: initial thresholds; fov: degrees; max_uploads, budget_ms: the
     per-frame upload budget (0 and None: no budget, every frame waits for its whole cut);
-    screenshot_dir: where P writes its PNGs; visible: show
-    the window (False for benchmarks that only need the context).
+    screenshot_dir: where P writes its PNGs (and the measure tool its profiles); visible: show
+    the window (False for benchmarks that only need the context). exaggeration, sun
+    (azimuth, altitude), palette, background, lighting: the carto picture options
+    (Engine and ``Engine.render``); legend: the land-cover legend of the thematic layer
+    ("nlcd", "landclass96"; None: the hypsometric palette's legend when untextured);
+    bookmarks: the bookmark file (default ``default_bookmarks_path()``); source: the key of
+    this terrain in it (the opened path).
     """
 
     def __init__(
@@ -106,6 +136,14 @@ class Viewer:
         screenshot_dir: str | Path = ".",
         title: str = "approxtree viewer",
         visible: bool = True,
+        exaggeration: float = 1.0,
+        sun: tuple[float, float] = (315.0, 45.0),
+        palette: str = "relief",
+        background: str = "sky",
+        lighting: str = "auto",
+        legend: str | None = None,
+        bookmarks: str | Path | None = None,
+        source: str | None = None,
     ) -> None:
         import moderngl
 
@@ -113,7 +151,23 @@ class Viewer:
         from approxtree.textures.pyramid import TexturePyramid
 
         self.tree = tree
-        self.settings = ViewSettings(alpha=float(alpha), gamma=float(gamma))
+        self.settings = ViewSettings(
+            alpha=float(alpha),
+            gamma=float(gamma),
+            exaggeration=float(exaggeration),
+            sun_azimuth=float(sun[0]),
+            sun_altitude=float(sun[1]),
+            lighting=str(lighting),
+        )
+        self.background = background
+        self.legend = legend
+        if legend is not None:
+            from approxtree.textures.thematic import LEGENDS
+
+            if legend not in LEGENDS:
+                raise InvalidParameterError(
+                    f"Unknown legend {legend!r}; choose one of {', '.join(LEGENDS)}."
+                )
         self.fov = float(fov)
         self.title = title
         self.screenshot_dir = Path(screenshot_dir)
@@ -144,7 +198,9 @@ class Viewer:
         # 2. The embedded engine, its per-frame upload budget and what it supports. Frames
         # page (Engine.render(wait=False)): the provider loads in the background, the
         # traversal draws resident ancestors meanwhile; only the root is read up front.
-        self.engine = Engine(tree, context=self.ctx)
+        self.engine = Engine(
+            tree, context=self.ctx, exaggeration=float(exaggeration), palette=palette
+        )
         self.features = EngineFeatures(self.engine)
         if max_uploads < 0:
             raise ValueError(f"max_uploads must be >= 0, got {max_uploads}")
@@ -154,9 +210,34 @@ class Viewer:
         # The root's mesh now: it also loads the compiled skirt kernels before frame 0.
         self.engine.upload(0)
         self._frozen_frame: Any = None
-        from approxtree.viewer.overlay import Overlay
+        from approxtree.viewer.imgui_renderer import ImguiRenderer
+        from approxtree.viewer.map_ui import MapUI
 
-        self.overlay = Overlay(self.ctx)
+        self.gui = ImguiRenderer(self.ctx, self.glfw.get_window_size(self.window))
+        self.map_ui = MapUI(self)
+        # Map tools: lon/lat of the data's CRS, the cursor (window coordinates), the last
+        # readout, measure points (world) and result, bookmarks, a fly-to in progress.
+        from approxtree.render.frame_state import display_scale
+
+        self.unit_scale = display_scale(tree.terrain)
+        self.lonlat = LonLat(tree.terrain.crs)
+        self.mouse: tuple[float, float] | None = None
+        self._mouse_read: tuple[float, float] | None = None
+        self._press_at: tuple[float, float] | None = None
+        self._clicks: list[tuple[float, float]] = []
+        self.cursor_readout: Readout | None = None
+        self.measure_points: list[np.ndarray] = []
+        self.measurement: dict[str, Any] | None = None
+        self.bookmarks = Bookmarks(
+            bookmarks if bookmarks is not None else default_bookmarks_path(),
+            str(Path(source).resolve()) if source else "(unsaved terrain)",
+        )
+        self._flight: list[tuple[np.ndarray, np.ndarray]] = []
+        self._bookmark_index = -1
+        self._ui_shots: list[Path] = []
+        self.ui_boxes: dict[str, Any] = {}
+        self._pose_read: tuple | None = None
+        self.frame_state: Any = None
         if self.pyramids:
             self._apply_textures()
         # 3. Cameras: the overview pose is "home".
@@ -262,9 +343,26 @@ class Viewer:
                 s.thematic = True
             self._apply_textures()
         elif action == "shading":
-            s.lighting = not s.lighting
-            if not self.features.lighting:
-                self.messages.append("shading toggle: this Engine has no lighting option")
+            s.lighting = LIGHTING_MODES[(LIGHTING_MODES.index(s.lighting) + 1) % 3]
+            self.messages.append(f"lighting {s.lighting}")
+        elif action in ("sun_left", "sun_right"):
+            step = SUN_AZIMUTH_STEP if action == "sun_right" else -SUN_AZIMUTH_STEP
+            s.sun_azimuth = (s.sun_azimuth + step) % 360.0
+        elif action in ("sun_up", "sun_down"):
+            step = SUN_ALTITUDE_STEP if action == "sun_up" else -SUN_ALTITUDE_STEP
+            s.sun_altitude = min(90.0, max(1.0, s.sun_altitude + step))
+        elif action == "measure":
+            s.tool = None if s.tool == "measure" else "measure"
+            self.measure_points = []
+        elif action == "bookmark":
+            self.save_bookmark(f"view {len(self.bookmarks.names()) + 1}")
+        elif action == "fly_to_next":
+            names = self.bookmarks.names()
+            if names:
+                self._bookmark_index = (self._bookmark_index + 1) % len(names)
+                self.fly_to(names[self._bookmark_index])
+        elif action == "ui":
+            s.ui = not s.ui
         elif action == "freeze":
             s.frozen = not s.frozen
             self._frozen_frame = None
@@ -301,11 +399,154 @@ class Viewer:
         other = self.orbit if self.settings.fly else self.fly
         other.set_pose(*self._to_display(*home))
 
+    # -- map tools ----------------------------------------------------------------------------
+
+    def save_bookmark(self, name: str) -> None:
+        """Save the current pose under ``name`` in the bookmark file."""
+        self.bookmarks.save(name, *self.pose_world())
+        self.messages.append(f"bookmark {name!r} saved to {self.bookmarks.path}")
+
+    def fly_to(self, name: str) -> None:
+        """Fly to the bookmark ``name`` in FLIGHT_FRAMES frames (eased, world coordinates)."""
+        eye1, target1 = self.bookmarks.get(name)
+        eye0, target0 = self.pose_world()
+        t = np.arange(1, FLIGHT_FRAMES + 1) / FLIGHT_FRAMES
+        w = t * t * (3.0 - 2.0 * t)
+        self._flight = [(eye0 + k * (eye1 - eye0), target0 + k * (target1 - target0)) for k in w]
+
+    def move_cursor(self, x: float, y: float) -> None:
+        """Put the cursor at window position (x, y) (y down): readout and imgui follow."""
+        self.mouse = (float(x), float(y))
+        self.gui.mouse(x, y)
+
+    def click(self, x: float, y: float) -> None:
+        """A measure click at window position (x, y); switches the measure tool on."""
+        self.settings.tool = "measure"
+        self.move_cursor(x, y)
+        self._clicks.append((float(x), float(y)))
+
+    def legend_entries(self) -> dict[str, Any]:
+        """What the legend shows: the thematic layer's classes (its legend name) when it is
+        drawn, a note when a coloured layer has no legend named, else (untextured or baked
+        shading only) the hypsometric palette's colours at LEGEND_STOPS elevations."""
+        from approxtree.viewer.map_ui import LEGEND_STOPS
+
+        s = self.settings
+        if self.pyramids and s.thematic and self.legend is not None:
+            from approxtree.textures.thematic import LEGENDS, ClassTable
+
+            table = ClassTable.legend(self.legend)
+            items = [
+                (label, tuple(int(c) for c in table.colours[k][:3]))
+                for k, (label, _) in LEGENDS[self.legend].items()
+                if k in table.colours
+            ]
+            return {"kind": "classes", "title": self.legend, "items": items}
+        if self.pyramids and s.thematic and not getattr(self.engine, "shade_texture", True):
+            # A coloured layer whose legend was not named: the palette would mislead.
+            return {
+                "kind": "classes",
+                "title": "colours of the texture layer (name a legend: --legend)",
+                "items": [],
+            }
+        z0, z1 = self.tree.terrain.z_range
+        zs = np.linspace(z1, z0, LEGEND_STOPS)
+        palette = self.engine.palette
+        rgb = palette.colours(zs, (z0, z1))
+        items = [
+            (float(z), tuple(round(255 * c) for c in col[:3]))
+            for z, col in zip(zs, rgb, strict=True)
+        ]
+        return {"kind": "palette", "title": f"elevation ({palette.name})", "items": items}
+
+    def _window_to_image(self, x: float, y: float) -> tuple[float, float]:
+        """Window coordinates (y down) → image pixel (column, row from the top)."""
+        px, py = self._window_to_pixel(x, y)
+        return px, self.framebuffer_size()[1] - py
+
+    def _hover_readout(self) -> None:
+        """The cursor readout by a ray cast against h_T (``map_tools.ray_hit``): the ray
+        through the cursor's pixel centre, its first crossing of the terrain.
+        (Reading the window's depth buffer instead garbled the default framebuffer's colour
+        read-back under Xvfb/llvmpipe, and a position pass per hover frame costs a second
+        draw.) The drawn z is only known on click frames (position pass)."""
+        assert self.mouse is not None
+        self._mouse_read = self.mouse
+        ix, iy = self._window_to_image(*self.mouse)
+        w, h = self.framebuffer_size()
+        c, r = int(ix), int(iy)
+        self.cursor_readout = None
+        if not (0 <= c < w and 0 <= r < h):
+            return
+        cam = self.controller
+        ray = cursor_ray(cam.eye, cam.target, self.fov, (w, h), (c + 0.5, h - (r + 0.5)))
+        far = np.linalg.norm(cam.eye - cam.target) + 2.0 * self._diagonal()
+        # The ray in world units: display → world divides each axis by the scale.
+        o, scale = self.tree.origin, self.engine.scale
+        eye = to_world(cam.eye, o, scale)
+        direction = to_world(cam.eye + ray, o, scale) - eye
+        hit = ray_hit(self.tree.terrain, eye, direction, far)
+        if hit is not None:
+            self.cursor_readout = readout(self.tree.terrain, hit, self.lonlat, drawn=False)
+
+    def _map_tools(self, frame) -> None:
+        """After a frame with world positions: the cursor readout and pending clicks."""
+        positions = frame.positions
+        if positions is None:
+            return
+        if self.mouse is not None:
+            p = read_point(positions, self._window_to_image(*self.mouse))
+            self.cursor_readout = None if p is None else readout(self.tree.terrain, p, self.lonlat)
+        for x, y in self._clicks:
+            p = read_point(positions, self._window_to_image(x, y))
+            if p is None:
+                self.messages.append("measure: no terrain under the click")
+                continue
+            if len(self.measure_points) >= 2:
+                self.measure_points = []
+            self.measure_points.append(p)
+            if len(self.measure_points) == 2:
+                self._measured()
+        self._clicks = []
+
+    def _measured(self) -> None:
+        """Two points: distances and the elevation profile (PNG + CSV in screenshot_dir)."""
+        a, b = self.measure_points
+        horizontal, d3 = distances(a, b, self.unit_scale)
+        samples = profile(self.tree.terrain, a, b, self.unit_scale)
+        stamp = time.strftime("%Y%m%d-%H%M%S") + f"-{int(time.time() * 1e3) % 1000:03d}"
+        self.screenshot_dir.mkdir(parents=True, exist_ok=True)
+        path = save_profile(samples, self.screenshot_dir / f"profile-{stamp}.png")
+        self.measurement = {
+            "a": a.tolist(),
+            "b": b.tolist(),
+            "horizontal": horizontal,
+            "distance_3d": d3,
+            "profile": str(path),
+            "profile_z": samples[:, 3].tolist(),
+        }
+        self.messages.append(f"profile {path}")
+
     def on_mouse_button(self, window, button: int, action: int, mods: int) -> None:
         glfw = self.glfw
+        if button < 5:  # imgui knows five mouse buttons
+            self.gui.button(button, action == glfw.PRESS)
         if action == glfw.RELEASE:
             self._drag = None
+            # A press and release in place with the measure tool is a measure click.
+            pos = glfw.get_cursor_pos(window)
+            if (
+                self.settings.tool == "measure"
+                and button == glfw.MOUSE_BUTTON_LEFT
+                and self._press_at is not None
+                and math.dist(pos, self._press_at) <= CLICK_SLOP
+            ):
+                self._clicks.append(pos)
+            self._press_at = None
             return
+        if self.gui.wants_mouse:
+            return
+        self._press_at = glfw.get_cursor_pos(window)
         if button == glfw.MOUSE_BUTTON_LEFT and not mods & MOD_SHIFT:
             self._drag = "rotate"
         else:
@@ -313,6 +554,7 @@ class Viewer:
         self._cursor = glfw.get_cursor_pos(window)
 
     def on_cursor(self, window, x: float, y: float) -> None:
+        self.move_cursor(x, y)
         if self._drag is None or self._cursor is None:
             self._cursor = (x, y)
             return
@@ -331,6 +573,9 @@ class Viewer:
             self.orbit.pan(dx, dy, self.framebuffer_size()[1], self.fov)
 
     def on_scroll(self, window, xoff: float, yoff: float) -> None:
+        self.gui.wheel(xoff, yoff)
+        if self.gui.wants_mouse:
+            return
         x, y = self.glfw.get_cursor_pos(window)
         self.wheel(yoff, self._window_to_pixel(x, y))
 
@@ -382,10 +627,23 @@ class Viewer:
         self.fly.move(*move, self._fly_speed * fast * dt)
 
     def render_frame(self) -> dict[str, Any]:
-        """Draw one frame into the window's back buffer; returns its stats."""
+        """Draw one frame into the window's back buffer; returns its stats. The frame also
+        reads the drawn world positions (for the cursor readout) when the cursor moved or a
+        measure click waits."""
         s = self.settings
         size = self.framebuffer_size()
         self.ctx.fbo.use()
+        pose = tuple(np.concatenate(self.pose_world()).round(9))
+        # Hover readouts ray-cast h_T (no GL work); measure clicks ask the Engine for the
+        # drawn world positions (an extra pass, exact, only on click frames).
+        want_positions = bool(self._clicks)
+        want_depth = (
+            s.ui
+            and self.mouse is not None
+            and (self.mouse != self._mouse_read or pose != self._pose_read)
+        )
+        if want_depth:
+            self._pose_read = pose
         frame = self.engine.render(
             self._camera(),
             size,
@@ -396,8 +654,16 @@ class Viewer:
             wait=not self.max_uploads and self.budget_ms is None,
             max_uploads=self.max_uploads or None,
             upload_ms=self.budget_ms,
+            world_positions=want_positions,
+            sun=(s.sun_azimuth, s.sun_altitude),
+            background=self.background,
             **self.features.render_options(s.lighting),
         )
+        self.ctx.fbo.use()
+        self.frame_state = frame.frame_state
+        if want_depth:
+            self._hover_readout()
+        self._map_tools(frame)
         stats = dict(frame.stats)
         # The names of the former upload queue's figures, kept for stats files and benchmarks.
         stats["fallbacks"] = stats.get("stand_ins", 0)
@@ -416,29 +682,6 @@ class Viewer:
         with atomic_write(path) as f:
             Image.fromarray(np.ascontiguousarray(image), mode="RGB").save(f, format="PNG")
         return path
-
-    def _overlay_lines(self, stats: dict[str, Any], frame_ms: float) -> list[str]:
-        s = self.settings
-        tex = "none"
-        if self.pyramids:
-            name = Path(self.pyramids[s.texture_index].folder).name
-            tex = f"{name} ({'on' if s.thematic else 'off'})"
-            if not self.features.textures:
-                tex += " [engine lacks textures]"
-        lines = [
-            f"frame {frame_ms:7.1f} ms   triangles {stats['triangles']:,}   "
-            f"patches {stats['patches']:,}   texture switches {stats['texture_switches']}",
-            f"max alpha {stats['max_alpha']:.2f} px (<= {s.alpha:.2f})   "
-            f"max gamma {stats['max_gamma']:.2f} px2 (<= {s.gamma:.2f})",
-            f"uploads {stats['uploads']}  pending {stats['pending']}  "
-            f"stand-ins {stats['fallbacks']}   texture {tex}",
-            f"{'fly' if s.fly else 'orbit'}  wireframe {_on(s.wireframe)}  "
-            f"skirts {_on(s.skirts)}  shading {_on(s.lighting)}  "
-            f"frozen {_on(s.frozen)}  exaggeration x{s.exaggeration:.2f}   F1: help",
-        ]
-        if s.help:
-            lines += ["", *help_lines()]
-        return lines + self.messages[-3:]
 
     def _title(self, stats: dict[str, Any], frame_ms: float) -> str:
         return (
@@ -490,8 +733,13 @@ class Viewer:
                 pressed += [parse_key(k) for k in step.keys]
             for key, mods in pressed:
                 self.press(key, mods)
-            if step is not None:
+            # A fly-to flight owns the camera until it lands; otherwise the script's pose.
+            if self._flight:
+                self.set_pose_world(*self._flight.pop(0))
+            elif step is not None:
                 self.set_pose_world(step.eye, step.target)
+            if step is not None:
+                self._script_actions(step.actions, shots)
             # 2. Fly by held keys.
             dt = SCRIPT_DT if scripted else min(t0 - last, 0.25)
             last = t0
@@ -512,10 +760,12 @@ class Viewer:
                 stamp = time.strftime("%Y%m%d-%H%M%S") + f"-{int(time.time() * 1e3) % 1000:03d}"
                 path = self.screenshot(self.screenshot_dir / f"approxtree-{stamp}.png")
                 self.messages.append(f"screenshot {path}")
-            # 5. Overlay, title, swap, stats line.
+            # 5. Map interface, title, swap, stats line.
             frame_ms = (time.perf_counter() - t0) * 1e3
-            self.overlay.set_lines(self._overlay_lines(stats, frame_ms))
-            self.overlay.draw(size)
+            self._draw_ui(stats, size, dt)
+            for path in self._ui_shots:
+                self.screenshot(path)
+            self._ui_shots = []
             glfw.set_window_title(self.window, self._title(stats, frame_ms))
             glfw.swap_buffers(self.window)
             frame_ms = (time.perf_counter() - t0) * 1e3
@@ -530,6 +780,15 @@ class Viewer:
                 target=target.tolist(),
                 mode="fly" if self.settings.fly else "orbit",
                 frozen=self.settings.frozen,
+                sun=[self.settings.sun_azimuth, self.settings.sun_altitude],
+                exaggeration=self.settings.exaggeration,
+                lighting=self.settings.lighting,
+                cursor=None if self.cursor_readout is None else self.cursor_readout.as_dict(),
+                measure=None
+                if self.measurement is None
+                else {k: v for k, v in self.measurement.items() if k != "profile_z"},
+                ui=self.ui_boxes if self.settings.ui else None,
+                flying=bool(self._flight),
             )
             self.last_stats = stats
             if stats_path is not None:
@@ -544,9 +803,54 @@ class Viewer:
                 f.writelines(lines)
         return frames
 
+    def _script_actions(self, actions, shots: Path | None) -> None:
+        """Carry out a script frame's map-tool actions (see script.py), pixels → window."""
+        fw, fh = self.framebuffer_size()
+        ww, wh = self.glfw.get_window_size(self.window)
+
+        def window(xy) -> tuple[float, float]:
+            return xy[0] * ww / max(fw, 1), xy[1] * wh / max(fh, 1)
+
+        for name, value in actions:
+            if name == "cursor":
+                self.move_cursor(*window(value))
+            elif name == "click":
+                self.click(*window(value))
+            elif name == "bookmark":
+                self.save_bookmark(value)
+            elif name == "fly_to":
+                self.fly_to(value)
+                self.set_pose_world(*self._flight.pop(0))
+            elif name == "ui":
+                self.settings.ui = bool(value)
+            elif name == "shot":
+                folder = shots if shots is not None else self.screenshot_dir
+                self._ui_shots.append(folder / value)
+            elif name == "sun":
+                self.settings.sun_azimuth, self.settings.sun_altitude = map(float, value)
+            elif name == "exaggeration":
+                self._set_exaggeration(float(value))
+
+    def _draw_ui(self, stats: dict[str, Any], size: tuple[int, int], dt: float) -> None:
+        """The imgui frame: map interface and help when on (always ended, so imgui's state
+        stays consistent when the interface is hidden)."""
+        from imgui_bundle import imgui
+
+        self.gui.new_frame(self.glfw.get_window_size(self.window), dt)
+        self.ui_boxes = {}
+        if self.settings.ui and self.frame_state is not None:
+            self.ui_boxes = self.map_ui.draw(self.frame_state, stats, size)
+            if self.settings.help:
+                imgui.begin("Keys (F1)")
+                for line in help_lines():
+                    imgui.text(line)
+                imgui.end()
+        self.ctx.fbo.use()
+        self.gui.render(size)
+
     def close(self) -> None:
-        """Free the overlay and the engine, close the window and end glfw."""
-        self.overlay.release()
+        """Free the interface and the engine, close the window and end glfw."""
+        self.gui.release()
         self.engine.release()
         self.ctx.release()
         self.glfw.destroy_window(self.window)

@@ -28,6 +28,6 @@ class EngineFeatures:
         self.engine.set_textures(pyramid)
         return True
 
-    def render_options(self, lighting: bool) -> dict[str, Any]:
+    def render_options(self, lighting: bool | str) -> dict[str, Any]:
         """Keyword arguments of ``render`` for the optional features."""
         return {"lighting": lighting} if self.lighting else {}
