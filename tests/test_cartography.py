@@ -349,3 +349,21 @@ def test_streams_keep_their_width_on_coarse_pyramid_levels(data_dir, tmp_path):
     print("stream texel share per level:", [f"{s:.3f}" for s in shares])
     assert min(shares) > 0.03
     assert shares[2] >= 0.8 * shares[0]
+
+
+@pytest.mark.parametrize("azimuth", [0, 45, 90, 135, 180, 225, 270, 315])
+def test_framing_camera_from_every_azimuth_looks_from_outside_above(azimuth):
+    """From any azimuth the fitted eye lies above the box and outside it, looking down at it
+    (a corner behind the eye used to count as fitting: diagonal azimuths put the eye 2 km under
+    the NC DEM)."""
+    from approxtree.render.frame_state import framing_camera
+
+    box = np.array([630015.0, 215015.0, 55.17, 644985.0, 228485.0, 156.39])
+    cam = framing_camera(box, np.ones(3), (640, 360), 45.0, azimuth=azimuth)
+    eye, target = np.asarray(cam.eye), np.asarray(cam.target)
+    assert np.isfinite(eye).all() and np.isfinite(target).all()
+    assert eye[2] > box[5]
+    centre = box.reshape(2, 3).mean(axis=0)
+    assert np.linalg.norm(eye - centre) > 0.5 * np.linalg.norm(box[3:] - box[:3])
+    heading = np.degrees(np.arctan2(eye[0] - target[0], eye[1] - target[1])) % 360
+    assert abs((heading - azimuth + 180) % 360 - 180) < 1e-6

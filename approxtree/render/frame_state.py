@@ -315,7 +315,8 @@ def _fit(
         q = corners - (target + dist * u)
         d = q @ f
         if (d <= 1e-9 * radius).any():
-            return np.array([np.inf, -np.inf, np.inf, -np.inf])
+            # A corner behind the eye: the box cannot fit (every extent is out of the frame).
+            return np.array([-np.inf, np.inf, -np.inf, np.inf])
         x, y = (q @ r) / (d * tan_x), (q @ up) / (d * tan_y)
         return np.array([x.min(), x.max(), y.min(), y.max()])
 
@@ -323,6 +324,12 @@ def _fit(
     for _ in range(4):
         # Smallest distance with every corner inside the frame (the extent shrinks with it).
         near, far = radius * 1e-3, dist * 4.0
+        for _ in range(60):
+            # A shifted target can leave corners out at the first guess: back off until all fit.
+            e = extents(far, target)
+            if max(-e[0], e[1], -e[2], e[3]) <= limit:
+                break
+            near, far = far, far * 2.0
         for _ in range(50):
             mid = 0.5 * (near + far)
             e = extents(mid, target)
@@ -333,6 +340,8 @@ def _fit(
         dist = far
         # Centre the projection: move the target across the view by the offset it shows.
         e = extents(dist, target)
+        if not np.isfinite(e).all():
+            break
         cx, cy = 0.5 * (e[0] + e[1]), 0.5 * (e[2] + e[3])
         target = target + dist * (cx * tan_x * r + cy * tan_y * up)
     # Fraction of the frame covered by the box's top face (shoelace over its projection).
