@@ -166,6 +166,22 @@ class TopographicShading(ShadingTexture):
         dx, dy = self._steps
         return cast_shadows(self._heights() * self.z_factor, dx, dy, self.azimuth, self.altitude)
 
+    def level_strips(self, rows: int) -> Iterator[np.ndarray]:
+        if self.slope_weight or self.curvature_weight or self.shadows:
+            return super().level_strips(rows)
+        return self._plain_grey_alpha_strips(rows)
+
+    def _plain_grey_alpha_strips(self, rows: int) -> Iterator[np.ndarray]:
+        """Plain gdaldem grey levels and their alpha as (2, ≤ rows, cols) uint8 strips,
+        each shaded on its own from the heights (no whole grey array): texel for texel the
+        strips of ``grey_alpha_strips(self.shade(), rows)``."""
+        z, *args = self._kernel_args()
+        height, width = z.shape
+        for r0 in range(0, height, rows):
+            strip = np.empty((2, min(rows, height - r0), width), dtype=np.uint8)
+            hs.hillshade_grey_alpha_rows(z, r0, strip, *args)
+            yield strip
+
     def shade(self) -> np.ndarray:
         if not (self.slope_weight or self.curvature_weight or self.shadows):
             return self._plain_grey()
