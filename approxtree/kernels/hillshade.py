@@ -211,11 +211,12 @@ def hillshade_grey_alpha_rows(
 ) -> None:
     """Rows ``row0 .. row0 + n`` of ``hillshade_grey`` as a strip of grey and alpha.
 
-    z: the whole (rows, cols) float grid; out: (2, n, cols) uint8, filled with the grey
-    levels (0 = nodata and the grid's border) and alpha (255 where grey > 0, else 0). The
-    texels are those of ``hillshade_grey``: a strip reads one row of z past each of its ends,
-    so strips shade a grid piece by piece (serial and without the GIL: a strip is shaded
-    while another thread writes the one before).
+    z: (rows, cols) float heights, the whole grid or a window of whole rows holding the strip
+    and one row past each of its ends (the 3 × 3 window): z's first and last rows count as the
+    grid's border. out: (2, n, cols) uint8, filled with the grey levels (0 = nodata and the
+    border) and alpha (255 where grey > 0, else 0): the texels of ``hillshade_grey`` of the
+    grid. Serial and without the GIL: a strip is shaded while other threads read the next
+    and write the one before.
     """
     rows, cols = z.shape
     n = out.shape[1]
