@@ -196,7 +196,7 @@ def profile_curvature(z: np.ndarray, dx: float, dy: float) -> np.ndarray:
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, parallel=True)
 def hillshade_grey_alpha_rows(
     z: np.ndarray,
     row0: int,
@@ -215,15 +215,15 @@ def hillshade_grey_alpha_rows(
     and one row past each of its ends (the 3 × 3 window): z's first and last rows count as the
     grid's border. out: (2, n, cols) uint8, filled with the grey levels (0 = nodata and the
     border) and alpha (255 where grey > 0, else 0): the texels of ``hillshade_grey`` of the
-    grid. Serial and without the GIL: a strip is shaded while other threads read the next
-    and write the one before.
+    grid. Without the GIL: a strip is shaded while other threads read the next and write the
+    one before (GDAL; numba kernels are called from one thread only).
     """
     rows, cols = z.shape
     n = out.shape[1]
     inv_ew = 1.0 / dx
     inv_ns = 1.0 / dy
     consts = _light_consts(z_factor, altitude, azimuth, algorithm)
-    for i in range(n):
+    for i in prange(n):
         r = row0 + i
         out[0, i, 0] = 0
         out[1, i, 0] = 0

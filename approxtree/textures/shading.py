@@ -193,11 +193,14 @@ class TopographicShading(ShadingTexture):
         # read on a reader thread (GDAL, without the GIL) while the strip before is shaded, so
         # the band is never whole in memory. A window starting at the grid's first row, or
         # ending at its last, has that border row as its own: the kernel leaves it nodata.
-        source = self.terrain.heights
+        # Straight from the height source (as a block of the windowed heights reads): the
+        # strips pass once, the block cache would only hold them.
+        heights = self.terrain.heights
 
         def window(r0: int) -> tuple[int, np.ndarray]:
             a, b = max(r0 - 1, 0), min(r0 + rows + 1, height)
-            return a, np.ascontiguousarray(source[a:b, :])
+            z = np.asarray(heights.source.read(a, b, 0, width), dtype=heights.dtype)
+            return a, np.ascontiguousarray(z)
 
         with ThreadPoolExecutor(1) as reader:
             ahead = reader.submit(window, 0)
