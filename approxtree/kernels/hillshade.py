@@ -234,6 +234,15 @@ def hillshade_grey_alpha_rows(
                 out[0, i, c] = 0
                 out[1, i, c] = 0
             continue
+        # gdaldem's default (Horn, standard) with both as constants: the compiler drops the
+        # other algorithms' and modes' branches from the inner loop.
+        if algorithm == HORN and mode == STANDARD:
+            for c in range(1, cols - 1):
+                v = np.float32(_shade_cell(z, r, c, inv_ew, inv_ns, HORN, STANDARD, consts))
+                g = np.uint8(np.rint(v))
+                out[0, i, c] = g
+                out[1, i, c] = 255 if g > 0 else 0
+            continue
         for c in range(1, cols - 1):
             v = np.float32(_shade_cell(z, r, c, inv_ew, inv_ns, algorithm, mode, consts))
             g = np.uint8(np.rint(v))
