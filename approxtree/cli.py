@@ -178,6 +178,14 @@ def _check_reader_flags(path: str, options: dict[str, Any]) -> None:
             )
 
 
+def _takes_windowed(path: str, encoding: str | None) -> bool:
+    """Whether the reader of ``path``'s format can read it by windows (GDAL rasters)."""
+    from approxtree.io import detect_format
+    from approxtree.io._common import existing_file
+
+    return "windowed" in detect_format(existing_file(path), encoding=encoding).options
+
+
 def _is_tree(path: str) -> bool:
     """Whether ``path`` names a saved tree: a tree store (.zarr, .zip, URL, store folder) or a
     legacy .atree file."""
@@ -1384,6 +1392,18 @@ def bake_command(
         )
         terrain = ApproximationTree.load(source).terrain
     else:
+        ctx = click.get_current_context()
+        if (
+            ctx.meta.get("approxtree.windowed") is None
+            and no_gl
+            and shading == "topographic"
+            and thematic is None
+            and texel is None
+            and _takes_windowed(source, encoding)
+        ):
+            # A hillshade of the DEM's own lattice is shaded strip by strip: a raster read by
+            # windows streams through (read, shade, write overlap; the band is never whole).
+            ctx.meta["approxtree.windowed"] = "on"
         terrain = _open(source, encoding, nodata_policy, ground_only, height_scale)
     options: dict[str, Any] = {"azimuth": azimuth, "altitude": altitude, "z_factor": z_factor}
     if shading == "topographic":
@@ -1419,6 +1439,12 @@ def bake_command(
 
 def _rgba(text: str) -> tuple[int, int, int, int]:
     """ "#rrggbb" (or a Background colour name) as an opaque RGBA tuple 0..255."""
+    # "#rrggbb" (the default) without importing the renderer, a tenth of bake's import time.
+    if len(text) == 7 and text[0] == "#":
+        try:
+            return (int(text[1:3], 16), int(text[3:5], 16), int(text[5:7], 16), 255)
+        except ValueError:
+            pass
     from approxtree.render.style import Background
 
     bg = Background.parse(text)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import rasterio
+from affine import Affine
 from conftest import data_file
 
 import approxtree as at
@@ -211,3 +212,36 @@ def test_the_bake_command_does_not_import_the_tree_builder(tmp_path):
     from approxtree.tree import ApproximationTree as same
 
     assert ApproximationTree is same
+
+
+@pytest.mark.parametrize("windowed", [False, True])
+@pytest.mark.parametrize(
+    "options",
+    [{}, {"algorithm": "zevenbergen-thorne"}, {"multidirectional": True}, {"combined": True}],
+)
+def test_hillshade_strips_are_the_whole_hillshade(windowed, options):
+    """The pyramid's strips of a plain hillshade, shaded strip by strip from the heights (read
+    by windows with a one-row halo when the grid is windowed), are texel for texel the grey
+    levels and alpha of the whole grid's hillshade: strip edges, the grid's border and holes
+    included; a windowed grid's band is never read whole."""
+    from approxtree.geometry.grid import Grid
+    from approxtree.geometry.windowed import ArraySource, WindowedHeights
+    from approxtree.textures.base import grey_alpha_strips
+
+    rng = np.random.default_rng(7)
+    z = np.cumsum(rng.normal(0, 3, (53, 41)), axis=0).astype(np.float32)
+    z[20:23, 10:14] = np.nan
+    z[6, :] = np.nan  # a hole across a strip edge (rows 0..5 | 6..11)
+    whole = Grid(z, transform=Affine(10, 0, 0, 0, -10, 530))
+    heights = WindowedHeights(ArraySource(z), cache_bytes=1 << 14, block_shape=(8, 8))
+    grid = Grid(heights, transform=whole.transform) if windowed else whole
+    shading = TopographicShading(grid, **options)
+    shade = TopographicShading(whole, **options).shade()
+    expected = [s.copy() for s in grey_alpha_strips(shade, 6)]  # a reused buffer
+    strips = [s.copy() for s in shading.level_strips(6)]
+    assert [s.shape for s in strips] == [e.shape for e in expected]
+    for got, want in zip(strips, expected, strict=True):
+        np.testing.assert_array_equal(got, want)
+    assert sum(int((s[1] == 0).sum()) for s in strips) > 2 * (53 + 41)  # holes and border
+    # A windowed grid is read strip by strip, never whole.
+    assert "_whole_heights" not in grid.__dict__

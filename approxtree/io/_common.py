@@ -220,13 +220,18 @@ def as_heights(values: np.ndarray, reuse: bool = False) -> np.ndarray:
     out_type = np.float64 if wide else np.float32
     if reuse and dtype == out_type:
         out = np.ma.getdata(a)
-        out[np.ma.getmaskarray(a)] = np.nan
+        # copyto skips the index arrays of a boolean assignment (mostly all False here).
+        mask = np.ma.getmask(a)
+        if mask is not np.ma.nomask and mask.any():
+            np.copyto(out, np.nan, where=mask)
     elif np.ma.isMaskedArray(a):
         out = np.ma.filled(a.astype(out_type), np.nan)
     else:
         out = np.array(a, dtype=out_type)
-    # Infinite heights are as unusable as NaN; keep one marker of nodata.
-    out[np.isinf(out)] = np.nan
+    # Infinite heights are as unusable as NaN; keep one marker of nodata. Finite extremes
+    # (two passes, no full-size boolean array) say when there is none to look for.
+    if out.size and not (np.isfinite(out.min()) and np.isfinite(out.max())):
+        np.copyto(out, np.nan, where=np.isinf(out))
     return out
 
 

@@ -194,3 +194,57 @@ def profile_curvature(z: np.ndarray, dx: float, dy: float) -> np.ndarray:
             if not np.isnan(v):
                 out[r, c] = v
     return out
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def hillshade_grey_alpha_rows(
+    z: np.ndarray,
+    row0: int,
+    out: np.ndarray,
+    dx: float,
+    dy: float,
+    z_factor: float,
+    altitude: float,
+    azimuth: float,
+    algorithm: int,
+    mode: int,
+) -> None:
+    """Rows ``row0 .. row0 + n`` of ``hillshade_grey`` as a strip of grey and alpha.
+
+    z: (rows, cols) float heights, the whole grid or a window of whole rows holding the strip
+    and one row past each of its ends (the 3 × 3 window): z's first and last rows count as the
+    grid's border. out: (2, n, cols) uint8, filled with the grey levels (0 = nodata and the
+    border) and alpha (255 where grey > 0, else 0): the texels of ``hillshade_grey`` of the
+    grid. Without the GIL: a strip is shaded while other threads read the next and write the
+    one before (GDAL; numba kernels are called from one thread only).
+    """
+    rows, cols = z.shape
+    n = out.shape[1]
+    inv_ew = 1.0 / dx
+    inv_ns = 1.0 / dy
+    consts = _light_consts(z_factor, altitude, azimuth, algorithm)
+    for i in prange(n):
+        r = row0 + i
+        out[0, i, 0] = 0
+        out[1, i, 0] = 0
+        out[0, i, cols - 1] = 0
+        out[1, i, cols - 1] = 0
+        if r < 1 or r >= rows - 1:
+            for c in range(cols):
+                out[0, i, c] = 0
+                out[1, i, c] = 0
+            continue
+        # gdaldem's default (Horn, standard) with both as constants: the compiler drops the
+        # other algorithms' and modes' branches from the inner loop.
+        if algorithm == HORN and mode == STANDARD:
+            for c in range(1, cols - 1):
+                v = np.float32(_shade_cell(z, r, c, inv_ew, inv_ns, HORN, STANDARD, consts))
+                g = np.uint8(np.rint(v))
+                out[0, i, c] = g
+                out[1, i, c] = 255 if g > 0 else 0
+            continue
+        for c in range(1, cols - 1):
+            v = np.float32(_shade_cell(z, r, c, inv_ew, inv_ns, algorithm, mode, consts))
+            g = np.uint8(np.rint(v))
+            out[0, i, c] = g
+            out[1, i, c] = 255 if g > 0 else 0

@@ -25,6 +25,7 @@ import os
 import re
 import uuid
 from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -102,6 +103,7 @@ def _write_level(
     height);
     ``on_rows(n)`` after each strip of n rows is written."""
     import rasterio
+    from rasterio.windows import Window
 
     rows, cols = shape
     profile = {
@@ -116,7 +118,10 @@ def _write_level(
         **_LEVEL_OPTIONS,
     }
     r0 = 0
-    with rasterio.open(path, "w", **profile) as ds:
+    # GDAL writes (and compresses) a strip on a writer thread, without the GIL, while this
+    # thread halves it and the texture makes the next one; one write is in flight at a time.
+    pending: Future | None = None
+    with rasterio.open(path, "w", **profile) as ds, ThreadPoolExecutor(1) as writer:
         ds.update_tags(**{_TAG_BUILD: build, _TAG_LEVEL: str(level)})
         for strip in strips:
             n = strip.shape[1] if strip.ndim == 3 else 0
@@ -129,9 +134,11 @@ def _write_level(
                 raise InvalidParameterError(
                     f"Texture strips must have an even number of rows and cover {rows} rows."
                 )
-            # Contiguous band-order strips go to GDAL without a copy.
-            strip = np.ascontiguousarray(strip)
-            ds.write(strip, window=rasterio.windows.Window(0, r0, cols, n))
+            # A strip is valid until the next is asked for: the writer gets its own copy.
+            strip = np.array(strip, order="C")
+            if pending is not None:
+                pending.result()
+            pending = writer.submit(ds.write, strip, window=Window(0, r0, cols, n))
             if on_rows is not None:
                 on_rows(n)
             # The halving of a strip depends on that strip only (its rows pair up).
@@ -140,6 +147,8 @@ def _write_level(
                 halve_bands(strip, half)
                 halved.append(half)
             r0 += n
+        if pending is not None:
+            pending.result()
     if r0 != rows:
         raise InvalidParameterError(f"The texture's strips cover {r0} of its {rows} rows.")
 

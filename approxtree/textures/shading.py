@@ -8,6 +8,7 @@ included; slope and curvature weights and cast shadows refine it for cartographi
 from __future__ import annotations
 
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from affine import Affine
@@ -144,12 +145,16 @@ class TopographicShading(ShadingTexture):
 
     def _kernel_args(self) -> tuple:
         """Arguments of the hillshade kernels: heights, steps, z factor, light, algorithm, mode."""
+        return (self._heights(), *self._light_args())
+
+    def _light_args(self) -> tuple:
+        """``_kernel_args`` after the heights."""
         dx, dy = self._steps
         mode = hs.COMBINED if self.combined else hs.STANDARD
         if self.multidirectional:
             mode = hs.MULTIDIRECTIONAL
         light = (self.z_factor, self.altitude, self.azimuth)
-        return (self._heights(), dx, dy, *light, ALGORITHMS[self.algorithm], mode)
+        return (dx, dy, *light, ALGORITHMS[self.algorithm], mode)
 
     def slope(self) -> np.ndarray:
         """(rows, cols) float32 slope in degrees (gdaldem slope), NaN at nodata and border."""
@@ -165,6 +170,47 @@ class TopographicShading(ShadingTexture):
         """(rows, cols) bool: cells that the light cannot see."""
         dx, dy = self._steps
         return cast_shadows(self._heights() * self.z_factor, dx, dy, self.azimuth, self.altitude)
+
+    def level_strips(self, rows: int) -> Iterator[np.ndarray]:
+        if self.slope_weight or self.curvature_weight or self.shadows:
+            return super().level_strips(rows)
+        return self._plain_grey_alpha_strips(rows)
+
+    def _plain_grey_alpha_strips(self, rows: int) -> Iterator[np.ndarray]:
+        """Plain gdaldem grey levels and their alpha as (2, ≤ rows, cols) uint8 strips,
+        each shaded on its own from the heights (no whole grey array): texel for texel the
+        strips of ``grey_alpha_strips(self.shade(), rows)``."""
+        args = self._light_args()
+        height, width = self.shape
+        if not self.terrain.is_windowed:
+            z = self._heights()
+            for r0 in range(0, height, rows):
+                strip = np.empty((2, min(rows, height - r0), width), dtype=np.uint8)
+                hs.hillshade_grey_alpha_rows(z, r0, strip, *args)
+                yield strip
+            return
+        # Windowed heights: each strip's rows and one more at each end (the 3 × 3 window) are
+        # read on a reader thread (GDAL, without the GIL) while the strip before is shaded, so
+        # the band is never whole in memory. A window starting at the grid's first row, or
+        # ending at its last, has that border row as its own: the kernel leaves it nodata.
+        # Straight from the height source (as a block of the windowed heights reads): the
+        # strips pass once, the block cache would only hold them.
+        heights = self.terrain.heights
+
+        def window(r0: int) -> tuple[int, np.ndarray]:
+            a, b = max(r0 - 1, 0), min(r0 + rows + 1, height)
+            z = np.asarray(heights.source.read(a, b, 0, width), dtype=heights.dtype)
+            return a, np.ascontiguousarray(z)
+
+        with ThreadPoolExecutor(1) as reader:
+            ahead = reader.submit(window, 0)
+            for r0 in range(0, height, rows):
+                a, z = ahead.result()
+                if r0 + rows < height:
+                    ahead = reader.submit(window, r0 + rows)
+                strip = np.empty((2, min(rows, height - r0), width), dtype=np.uint8)
+                hs.hillshade_grey_alpha_rows(z, r0 - a, strip, *args)
+                yield strip
 
     def shade(self) -> np.ndarray:
         if not (self.slope_weight or self.curvature_weight or self.shadows):
