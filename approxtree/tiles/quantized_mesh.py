@@ -311,8 +311,9 @@ def write_quantized_mesh(
     level's error is <= ``max_error`` metres when that is given; leaf_error: the deepest
     level's tiles are within min(its level error, leaf_error) metres (``math.inf``: the level
     error only); workers > 1: tiles are made as dask tasks on a LocalCluster of that many
-    processes, or on the dask cluster at ``scheduler`` (which must see ``out``). Returns the figures (tiles, bytes, levels, worst error
-    ratio, per-level counts).
+    processes, or on the dask cluster at ``scheduler`` (which must see ``out``). Returns the
+    figures (tiles, bytes, levels, worst error ratio, leaf error and the deepest level's
+    measured worst, per-level counts).
     """
     from approxtree.io.atomic import atomic_directory
 
@@ -372,9 +373,7 @@ def write_quantized_mesh(
         "vertices": sum(r.vertices for r in results),
         "worst_error_ratio": max(r.max_error / r.level_error for r in results),
         "leaf_error": float(leaf_error),
-        "leaf_max_error": max(
-            (r.max_error for r in results if r.level == maxzoom), default=0.0
-        ),
+        "leaf_max_error": max((r.max_error for r in results if r.level == maxzoom), default=0.0),
         "tiles_per_level": {str(level): len(t) for level, t in plan.items()},
         "results": [asdict(r) for r in results],
     }

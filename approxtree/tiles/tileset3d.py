@@ -263,8 +263,8 @@ def write_3dtiles(
 ) -> dict[str, Any]:
     """Write the 3D Tiles 1.1 tileset of ``tree`` into the folder ``out`` (see the module
     docstring); workers > 1: batches of tiles are dask tasks on a LocalCluster of that many
-    processes, or on the cluster at ``scheduler`` (which must see ``out``); returns figures: out, tiles, bytes, seconds, tiles_per_second, frame,
-    geometric_error (the tileset's)."""
+    processes, or on the cluster at ``scheduler`` (which must see ``out``); returns figures:
+    out, tiles, bytes, seconds, tiles_per_second, frame, geometric_error (the tileset's)."""
     _check_tree(tree)
     check_workers(workers, scheduler)
     if image_format not in IMAGE_FORMATS:
