@@ -499,6 +499,26 @@ def test_terrain_without_crs_is_refused(data_dir, tmp_path):
         write_quantized_mesh(open_terrain(dem), tmp_path / "t")
 
 
+def test_tiles_on_an_existing_dask_scheduler_match_serial(data_dir, tmp_path):
+    """--scheduler: the tile batches run on an existing dask cluster (here one in this process)
+    and give the same bytes as the serial run; a scheduler and a worker count together are
+    refused."""
+    from distributed import LocalCluster
+
+    terrain = srtm_crop(data_dir)
+    write_quantized_mesh(terrain, tmp_path / "a", maxzoom=7)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False) as cluster:
+        address = cluster.scheduler_address
+        write_quantized_mesh(terrain, tmp_path / "b", maxzoom=7, scheduler=address)
+        with pytest.raises(InvalidParameterError, match="not both"):
+            write_quantized_mesh(terrain, tmp_path / "c", maxzoom=7, workers=2, scheduler=address)
+    tiles = written(tmp_path / "a")
+    assert tiles == written(tmp_path / "b") and len(tiles) > 8
+    for z, x, y in tiles:
+        rel = Path(str(z), str(x), f"{y}.terrain")
+        assert (tmp_path / "a" / rel).read_bytes() == (tmp_path / "b" / rel).read_bytes()
+
+
 def test_bad_input_gets_clear_errors(tmp_path):
     from affine import Affine
 
