@@ -3,11 +3,11 @@
 Web tiles are independent: a writer splits them into batches and ``run_batches`` calls
 ``fn(job, batch)`` for each. With ``workers == 1`` and no scheduler that happens here, in
 order. Otherwise the batches are tasks on a dask cluster — a LocalCluster of ``workers``
-processes or the cluster at ``scheduler`` — made with the build's helpers
-(tree/distributed.py); the job (terrain, tree, output folder...) is scattered to every worker
-once, and the results come back in batch order, so the output does not depend on where a
-tile was made. Workers write their tiles into the job's folder themselves: a remote cluster
-must see that folder (a shared file system).
+processes (or threads, for work that releases the GIL) or the cluster at ``scheduler`` —
+made with the build's helpers (tree/distributed.py); the job (terrain, tree, output
+folder...) is scattered to every worker once, and the results come back in batch order, so
+the output does not depend on where a tile was made. Workers write their tiles into the
+job's folder themselves: a remote cluster must see that folder (a shared file system).
 """
 
 from __future__ import annotations
@@ -45,11 +45,13 @@ def run_batches(
     workers: int = 1,
     scheduler: str | None = None,
     what: str = "tiles",
+    processes: bool = True,
 ) -> list[R]:
     """``fn(job, batch)`` over ``items`` cut into batches, concatenated in item order.
 
     workers == 1 and no scheduler: in this process. Else dask tasks on a LocalCluster of
-    ``workers`` processes (one thread each) or on the cluster at ``scheduler``. A task that
+    ``workers`` processes (one thread each; ``processes=False``: worker threads in this
+    process, for work that releases the GIL) or on the cluster at ``scheduler``. A task that
     fails on a worker becomes an ApproxTreeError naming its first item.
     """
     check_workers(workers, scheduler)
@@ -58,7 +60,7 @@ def run_batches(
     # A cluster with N workers: batches sized for them (or for 8 per default on a scheduler).
     batches = batches_of(items, workers if scheduler is None else 8)
     out: list[R] = []
-    with dask_client(None if scheduler else workers, scheduler) as client:
+    with dask_client(None if scheduler else workers, scheduler, processes) as client:
         # The job goes to every worker once (it holds the terrain), not with each task.
         [shared] = client.scatter([job], broadcast=True, hash=False)  # type: ignore[attr-defined]
         # Keys unique to this run: a key reused on a shared cluster could return another
