@@ -1090,6 +1090,20 @@ def _check_mesh_strategy(path: str, terrain, strategy: str) -> None:
         )
 
 
+def _store_epsilon(path: str) -> float | None:
+    """The ε a tree store (or legacy tree) was built with; None for a raster."""
+    if not _is_tree(path):
+        return None
+    if Path(path).suffix.lower() == ".atree":
+        from approxtree.tree import load_tree
+
+        return float(load_tree(path).epsilon)
+    from approxtree.tree.tree_store import StoreReader
+
+    eps = (StoreReader(path).meta.get("params") or {}).get("epsilon")
+    return float(eps) if eps else None
+
+
 def _tiles_terrain(path: str, reader: dict[str, Any]):
     """The terrain to tile: a tree store's stored terrain (windowed), a legacy tree's, or a
     raster DEM read now."""
@@ -1174,11 +1188,25 @@ def _tiles_terrain(path: str, reader: dict[str, Any]):
 )
 @click.option("--no-skirts", is_flag=True, help="3dtiles: leave the skirts out of the tiles.")
 @click.option(
+    "--leaf-error",
+    type=float,
+    default=None,
+    help="quantized-mesh: the deepest level's tiles (CesiumJS keeps showing them as the camera "
+    "comes closer) are within this many metres of the terrain [default: the tree store's ε, "
+    "1 m for a raster DEM].",
+)
+@click.option(
     "--workers",
     type=int,
     default=1,
     show_default=True,
-    help="Processes (quantized-mesh) or threads (3dtiles) writing tiles.",
+    help="Write the tiles as dask tasks on a local cluster of N processes (1: in this process).",
+)
+@click.option(
+    "--scheduler",
+    default=None,
+    help="Write the tiles as dask tasks on an existing cluster: its scheduler address "
+    "(e.g. tcp://host:8786); its workers must see --out.",
 )
 @reader_options
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
@@ -1196,7 +1224,9 @@ def tiles(
     texture_format: str,
     origin: tuple[float, float],
     no_skirts: bool,
+    leaf_error: float | None,
     workers: int,
+    scheduler: str | None,
     encoding,
     nodata_policy,
     ground_only,
@@ -1213,15 +1243,19 @@ def tiles(
         "height_scale": height_scale,
     }
     if tile_format == "3dtiles":
-        _tiles_3dtiles(tree, out, textures, texture_format, origin, no_skirts, workers, as_json)
+        _tiles_3dtiles(
+            tree, out, textures, texture_format, origin, no_skirts, workers, scheduler, as_json
+        )
         return
     from approxtree.tiles import write_quantized_mesh
-    from approxtree.tiles.quantized_mesh import check_output
+    from approxtree.tiles.quantized_mesh import DEFAULT_LEAF_ERROR, check_output
 
     # The output folder is checked before the terrain is read.
     check_output(out)
     t0 = time.perf_counter()
     terrain = _tiles_terrain(tree, reader)
+    if leaf_error is None:
+        leaf_error = _store_epsilon(tree) or DEFAULT_LEAF_ERROR
     figures = write_quantized_mesh(
         terrain,
         out,
@@ -1231,6 +1265,8 @@ def tiles(
         max_error=max_error,
         workers=workers,
         water_mask=water_mask,
+        leaf_error=leaf_error,
+        scheduler=scheduler,
     )
     figures.pop("results")
     figures["seconds"] = round(time.perf_counter() - t0, 3)
@@ -1245,15 +1281,15 @@ def _tiles_3dtiles(
     origin: tuple[float, float],
     no_skirts: bool,
     workers: int,
+    scheduler: str | None,
     as_json: bool,
 ) -> None:
     """`approxtree tiles --format 3dtiles`: the 3D Tiles tileset of a tree store."""
-    from approxtree.errors import InvalidParameterError
     from approxtree.tiles import write_3dtiles
+    from approxtree.tiles.parallel import check_workers
     from approxtree.tree import load_tree
 
-    if workers < 1:
-        raise InvalidParameterError(f"--workers must be at least 1, got {workers}.")
+    check_workers(workers, scheduler)
     # verify=False: the patches are read one by one as the tiles are written.
     tree = load_tree(tree_path, verify=False)
     figures = write_3dtiles(
@@ -1264,6 +1300,7 @@ def _tiles_3dtiles(
         origin=tuple(origin),
         skirts=not no_skirts,
         image_format=texture_format,
+        scheduler=scheduler,
     )
     _emit(figures, as_json)
 

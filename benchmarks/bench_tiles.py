@@ -1,9 +1,10 @@
-"""3D Tiles writing speed and size: tiles per second, serial vs worker threads, bytes per tile.
+"""3D Tiles writing speed and size: tiles per second, serial vs dask workers, bytes per tile.
 
 Trees: the NC DEM of ../shared/data (ε = 1 m) and a fractal DEM (4097² by default, ε = 1 m,
 10 m cells, placed with no CRS: local ENU frame). Each tree is built, saved as a store and
 loaded lazily (verify off, as `approxtree tiles` does), then its tileset is written
-``--repeats`` times with 1 worker and with ``--workers`` threads, interleaved (serial,
+``--repeats`` times in this process (1 worker) and as dask tasks on a LocalCluster of
+``--workers`` processes (its start included, as a user's run has it), interleaved (serial,
 parallel, serial, ...) so both meet the same machine load; medians are reported. Bytes per
 tile are the GLB sizes (skirts and normals included, untextured); for reference,
 cesium-terrain-builder's heightmap-1.0 tiles have a fixed size of 65 × 65 × 2 + 2 = 8452 bytes

@@ -2,9 +2,10 @@
 
 Cases: the NC DEM of ../shared/data (500 × 450, 30 m, EPSG:32119) and a seeded fractal DEM
 (default 4097², 10 m cells, placed in UTM 18N). Each case is written serially (``workers=1``)
-and with ``--workers`` processes, alternating run by run (``--repeats``) so both see the same
-machine load; the figures are medians and their ratio. Worker runs include spawning the
-processes (each imports approxtree and loads its numba cache), as a user's run does.
+and as dask tasks on a LocalCluster of ``--workers`` processes, alternating run by run
+(``--repeats``) so both see the same machine load; the figures are medians and their ratio.
+Worker runs include starting the cluster (each worker process imports approxtree and loads its
+numba cache), as a user's run does. The deepest level is made to ``--leaf-error`` metres.
 
 Bytes per tile are set against a peer measured in the same run: the same tiles as
 cesium-terrain-builder's default output, heightmap-1.0 (65 × 65 uint16 heights + child mask +
@@ -79,7 +80,9 @@ def heightmap_peer(
     return sizes, ratios
 
 
-def run_case(name: str, terrain, workers: int, repeats: int, maxzoom: int | None) -> dict:
+def run_case(
+    name: str, terrain, workers: int, repeats: int, maxzoom: int | None, leaf_error: float = 1.0
+) -> dict:
     from approxtree.tiles import write_quantized_mesh
 
     times: dict[int, list[float]] = {1: [], workers: []}
@@ -89,7 +92,9 @@ def run_case(name: str, terrain, workers: int, repeats: int, maxzoom: int | None
             for w in (1, workers):
                 out = Path(tmp, f"w{w}")
                 t0 = time.perf_counter()
-                result = write_quantized_mesh(terrain, out, maxzoom=maxzoom, workers=w)
+                result = write_quantized_mesh(
+                    terrain, out, maxzoom=maxzoom, workers=w, leaf_error=leaf_error
+                )
                 times[w].append(time.perf_counter() - t0)
                 shutil.rmtree(out)
     assert result is not None
@@ -118,6 +123,8 @@ def run_case(name: str, terrain, workers: int, repeats: int, maxzoom: int | None
         "bytes_per_tile_deepest_level_median": statistics.median(r["bytes"] for r in deep),
         "vertices_per_tile_deepest_level_median": statistics.median(r["vertices"] for r in deep),
         "worst_error_ratio": round(result["worst_error_ratio"], 6),
+        "leaf_error": leaf_error,
+        "leaf_max_error": round(result["leaf_max_error"], 4),
         "peer_heightmap_1_0_gzip_bytes_per_tile_mean": round(statistics.mean(peer), 1),
         "peer_heightmap_1_0_gzip_bytes_per_tile_median": statistics.median(peer),
         "bytes_ratio_ours_to_heightmap": round(sum(sizes) / sum(peer), 3),
@@ -136,6 +143,7 @@ def main() -> None:
     ap.add_argument("--fractal-maxzoom", type=int, default=None)
     ap.add_argument("--fractal-repeats", type=int, default=1)
     ap.add_argument("--data-dir", type=Path, default=DEFAULT_DATA)
+    ap.add_argument("--leaf-error", type=float, default=1.0)
     args = ap.parse_args()
 
     from approxtree.io import open_terrain
@@ -143,7 +151,9 @@ def main() -> None:
     cases = []
     nc = args.data_dir / "nc" / "elev_ned_30m.tif"
     if nc.exists():
-        cases.append(run_case("nc", open_terrain(nc), args.workers, args.repeats, None))
+        cases.append(
+            run_case("nc", open_terrain(nc), args.workers, args.repeats, None, args.leaf_error)
+        )
         print(json.dumps(cases[-1]), flush=True)
     else:
         print(f"skipping NC: {nc} is absent", file=sys.stderr)
@@ -155,6 +165,7 @@ def main() -> None:
             args.workers,
             args.fractal_repeats,
             args.fractal_maxzoom,
+            args.leaf_error,
         )
     )
     print(json.dumps(cases[-1]), flush=True)

@@ -53,11 +53,12 @@ def nc(data_dir: Path, tmp_path_factory) -> dict:
         out[fmt] = tmp / fmt
         _cli("tiles", str(tree), "--out", str(out[fmt]), "--format", fmt)
     eye, target = FAR
+    # Alpha 0 where no terrain is drawn: the silhouette (render's default background is sky).
     out["render"] = tmp / "render.png"
     _cli(
         "render", str(tree), "--eye", ",".join(map(str, eye)), "--target",
         ",".join(map(str, target)), "--fov", str(FOV), "--size", f"{SIZE[0]}x{SIZE[1]}",
-        "--out", str(out["render"]),
+        "--out", str(out["render"]), "--background", "transparent",
     )  # fmt: skip
     return out
 

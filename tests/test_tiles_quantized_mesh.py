@@ -161,8 +161,9 @@ def tin_at_samples(tile: dict, samples: int) -> np.ndarray:
 # -- checks of one tileset --------------------------------------------------------------------
 
 
-def check_tileset(folder: Path, terrain: Grid, samples: int) -> dict:
-    """Every check of the issue on every tile; returns figures for further asserts."""
+def check_tileset(folder: Path, terrain: Grid, samples: int, leaf_error: float = 1.0) -> dict:
+    """Every check of the issue on every tile (those of the deepest level within leaf_error
+    too); returns figures for further asserts (worst measured error per level among them)."""
     layer = json.loads((folder / "layer.json").read_text())
     assert layer["format"] == "quantized-mesh-1.0"
     assert layer["scheme"] == "tms" and layer["projection"] == "EPSG:4326"
@@ -174,6 +175,7 @@ def check_tileset(folder: Path, terrain: Grid, samples: int) -> dict:
     assert {t[0] for t in tiles} == set(range(layer["minzoom"], layer["maxzoom"] + 1))
     decoded = {}
     worst_ratio = 0.0
+    worst_of_level: dict[int, float] = {}
     for level, x, y in sorted(tiles):
         path = folder / str(level) / str(x) / f"{y}.terrain"
         t = decode(path)
@@ -210,7 +212,10 @@ def check_tileset(folder: Path, terrain: Grid, samples: int) -> dict:
         assert np.isfinite(approx).all()
         err = float(np.abs(approx[ok] - truth[ok]).max()) if ok.any() else 0.0
         limit = level_error(level)
+        if level == layer["maxzoom"]:
+            limit = min(limit, leaf_error)
         assert err <= limit * (1 + 1e-9) + 1e-6, (level, x, y, err, limit)
+        worst_of_level[level] = max(worst_of_level.get(level, 0.0), err)
         worst_ratio = max(worst_ratio, err / limit)
         # Vertices sit on samples: their decoded heights are h_T within half a quantum.
         k = QMAX // (samples - 1)
@@ -295,7 +300,13 @@ def check_tileset(folder: Path, terrain: Grid, samples: int) -> dict:
             for k in set(a) & set(b):
                 assert abs(a[k] - b[k]) <= 0.5 * q + 1e-4, (level, x, y, mine)
                 shared += 1
-    return {"tiles": tiles, "decoded": decoded, "worst_ratio": worst_ratio, "shared": shared}
+    return {
+        "tiles": tiles,
+        "decoded": decoded,
+        "worst_ratio": worst_ratio,
+        "shared": shared,
+        "worst_of_level": worst_of_level,
+    }
 
 
 # -- tests ------------------------------------------------------------------------------------
@@ -334,7 +345,7 @@ def test_projected_dem_from_tree_store_and_workers_match_the_raster(data_dir, tm
     dem = data_file(data_dir, "nc/elev_ned_30m.tif")
     runner = CliRunner()
     store = tmp_path / "nc.zarr"
-    r = runner.invoke(main, ["build", str(dem), "--out", str(store)])
+    r = runner.invoke(main, ["build", str(dem), "--out", str(store), "--epsilon", "2"])
     assert r.exit_code == 0, r.output
     r = runner.invoke(
         main,
@@ -355,6 +366,8 @@ def test_projected_dem_from_tree_store_and_workers_match_the_raster(data_dir, tm
     assert r.exit_code == 0, r.output
     figures = json.loads(r.output)
     assert figures["tiles"] == len(written(tmp_path / "a"))
+    # The deepest level is made to the store's ε by default.
+    assert figures["leaf_error"] == 2.0
     r = runner.invoke(
         main,
         [
@@ -366,6 +379,8 @@ def test_projected_dem_from_tree_store_and_workers_match_the_raster(data_dir, tm
             "quantized-mesh",
             "--maxzoom",
             "12",
+            "--leaf-error",
+            "2",
         ],
     )
     assert r.exit_code == 0, r.output
@@ -373,7 +388,29 @@ def test_projected_dem_from_tree_store_and_workers_match_the_raster(data_dir, tm
         rel = Path(str(z), str(x), f"{y}.terrain")
         assert (tmp_path / "a" / rel).read_bytes() == (tmp_path / "b" / rel).read_bytes()
     assert written(tmp_path / "a") == written(tmp_path / "b")
-    check_tileset(tmp_path / "a", open_terrain(dem), 152)
+    check_tileset(tmp_path / "a", open_terrain(dem), 152, leaf_error=2.0)
+
+
+def test_deepest_level_is_within_the_leaf_error(data_dir, tmp_path):
+    """CesiumJS keeps showing the deepest level as the camera comes closer: its tiles are made
+    to the leaf error (here 3 m) instead of the level's error (37.6 m at level 11), measured
+    on every decoded tile against the terrain; with an infinite leaf error they are not."""
+    terrain = srtm_crop(data_dir)
+    fine = write_quantized_mesh(terrain, tmp_path / "fine", leaf_error=3.0)
+    found = check_tileset(tmp_path / "fine", terrain, 152, leaf_error=3.0)
+    deepest = max(found["worst_of_level"])
+    assert level_error(deepest) > 10 * 3.0
+    # Within 3 m, and the greedy insertion went that far (it did not insert everything).
+    assert 1.5 < found["worst_of_level"][deepest] <= 3.0
+    assert fine["leaf_max_error"] == pytest.approx(found["worst_of_level"][deepest], rel=1e-6)
+    # The levels above keep their level's error.
+    assert found["worst_of_level"][deepest - 1] > 3.0
+    coarse = write_quantized_mesh(terrain, tmp_path / "coarse", leaf_error=float("inf"))
+    found = check_tileset(tmp_path / "coarse", terrain, 152, leaf_error=float("inf"))
+    assert found["worst_of_level"][deepest] > 3.0
+    assert coarse["vertices"] < fine["vertices"]
+    with pytest.raises(InvalidParameterError, match="leaf_error"):
+        write_quantized_mesh(terrain, tmp_path / "x", leaf_error=0.0)
 
 
 def test_nodata_holes_are_filled_from_neighbouring_samples(data_dir, tmp_path):
@@ -460,6 +497,26 @@ def test_terrain_without_crs_is_refused(data_dir, tmp_path):
     assert not (tmp_path / "t").exists()
     with pytest.raises(TerrainFormatError, match="no CRS"):
         write_quantized_mesh(open_terrain(dem), tmp_path / "t")
+
+
+def test_tiles_on_an_existing_dask_scheduler_match_serial(data_dir, tmp_path):
+    """--scheduler: the tile batches run on an existing dask cluster (here one in this process)
+    and give the same bytes as the serial run; a scheduler and a worker count together are
+    refused."""
+    from distributed import LocalCluster
+
+    terrain = srtm_crop(data_dir)
+    write_quantized_mesh(terrain, tmp_path / "a", maxzoom=7)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False) as cluster:
+        address = cluster.scheduler_address
+        write_quantized_mesh(terrain, tmp_path / "b", maxzoom=7, scheduler=address)
+        with pytest.raises(InvalidParameterError, match="not both"):
+            write_quantized_mesh(terrain, tmp_path / "c", maxzoom=7, workers=2, scheduler=address)
+    tiles = written(tmp_path / "a")
+    assert tiles == written(tmp_path / "b") and len(tiles) > 8
+    for z, x, y in tiles:
+        rel = Path(str(z), str(x), f"{y}.terrain")
+        assert (tmp_path / "a" / rel).read_bytes() == (tmp_path / "b" / rel).read_bytes()
 
 
 def test_bad_input_gets_clear_errors(tmp_path):

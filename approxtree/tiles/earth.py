@@ -92,6 +92,10 @@ class EarthFrame:
         #: (4, 4) local frame → ECEF (identity for terrain with a CRS: vertices go to ECEF).
         self.matrix = np.eye(4) if crs is not None else enu_matrix(*self.origin)
 
+    def __reduce__(self):
+        # Pickled (to dask workers) by its arguments: the per-thread transformers stay here.
+        return (EarthFrame, (self.crs, self.center, self.origin))
+
     @property
     def georeferenced(self) -> bool:
         return self.crs is not None

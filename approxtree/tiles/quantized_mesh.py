@@ -19,10 +19,8 @@ from __future__ import annotations
 import gzip
 import json
 import math
-import multiprocessing
 import os
 from collections.abc import Iterable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -41,6 +39,7 @@ from approxtree.tiles.geographic import (
     tile_bounds,
     tiles_touching,
 )
+from approxtree.tiles.parallel import check_workers, run_batches
 from approxtree.tiles.sampling import NO_DATA, TileSampler, check_has_data
 from approxtree.tiles.water_mask import WaterMask
 
@@ -49,11 +48,16 @@ from approxtree.tiles.water_mask import WaterMask
 SAMPLE_CHOICES = (32, 152, 218)
 DEFAULT_SAMPLES = 152
 
+#: The deepest level's error (m) by default: the vertical resolution of integer-metre DEMs
+#: (SRTM); a tree store's own ε replaces it on the command line.
+DEFAULT_LEAF_ERROR = 1.0
+
 
 @dataclass
 class TileResult:
     """What was written for one tile: its address, mesh size, bytes on disk (gzip), the
-    decoded tile's exact max error over its samples, and the level's error it had to meet."""
+    decoded tile's exact max error over its samples, and the error it had to meet (the
+    level's, or the leaf error on the deepest level)."""
 
     level: int
     x: int
@@ -180,13 +184,21 @@ class _Job:
     folder: str
     plan: dict[int, np.ndarray]
     maxzoom: int
+    leaf_error: float = math.inf
+
+    def tile_error(self, level: int) -> float:
+        """The error a tile of ``level`` must meet: CesiumJS's level error, and on the
+        deepest level (which CesiumJS keeps showing as the camera comes closer) at most the
+        leaf error, so the DEM's detail is shown there."""
+        err = level_error(level)
+        return min(err, self.leaf_error) if level == self.maxzoom else err
 
 
 def make_tile(job: _Job, level: int, x: int, y: int) -> tuple[bytes, TileResult]:
     """The gzip-compressed bytes of tile (level, x, y) and its figures."""
     bounds = tile_bounds(level, x, y)
     h, n_valid = job.sampler.sample(bounds, job.samples)
-    err = level_error(level)
+    err = job.tile_error(level)
     vx, vy, tri, hq, decoded, worst = tin_of_samples(h, err)
     k = QMAX // (job.samples - 1)
     water = job.water.tile_mask(bounds) if job.water is not None else None
@@ -219,20 +231,6 @@ def _write_batch(job: _Job, addresses: Sequence[tuple[int, int, int]]) -> list[T
         path.write_bytes(data)
         out.append(result)
     return out
-
-
-#: The job of a worker process, sent once when the process starts (the terrain is big).
-_WORKER_JOB: _Job | None = None
-
-
-def _init_worker(job: _Job) -> None:
-    global _WORKER_JOB
-    _WORKER_JOB = job
-
-
-def _worker_batch(addresses: Sequence[tuple[int, int, int]]) -> list[TileResult]:
-    assert _WORKER_JOB is not None
-    return _write_batch(_WORKER_JOB, addresses)
 
 
 def plan_tiles(
@@ -303,14 +301,19 @@ def write_quantized_mesh(
     max_error: float | None = None,
     workers: int = 1,
     water_mask: str | os.PathLike | None = None,
+    leaf_error: float = DEFAULT_LEAF_ERROR,
+    scheduler: str | None = None,
 ) -> dict:
     """Write the Cesium terrain tileset of ``terrain`` into the folder ``out`` (atomically).
 
     samples: samples along a tile side (one of SAMPLE_CHOICES); maxzoom: deepest level, by
     default the first whose sample spacing reaches the terrain's cell, or deeper until the
-    level's error is <= ``max_error`` metres when that is given; workers > 1: tiles are
-    made in that many processes. Returns the figures (tiles, bytes, levels, worst error
-    ratio, per-level counts).
+    level's error is <= ``max_error`` metres when that is given; leaf_error: the deepest
+    level's tiles are within min(its level error, leaf_error) metres (``math.inf``: the level
+    error only); workers > 1: tiles are made as dask tasks on a LocalCluster of that many
+    processes, or on the dask cluster at ``scheduler`` (which must see ``out``). Returns the
+    figures (tiles, bytes, levels, worst error ratio, leaf error and the deepest level's
+    measured worst, per-level counts).
     """
     from approxtree.io.atomic import atomic_directory
 
@@ -319,8 +322,11 @@ def write_quantized_mesh(
             f"samples must be one of {SAMPLE_CHOICES} (samples − 1 must divide 32767), "
             f"got {samples}."
         )
-    if workers < 1:
-        raise InvalidParameterError(f"workers must be >= 1, got {workers}.")
+    check_workers(workers, scheduler)
+    if not (isinstance(leaf_error, (int, float)) and leaf_error > 0 and not math.isnan(leaf_error)):
+        raise InvalidParameterError(
+            f"leaf_error must be a positive number of metres (or inf), got {leaf_error!r}."
+        )
     sampler = TileSampler(terrain)
     check_has_data(sampler)
     if max_error is not None:
@@ -350,22 +356,9 @@ def write_quantized_mesh(
     arrays = {level: np.array(t, dtype=np.int64).reshape(-1, 2) for level, t in plan.items()}
     results: list[TileResult] = []
     with atomic_directory(out) as tmp:
-        job = _Job(sampler, water, samples, str(tmp), arrays, maxzoom)
-        if workers == 1:
-            results = _write_batch(job, addresses)
-        else:
-            # Each worker gets the job (terrain, tile set) once; tiles go in batches of a few
-            # so that the workers stay busy to the end.
-            size = max(1, min(32, len(addresses) // (8 * workers)))
-            batches = [addresses[i : i + size] for i in range(0, len(addresses), size)]
-            # Spawned, not forked: a process that ran numba's OpenMP kernels (a build in the
-            # same process) is killed by libgomp when it forks.
-            context = multiprocessing.get_context("spawn")
-            with ProcessPoolExecutor(
-                max_workers=workers, mp_context=context, initializer=_init_worker, initargs=(job,)
-            ) as pool:
-                for part in pool.map(_worker_batch, batches):
-                    results.extend(part)
+        job = _Job(sampler, water, samples, str(tmp), arrays, maxzoom, float(leaf_error))
+        # In this process, or batches of tiles as dask tasks (the job sent once per worker).
+        results = run_batches(_write_batch, job, addresses, workers, scheduler, "tiles")
         if not any(r.valid_samples for r in results) and terrain.point_count == 0:
             # A windowed terrain of nodata only: scanned only now that no tile sampled a
             # height (tiles too coarse to hit the data need not mean nodata); nothing is kept.
@@ -379,6 +372,8 @@ def write_quantized_mesh(
         "bytes": sum(r.bytes for r in results),
         "vertices": sum(r.vertices for r in results),
         "worst_error_ratio": max(r.max_error / r.level_error for r in results),
+        "leaf_error": float(leaf_error),
+        "leaf_max_error": max((r.max_error for r in results if r.level == maxzoom), default=0.0),
         "tiles_per_level": {str(level): len(t) for level, t in plan.items()},
         "results": [asdict(r) for r in results],
     }

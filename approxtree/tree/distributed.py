@@ -32,9 +32,11 @@ def check_cluster_options(workers: int | None, scheduler: str | None) -> None:
 
 
 @contextlib.contextmanager
-def dask_client(workers: int | None, scheduler: str | None) -> Iterator[object]:
+def dask_client(
+    workers: int | None, scheduler: str | None, processes: bool = True
+) -> Iterator[object]:
     """A distributed Client: of ``scheduler``, or of a LocalCluster of ``workers`` processes
-    (one thread each), closed on exit."""
+    (one thread each; ``processes=False``: worker threads in this process), closed on exit."""
     from distributed import Client, LocalCluster
 
     if scheduler is not None:
@@ -53,7 +55,7 @@ def dask_client(workers: int | None, scheduler: str | None) -> Iterator[object]:
     cluster = LocalCluster(
         n_workers=workers or os.cpu_count() or 1,
         threads_per_worker=1,
-        processes=True,
+        processes=processes,
         dashboard_address=":0",
     )
     client = Client(cluster)

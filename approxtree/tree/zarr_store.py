@@ -302,6 +302,14 @@ class StoreReader:
         # Background loaders (the paging renderer) read patches from several threads.
         self._lock = threading.Lock()
 
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickled (a dask task's tree, web tiles) without the lock and the caches: the
+        receiver reopens the store at the same location."""
+        return {"location": self.location}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__init__(state["location"])  # type: ignore[misc]
+
     def node(self, path: str) -> Any:
         """The zarr array or group at ``path``, its metadata checksum verified."""
         found = self._nodes.get(path)
