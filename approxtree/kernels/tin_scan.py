@@ -119,7 +119,9 @@ def _step(w):
     return q, r, d, sq, sr
 
 
-@njit(cache=True, inline="always")
+# A plain call, not inlined: numba types an inlined body again at each of its four call sites
+# (seconds of compile); one call per run of rows costs nothing measurable.
+@njit(cache=True, _nrt=False)
 def _scan_rows(
     heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ya, yb, left, right, best, bestx, besty
 ):
@@ -189,23 +191,25 @@ def scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy):
     zc = np.float64(heights[r0 + cy, c0 + cx])
     gx, gy = plane(za, zb, zc, ax, ay, bx, by, cx, cy)
     best = NO_CANDIDATE
-    best_x = -1
-    best_y = -1
+    # int64 throughout (no literal −1, no int32 row): every ``_scan_rows`` call below is then
+    # one compiled signature.
+    best_x = np.int64(-1)
+    best_y = np.int64(-1)
     tx, ty, mx, my, lx, ly, mid_left = _by_rows(ax, ay, bx, by, cx, cy)
     # The long edge bounds every row on one side; the top–middle edge, then the middle–bottom
     # one, on the other.
     long_w = _edge_walk(tx, ty, lx, ly, ty)
-    ya = ty
+    ya = np.int64(ty)
     if my > ty:
         short = _edge_walk(tx, ty, mx, my, ty)
         if mid_left:
             best, best_x, best_y, short, long_w = _scan_rows(
-                heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ty, my, short, long_w,
+                heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ya, my, short, long_w,
                 best, best_x, best_y,
             )  # fmt: skip
         else:
             best, best_x, best_y, long_w, short = _scan_rows(
-                heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ty, my, long_w, short,
+                heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ya, my, long_w, short,
                 best, best_x, best_y,
             )  # fmt: skip
         ya = my + 1
@@ -257,7 +261,8 @@ def _edge_weight(ax, ay, bx, by, cx, cy, x, y, wab, wbc, wca) -> float:
     return 1.0
 
 
-@njit(cache=True, inline="always")
+# A plain call, not inlined (see ``_scan_rows``).
+@njit(cache=True, _nrt=False)
 def _sse_rows(
     heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, wab, wbc, wca, ya, yb, left, right, sse
 ):
@@ -346,7 +351,7 @@ def triangle_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca) -> floa
             wab,
             wbc,
             wca,
-            ty,
+            np.int64(ty),
             my,
             left,
             right,
@@ -355,7 +360,7 @@ def triangle_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca) -> floa
     if ly > my:
         lower = (mx, my, lx, ly)
         left, right = (lower, long_edge) if mid_left else (long_edge, lower)
-        ya = my + 1 if my > ty else ty
+        ya = np.int64(my + 1 if my > ty else ty)
         sse = _sse_rows(
             heights,
             r0,
