@@ -389,7 +389,11 @@ def greedy_tin(
     nv = int(state[0])
     nt = int(state[1])
 
-    worst = max(key[:nt].max(), 0.0)
+    # Loops, not key[:nt].max() / sse.sum(): the same values (a sequential sum, like numba's
+    # array sum), without compiling numba's reduction implementations on a cold start.
+    worst = 0.0
+    for t in range(nt):
+        worst = max(worst, key[t])
     # The squared errors are summed once over the final mesh, not at every rescan: the same
     # per-triangle figures (a triangle's edges keep their border or shared status while it
     # lives), for a fraction of the work.
@@ -412,6 +416,9 @@ def greedy_tin(
                 0.5 if he[3 * t + 1] >= 0 else 1.0,
                 0.5 if he[3 * t + 2] >= 0 else 1.0,
             )
+    total = 0.0
+    for t in range(nt):
+        total += sse[t]
     # Views, not copies: the work arrays are freed on return, so the peak stays lower.
     return (
         vx[:nv],
@@ -419,7 +426,7 @@ def greedy_tin(
         tv[: 3 * nt],
         he[: 3 * nt],
         worst,
-        sse[:nt].sum(),
+        total,
     )
 
 
