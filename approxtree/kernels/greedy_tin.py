@@ -87,10 +87,11 @@ GROW_STACK = 2
 GROW_HEAP = 3
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _store_state(state, nv, nt, size, sp, n_pending):
     """state[:] = (nv, nt, size, sp, n_pending), item by item: a slice assignment would compile
-    numba's shape-mismatch error formatting (seconds on a cold start)."""
+    numba's shape-mismatch error formatting (seconds on a cold start). Inlined: one call site
+    passes a literal 0, which would compile a second signature."""
     state[0] = nv
     state[1] = nt
     state[2] = size
@@ -215,7 +216,8 @@ def _insert_until(
         vx[p] = px
         vy[p] = py
         nv += 1
-        on_edge = -1
+        # Not a literal -1: numba would compile split_edge for Literal[int](-1) as well.
+        on_edge = np.int64(-1)
         for k3 in range(3):
             e = 3 * t + k3
             a = tv[e]
@@ -332,7 +334,8 @@ def greedy_tin(
         sp = 1
 
     state = np.array([nv, nt, size, sp, n_pending], dtype=np.int64)
-    # Run until finished, growing whichever array is full (by half, amortized O(1)).
+    # Run until finished, growing whichever array is full (by half, amortized O(1)). Fill values
+    # are typed, not literals: ``grow`` then compiles once per array dtype.
     while True:
         status = _insert_until(
             heights,
@@ -363,30 +366,34 @@ def greedy_tin(
         if status == FINISHED:
             break
         if status == GROW_STACK:
-            stack = grow(stack, 2 * stack.shape[0], 0)
+            stack = grow(stack, 2 * stack.shape[0], np.int32(0))
         elif status == GROW_HEAP:
             cap_h = max(cap_h + cap_h // 2, int(state[2] + state[4]))
-            heap = grow(heap, cap_h, 0)
+            heap = grow(heap, cap_h, np.int32(0))
             hkey = grow(hkey, cap_h, 0.0)
         else:
             if state[0] + 1 > cap_v:
                 cap_v += cap_v // 2
-                vx = grow(vx, cap_v, 0)
-                vy = grow(vy, cap_v, 0)
+                vx = grow(vx, cap_v, np.int32(0))
+                vy = grow(vy, cap_v, np.int32(0))
             if state[1] + 2 > cap_t:
                 cap_t += cap_t // 2
-                tv = grow(tv, 3 * cap_t, 0)
-                he = grow(he, 3 * cap_t, -1)
+                tv = grow(tv, 3 * cap_t, np.int32(0))
+                he = grow(he, 3 * cap_t, np.int32(-1))
                 key = grow(key, cap_t, 0.0)
-                cand = grow(cand, cap_t, -1)
-                hpos = grow(hpos, cap_t, -1)
-                is_pending = grow(is_pending, cap_t, False)
+                cand = grow(cand, cap_t, np.int32(-1))
+                hpos = grow(hpos, cap_t, np.int32(-1))
+                is_pending = grow(is_pending, cap_t, np.bool_(False))
                 # At most every triangle is pending at once.
-                pending = grow(pending, cap_t, 0)
+                pending = grow(pending, cap_t, np.int32(0))
     nv = int(state[0])
     nt = int(state[1])
 
-    worst = max(key[:nt].max(), 0.0)
+    # Loops, not key[:nt].max() / sse.sum(): the same values (a sequential sum, like numba's
+    # array sum), without compiling numba's reduction implementations on a cold start.
+    worst = 0.0
+    for t in range(nt):
+        worst = max(worst, key[t])
     # The squared errors are summed once over the final mesh, not at every rescan: the same
     # per-triangle figures (a triangle's edges keep their border or shared status while it
     # lives), for a fraction of the work.
@@ -409,6 +416,9 @@ def greedy_tin(
                 0.5 if he[3 * t + 1] >= 0 else 1.0,
                 0.5 if he[3 * t + 2] >= 0 else 1.0,
             )
+    total = 0.0
+    for t in range(nt):
+        total += sse[t]
     # Views, not copies: the work arrays are freed on return, so the peak stays lower.
     return (
         vx[:nv],
@@ -416,7 +426,7 @@ def greedy_tin(
         tv[: 3 * nt],
         he[: 3 * nt],
         worst,
-        sse[:nt].sum(),
+        total,
     )
 
 

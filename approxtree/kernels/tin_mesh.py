@@ -47,7 +47,9 @@ def in_circle(ax, ay, bx, by, cx, cy, dx, dy) -> bool:
     return det > 0
 
 
-@njit(cache=True, _nrt=False)
+# Inlined: its callers pass int32 and int64 values (and literal -1) in many combinations, each
+# of which would be a separate compile of a kernel a handful of instructions long.
+@njit(cache=True, inline="always")
 def set_triangle(tv, he, t, a, b, c, hab, hbc, hca) -> None:
     """Write triangle t = (a, b, c) and link its three half-edges with their twins."""
     e = 3 * t

@@ -119,6 +119,8 @@ def _step(w):
     return q, r, d, sq, sr
 
 
+# Inlined (a call per triangle costs ~3% of a TIN run), at two call sites only: numba types an
+# inlined body again at each one.
 @njit(cache=True, inline="always")
 def _scan_rows(
     heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ya, yb, left, right, best, bestx, besty
@@ -189,38 +191,33 @@ def scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy):
     zc = np.float64(heights[r0 + cy, c0 + cx])
     gx, gy = plane(za, zb, zc, ax, ay, bx, by, cx, cy)
     best = NO_CANDIDATE
-    best_x = -1
-    best_y = -1
+    # int64 throughout (no literal −1, no int32 row): every ``_scan_rows`` call below is then
+    # one compiled signature.
+    best_x = np.int64(-1)
+    best_y = np.int64(-1)
     tx, ty, mx, my, lx, ly, mid_left = _by_rows(ax, ay, bx, by, cx, cy)
     # The long edge bounds every row on one side; the top–middle edge, then the middle–bottom
     # one, on the other.
     long_w = _edge_walk(tx, ty, lx, ly, ty)
-    ya = ty
+    ya = np.int64(ty)
+    # The walks are swapped into (left, right) order rather than calling ``_scan_rows`` in
+    # each order: half the inlined copies to compile, the same arithmetic.
     if my > ty:
         short = _edge_walk(tx, ty, mx, my, ty)
-        if mid_left:
-            best, best_x, best_y, short, long_w = _scan_rows(
-                heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ty, my, short, long_w,
-                best, best_x, best_y,
-            )  # fmt: skip
-        else:
-            best, best_x, best_y, long_w, short = _scan_rows(
-                heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ty, my, long_w, short,
-                best, best_x, best_y,
-            )  # fmt: skip
+        left, right = (short, long_w) if mid_left else (long_w, short)
+        best, best_x, best_y, left, right = _scan_rows(
+            heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ya, my, left, right,
+            best, best_x, best_y,
+        )  # fmt: skip
+        long_w = right if mid_left else left
         ya = my + 1
     if ly >= ya and ly > my:
         short = _edge_walk(mx, my, lx, ly, ya)
-        if mid_left:
-            best, best_x, best_y, short, long_w = _scan_rows(
-                heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ya, ly, short, long_w,
-                best, best_x, best_y,
-            )  # fmt: skip
-        else:
-            best, best_x, best_y, long_w, short = _scan_rows(
-                heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ya, ly, long_w, short,
-                best, best_x, best_y,
-            )  # fmt: skip
+        left, right = (short, long_w) if mid_left else (long_w, short)
+        best, best_x, best_y, left, right = _scan_rows(
+            heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ya, ly, left, right,
+            best, best_x, best_y,
+        )  # fmt: skip
     return best, best_y, best_x
 
 
@@ -257,7 +254,8 @@ def _edge_weight(ax, ay, bx, by, cx, cy, x, y, wab, wbc, wca) -> float:
     return 1.0
 
 
-@njit(cache=True, inline="always")
+# A plain call, not inlined (see ``_scan_rows``).
+@njit(cache=True, _nrt=False)
 def _sse_rows(
     heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, wab, wbc, wca, ya, yb, left, right, sse
 ):
@@ -346,7 +344,7 @@ def triangle_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca) -> floa
             wab,
             wbc,
             wca,
-            ty,
+            np.int64(ty),
             my,
             left,
             right,
@@ -355,7 +353,7 @@ def triangle_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca) -> floa
     if ly > my:
         lower = (mx, my, lx, ly)
         left, right = (lower, long_edge) if mid_left else (long_edge, lower)
-        ya = my + 1 if my > ty else ty
+        ya = np.int64(my + 1 if my > ty else ty)
         sse = _sse_rows(
             heights,
             r0,

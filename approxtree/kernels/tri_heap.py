@@ -59,7 +59,8 @@ def heap_push(heap: np.ndarray, hkey: np.ndarray, pos: np.ndarray, size: int, t:
 @njit(cache=True, _nrt=False)
 def heap_remove(heap: np.ndarray, hkey: np.ndarray, pos: np.ndarray, size: int, t: int):
     """Take triangle t out of the heap if it is there."""
-    i = pos[t]
+    # int64 like ``size``, so ``_sift_up`` compiles once (pos holds int32).
+    i = np.int64(pos[t])
     if i < 0:
         return size
     pos[t] = -1
@@ -78,7 +79,7 @@ def heap_remove(heap: np.ndarray, hkey: np.ndarray, pos: np.ndarray, size: int, 
 @njit(cache=True, _nrt=False)
 def heap_update(heap: np.ndarray, hkey: np.ndarray, pos: np.ndarray, size: int, t: int, k: float):
     """Give triangle t key k: pushed when absent, else moved up or down in place (one sift)."""
-    i = pos[t]
+    i = np.int64(pos[t])
     if i < 0:
         _sift_up(heap, hkey, pos, size, t, k)
         return size + 1
