@@ -1,0 +1,146 @@
+"""The command line as a package (tools/split_cli.py): thin command modules, shared option
+groups, the same commands and parameters as the one-module cli.py it was written from."""
+
+from __future__ import annotations
+
+import ast
+import importlib.util
+import json
+from pathlib import Path
+
+import click
+import pytest
+from click.testing import CliRunner
+
+import approxtree.cli
+from approxtree.cli import common, main, options
+from approxtree.errors import InvalidParameterError
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = Path(approxtree.cli.__file__).parent
+#: The parameters of every command of the one-module cli.py, written by tools/split_cli.py.
+BEFORE = Path(__file__).parent / "data" / "cli_params.json"
+HELPERS = {"__init__", "common", "options"}
+
+
+def _split_cli():
+    spec = importlib.util.spec_from_file_location("split_cli", ROOT / "tools" / "split_cli.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _command_modules() -> dict[str, ast.Module]:
+    return {
+        p.stem: ast.parse(p.read_text())
+        for p in sorted(PACKAGE.glob("*.py"))
+        if p.stem not in HELPERS
+    }
+
+
+def _decorator_names(tree: ast.Module) -> set[str]:
+    """Names used as bare decorators (``@json_option``) in a module."""
+    return {
+        d.id
+        for node in ast.walk(tree)
+        if isinstance(node, ast.FunctionDef)
+        for d in node.decorator_list
+        if isinstance(d, ast.Name)
+    }
+
+
+def test_every_command_keeps_its_parameters():
+    """Same commands; per command the same options: flags, defaults, types, help, callbacks."""
+    if not BEFORE.exists():
+        pytest.skip("tests/data/cli_params.json is written by tools/split_cli.py")
+    before = json.loads(BEFORE.read_text())
+    after = json.loads(json.dumps(_split_cli().params_of(main)))
+    assert sorted(after) == sorted(before)
+    for name in before:
+        assert after[name] == before[name], name
+
+
+def test_help_lists_every_command():
+    out = CliRunner().invoke(main, ["--help"])
+    assert out.exit_code == 0
+    for name in main.commands:
+        assert f"  {name}" in out.output
+
+
+def test_each_command_module_is_thin_and_holds_one_command():
+    modules = _command_modules()
+    assert sorted(modules) == sorted(main.commands)
+    for name, tree in modules.items():
+        lines = len((PACKAGE / f"{name}.py").read_text().splitlines())
+        assert lines < 250, f"{name}.py has {lines} lines"
+        commands = [
+            node
+            for node in tree.body
+            if isinstance(node, ast.FunctionDef)
+            and any(ast.unparse(d).startswith("click.command") for d in node.decorator_list)
+        ]
+        assert len(commands) == 1, name
+        # Command modules import other command modules never (imports point down).
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith(
+                "approxtree.cli"
+            ):
+                assert node.module in (
+                    "approxtree.cli",
+                    "approxtree.cli.common",
+                    "approxtree.cli.options",
+                )
+                if node.module == "approxtree.cli":
+                    assert [a.name for a in node.names] == ["common"]
+
+
+def test_option_groups_are_shared_objects():
+    """Each option group of options.py decorates two or more commands, with the same click
+    parameters on each; no click.option is repeated verbatim by two command modules."""
+    groups = [
+        name
+        for name, value in vars(options).items()
+        if callable(value) and name.endswith(("_option", "_options")) and not name.startswith("_")
+    ]
+    for name in ("json_option", "threshold_options", "reader_options", "cartographic_options"):
+        assert name in groups
+    modules = _command_modules()
+    for name in groups:
+        users = [m for m, tree in modules.items() if name in _decorator_names(tree)]
+        assert len(users) >= 2, (name, users)
+        made = {p.name for p in click.command()(getattr(options, name)(lambda **kw: None)).params}
+        infos = [
+            [p.to_info_dict() for p in main.commands[m].params if p.name in made] for m in users
+        ]
+        assert all(len(i) == len(made) for i in infos), name
+        assert all(i == infos[0] for i in infos), name
+    seen: dict[str, str] = {}
+    for m, tree in modules.items():
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Call) and ast.unparse(node.func) == "click.option":
+                text = ast.dump(node)
+                assert seen.setdefault(text, m) == m, f"{ast.unparse(node)} in {seen[text]}, {m}"
+
+
+def test_open_is_looked_up_when_a_command_runs(tmp_path, monkeypatch):
+    """Commands call common._open through the module, so a test can replace it."""
+    calls = []
+
+    def fake(path, *args, **kwargs):
+        calls.append(path)
+        raise InvalidParameterError("replaced")
+
+    monkeypatch.setattr("approxtree.cli.common._open", fake)
+    dem = tmp_path / "dem.tif"
+    dem.write_bytes(b"")
+    for args in (["info", str(dem)], ["rd", str(dem)]):
+        out = CliRunner().invoke(main, args)
+        assert out.exit_code == 2 and "Error: replaced" in out.output
+    assert calls == [str(dem)] * 2
+    assert common._open is fake
+
+
+def test_names_reached_from_outside_stay_on_the_package():
+    assert approxtree.cli.main is main
+    assert approxtree.cli._is_tree("x.atree")
+    assert not approxtree.cli._is_tree("dem.tif")
