@@ -6,6 +6,7 @@ from __future__ import annotations
 import ast
 import importlib.util
 import json
+import sys
 from pathlib import Path
 
 import click
@@ -26,6 +27,8 @@ HELPERS = {"__init__", "common", "options"}
 def _split_cli():
     spec = importlib.util.spec_from_file_location("split_cli", ROOT / "tools" / "split_cli.py")
     module = importlib.util.module_from_spec(spec)
+    # dataclasses look their module up in sys.modules.
+    sys.modules["split_cli"] = module
     spec.loader.exec_module(module)
     return module
 
