@@ -46,7 +46,7 @@ GROUPS = {
 }
 
 #: Top-level decorator functions that define option groups (they go to options.py).
-OPTION_DECORATOR_SUFFIX = "_options"
+OPTION_DECORATOR_SUFFIX = ("_option", "_options")
 
 HEADER = "from __future__ import annotations\n"
 
@@ -300,7 +300,8 @@ def _shared_options(units: list[Unit], source: str) -> dict[tuple[str, ...], Sha
                     runs.setdefault(tuple(ast.dump(x) for x in run), run)
                 run = []
     shared: dict[tuple[str, ...], Shared] = {}
-    taken: set[str] = set()
+    # Named decorators never take the name of a function of cli.py (quiet_option).
+    taken: set[str] = {n for u in units for n in u.defines}
     for key in sorted(runs, key=lambda k: (-len(k), k)):
         run = runs[key]
         users = sum(
@@ -317,6 +318,8 @@ def _shared_options(units: list[Unit], source: str) -> dict[tuple[str, ...], Sha
             name = "_".join(f.lstrip("-").replace("-", "_") for f in flags) + (
                 "_option" if len(flags) == 1 else "_options"
             )
+        while name in taken:
+            name = name.replace("_option", "_shared_option", 1)
         taken.add(name)
         texts = [ast.get_source_segment(source, d) for d in run]
         users_of = [
@@ -399,17 +402,20 @@ def _module_doc(name: str, units: list[Unit]) -> str:
     return '"""' + "\n".join(lines) + ('"""\n' if len(lines) == 1 else '\n"""\n')
 
 
-def _write_package(root: Path, source: str, ruff: str | None) -> list[str]:
+def _write_package(root: Path, source: str, ruff: str | None) -> tuple[list[str], dict[str, str]]:
+    """Write approxtree/cli/; the files written and the module of each monkeypatched name."""
     doc, imports, units = _read_units(source)
     bindings = _import_bindings(imports)
     _place(units)
     shared = _shared_options(units, source)
     by_name = {n: u for u in units for n in u.defines}
-    patchable = _patched_names(root) & set(by_name)
-    for n in patchable:
-        if by_name[n].module != "common":
-            where = by_name[n].module
-            raise SystemExit(f"split_cli: {n} is monkeypatched by tests but lands in {where}")
+    # A patched name of one command module is a global there, looked up when called: tests
+    # patch it in that module. One of common is called as common.NAME everywhere else.
+    targets = {n: by_name[n].module for n in _patched_names(root) if n in by_name}
+    patchable = {n for n, m in targets.items() if m == "common"}
+    for n, m in targets.items():
+        if m in ("options", "__init__"):
+            raise SystemExit(f"split_cli: {n} is monkeypatched by tests but lands in {m}.py")
 
     pkg = root / "approxtree" / "cli"
     if pkg.exists():
@@ -484,7 +490,7 @@ def _write_package(root: Path, source: str, ruff: str | None) -> list[str]:
     # __init__: the group, every command added, the names tests reach re-exported.
     group = next(u for u in units if u.module == "__init__")
     reexport = sorted(
-        n for n in _reached_names(root) if n in by_name and n not in patchable and n != "main"
+        n for n in _reached_names(root) if n in by_name and n not in targets and n != "main"
     )
     init = [
         '"""' + (doc or "The approxtree command line.").strip() + "\n\n" + INIT_DOC + '"""\n',
@@ -511,13 +517,13 @@ def _write_package(root: Path, source: str, ruff: str | None) -> list[str]:
         subprocess.run([ruff, "format", "--quiet", *files], cwd=root, check=True)
         subprocess.run([ruff, "check", "--fix", "--quiet", *files], cwd=root, check=False)
         subprocess.run([ruff, "format", "--quiet", *files], cwd=root, check=True)
-    return written
+    return written, targets
 
 
 def _patched_names(root: Path) -> set[str]:
-    """Names that tests monkeypatch as "approxtree.cli.NAME" or "approxtree.cli.common.NAME"."""
+    """Names that tests monkeypatch as "approxtree.cli.NAME" (or "approxtree.cli.MODULE.NAME")."""
     out: set[str] = set()
-    pat = re.compile(r"""setattr\(\s*["']approxtree\.cli\.(?:common\.)?(\w+)["']""")
+    pat = re.compile(r"""setattr\(\s*["']approxtree\.cli\.(?:\w+\.)?(\w+)["']""")
     for path in sorted((root / "tests").glob("*.py")):
         out |= set(pat.findall(path.read_text()))
     return out
@@ -539,16 +545,16 @@ def _reached_names(root: Path) -> set[str]:
     return out
 
 
-def _rewrite_patch_targets(root: Path, names: set[str]) -> list[str]:
-    """Point monkeypatch targets "approxtree.cli.NAME" at common, where NAME is looked up."""
+def _rewrite_patch_targets(root: Path, targets: dict[str, str]) -> list[str]:
+    """Point monkeypatch targets "approxtree.cli.NAME" at the module where NAME is looked up."""
     changed = []
     for path in sorted((root / "tests").glob("*.py")):
         text = path.read_text()
         new = text
-        for n in sorted(names):
+        for n, m in sorted(targets.items()):
             new = re.sub(
-                rf"""(setattr\(\s*["'])approxtree\.cli\.{n}(["'])""",
-                rf"\1approxtree.cli.common.{n}\2",
+                rf"""(setattr\(\s*["'])approxtree\.cli\.(?:\w+\.)?{n}(["'])""",
+                rf"\1approxtree.cli.{m}.{n}\2",
                 new,
             )
         if new != text:
@@ -610,9 +616,8 @@ def main(argv: list[str] | None = None) -> int:
     source = old.read_text()
     before = _old_params(old)
     ruff = args.ruff if Path(args.ruff).exists() or shutil.which(args.ruff) else None
-    written = _write_package(root, source, ruff)
-    patched = _patched_names(root)
-    changed = _rewrite_patch_targets(root, patched)
+    written, targets = _write_package(root, source, ruff)
+    changed = _rewrite_patch_targets(root, targets)
     old.unlink()
     _add_package(root)
     data = root / "tests" / "data"
