@@ -144,7 +144,7 @@ def no_work(monkeypatch):
     def forbidden(*args, **kwargs):
         raise AssertionError("the work ran before the output location was checked")
 
-    monkeypatch.setattr("approxtree.cli._open", forbidden)
+    monkeypatch.setattr("approxtree.cli.common._open", forbidden)
     monkeypatch.setattr("approxtree.tree.ApproximationTree.build", forbidden)
     monkeypatch.setattr("approxtree.tree.ApproximationTree.load", forbidden)
     monkeypatch.setattr("approxtree.datasets.sample_terrain", forbidden)

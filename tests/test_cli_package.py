@@ -1,16 +1,11 @@
-"""The command line as a package (tools/split_cli.py): thin command modules, shared option
-groups, the same commands and parameters as the one-module cli.py it was written from."""
+"""The command line as a package: thin command modules, one command each, shared option groups."""
 
 from __future__ import annotations
 
 import ast
-import importlib.util
-import json
-import sys
 from pathlib import Path
 
 import click
-import pytest
 from click.testing import CliRunner
 
 import approxtree.cli
@@ -19,18 +14,7 @@ from approxtree.errors import InvalidParameterError
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = Path(approxtree.cli.__file__).parent
-#: The parameters of every command of the one-module cli.py, written by tools/split_cli.py.
-BEFORE = Path(__file__).parent / "data" / "cli_params.json"
 HELPERS = {"__init__", "common", "options"}
-
-
-def _split_cli():
-    spec = importlib.util.spec_from_file_location("split_cli", ROOT / "tools" / "split_cli.py")
-    module = importlib.util.module_from_spec(spec)
-    # dataclasses look their module up in sys.modules.
-    sys.modules["split_cli"] = module
-    spec.loader.exec_module(module)
-    return module
 
 
 def _command_modules() -> dict[str, ast.Module]:
@@ -50,17 +34,6 @@ def _decorator_names(tree: ast.Module) -> set[str]:
         for d in node.decorator_list
         if isinstance(d, ast.Name)
     }
-
-
-def test_every_command_keeps_its_parameters():
-    """Same commands; per command the same options: flags, defaults, types, help, callbacks."""
-    if not BEFORE.exists():
-        pytest.skip("tests/data/cli_params.json is written by tools/split_cli.py")
-    before = json.loads(BEFORE.read_text())
-    after = json.loads(json.dumps(_split_cli().params_of(main)))
-    assert sorted(after) == sorted(before)
-    for name in before:
-        assert after[name] == before[name], name
 
 
 def test_help_lists_every_command():

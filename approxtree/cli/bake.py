@@ -1,0 +1,213 @@
+"""``approxtree bake``: Bake a terrain's textures (DEM file or saved tree) into a pyramid folder."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import click
+
+from approxtree.cli import common
+from approxtree.cli.common import (
+    _emit,
+    _given_reader_options,
+    _is_tree,
+    _no_reader_flags_for_tree,
+    _reports_errors,
+)
+from approxtree.cli.options import json_option, quiet_option, reader_options
+
+
+def _takes_windowed(path: str, encoding: str | None) -> bool:
+    """Whether the reader of ``path``'s format can read it by windows (GDAL rasters)."""
+    from approxtree.io import detect_format
+    from approxtree.io._common import existing_file
+
+    return "windowed" in detect_format(existing_file(path), encoding=encoding).options
+
+
+@click.command("bake")
+@click.argument("source", type=click.Path())
+@click.option(
+    "--shading",
+    type=click.Choice(["topographic", "phong", "gouraud", "none"]),
+    default="topographic",
+    show_default=True,
+    help="Shading layer (none: thematic and overlays only).",
+)
+@click.option("--azimuth", type=float, default=315.0, show_default=True, help="Light, degrees.")
+@click.option("--altitude", type=float, default=45.0, show_default=True, help="Light, degrees.")
+@click.option("--z-factor", type=float, default=1.0, show_default=True, help="Exaggeration.")
+@click.option(
+    "--alg",
+    type=click.Choice(["Horn", "ZevenbergenThorne"]),
+    default=None,
+    help="Topographic gradient (gdaldem -alg) [default: Horn].",
+)
+@click.option("--combined", is_flag=True, help="Topographic: gdaldem -combined.")
+@click.option("--multidirectional", is_flag=True, help="Topographic: gdaldem -multidirectional.")
+@click.option("--thematic", type=click.Path(exists=True, dir_okay=False), help="Thematic raster.")
+@click.option(
+    "--palette",
+    default=None,
+    help="Land-cover legend (nlcd, landclass96), gdaldem colour file or matplotlib colormap "
+    "for --thematic [default: its colour table, softened].",
+)
+@click.option(
+    "--roads",
+    multiple=True,
+    type=click.Path(exists=True, dir_okay=False),
+    help="Vector layer drawn on top (repeatable).",
+)
+@click.option(
+    "--overlay-colour",
+    default="#2864c8",
+    show_default=True,
+    help="Colour of the --roads lines (#rrggbb).",
+)
+@click.option(
+    "--overlay-width",
+    type=float,
+    default=None,
+    help="Width of the --roads lines in world units [default: 2 texels, the least].",
+)
+@click.option(
+    "--water",
+    multiple=True,
+    type=click.Path(exists=True, dir_okay=False),
+    help="Water polygon layer drawn over the --roads lines (repeatable).",
+)
+@click.option(
+    "--blend",
+    type=click.Choice(["shade", "multiply", "overlay", "soft-light", "over"]),
+    default="shade",
+    show_default=True,
+    help="How shading combines with the thematic layer (shade: legend colour on flat ground).",
+)
+@click.option("--texel", type=float, default=None, help="Texel size in world units.")
+@click.option(
+    "--max-texture-size",
+    type=int,
+    default=4096,
+    show_default=True,
+    help="Texture size limit (power of two): the pyramid halves until a level fits.",
+)
+@click.option("--no-gl", is_flag=True, help="Bake with numpy even when OpenGL is available.")
+@click.option(
+    "--out", required=True, type=click.Path(file_okay=False), help="Folder of the pyramid."
+)
+@reader_options
+@quiet_option
+@json_option
+@_reports_errors
+def bake_command(
+    source: str,
+    shading: str,
+    azimuth: float,
+    altitude: float,
+    z_factor: float,
+    alg: str | None,
+    combined: bool,
+    multidirectional: bool,
+    thematic: str | None,
+    palette: str | None,
+    roads: tuple[str, ...],
+    overlay_colour: str,
+    overlay_width: float | None,
+    water: tuple[str, ...],
+    blend: str,
+    texel: float | None,
+    max_texture_size: int,
+    no_gl: bool,
+    out: str,
+    encoding,
+    nodata_policy,
+    ground_only,
+    height_scale,
+    quiet: bool,
+    as_json: bool,
+) -> None:
+    """Bake a terrain's textures (DEM file or saved tree) into a pyramid folder.
+
+    A point cloud or TIN is shaded from its heights sampled on a lattice (--texel, default its
+    mean point spacing).
+
+    The folder holds pyramid.json and one georeferenced GeoTIFF per level, level0.tif the
+    finest: tiled, ZSTD-compressed, the last band alpha; grey + alpha for pure shading, RGBA
+    otherwise.
+    """
+    from approxtree.errors import InvalidParameterError
+    from approxtree.io.output_path import check_output_folder
+    from approxtree.progress import progress_bar
+    from approxtree.textures.bake import bake
+
+    check_output_folder(out, "texture pyramid folder")
+    if _is_tree(source):
+        from approxtree.tree import ApproximationTree
+
+        _no_reader_flags_for_tree(
+            source, _given_reader_options(encoding, nodata_policy, ground_only, height_scale)
+        )
+        terrain = ApproximationTree.load(source).terrain
+    else:
+        ctx = click.get_current_context()
+        if (
+            ctx.meta.get("approxtree.windowed") is None
+            and no_gl
+            and shading == "topographic"
+            and thematic is None
+            and texel is None
+            and _takes_windowed(source, encoding)
+        ):
+            # A hillshade of the DEM's own lattice is shaded strip by strip: a raster read by
+            # windows streams through (read, shade, write overlap; the band is never whole).
+            ctx.meta["approxtree.windowed"] = "on"
+        terrain = common._open(source, encoding, nodata_policy, ground_only, height_scale)
+    options: dict[str, Any] = {"azimuth": azimuth, "altitude": altitude, "z_factor": z_factor}
+    if shading == "topographic":
+        if alg is not None:
+            options["algorithm"] = {"Horn": "horn", "ZevenbergenThorne": "zevenbergen-thorne"}[alg]
+        options.update(combined=combined, multidirectional=multidirectional)
+    elif alg is not None or combined or multidirectional:
+        raise InvalidParameterError(
+            "--alg, --combined and --multidirectional apply to --shading topographic only."
+        )
+    if palette is not None and thematic is None:
+        raise InvalidParameterError("--palette colours a --thematic raster; give one.")
+    with progress_bar("baking pyramid", unit="row", quiet=quiet) as on_progress:
+        result = bake(
+            terrain,
+            out,
+            progress=on_progress,
+            shading=None if shading == "none" else shading,
+            shading_options=options if shading != "none" else None,
+            thematic=thematic,
+            palette=palette,
+            overlays=list(roads),
+            overlay_colour=_rgba(overlay_colour),
+            overlay_width=overlay_width,
+            water=list(water),
+            blend=blend,
+            texel_size=texel,
+            max_texture_size=max_texture_size,
+            gl=not no_gl,
+        )
+    _emit(result.figures(), as_json)
+
+
+def _rgba(text: str) -> tuple[int, int, int, int]:
+    """ "#rrggbb" (or a Background colour name) as an opaque RGBA tuple 0..255."""
+    # "#rrggbb" (the default) without importing the renderer, a tenth of bake's import time.
+    if len(text) == 7 and text[0] == "#":
+        try:
+            return (int(text[1:3], 16), int(text[3:5], 16), int(text[5:7], 16), 255)
+        except ValueError:
+            pass
+    from approxtree.render.style import Background
+
+    bg = Background.parse(text)
+    if bg.kind != "colour":
+        from approxtree.errors import InvalidParameterError
+
+        raise InvalidParameterError(f"Expected a colour (#rrggbb or a name), got {text!r}.")
+    r, g, b = (round(v * 255) for v in bg.colour)
+    return (r, g, b, 255)

@@ -1,0 +1,284 @@
+"""Helpers of several commands: errors, output, reading terrains, trees."""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+import sys
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import click
+
+from approxtree.errors import ApproxTreeError, ApproxTreeWarning
+
+
+def _reports_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """Turn an ApproxTreeError into a one-line message on stderr and exit code 2.
+
+    An ApproxTreeWarning is printed as one ``Warning:`` line on stderr when it is raised.
+    """
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        with warnings.catch_warnings():
+            shown = warnings.showwarning
+
+            def show(message, category, filename, lineno, file=None, line=None):
+                if issubclass(category, ApproxTreeWarning):
+                    click.echo(f"Warning: {message}", err=True)
+                else:
+                    shown(message, category, filename, lineno, file, line)
+
+            warnings.showwarning = show
+            try:
+                return fn(*args, **kwargs)
+            except ApproxTreeError as exc:
+                click.echo(f"Error: {exc}", err=True)
+                sys.exit(2)
+
+    return wrapper
+
+
+def _finite(value: float) -> float | None:
+    """JSON has no inf or NaN: report them as null."""
+    return value if math.isfinite(value) else None
+
+
+def _emit(figures: dict[str, Any], as_json: bool) -> None:
+    if as_json:
+        click.echo(json.dumps(figures))
+    else:
+        width = max(len(k) for k in figures)
+        for k, v in figures.items():
+            click.echo(f"{k:<{width}}  {v}")
+
+
+def _open(
+    path: str,
+    encoding: str | None,
+    nodata_policy: str | None,
+    ground_only: bool,
+    height_scale: float | None,
+):
+    """Read a terrain file, passing only the reader options the user gave.
+
+    An option left at its default is "not given", so every format reads with its own defaults;
+    an option given explicitly that the format does not take is an InvalidParameterError.
+    """
+    from approxtree.io import open_terrain
+
+    options = _given_reader_options(encoding, nodata_policy, ground_only, height_scale)
+    ctx = click.get_current_context(silent=True)
+    windowed = ctx.meta.get("approxtree.windowed") if ctx is not None else None
+    # "auto" is the reader's default: it is passed on only as an explicit on or off.
+    if windowed in ("on", "off"):
+        options["windowed"] = windowed == "on"
+    _check_reader_flags(path, options)
+    return open_terrain(path, **options)
+
+
+#: The reader options of the command line, by the keyword the readers take.
+_READER_FLAGS = {
+    "encoding": "--encoding",
+    "nodata": "--nodata",
+    "ground_only": "--ground-only",
+    "height_scale": "--height-scale",
+    "windowed": "--windowed",
+}
+
+
+def _given_reader_options(
+    encoding: str | None, nodata_policy: str | None, ground_only: bool, height_scale: float | None
+) -> dict[str, Any]:
+    """The reader options given on the command line, as open_terrain keywords."""
+    options: dict[str, Any] = {}
+    if nodata_policy is not None:
+        options["nodata"] = nodata_policy
+    if encoding:
+        options["encoding"] = encoding
+    if ground_only:
+        options["ground_only"] = True
+    if height_scale is not None:
+        options["height_scale"] = height_scale
+    return options
+
+
+def _check_reader_flags(path: str, options: dict[str, Any]) -> None:
+    """InvalidParameterError, worded with the command's flags, for a given reader option that
+    the file's format does not take (the readers word it with their keyword names)."""
+    from approxtree.errors import InvalidParameterError
+    from approxtree.io import detect_format
+    from approxtree.io._common import existing_file
+
+    if not options:
+        return
+    fmt = detect_format(existing_file(path), encoding=options.get("encoding"))
+    for name in options:
+        if name not in fmt.options:
+            takes = [flag for key, flag in _READER_FLAGS.items() if key in fmt.options]
+            hint = (
+                f"its reader options: {', '.join(takes)}" if takes else "it has no reader options"
+            )
+            raise InvalidParameterError(
+                f"{_READER_FLAGS[name]} does not apply to {path}, a {fmt.name} file ({hint}); "
+                "leave it out."
+            )
+
+
+def _is_tree(path: str) -> bool:
+    """Whether ``path`` names a saved tree: a tree store (.zarr, .zip, URL, store folder) or a
+    legacy .atree file."""
+    from approxtree.tree.zarr_store import is_store
+
+    return Path(path).suffix.lower() == ".atree" or is_store(path)
+
+
+def _check_tree_output(out: str) -> None:
+    """StoreError now, before any work, when the tree cannot be written at ``out``."""
+    from approxtree.io.output_path import check_output_file, check_output_folder
+    from approxtree.tree.zarr_store import is_url, is_zip
+
+    if is_url(out):
+        return
+    if is_zip(out) or Path(out).suffix.lower() == ".atree":
+        check_output_file(out, "tree file")
+    else:
+        check_output_folder(out, "tree store")
+
+
+def _no_reader_flags_for_tree(path: str, options: dict[str, Any]) -> None:
+    """InvalidParameterError when reader options are given with a saved tree."""
+    from approxtree.errors import InvalidParameterError
+
+    if options:
+        flags = ", ".join(_READER_FLAGS[name] for name in options)
+        raise InvalidParameterError(
+            f"{flags} choose how a terrain file is read; {path} is a saved tree, "
+            "already built. Leave them out."
+        )
+
+
+def terrain_figures(terrain) -> dict[str, Any]:
+    """The figures of ``approxtree info`` for any terrain."""
+    from approxtree.geometry import Grid
+
+    z_min, z_max = terrain.z_range
+    figures: dict[str, Any] = {"kind": terrain.kind}
+    if isinstance(terrain, Grid):
+        figures.update(
+            width=terrain.width,
+            height=terrain.height,
+            crs=terrain.crs,
+            cell_size=list(terrain.cell_size),
+            z_min=z_min,
+            z_max=z_max,
+            nodata_count=terrain.nodata_count,
+            # A windowed raster's z range and counts come from one blockwise scan.
+            windowed=terrain.is_windowed,
+        )
+    else:
+        figures.update(
+            width=None,
+            height=None,
+            crs=terrain.crs,
+            cell_size=None,
+            z_min=z_min,
+            z_max=z_max,
+            nodata_count=0,
+        )
+    d = terrain.domain
+    figures.update(points=terrain.point_count, domain=[d.xmin, d.ymin, d.xmax, d.ymax])
+    return figures
+
+
+def tree_figures(tree, seconds: float, nbytes: int) -> dict[str, Any]:
+    """The figures of ``approxtree build`` for a built tree."""
+    stats = tree.stats()
+    stats["max_leaf_error"] = _finite(stats["max_leaf_error"])
+    stats.update(
+        epsilon=tree.epsilon,
+        max_points=tree.max_points,
+        fanout=tree.fanout,
+        seconds=round(seconds, 4),
+        bytes=nbytes,
+    )
+    return stats
+
+
+def _render_to_png(
+    tree,
+    path: Path,
+    eye: tuple[float, float, float] | None,
+    target: tuple[float, float, float] | None,
+    fov: float,
+    size: tuple[int, int],
+    alpha: float,
+    gamma: float,
+    wireframe: bool = False,
+    full_resolution: bool = False,
+    textures: str | None = None,
+    lighting: bool | str = "auto",
+    max_triangles: int | None = None,
+    style: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Render one frame of ``tree`` to an RGBA PNG at ``path``; returns the frame's stats.
+
+    Without ``eye``: the terrain fitted to the frame (``framing_camera``, from the south).
+    Without ``target``: the centre of the tree's root box. textures: folder of a texture
+    pyramid; lighting: "auto", "on"/True or "off"/False (decal). style: exaggeration, sun,
+    palette, background, lighting (``cartographic_options``; its lighting wins).
+    """
+    from PIL import Image
+
+    from approxtree.io.atomic import atomic_write
+    from approxtree.render import Camera, Engine, framing_camera
+    from approxtree.render.engine import EmptyFrameWarning
+    from approxtree.render.style import Background, Sun
+
+    style = dict(style or {})
+    lighting = style.pop("lighting", lighting)
+    # Bad style values fail before any GL work.
+    sun = Sun(*style.pop("sun", (315.0, 45.0)))
+    background = Background.parse(style.pop("background", "transparent"))
+    # An empty frame is reported below as one Warning line, not as Python's warning text.
+    with (
+        warnings.catch_warnings(),
+        Engine(
+            tree,
+            textures=textures,
+            exaggeration=style.pop("exaggeration", 1.0),
+            palette=style.pop("palette", None),
+        ) as engine,
+    ):
+        warnings.simplefilter("ignore", EmptyFrameWarning)
+        box = tree.bboxes[0]
+        if eye is None:
+            camera = framing_camera(box, engine.scale, size, fov=fov)
+            if target is not None:
+                camera.update(target=target)
+        else:
+            centre = tuple(0.5 * (box[:3] + box[3:]))
+            camera = Camera.look_at(eye, target if target is not None else centre, fov=fov)
+        frame = engine.render(
+            camera,
+            size,
+            alpha,
+            gamma,
+            wireframe=wireframe,
+            full_resolution=full_resolution,
+            lighting=lighting,
+            max_triangles=max_triangles,
+            sun=sun,
+            background=background,
+        )
+    with atomic_write(path) as f:
+        Image.fromarray(frame.image, mode="RGBA").save(f, format="PNG")
+    stats = {k: (_finite(v) if isinstance(v, float) else v) for k, v in frame.stats.items()}
+    stats["image"] = str(path)
+    if stats.get("warning"):
+        click.echo(f"Warning: {stats['warning']}", err=True)
+    return stats

@@ -1,0 +1,139 @@
+"""``approxtree mesh``: Approximate a whole terrain with one strategy to exactly one goal (--max-
+error, --max-points or --max-triangles); print its exact max and RMS errors, optionally write
+it.
+"""
+
+from __future__ import annotations
+
+import click
+
+from approxtree.cli import common
+from approxtree.cli.common import _emit, _reports_errors
+from approxtree.cli.options import json_option, quiet_option, reader_options
+
+
+@click.command()
+@click.argument("dem", type=click.Path(dir_okay=False))
+@click.option(
+    "--strategy",
+    type=click.Choice(["grid", "nonregular", "tin", "rtin"]),
+    default="tin",
+    show_default=True,
+    help="Approximation strategy for the whole terrain.",
+)
+@click.option("--max-error", type=float, help="Goal: largest error allowed (z units).")
+@click.option("--max-points", type=int, help="Goal: most vertices.")
+@click.option("--max-triangles", type=int, help="Goal: most triangles.")
+@click.option(
+    "--out",
+    type=click.Path(dir_okay=False),
+    help="Mesh file to write (.ply, .obj or .glb). PLY and OBJ hold world coordinates; GLB "
+    "holds float32 coordinates relative to a local origin (x, y centre, lowest z), stored in "
+    "the GLB scene extras as 'origin' and printed in the figures: world = position + origin. "
+    "PLY and OBJ are z-up; GLB is glTF's y-up (z-up positions under a root node rotating "
+    "z-up to y-up) with vertex normals.",
+)
+@click.option(
+    "--textures",
+    type=click.Path(file_okay=False),
+    default=None,
+    help="GLB: texture pyramid folder (approxtree bake); the patch covering the terrain is "
+    "embedded with texture coordinates.",
+)
+@click.option(
+    "--skirts",
+    is_flag=True,
+    help="Hang a wall from the mesh's border down to its lowest z minus its max error.",
+)
+@click.option(
+    "--data-dependent",
+    is_flag=True,
+    help="tin on grids: data-dependent triangulation (edge flips by error) instead of Delaunay.",
+)
+@reader_options
+@quiet_option
+@json_option
+@_reports_errors
+def mesh(
+    dem: str,
+    strategy: str,
+    max_error: float | None,
+    max_points: int | None,
+    max_triangles: int | None,
+    out: str | None,
+    textures: str | None,
+    skirts: bool,
+    data_dependent: bool,
+    encoding,
+    nodata_policy,
+    ground_only,
+    height_scale,
+    quiet: bool,
+    as_json: bool,
+) -> None:
+    """Approximate a whole terrain with one strategy to exactly one goal (--max-error,
+    --max-points or --max-triangles); print its exact max and RMS errors, optionally write it."""
+    from approxtree.io.mesh_file import mesh_format, write_mesh
+    from approxtree.patches.approximate import approximate, check_goal
+    from approxtree.progress import progress_bar
+
+    # Check the cheap things before reading and approximating the terrain.
+    check_goal(max_error, max_points, max_triangles)
+    if out is not None:
+        kind = mesh_format(out)
+        if textures is not None and kind != "glb":
+            from approxtree.errors import InvalidParameterError
+
+            raise InvalidParameterError(f"--textures needs a .glb output; {out} is {kind}.")
+    elif textures is not None or skirts:
+        from approxtree.errors import InvalidParameterError
+
+        raise InvalidParameterError("--textures and --skirts shape the written mesh: give --out.")
+    terrain = common._open(dem, encoding, nodata_policy, ground_only, height_scale)
+    _check_mesh_strategy(dem, terrain, strategy)
+    with progress_bar(f"mesh ({strategy})", unit="stage", quiet=quiet) as on_progress:
+        result = approximate(
+            terrain,
+            strategy,
+            max_error,
+            max_points,
+            max_triangles,
+            data_dependent=data_dependent,
+            progress=on_progress,
+        )
+    figures = result.figures()
+    if out is not None:
+        meta = {"strategy": strategy, "crs": terrain.crs, "max_error": figures["max_error"]}
+        verts, tris = result.vertices, result.triangles
+        surface = len(tris)
+        if skirts:
+            import numpy as np
+
+            from approxtree.patches.skirts import add_skirts
+
+            # One curtain to a common base: the lowest vertex minus the mesh's max error.
+            z = np.asarray(verts)[:, 2]
+            relief = float(z.max() - z.min())
+            base = float(z.min()) - max(float(figures["max_error"] or 0.0), 1e-3 * relief, 1e-3)
+            verts, tris, _ = add_skirts(verts, tris, np.inf, None, base)
+        texture = None
+        if textures is not None:
+            from approxtree.textures.embed import embedded_texture
+            from approxtree.textures.pyramid import TexturePyramid
+
+            d = terrain.domain
+            texture = embedded_texture(TexturePyramid(textures), d, verts)
+        figures.update(write_mesh(out, verts, tris, meta, surface, texture))
+    _emit(figures, as_json)
+
+
+def _check_mesh_strategy(path: str, terrain, strategy: str) -> None:
+    """InvalidParameterError for a lattice strategy asked of a TIN or a point cloud."""
+    from approxtree.errors import InvalidParameterError
+    from approxtree.geometry import Grid
+
+    if strategy != "tin" and not isinstance(terrain, Grid):
+        raise InvalidParameterError(
+            f"--strategy {strategy} needs a raster grid; {path} reads as a {terrain.kind} "
+            "(scattered points or triangles): use --strategy tin."
+        )

@@ -1,0 +1,170 @@
+"""Option groups shared by the commands (click decorators and callbacks)."""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from typing import Any
+
+import click
+
+
+def fov_option(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """--fov, the same on render, view."""
+    fn = click.option(
+        "--fov",
+        type=float,
+        default=45.0,
+        show_default=True,
+        help="Vertical field of view, degrees.",
+    )(fn)
+    return fn
+
+
+def json_option(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """--json, the same on info, build, demo, fractal, render, mesh, tiles, bake, convert, rd."""
+    fn = click.option(
+        "--json", "as_json", is_flag=True, help="Print the figures as one JSON object."
+    )(fn)
+    return fn
+
+
+def threshold_options(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """--alpha, --gamma, the same on render, view."""
+    fn = click.option(
+        "--gamma",
+        type=float,
+        default=2.0,
+        show_default=True,
+        help="Threshold γ, pixels² (inf: off).",
+    )(fn)
+    fn = click.option(
+        "--alpha", type=float, default=1.0, show_default=True, help="Threshold α, pixels."
+    )(fn)
+    return fn
+
+
+def reader_options(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """Options that choose how a terrain file is read (shared by the commands taking a terrain).
+
+    Every default is "not given": each format reads with its own defaults, and an option given
+    explicitly to a format that does not take it is an error.
+    """
+    fn = click.option(
+        "--encoding",
+        type=click.Choice(["terrain-rgb", "terrarium"]),
+        help="Height encoding of an RGB PNG.",
+    )(fn)
+    fn = click.option(
+        "--nodata",
+        "nodata_policy",
+        type=click.Choice(["mask", "fill"]),
+        default=None,
+        help="Grids: leave nodata out of the terrain (mask) or fill the holes by interpolation "
+        "[default: mask].",
+    )(fn)
+    fn = click.option(
+        "--ground-only", is_flag=True, help="Point clouds: keep ground points (class 2) only."
+    )(fn)
+    fn = click.option(
+        "--height-scale", type=float, help="16-bit grayscale PNG: metres per grey level."
+    )(fn)
+    # Kept in the click context (not a parameter of every command): _open reads it.
+    fn = click.option(
+        "--windowed",
+        type=click.Choice(["auto", "on", "off"]),
+        default=None,
+        expose_value=False,
+        callback=_remember_windowed,
+        help="GDAL rasters: read by windows on demand (on), into memory (off), or windowed when "
+        "the band exceeds 1 GiB (auto; APPROXTREE_WINDOWED_BYTES overrides) [default: auto].",
+    )(fn)
+    return fn
+
+
+def _remember_windowed(ctx: click.Context, _param: click.Parameter, value: str | None) -> None:
+    """Keep --windowed in the context for _open (None when not given)."""
+    ctx.meta["approxtree.windowed"] = value
+
+
+def quiet_option(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """-q/--quiet (keyword ``quiet``): no progress bar. Without it a command shows its bar on
+    stderr only when stderr is a terminal; use it as
+    ``with progress_bar("desc", unit="…", quiet=quiet) as report: work(..., progress=report)``
+    (``approxtree.progress``)."""
+    return click.option(
+        "-q", "--quiet", is_flag=True, help="No progress bar (none either off a terminal)."
+    )(fn)
+
+
+def cartographic_options(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """The picture options of render and demo: exaggeration, sun, palette, background,
+    lighting (passed to the command as keyword ``style``, a dict for ``_render_to_png``)."""
+    options = [
+        click.option(
+            "--exaggeration",
+            type=float,
+            default=1.0,
+            show_default=True,
+            help="Vertical exaggeration (z × factor; the α bound accounts for it).",
+        ),
+        click.option(
+            "--sun-azimuth",
+            type=float,
+            default=315.0,
+            show_default=True,
+            help="Sun azimuth, degrees clockwise from north (lighting and side walls).",
+        ),
+        click.option(
+            "--sun-altitude",
+            type=float,
+            default=45.0,
+            show_default=True,
+            help="Sun altitude, degrees above the horizon.",
+        ),
+        click.option(
+            "--palette",
+            "relief_palette",
+            default="relief",
+            show_default=True,
+            help="Hypsometric palette by elevation: relief, atlas, grey or stretched (min..max).",
+        ),
+        click.option(
+            "--background",
+            default="sky",
+            show_default=True,
+            help="Behind the terrain: sky, transparent, a colour name or #rrggbb.",
+        ),
+        click.option(
+            "--lighting",
+            type=click.Choice(["auto", "on", "off"]),
+            default="auto",
+            show_default=True,
+            help="Light the colours: auto lights untextured terrain only (baked shading is "
+            "drawn once).",
+        ),
+    ]
+    for option in reversed(options):
+        fn = option(fn)
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        kwargs["style"] = {
+            "exaggeration": kwargs.pop("exaggeration"),
+            "sun": (kwargs.pop("sun_azimuth"), kwargs.pop("sun_altitude")),
+            "palette": kwargs.pop("relief_palette"),
+            "background": kwargs.pop("background"),
+            "lighting": kwargs.pop("lighting"),
+        }
+        return fn(*args, **kwargs)
+
+    return wrapper
+
+
+def _size(ctx: click.Context, param: click.Parameter, value: str) -> tuple[int, int]:
+    """Parse "WxH" into (width, height)."""
+    try:
+        w, h = (int(v) for v in value.lower().split("x"))
+    except ValueError:
+        raise click.BadParameter(f"expected WxH in pixels, e.g. 1280x720, got {value!r}") from None
+    return w, h

@@ -1,0 +1,102 @@
+"""``approxtree render``: Render a saved tree (store or .atree) to a PNG and print the stats."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import click
+
+from approxtree.cli.common import _emit, _render_to_png, _reports_errors
+from approxtree.cli.options import (
+    _size,
+    cartographic_options,
+    fov_option,
+    json_option,
+    threshold_options,
+)
+
+
+def _xyz(ctx: click.Context, param: click.Parameter, value: str | None):
+    """Parse "X,Y,Z" into three floats (None when the option is absent)."""
+    if value is None:
+        return None
+    parts = value.split(",")
+    try:
+        xyz = tuple(float(v) for v in parts)
+    except ValueError:
+        xyz = ()
+    if len(xyz) != 3:
+        raise click.BadParameter(f"expected X,Y,Z (three numbers), got {value!r}")
+    return xyz
+
+
+@click.command()
+@click.argument("tree_file", type=click.Path())
+@click.option("--eye", callback=_xyz, help="Camera position X,Y,Z in world units.")
+@click.option("--target", callback=_xyz, help="Point looked at X,Y,Z [default: tree centre].")
+@fov_option
+@click.option(
+    "--size", callback=_size, default="1280x720", show_default=True, help="Image size WxH."
+)
+@threshold_options
+@click.option("--wireframe", is_flag=True, help="Draw triangle edges.")
+@click.option("--full-resolution", is_flag=True, help="Draw the unsimplified terrain (reference).")
+@click.option(
+    "--max-triangles",
+    type=int,
+    default=None,
+    help="Triangle budget (skirts included) instead of --alpha: smallest α that fits.",
+)
+@click.option("--out", required=True, type=click.Path(dir_okay=False), help="PNG to write (RGBA).")
+@click.option(
+    "--textures",
+    type=click.Path(file_okay=False),
+    default=None,
+    help="Folder of a texture pyramid (approxtree bake) to texture the terrain with.",
+)
+@click.option("--no-lighting", is_flag=True, help="Same as --lighting off (decal mode).")
+@cartographic_options
+@json_option
+@_reports_errors
+def render(
+    tree_file: str,
+    eye,
+    target,
+    fov: float,
+    size: tuple[int, int],
+    alpha: float,
+    gamma: float,
+    wireframe: bool,
+    full_resolution: bool,
+    max_triangles: int | None,
+    out: str,
+    textures: str | None,
+    no_lighting: bool,
+    as_json: bool,
+    style: dict[str, Any],
+) -> None:
+    """Render a saved tree (store or .atree) to a PNG and print the stats. Without --eye the
+    terrain is fitted to the frame, seen from the south; --background transparent leaves
+    alpha 0 where no terrain is drawn."""
+    from approxtree.io.output_path import check_output_file
+    from approxtree.tree import load_tree
+
+    check_output_file(out, "image")
+    tree = load_tree(tree_file)
+    stats = _render_to_png(
+        tree,
+        Path(out),
+        eye,
+        target,
+        fov,
+        size,
+        alpha,
+        gamma,
+        wireframe,
+        full_resolution,
+        textures=textures,
+        max_triangles=max_triangles,
+        style={**style, "lighting": "off" if no_lighting else style["lighting"]},
+    )
+    _emit(stats, as_json)

@@ -1,0 +1,236 @@
+"""``approxtree tiles``: Write TREE (a tree store from `approxtree build`; for quantized-mesh
+also a raster DEM) as web tiles into the folder --out, replaced as a whole when done.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import click
+
+from approxtree.cli import common
+from approxtree.cli.common import (
+    _emit,
+    _given_reader_options,
+    _is_tree,
+    _no_reader_flags_for_tree,
+    _reports_errors,
+)
+from approxtree.cli.options import json_option, reader_options
+
+
+def _store_epsilon(path: str) -> float | None:
+    """The ε a tree store (or legacy tree) was built with; None for a raster."""
+    if not _is_tree(path):
+        return None
+    if Path(path).suffix.lower() == ".atree":
+        from approxtree.tree import load_tree
+
+        return float(load_tree(path).epsilon)
+    from approxtree.tree.tree_store import StoreReader
+
+    eps = (StoreReader(path).meta.get("params") or {}).get("epsilon")
+    return float(eps) if eps else None
+
+
+def _tiles_terrain(path: str, reader: dict[str, Any]):
+    """The terrain to tile: a tree store's stored terrain (windowed), a legacy tree's, or a
+    raster DEM read now."""
+    if _is_tree(path):
+        _no_reader_flags_for_tree(path, _given_reader_options(**reader))
+        if Path(path).suffix.lower() == ".atree":
+            from approxtree.tree import load_tree
+
+            return load_tree(path).terrain
+        from approxtree.tree.tree_store import load_store_terrain
+
+        return load_store_terrain(path)
+    return common._open(path, **reader)
+
+
+@click.command()
+@click.argument("tree", type=click.Path())
+@click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder to write.")
+@click.option(
+    "--format",
+    "tile_format",
+    type=click.Choice(["3dtiles", "quantized-mesh"]),
+    required=True,
+    help="3dtiles: tileset.json + one GLB per node; quantized-mesh: Cesium terrain "
+    "(layer.json + z/x/y.terrain, gzip).",
+)
+@click.option(
+    "--samples",
+    type=click.Choice(["32", "152", "218"]),
+    default="152",
+    show_default=True,
+    help="quantized-mesh: samples along a tile side (samples − 1 divides 32767, so every "
+    "sample has an exact quantized position).",
+)
+@click.option(
+    "--minzoom",
+    type=int,
+    default=0,
+    show_default=True,
+    help="quantized-mesh: shallowest level written (CesiumJS asks for level 0).",
+)
+@click.option(
+    "--maxzoom",
+    type=int,
+    help="quantized-mesh: deepest level [default: where the sample spacing reaches the DEM's "
+    "cell].",
+)
+@click.option(
+    "--max-error",
+    type=float,
+    help="quantized-mesh: go deeper than the DEM's cell until the deepest level's error "
+    "(77 067 m / 2^level, CesiumJS's) is at most this many metres.",
+)
+@click.option(
+    "--water-mask",
+    type=click.Path(dir_okay=False),
+    help="quantized-mesh: land/water raster (nonzero = water) for the water-mask extension.",
+)
+@click.option(
+    "--textures",
+    type=click.Path(file_okay=False),
+    default=None,
+    help="3dtiles: texture pyramid folder (approxtree bake); each node's texture patch is "
+    "embedded in its GLB.",
+)
+@click.option(
+    "--texture-format",
+    type=click.Choice(["png", "jpeg"]),
+    default="png",
+    show_default=True,
+    help="3dtiles: encoding of the embedded textures.",
+)
+@click.option(
+    "--origin",
+    nargs=2,
+    type=float,
+    default=(0.0, 0.0),
+    show_default=True,
+    metavar="LON LAT",
+    help="3dtiles, terrain without a CRS: where the local east-north-up frame (metres) sits "
+    "on the WGS84 ellipsoid (degrees).",
+)
+@click.option("--no-skirts", is_flag=True, help="3dtiles: leave the skirts out of the tiles.")
+@click.option(
+    "--leaf-error",
+    type=float,
+    default=None,
+    help="quantized-mesh: the deepest level's tiles (CesiumJS keeps showing them as the camera "
+    "comes closer) are within this many metres of the terrain [default: the tree store's ε, "
+    "1 m for a raster DEM].",
+)
+@click.option(
+    "--workers",
+    type=int,
+    default=1,
+    show_default=True,
+    help="Write the tiles as dask tasks on a local cluster of N processes (1: in this process).",
+)
+@click.option(
+    "--scheduler",
+    default=None,
+    help="Write the tiles as dask tasks on an existing cluster: its scheduler address "
+    "(e.g. tcp://host:8786); its workers must see --out.",
+)
+@reader_options
+@json_option
+@_reports_errors
+def tiles(
+    tree: str,
+    out: str,
+    tile_format: str,
+    samples: str,
+    minzoom: int,
+    maxzoom: int | None,
+    max_error: float | None,
+    water_mask: str | None,
+    textures: str | None,
+    texture_format: str,
+    origin: tuple[float, float],
+    no_skirts: bool,
+    leaf_error: float | None,
+    workers: int,
+    scheduler: str | None,
+    encoding,
+    nodata_policy,
+    ground_only,
+    height_scale,
+    as_json: bool,
+) -> None:
+    """Write TREE (a tree store from `approxtree build`; for quantized-mesh also a raster DEM)
+    as web tiles into the folder --out, replaced as a whole when done."""
+
+    reader = {
+        "encoding": encoding,
+        "nodata_policy": nodata_policy,
+        "ground_only": ground_only,
+        "height_scale": height_scale,
+    }
+    if tile_format == "3dtiles":
+        _tiles_3dtiles(
+            tree, out, textures, texture_format, origin, no_skirts, workers, scheduler, as_json
+        )
+        return
+    from approxtree.tiles import write_quantized_mesh
+    from approxtree.tiles.quantized_mesh import DEFAULT_LEAF_ERROR, check_output
+
+    # The output folder is checked before the terrain is read.
+    check_output(out)
+    t0 = time.perf_counter()
+    terrain = _tiles_terrain(tree, reader)
+    if leaf_error is None:
+        leaf_error = _store_epsilon(tree) or DEFAULT_LEAF_ERROR
+    figures = write_quantized_mesh(
+        terrain,
+        out,
+        samples=int(samples),
+        minzoom=minzoom,
+        maxzoom=maxzoom,
+        max_error=max_error,
+        workers=workers,
+        water_mask=water_mask,
+        leaf_error=leaf_error,
+        scheduler=scheduler,
+    )
+    figures.pop("results")
+    figures["seconds"] = round(time.perf_counter() - t0, 3)
+    _emit(figures, as_json)
+
+
+def _tiles_3dtiles(
+    tree_path: str,
+    out: str,
+    textures: str | None,
+    texture_format: str,
+    origin: tuple[float, float],
+    no_skirts: bool,
+    workers: int,
+    scheduler: str | None,
+    as_json: bool,
+) -> None:
+    """`approxtree tiles --format 3dtiles`: the 3D Tiles tileset of a tree store."""
+    from approxtree.tiles import write_3dtiles
+    from approxtree.tiles.parallel import check_workers
+    from approxtree.tree import load_tree
+
+    check_workers(workers, scheduler)
+    # verify=False: the patches are read one by one as the tiles are written.
+    tree = load_tree(tree_path, verify=False)
+    figures = write_3dtiles(
+        tree,
+        out,
+        textures=textures,
+        workers=workers,
+        origin=tuple(origin),
+        skirts=not no_skirts,
+        image_format=texture_format,
+        scheduler=scheduler,
+    )
+    _emit(figures, as_json)

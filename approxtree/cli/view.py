@@ -1,0 +1,174 @@
+"""``approxtree view``: Open an interactive window over a tree file or a DEM (F1 in the window:
+keys).
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import click
+
+from approxtree.cli import common
+from approxtree.cli.common import (
+    _given_reader_options,
+    _is_tree,
+    _no_reader_flags_for_tree,
+    _reports_errors,
+)
+from approxtree.cli.options import (
+    _size,
+    cartographic_options,
+    fov_option,
+    reader_options,
+    threshold_options,
+)
+
+
+def _open_tree(path: str, epsilon: float, reader: dict[str, Any]):
+    """A saved tree (store or .atree), or any terrain file built into a tree now.
+
+    reader: the reader options given (encoding, nodata_policy, ground_only, height_scale).
+    """
+    from approxtree.tree import ApproximationTree, load_tree
+
+    if _is_tree(path):
+        _no_reader_flags_for_tree(path, _given_reader_options(**reader))
+        return load_tree(path)
+    return ApproximationTree.build(common._open(path, **reader), epsilon=epsilon, progress=False)
+
+
+@click.command()
+@click.argument("source", type=click.Path())
+@click.option(
+    "--textures",
+    "textures",
+    multiple=True,
+    type=click.Path(exists=True, file_okay=False),
+    help="Baked texture pyramid folder (repeat for several; TAB cycles, T toggles).",
+)
+@click.option(
+    "--epsilon", type=float, default=1.0, show_default=True, help="ε when SOURCE is a DEM."
+)
+@click.option(
+    "--size", callback=_size, default="1280x720", show_default=True, help="Window size WxH."
+)
+@threshold_options
+@fov_option
+@click.option(
+    "--script",
+    "script_path",
+    type=click.Path(dir_okay=False),
+    help='Replay a camera path: JSON list of {"eye", "target", "frames", "keys"}; exit at the end.',
+)
+@click.option(
+    "--stats", "stats_path", type=click.Path(dir_okay=False), help="JSON line of stats per frame."
+)
+@click.option(
+    "--screenshots",
+    type=click.Path(file_okay=False),
+    help="Folder for one PNG per keyframe of --script.",
+)
+@click.option(
+    "--keys",
+    "keys_text",
+    default="",
+    help='Scripted key presses "FRAME:KEY,...", e.g. "0:L,5:shift+PAGE_UP".',
+)
+@click.option(
+    "--frames", type=int, default=None, help="Stop after this many frames (without --script)."
+)
+@click.option(
+    "--max-uploads",
+    type=int,
+    default=32,
+    show_default=True,
+    help="Patch meshes uploaded per frame at most (0: no limit).",
+)
+@click.option(
+    "--upload-ms",
+    type=float,
+    default=None,
+    help="Stop uploading meshes after this many milliseconds in a frame (after one).",
+)
+@click.option(
+    "--legend",
+    type=click.Choice(["nlcd", "landclass96"]),
+    default=None,
+    help="Land-cover legend of the --textures layer (default: the elevation palette's).",
+)
+@click.option(
+    "--bookmarks",
+    "bookmarks_path",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Bookmark file [default: $XDG_CONFIG_HOME/approxtree/bookmarks.json].",
+)
+@cartographic_options
+@reader_options
+@_reports_errors
+def view(
+    source: str,
+    textures: tuple[str, ...],
+    epsilon: float,
+    size: tuple[int, int],
+    alpha: float,
+    gamma: float,
+    fov: float,
+    script_path: str | None,
+    stats_path: str | None,
+    screenshots: str | None,
+    keys_text: str,
+    frames: int | None,
+    max_uploads: int,
+    upload_ms: float | None,
+    legend: str | None,
+    bookmarks_path: str | None,
+    style: dict[str, Any],
+    encoding,
+    nodata_policy,
+    ground_only,
+    height_scale,
+) -> None:
+    """Open an interactive window over a tree file or a DEM (F1 in the window: keys)."""
+    from approxtree.io.output_path import check_output_file, check_output_folder
+    from approxtree.render.selector import check_thresholds
+    from approxtree.viewer import load_script, parse_key_presses, script_frames
+    from approxtree.viewer.app import Viewer
+
+    check_thresholds(alpha, gamma)
+    if stats_path is not None:
+        check_output_file(stats_path, "stats file")
+    if screenshots is not None:
+        check_output_folder(screenshots, "screenshot folder")
+    from approxtree.render.style import Background, Sun
+
+    # Bad picture options fail before the window opens.
+    Sun(*style["sun"])
+    Background.parse(style["background"])
+    presses = parse_key_presses(keys_text)
+    script = script_frames(load_script(script_path)) if script_path else None
+    reader = dict(
+        encoding=encoding,
+        nodata_policy=nodata_policy,
+        ground_only=ground_only,
+        height_scale=height_scale,
+    )
+    tree = _open_tree(source, epsilon, reader)
+    with Viewer(
+        tree,
+        textures=list(textures),
+        size=size,
+        alpha=alpha,
+        gamma=gamma,
+        fov=fov,
+        max_uploads=max_uploads,
+        budget_ms=upload_ms,
+        legend=legend,
+        bookmarks=bookmarks_path,
+        source=source,
+        **style,
+    ) as viewer:
+        drawn = viewer.run(script, presses, stats_path, screenshots, max_frames=frames)
+    if script is not None:
+        click.echo(json.dumps({"frames": drawn, "stats": stats_path, "screenshots": screenshots}))
