@@ -287,7 +287,7 @@ def test_empty_frames_say_so_in_stats_and_a_warning(folder, tmp_path):
         target_arg = ",".join(map(str, target))
         code, out, err = run(
             "render", folder / "hills.atree", "--eye", eye_arg, "--target", target_arg,
-            "--size", "48x32", "--out", png, "--json",
+            "--size", "48x32", "--background", "transparent", "--out", png, "--json",
         )  # fmt: skip
         assert code == 0, err
         stats = json.loads(out)

@@ -36,8 +36,9 @@ class Reader:
     options: reader options the format needs. points, z: valid data points and z range.
     epsilon: ε of the test build (large for the 1201² SRTM tiles, to stay quick).
     texel: bake texel size (None: the terrain's own cell size or point spacing).
-    visible: the overview frame shows terrain (False for the .npz: degree cells without a CRS
-    make it 0.33 × 0.29 units wide and 840 tall, a sub-pixel sliver the frame reports empty).
+    visible: the overview frame shows terrain (every format now: the fitted default view frames
+    even the .npz, whose degree cells without a CRS make it 0.33 × 0.29 units wide and 840 tall,
+    a sub-pixel sliver in the old overview).
     """
 
     id: str
@@ -78,7 +79,6 @@ READERS = [
         138632,
         (236.0, 1076.0),
         epsilon=20,
-        visible=False,
     ),
     Reader("las", "made:small.las", "tinpointset", 400, (45.71, 61.25), epsilon=1.0),
     Reader(
