@@ -134,6 +134,7 @@ def build_levels(
     root = terrain.domain if root is None else root
     domain_area = root.area or 1.0
     share = min(1.0, root.area / (terrain.domain.area or 1.0))
+    share = share if math.isfinite(share) else 1.0
     total = max(1, round(terrain.point_count * share)) if progress else 1
     covered = 0.0
     report(0, total)
@@ -163,12 +164,18 @@ def build_levels(
         leaf = count == 0
         if leaf.any():
             r = rects[leaf]
-            covered += float(((r[:, 2] - r[:, 0]) * (r[:, 3] - r[:, 1])).sum())
+            with np.errstate(over="ignore", invalid="ignore"):
+                covered += float(((r[:, 2] - r[:, 0]) * (r[:, 3] - r[:, 1])).sum())
         parents = np.repeat(np.arange(first, next_first, dtype=np.int64), count)
         rects = children
         first = next_first
         level += 1
-        done = total if not len(rects) else min(total - 1, int(total * covered / domain_area))
+        # Areas overflow to inf at huge coordinates: then the share is unknown until the end.
+        share = covered / domain_area
+        if not len(rects):
+            done = total
+        else:
+            done = min(total - 1, int(total * share)) if math.isfinite(share) else 0
         report(done, total)
     out = BuiltLevels(
         rects=np.concatenate(parts["rects"]),
