@@ -245,3 +245,15 @@ def test_random_degenerate_inputs_stay_valid_and_exact():
         assert ccw_exact(v, tris)
         expected = exact_error(pts, v, tris)
         assert worst == expected or worst == pytest.approx(expected, abs=1e-9)
+
+
+def test_points_at_absurd_coordinates_are_refused_not_triangulated():
+    """Coordinates near 1e293 (a corrupt LAS scale) overflowed the in-circle predicate: the
+    triangulation ran off its arrays (IndexError under bounds checks, an abort without)."""
+    from approxtree.errors import TerrainFormatError
+    from approxtree.geometry.tin import TINPointSet
+
+    rng = np.random.default_rng(3)
+    points = rng.uniform(-1.7e293, 1.7e293, size=(200, 3))
+    with pytest.raises(TerrainFormatError, match="scale factors or offsets"):
+        TINPointSet(points)

@@ -163,6 +163,11 @@ class TIN(GeometryData):
         return 0.5 * (lo + hi)
 
 
+#: Largest |x|, |y|, |z| of scattered points (see TINPointSet): the in-circle predicate's
+#: fourth-degree products of coordinate differences stay finite in float64 below it.
+MAX_POINT_COORDINATE = 1e60
+
+
 class TINPointSet(TIN):
     """Scattered data points, Delaunay-triangulated (``kernels.greedy_points``, every point).
 
@@ -178,6 +183,15 @@ class TINPointSet(TIN):
         if len(p) < 3:
             raise EmptyTerrainError(
                 f"A point set needs at least 3 finite points to triangulate, got {len(p)}."
+            )
+        # The exact predicates multiply coordinate differences up to the fourth power (in-circle):
+        # beyond ±1e60 they overflow to inf and the triangulation's walks run off its arrays.
+        # Such coordinates only come from corrupt scales or offsets (real ones are < 1e8).
+        if np.abs(p).max() > MAX_POINT_COORDINATE:
+            raise TerrainFormatError(
+                f"Point coordinates reach {np.abs(p).max():.3g}, beyond ±{MAX_POINT_COORDINATE:g}: "
+                "the file's scale factors or offsets are probably corrupt. Check them (e.g. with "
+                "`pdal info` or lasinfo) and rewrite the file."
             )
         xy, inverse, counts = np.unique(p[:, :2], axis=0, return_inverse=True, return_counts=True)
         z = np.bincount(inverse.ravel(), weights=p[:, 2]) / counts
