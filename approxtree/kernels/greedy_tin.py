@@ -60,10 +60,10 @@ def _shape(ax, ay, bx, by, cx, cy) -> float:
 
 
 @njit(cache=True)
-def _flip_improves(heights, r0, c0, vx, vy, a, b, p, q, has_nan) -> bool:
+def _flip_improves(heights, r0, c0, vxy, a, b, p, q, has_nan) -> bool:
     """Algorithm IV's test: is diagonal p–q better than a–b for the quadrilateral a, q, b, p?"""
-    ax, ay, bx, by = vx[a], vy[a], vx[b], vy[b]
-    px, py, qx, qy = vx[p], vy[p], vx[q], vy[q]
+    ax, ay, bx, by = vxy[2 * a], vxy[2 * a + 1], vxy[2 * b], vxy[2 * b + 1]
+    px, py, qx, qy = vxy[2 * p], vxy[2 * p + 1], vxy[2 * q], vxy[2 * q + 1]
     # Only a strictly convex quadrilateral can take the other diagonal.
     if orient(ax, ay, qx, qy, px, py) <= 0 or orient(qx, qy, bx, by, px, py) <= 0:
         return False
@@ -110,8 +110,7 @@ def _insert_until(
     max_triangles,
     data_dependent,
     has_nan,
-    vx,
-    vy,
+    vxy,
     tv,
     he,
     cand,
@@ -152,9 +151,18 @@ def _insert_until(
             p = tv[prev_edge(e)]
             q = tv[prev_edge(f)]
             if data_dependent:
-                do_flip = _flip_improves(heights, r0, c0, vx, vy, a, b, p, q, has_nan)
+                do_flip = _flip_improves(heights, r0, c0, vxy, a, b, p, q, has_nan)
             else:
-                do_flip = in_circle(vx[a], vy[a], vx[b], vy[b], vx[p], vy[p], vx[q], vy[q])
+                do_flip = in_circle(
+                    vxy[2 * a],
+                    vxy[2 * a + 1],
+                    vxy[2 * b],
+                    vxy[2 * b + 1],
+                    vxy[2 * p],
+                    vxy[2 * p + 1],
+                    vxy[2 * q],
+                    vxy[2 * q + 1],
+                )
             if not do_flip:
                 continue
             t = e // 3
@@ -180,16 +188,14 @@ def _insert_until(
         for i in range(n_pending):
             t = pending[i]
             is_pending[t] = False
-            a, b, c = tv[3 * t], tv[3 * t + 1], tv[3 * t + 2]
+            a, b, c = 2 * tv[3 * t], 2 * tv[3 * t + 1], 2 * tv[3 * t + 2]
+            ax, ay, bx, by = vxy[a], vxy[a + 1], vxy[b], vxy[b + 1]
+            cx, cy = vxy[c], vxy[c + 1]
             if has_nan:
-                k, cy, cx = scan_with_holes(
-                    heights, r0, c0, vx[a], vy[a], vx[b], vy[b], vx[c], vy[c]
-                )
+                k, ky, kx = scan_with_holes(heights, r0, c0, ax, ay, bx, by, cx, cy)
             else:
-                k, cy, cx = scan_candidate(
-                    heights, r0, c0, vx[a], vy[a], vx[b], vy[b], vx[c], vy[c]
-                )
-            cand[t] = cy * cols + cx
+                k, ky, kx = scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy)
+            cand[t] = ky * cols + kx
             key[t] = k
             if k > done:
                 size = heap_update(heap, hkey, hpos, size, t, k)
@@ -204,7 +210,7 @@ def _insert_until(
         t = heap[0]
 
         # Room for one more vertex and two more triangles.
-        if nv + 1 > vx.shape[0] or nt + 2 > key.shape[0]:
+        if 2 * nv + 2 > vxy.shape[0] or nt + 2 > key.shape[0]:
             _store_state(state, nv, nt, size, sp, n_pending)
             return GROW_MESH
 
@@ -213,8 +219,8 @@ def _insert_until(
         p = nv
         px = cand[t] % cols
         py = cand[t] // cols
-        vx[p] = px
-        vy[p] = py
+        vxy[2 * p] = px
+        vxy[2 * p + 1] = py
         nv += 1
         # Not a literal -1: numba would compile split_edge for Literal[int](-1) as well.
         on_edge = np.int64(-1)
@@ -222,7 +228,7 @@ def _insert_until(
             e = 3 * t + k3
             a = tv[e]
             b = tv[next_edge(e)]
-            if orient(vx[a], vy[a], vx[b], vy[b], px, py) == 0:
+            if orient(vxy[2 * a], vxy[2 * a + 1], vxy[2 * b], vxy[2 * b + 1], px, py) == 0:
                 on_edge = e
         n1 = nt
         n2 = nt + 1
@@ -289,8 +295,9 @@ def greedy_tin(
     """
     cap_v = 64
     cap_t = 128
-    vx = np.empty(cap_v, dtype=np.int32)
-    vy = np.empty(cap_v, dtype=np.int32)
+    # Column and row of vertex v at 2v, 2v + 1: one cache line holds both (the flip tests and
+    # rescans load the coordinates of scattered vertices).
+    vxy = np.empty(2 * cap_v, dtype=np.int32)
     tv = np.empty(3 * cap_t, dtype=np.int32)
     he = np.full(3 * cap_t, -1, dtype=np.int32)
     # Candidate as y·cols + x: int32 holds it on every lattice the exact predicates allow.
@@ -312,10 +319,10 @@ def greedy_tin(
     # diagonal like the grid's own cells.
     w = cols - 1
     h = rows - 1
-    vx[0], vy[0] = 0, 0
-    vx[1], vy[1] = w, 0
-    vx[2], vy[2] = w, h
-    vx[3], vy[3] = 0, h
+    vxy[0], vxy[1] = 0, 0
+    vxy[2], vxy[3] = w, 0
+    vxy[4], vxy[5] = w, h
+    vxy[6], vxy[7] = 0, h
     nv = 4
     tv[0], tv[1], tv[2] = 0, 1, 2
     tv[3], tv[4], tv[5] = 0, 2, 3
@@ -347,8 +354,7 @@ def greedy_tin(
             max_triangles,
             data_dependent,
             has_nan,
-            vx,
-            vy,
+            vxy,
             tv,
             he,
             cand,
@@ -374,8 +380,7 @@ def greedy_tin(
         else:
             if state[0] + 1 > cap_v:
                 cap_v += cap_v // 2
-                vx = grow(vx, cap_v, np.int32(0))
-                vy = grow(vy, cap_v, np.int32(0))
+                vxy = grow(vxy, 2 * cap_v, np.int32(0))
             if state[1] + 2 > cap_t:
                 cap_t += cap_t // 2
                 tv = grow(tv, 3 * cap_t, np.int32(0))
@@ -388,6 +393,11 @@ def greedy_tin(
                 pending = grow(pending, cap_t, np.int32(0))
     nv = int(state[0])
     nt = int(state[1])
+    vx = np.empty(nv, dtype=np.int32)
+    vy = np.empty(nv, dtype=np.int32)
+    for v in range(nv):
+        vx[v] = vxy[2 * v]
+        vy[v] = vxy[2 * v + 1]
 
     # Loops, not key[:nt].max() / sse.sum(): the same values (a sequential sum, like numba's
     # array sum), without compiling numba's reduction implementations on a cold start.
@@ -421,8 +431,8 @@ def greedy_tin(
         total += sse[t]
     # Views, not copies: the work arrays are freed on return, so the peak stays lower.
     return (
-        vx[:nv],
-        vy[:nv],
+        vx,
+        vy,
         tv[: 3 * nt],
         he[: 3 * nt],
         worst,

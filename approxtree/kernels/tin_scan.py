@@ -108,6 +108,15 @@ def _edge_walk(x0: int, y0: int, x1: int, y1: int, y: int):
 
 
 @njit(cache=True, inline="always")
+def _edge_start(x0: int, y0: int, x1: int, y1: int):
+    """``_edge_walk`` at the edge's first row y0 (q = x0, r = 0): one division, not two."""
+    d = np.int64(y1 - y0)
+    sq, sr = _floor_div(x1 - x0, d)
+    # int64 like the walk's later states (the corners may come in as int32).
+    return np.int64(x0), np.int64(0), d, sq, sr
+
+
+@njit(cache=True, inline="always")
 def _step(w):
     """The walk state of the next row."""
     q, r, d, sq, sr = w
@@ -198,12 +207,12 @@ def scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy):
     tx, ty, mx, my, lx, ly, mid_left = _by_rows(ax, ay, bx, by, cx, cy)
     # The long edge bounds every row on one side; the top–middle edge, then the middle–bottom
     # one, on the other.
-    long_w = _edge_walk(tx, ty, lx, ly, ty)
+    long_w = _edge_start(tx, ty, lx, ly)
     ya = np.int64(ty)
     # The walks are swapped into (left, right) order rather than calling ``_scan_rows`` in
     # each order: half the inlined copies to compile, the same arithmetic.
     if my > ty:
-        short = _edge_walk(tx, ty, mx, my, ty)
+        short = _edge_start(tx, ty, mx, my)
         left, right = (short, long_w) if mid_left else (long_w, short)
         best, best_x, best_y, left, right = _scan_rows(
             heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ya, my, left, right,
@@ -212,7 +221,10 @@ def scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy):
         long_w = right if mid_left else left
         ya = my + 1
     if ly >= ya and ly > my:
-        short = _edge_walk(mx, my, lx, ly, ya)
+        # The lower edge starts at the middle row, or one below it after the upper rows.
+        short = _edge_start(mx, my, lx, ly)
+        if ya > my:
+            short = _step(short)
         left, right = (short, long_w) if mid_left else (long_w, short)
         best, best_x, best_y, left, right = _scan_rows(
             heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, ya, ly, left, right,
