@@ -59,7 +59,7 @@ def _shape(ax, ay, bx, by, cx, cy) -> float:
     return area / math.sqrt(d)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _flip_improves(heights, r0, c0, vxy, a, b, p, q, has_nan) -> bool:
     """Algorithm IV's test: is diagonal p–q better than a–b for the quadrilateral a, q, b, p?"""
     ax, ay, bx, by = vxy[2 * a], vxy[2 * a + 1], vxy[2 * b], vxy[2 * b + 1]
@@ -99,7 +99,9 @@ def _store_state(state, nv, nt, size, sp, n_pending):
     state[4] = n_pending
 
 
-@njit(cache=True)
+# Without the reference-counting runtime (it allocates nothing): every call of a scan or mesh
+# operation from the loop would otherwise pay atomic reference-count updates on its arrays.
+@njit(cache=True, _nrt=False)
 def _insert_until(
     heights,
     r0,
@@ -269,6 +271,43 @@ def _insert_until(
                 sp += 1
 
 
+@njit(cache=True, _nrt=False)
+def _mesh_figures(heights, r0, c0, vx, vy, tv, he, key, nt, has_nan):
+    """(max error, sum of squared errors) of the final mesh's nt triangles.
+
+    Loops, not key[:nt].max() / a summed array: the same values (a sequential sum in triangle
+    order, like numba's array sum), without compiling numba's reductions on a cold start; and
+    a kernel without the reference-counting runtime, so the call per triangle pays no atomic
+    reference-count updates on ``heights``.
+    """
+    worst = 0.0
+    for t in range(nt):
+        worst = max(worst, key[t])
+    # The squared errors are summed once over the final mesh, not at every rescan: the same
+    # per-triangle figures (a triangle's edges keep their border or shared status while it
+    # lives), for a fraction of the work.
+    total = 0.0
+    if not has_nan:
+        for t in range(nt):
+            a, b, c = tv[3 * t], tv[3 * t + 1], tv[3 * t + 2]
+            # An edge point is half this triangle's when the edge is shared.
+            total += triangle_sse(
+                heights,
+                r0,
+                c0,
+                vx[a],
+                vy[a],
+                vx[b],
+                vy[b],
+                vx[c],
+                vy[c],
+                0.5 if he[3 * t] >= 0 else 1.0,
+                0.5 if he[3 * t + 1] >= 0 else 1.0,
+                0.5 if he[3 * t + 2] >= 0 else 1.0,
+            )
+    return worst, total
+
+
 @njit(cache=True)
 def greedy_tin(
     heights: np.ndarray,
@@ -399,36 +438,7 @@ def greedy_tin(
         vx[v] = vxy[2 * v]
         vy[v] = vxy[2 * v + 1]
 
-    # Loops, not key[:nt].max() / sse.sum(): the same values (a sequential sum, like numba's
-    # array sum), without compiling numba's reduction implementations on a cold start.
-    worst = 0.0
-    for t in range(nt):
-        worst = max(worst, key[t])
-    # The squared errors are summed once over the final mesh, not at every rescan: the same
-    # per-triangle figures (a triangle's edges keep their border or shared status while it
-    # lives), for a fraction of the work.
-    sse = np.zeros(nt, dtype=np.float64)
-    if not has_nan:
-        for t in range(nt):
-            a, b, c = tv[3 * t], tv[3 * t + 1], tv[3 * t + 2]
-            # An edge point is half this triangle's when the edge is shared.
-            sse[t] = triangle_sse(
-                heights,
-                r0,
-                c0,
-                vx[a],
-                vy[a],
-                vx[b],
-                vy[b],
-                vx[c],
-                vy[c],
-                0.5 if he[3 * t] >= 0 else 1.0,
-                0.5 if he[3 * t + 1] >= 0 else 1.0,
-                0.5 if he[3 * t + 2] >= 0 else 1.0,
-            )
-    total = 0.0
-    for t in range(nt):
-        total += sse[t]
+    worst, total = _mesh_figures(heights, r0, c0, vx, vy, tv, he, key, nt, has_nan)
     # Views, not copies: the work arrays are freed on return, so the peak stays lower.
     return (
         vx,

@@ -149,10 +149,14 @@ def flip(tv, he, e) -> None:
 @njit(cache=True)
 def grow(a: np.ndarray, size: int, fill) -> np.ndarray:
     """A copy of ``a`` with room for ``size`` items, new slots set to ``fill``."""
-    out = np.full(size, fill, dtype=a.dtype)
-    # A loop, not out[:n] = a: slice assignment compiles numba's shape-error formatting.
-    for k in range(a.shape[0]):
+    out = np.empty(size, dtype=a.dtype)
+    # Loops, not out[:n] = a: slice assignment compiles numba's shape-error formatting. Each
+    # slot is written once (np.full would write the copied ones twice).
+    n = min(a.shape[0], size)
+    for k in range(n):
         out[k] = a[k]
+    for k in range(n, size):
+        out[k] = fill
     return out
 
 

@@ -450,7 +450,7 @@ def orient_i(ax, ay, bx, by, px, py):
     return (bx - ax) * (py - ay) - (by - ay) * (px - ax)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def triangle_error(heights, r0, c0, ax, ay, bx, by, cx, cy, has_nan) -> float:
     """Largest |z − plane| over the triangle's data points (inf when nodata forces a split)."""
     if has_nan:
