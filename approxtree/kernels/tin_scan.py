@@ -74,8 +74,11 @@ def plane(za, zb, zc, ax, ay, bx, by, cx, cy):
 def _grid_row_max(heights: np.ndarray, r: int, start: int, n: int, base: float, gx: float):
     """``_row_max`` of heights[r, start:start + n], indexed in place (no row view to count)."""
     m = 0.0
+    # Unsigned indices: numba then emits no negative-index wraparound per load.
+    ur = np.uint64(r)
+    us = np.uint64(start)
     for i in range(n):
-        m = max(m, abs(heights[r, start + i] - (base + gx * i)))
+        m = max(m, abs(heights[ur, us + np.uint64(i)] - (base + gx * i)))
     return m
 
 
@@ -156,8 +159,11 @@ def _scan_rows(
         # position searched only when it may beat the best so far.
         if n >= 16 and _grid_row_max(heights, r, start, n, base, gx) + 1e-9 <= best:
             continue
+        # Unsigned indices: no negative-index wraparound per load (see ``_grid_row_max``).
+        ur = np.uint64(r)
+        us = np.uint64(start)
         for i in range(n):
-            e = abs(heights[r, start + i] - (base + gx * i))
+            e = abs(heights[ur, us + np.uint64(i)] - (base + gx * i))
             if e > best:
                 x = lo + i
                 # Corners are reproduced exactly; round-off must not make them candidates.
@@ -238,8 +244,10 @@ def _row_max_sse(row: np.ndarray, start: int, n: int, base: float, gx: float):
     """(max, sum of squares) of |row[start + i] − (base + gx·i)| for i < n (SIMD, no nodata)."""
     m = 0.0
     s = 0.0
+    # Unsigned indices: no negative-index wraparound per load (see ``_grid_row_max``).
+    us = np.uint64(start)
     for i in range(n):
-        e = abs(row[start + i] - (base + gx * i))
+        e = abs(row[us + np.uint64(i)] - (base + gx * i))
         m = max(m, e)
         s += e * e
     return m, s
@@ -299,8 +307,10 @@ def _sse_rows(
             s = _row_max_sse(heights[r], start, n, base, gx)[1]
         else:
             s = 0.0
+            ur = np.uint64(r)
+            us = np.uint64(start)
             for i in range(n):
-                e = abs(float(heights[r, start + i]) - (base + gx * i))
+                e = abs(float(heights[ur, us + np.uint64(i)]) - (base + gx * i))
                 s += e * e
         # Edge points are shared: a row along a horizontal edge lies wholly on it, otherwise
         # only the row's two ends can touch an edge.
