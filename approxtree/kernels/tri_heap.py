@@ -14,11 +14,13 @@ import numpy as np
 from numba import njit
 
 
+# Slots and triangle ids are indexed as unsigned (np.uint64) in the sifts: numba then emits
+# no negative-index wraparound per load and store.
 @njit(cache=True, inline="always")
 def _place(heap, hkey, pos, i, t, k) -> None:
-    heap[i] = t
-    hkey[i] = k
-    pos[t] = i
+    heap[np.uint64(i)] = t
+    hkey[np.uint64(i)] = k
+    pos[np.uint64(t)] = i
 
 
 @njit(cache=True, _nrt=False)
@@ -26,9 +28,10 @@ def _sift_up(heap, hkey, pos, i, t, k) -> None:
     """Move entry (t, k) up from slot i to where it belongs."""
     while i > 0:
         parent = (i - 1) >> 1
-        if k <= hkey[parent]:
+        up = np.uint64(parent)
+        if k <= hkey[up]:
             break
-        _place(heap, hkey, pos, i, heap[parent], hkey[parent])
+        _place(heap, hkey, pos, i, heap[up], hkey[up])
         i = parent
     _place(heap, hkey, pos, i, t, k)
 
@@ -40,11 +43,13 @@ def _sift_down(heap, hkey, pos, i, t, k, size) -> None:
         child = 2 * i + 1
         if child >= size:
             break
-        if child + 1 < size and hkey[child + 1] > hkey[child]:
+        uc = np.uint64(child)
+        if child + 1 < size and hkey[uc + np.uint64(1)] > hkey[uc]:
             child += 1
-        if hkey[child] <= k:
+            uc += np.uint64(1)
+        if hkey[uc] <= k:
             break
-        _place(heap, hkey, pos, i, heap[child], hkey[child])
+        _place(heap, hkey, pos, i, heap[uc], hkey[uc])
         i = child
     _place(heap, hkey, pos, i, t, k)
 
