@@ -26,6 +26,7 @@ import numpy as np
 from numba import njit
 
 from approxtree.kernels.tin_mesh import (
+    at,
     flip,
     grow,
     in_circle,
@@ -144,26 +145,27 @@ def _insert_until(
                 _store_state(state, nv, nt, size, sp, n_pending)
                 return GROW_STACK
             sp -= 1
-            e = stack[sp]
-            f = he[e]
+            # at: loads with unsigned indices (no negative-index wraparound).
+            e = at(stack, sp)
+            f = at(he, e)
             if f < 0:
                 continue
-            a = tv[e]
-            b = tv[next_edge(e)]
-            p = tv[prev_edge(e)]
-            q = tv[prev_edge(f)]
+            a = at(tv, e)
+            b = at(tv, next_edge(e))
+            p = at(tv, prev_edge(e))
+            q = at(tv, prev_edge(f))
             if data_dependent:
                 do_flip = _flip_improves(heights, r0, c0, vxy, a, b, p, q, has_nan)
             else:
                 do_flip = in_circle(
-                    vxy[2 * a],
-                    vxy[2 * a + 1],
-                    vxy[2 * b],
-                    vxy[2 * b + 1],
-                    vxy[2 * p],
-                    vxy[2 * p + 1],
-                    vxy[2 * q],
-                    vxy[2 * q + 1],
+                    at(vxy, 2 * a),
+                    at(vxy, 2 * a + 1),
+                    at(vxy, 2 * b),
+                    at(vxy, 2 * b + 1),
+                    at(vxy, 2 * p),
+                    at(vxy, 2 * p + 1),
+                    at(vxy, 2 * q),
+                    at(vxy, 2 * q + 1),
                 )
             if not do_flip:
                 continue
@@ -171,11 +173,11 @@ def _insert_until(
             u = f // 3
             flip(tv, he, e)
             # Pending triangles keep their stale heap entry until rescanned (one sift, then).
-            if not is_pending[t]:
+            if not at(is_pending, t):
                 is_pending[t] = True
                 pending[n_pending] = t
                 n_pending += 1
-            if not is_pending[u]:
+            if not at(is_pending, u):
                 is_pending[u] = True
                 pending[n_pending] = u
                 n_pending += 1
@@ -188,11 +190,11 @@ def _insert_until(
             _store_state(state, nv, nt, size, sp, n_pending)
             return GROW_HEAP
         for i in range(n_pending):
-            t = pending[i]
+            t = at(pending, i)
             is_pending[t] = False
-            a, b, c = 2 * tv[3 * t], 2 * tv[3 * t + 1], 2 * tv[3 * t + 2]
-            ax, ay, bx, by = vxy[a], vxy[a + 1], vxy[b], vxy[b + 1]
-            cx, cy = vxy[c], vxy[c + 1]
+            a, b, c = 2 * at(tv, 3 * t), 2 * at(tv, 3 * t + 1), 2 * at(tv, 3 * t + 2)
+            ax, ay, bx, by = at(vxy, a), at(vxy, a + 1), at(vxy, b), at(vxy, b + 1)
+            cx, cy = at(vxy, c), at(vxy, c + 1)
             if has_nan:
                 k, ky, kx = scan_with_holes(heights, r0, c0, ax, ay, bx, by, cx, cy)
             else:

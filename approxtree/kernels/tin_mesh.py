@@ -47,24 +47,33 @@ def in_circle(ax, ay, bx, by, cx, cy, dx, dy) -> bool:
     return det > 0
 
 
+@njit(cache=True, inline="always")
+def at(a, i):
+    """a[i] for an index known to be >= 0: read as unsigned, so numba emits no negative-index
+    wraparound (a compare and select per load on the hot paths)."""
+    return a[np.uint64(i)]
+
+
 # Inlined: its callers pass int32 and int64 values (and literal -1) in many combinations, each
 # of which would be a separate compile of a kernel a handful of instructions long.
 @njit(cache=True, inline="always")
 def set_triangle(tv, he, t, a, b, c, hab, hbc, hca) -> None:
     """Write triangle t = (a, b, c) and link its three half-edges with their twins."""
     e = 3 * t
-    tv[e] = a
-    tv[e + 1] = b
-    tv[e + 2] = c
-    he[e] = hab
-    he[e + 1] = hbc
-    he[e + 2] = hca
+    # Unsigned indices: numba then emits no negative-index wraparound per store.
+    u = np.uint64(e)
+    tv[u] = a
+    tv[u + np.uint64(1)] = b
+    tv[u + np.uint64(2)] = c
+    he[u] = hab
+    he[u + np.uint64(1)] = hbc
+    he[u + np.uint64(2)] = hca
     if hab >= 0:
-        he[hab] = e
+        he[np.uint64(hab)] = e
     if hbc >= 0:
-        he[hbc] = e + 1
+        he[np.uint64(hbc)] = e + 1
     if hca >= 0:
-        he[hca] = e + 2
+        he[np.uint64(hca)] = e + 2
 
 
 @njit(cache=True, _nrt=False)
@@ -73,9 +82,9 @@ def split_interior(tv, he, t, n1, n2, p) -> None:
 
     The edges opposite p (ab, bc, ca) are the half-edges 3t, 3n1, 3n2.
     """
-    e = 3 * t
-    a, b, c = tv[e], tv[e + 1], tv[e + 2]
-    hab, hbc, hca = he[e], he[e + 1], he[e + 2]
+    e = np.uint64(3 * t)
+    a, b, c = at(tv, e), at(tv, e + np.uint64(1)), at(tv, e + np.uint64(2))
+    hab, hbc, hca = at(he, e), at(he, e + np.uint64(1)), at(he, e + np.uint64(2))
     set_triangle(tv, he, t, a, b, p, hab, 3 * n1 + 2, 3 * n2 + 1)
     set_triangle(tv, he, n1, b, c, p, hbc, 3 * n2 + 2, 3 * t + 1)
     set_triangle(tv, he, n2, c, a, p, hca, 3 * t + 2, 3 * n1 + 1)
@@ -93,8 +102,8 @@ def split_edge(tv, he, e, n1, n2, p) -> int:
     ea = e
     eb = next_edge(ea)
     ec = next_edge(eb)
-    a, b, c = tv[ea], tv[eb], tv[ec]
-    hab, hbc, hca = he[ea], he[eb], he[ec]
+    a, b, c = at(tv, ea), at(tv, eb), at(tv, ec)
+    hab, hbc, hca = at(he, ea), at(he, eb), at(he, ec)
     if hab < 0:
         set_triangle(tv, he, t, a, p, c, -1, 3 * n1 + 2, hca)
         set_triangle(tv, he, n1, p, b, c, -1, hbc, 3 * t + 1)
@@ -103,8 +112,8 @@ def split_edge(tv, he, e, n1, n2, p) -> int:
     u = f // 3
     fa = next_edge(f)
     fd = next_edge(fa)
-    d = tv[fd]
-    had, hdb = he[fa], he[fd]
+    d = at(tv, fd)
+    had, hdb = at(he, fa), at(he, fd)
     set_triangle(tv, he, t, a, p, c, 3 * n2, 3 * n1 + 2, hca)
     set_triangle(tv, he, n1, p, b, c, 3 * u, hbc, 3 * t + 1)
     set_triangle(tv, he, u, b, p, d, 3 * n1, 3 * n2 + 2, hdb)
@@ -132,16 +141,16 @@ def flip(tv, he, e) -> None:
     opposite p, a→q (3t) and q→b (3u), are the ones to test next.
     """
     t = e // 3
-    f = he[e]
+    f = at(he, e)
     u = f // 3
     eb = next_edge(e)
     ep = next_edge(eb)
     fa = next_edge(f)
     fq = next_edge(fa)
-    a, b, p = tv[e], tv[eb], tv[ep]
-    q = tv[fq]
-    hbp, hpa = he[eb], he[ep]
-    haq, hqb = he[fa], he[fq]
+    a, b, p = at(tv, e), at(tv, eb), at(tv, ep)
+    q = at(tv, fq)
+    hbp, hpa = at(he, eb), at(he, ep)
+    haq, hqb = at(he, fa), at(he, fq)
     set_triangle(tv, he, t, a, q, p, haq, 3 * u + 2, hpa)
     set_triangle(tv, he, u, q, b, p, hqb, hbp, 3 * t + 1)
 
