@@ -199,8 +199,8 @@ def _insert_until(
                 k, ky, kx = scan_with_holes(heights, r0, c0, ax, ay, bx, by, cx, cy)
             else:
                 k, ky, kx = scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy)
-            cand[t] = ky * cols + kx
-            key[t] = k
+            cand[np.uint64(t)] = ky * cols + kx
+            key[np.uint64(t)] = k
             if k > done:
                 size = heap_update(heap, hkey, hpos, size, t, k)
             else:

@@ -201,9 +201,10 @@ def scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy):
     counts on the arguments, would cost atomic updates per row and per call, which dominate
     on the small triangles of a fine mesh.
     """
-    za = np.float64(heights[r0 + ay, c0 + ax])
-    zb = np.float64(heights[r0 + by, c0 + bx])
-    zc = np.float64(heights[r0 + cy, c0 + cx])
+    # Unsigned indices: no negative-index wraparound per load.
+    za = np.float64(heights[np.uint64(r0 + ay), np.uint64(c0 + ax)])
+    zb = np.float64(heights[np.uint64(r0 + by), np.uint64(c0 + bx)])
+    zc = np.float64(heights[np.uint64(r0 + cy), np.uint64(c0 + cx)])
     gx, gy = plane(za, zb, zc, ax, ay, bx, by, cx, cy)
     best = NO_CANDIDATE
     # int64 throughout (no literal −1, no int32 row): every ``_scan_rows`` call below is then
