@@ -221,8 +221,8 @@ def _insert_until(
         # Insert the candidate: inside t (three triangles) or on one of its edges (four, or two
         # on the window border).
         p = nv
-        px = cand[t] % cols
-        py = cand[t] // cols
+        px = at(cand, t) % cols
+        py = at(cand, t) // cols
         vxy[2 * p] = px
         vxy[2 * p + 1] = py
         nv += 1
@@ -230,8 +230,8 @@ def _insert_until(
         on_edge = np.int64(-1)
         for k3 in range(3):
             e = 3 * t + k3
-            a = tv[e]
-            b = tv[next_edge(e)]
+            a = at(tv, e)
+            b = at(tv, next_edge(e))
             if orient(vxy[2 * a], vxy[2 * a + 1], vxy[2 * b], vxy[2 * b + 1], px, py) == 0:
                 on_edge = e
         n1 = nt

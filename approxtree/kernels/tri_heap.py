@@ -65,16 +65,16 @@ def heap_push(heap: np.ndarray, hkey: np.ndarray, pos: np.ndarray, size: int, t:
 def heap_remove(heap: np.ndarray, hkey: np.ndarray, pos: np.ndarray, size: int, t: int):
     """Take triangle t out of the heap if it is there."""
     # int64 like ``size``, so ``_sift_up`` compiles once (pos holds int32).
-    i = np.int64(pos[t])
+    i = np.int64(pos[np.uint64(t)])
     if i < 0:
         return size
-    pos[t] = -1
+    pos[np.uint64(t)] = -1
     last = size - 1
     if i != last:
         # The last entry fills the hole; it may belong above or below slot i.
-        mt = heap[last]
-        mk = hkey[last]
-        if i > 0 and mk > hkey[(i - 1) >> 1]:
+        mt = heap[np.uint64(last)]
+        mk = hkey[np.uint64(last)]
+        if i > 0 and mk > hkey[np.uint64((i - 1) >> 1)]:
             _sift_up(heap, hkey, pos, i, mt, mk)
         else:
             _sift_down(heap, hkey, pos, i, mt, mk, last)
@@ -84,11 +84,11 @@ def heap_remove(heap: np.ndarray, hkey: np.ndarray, pos: np.ndarray, size: int, 
 @njit(cache=True, _nrt=False)
 def heap_update(heap: np.ndarray, hkey: np.ndarray, pos: np.ndarray, size: int, t: int, k: float):
     """Give triangle t key k: pushed when absent, else moved up or down in place (one sift)."""
-    i = np.int64(pos[t])
+    i = np.int64(pos[np.uint64(t)])
     if i < 0:
         _sift_up(heap, hkey, pos, size, t, k)
         return size + 1
-    if k > hkey[i]:
+    if k > hkey[np.uint64(i)]:
         _sift_up(heap, hkey, pos, i, t, k)
     else:
         _sift_down(heap, hkey, pos, i, t, k, size)
