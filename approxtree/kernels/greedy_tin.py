@@ -26,7 +26,6 @@ import numpy as np
 from numba import njit
 
 from approxtree.kernels.tin_mesh import (
-    at,
     flip,
     grow,
     in_circle,
@@ -145,27 +144,27 @@ def _insert_until(
                 _store_state(state, nv, nt, size, sp, n_pending)
                 return GROW_STACK
             sp -= 1
-            # at: loads with unsigned indices (no negative-index wraparound).
-            e = at(stack, sp)
-            f = at(he, e)
+            # Unsigned indices: no negative-index wraparound per load.
+            e = stack[np.uint64(sp)]
+            f = he[np.uint64(e)]
             if f < 0:
                 continue
-            a = at(tv, e)
-            b = at(tv, next_edge(e))
-            p = at(tv, prev_edge(e))
-            q = at(tv, prev_edge(f))
+            a = tv[np.uint64(e)]
+            b = tv[np.uint64(next_edge(e))]
+            p = tv[np.uint64(prev_edge(e))]
+            q = tv[np.uint64(prev_edge(f))]
             if data_dependent:
                 do_flip = _flip_improves(heights, r0, c0, vxy, a, b, p, q, has_nan)
             else:
                 do_flip = in_circle(
-                    at(vxy, 2 * a),
-                    at(vxy, 2 * a + 1),
-                    at(vxy, 2 * b),
-                    at(vxy, 2 * b + 1),
-                    at(vxy, 2 * p),
-                    at(vxy, 2 * p + 1),
-                    at(vxy, 2 * q),
-                    at(vxy, 2 * q + 1),
+                    vxy[np.uint64(2 * a)],
+                    vxy[np.uint64(2 * a + 1)],
+                    vxy[np.uint64(2 * b)],
+                    vxy[np.uint64(2 * b + 1)],
+                    vxy[np.uint64(2 * p)],
+                    vxy[np.uint64(2 * p + 1)],
+                    vxy[np.uint64(2 * q)],
+                    vxy[np.uint64(2 * q + 1)],
                 )
             if not do_flip:
                 continue
@@ -173,11 +172,11 @@ def _insert_until(
             u = f // 3
             flip(tv, he, e)
             # Pending triangles keep their stale heap entry until rescanned (one sift, then).
-            if not at(is_pending, t):
+            if not is_pending[np.uint64(t)]:
                 is_pending[t] = True
                 pending[n_pending] = t
                 n_pending += 1
-            if not at(is_pending, u):
+            if not is_pending[np.uint64(u)]:
                 is_pending[u] = True
                 pending[n_pending] = u
                 n_pending += 1
@@ -190,11 +189,16 @@ def _insert_until(
             _store_state(state, nv, nt, size, sp, n_pending)
             return GROW_HEAP
         for i in range(n_pending):
-            t = at(pending, i)
+            t = pending[np.uint64(i)]
             is_pending[t] = False
-            a, b, c = 2 * at(tv, 3 * t), 2 * at(tv, 3 * t + 1), 2 * at(tv, 3 * t + 2)
-            ax, ay, bx, by = at(vxy, a), at(vxy, a + 1), at(vxy, b), at(vxy, b + 1)
-            cx, cy = at(vxy, c), at(vxy, c + 1)
+            # Own names: unsigned values must not share a variable with the signed ones.
+            e3 = np.uint64(3 * t)
+            one = np.uint64(1)
+            ia = np.uint64(2 * tv[e3])
+            ib = np.uint64(2 * tv[e3 + one])
+            ic = np.uint64(2 * tv[e3 + one + one])
+            ax, ay, bx, by = vxy[ia], vxy[ia + one], vxy[ib], vxy[ib + one]
+            cx, cy = vxy[ic], vxy[ic + one]
             if has_nan:
                 k, ky, kx = scan_with_holes(heights, r0, c0, ax, ay, bx, by, cx, cy)
             else:
@@ -221,8 +225,8 @@ def _insert_until(
         # Insert the candidate: inside t (three triangles) or on one of its edges (four, or two
         # on the window border).
         p = nv
-        px = at(cand, t) % cols
-        py = at(cand, t) // cols
+        px = cand[np.uint64(t)] % cols
+        py = cand[np.uint64(t)] // cols
         vxy[2 * p] = px
         vxy[2 * p + 1] = py
         nv += 1
@@ -230,8 +234,8 @@ def _insert_until(
         on_edge = np.int64(-1)
         for k3 in range(3):
             e = 3 * t + k3
-            a = at(tv, e)
-            b = at(tv, next_edge(e))
+            a = tv[np.uint64(e)]
+            b = tv[np.uint64(next_edge(e))]
             if orient(vxy[2 * a], vxy[2 * a + 1], vxy[2 * b], vxy[2 * b + 1], px, py) == 0:
                 on_edge = e
         n1 = nt

@@ -47,11 +47,9 @@ def in_circle(ax, ay, bx, by, cx, cy, dx, dy) -> bool:
     return det > 0
 
 
-@njit(cache=True, inline="always")
-def at(a, i):
-    """a[i] for an index known to be >= 0: read as unsigned, so numba emits no negative-index
-    wraparound (a compare and select per load on the hot paths)."""
-    return a[np.uint64(i)]
+# Loads and stores index as unsigned (np.uint64): numba then emits no negative-index
+# wraparound (a compare and select per access on the hot paths). Written out, not a helper:
+# an inlined helper is typed again at each of its call sites (cold compile time).
 
 
 # Inlined: its callers pass int32 and int64 values (and literal -1) in many combinations, each
@@ -83,8 +81,10 @@ def split_interior(tv, he, t, n1, n2, p) -> None:
     The edges opposite p (ab, bc, ca) are the half-edges 3t, 3n1, 3n2.
     """
     e = np.uint64(3 * t)
-    a, b, c = at(tv, e), at(tv, e + np.uint64(1)), at(tv, e + np.uint64(2))
-    hab, hbc, hca = at(he, e), at(he, e + np.uint64(1)), at(he, e + np.uint64(2))
+    e1 = e + np.uint64(1)
+    e2 = e + np.uint64(2)
+    a, b, c = tv[e], tv[e1], tv[e2]
+    hab, hbc, hca = he[e], he[e1], he[e2]
     set_triangle(tv, he, t, a, b, p, hab, 3 * n1 + 2, 3 * n2 + 1)
     set_triangle(tv, he, n1, b, c, p, hbc, 3 * n2 + 2, 3 * t + 1)
     set_triangle(tv, he, n2, c, a, p, hca, 3 * t + 2, 3 * n1 + 1)
@@ -102,8 +102,8 @@ def split_edge(tv, he, e, n1, n2, p) -> int:
     ea = e
     eb = next_edge(ea)
     ec = next_edge(eb)
-    a, b, c = at(tv, ea), at(tv, eb), at(tv, ec)
-    hab, hbc, hca = at(he, ea), at(he, eb), at(he, ec)
+    a, b, c = tv[np.uint64(ea)], tv[np.uint64(eb)], tv[np.uint64(ec)]
+    hab, hbc, hca = he[np.uint64(ea)], he[np.uint64(eb)], he[np.uint64(ec)]
     if hab < 0:
         set_triangle(tv, he, t, a, p, c, -1, 3 * n1 + 2, hca)
         set_triangle(tv, he, n1, p, b, c, -1, hbc, 3 * t + 1)
@@ -112,8 +112,8 @@ def split_edge(tv, he, e, n1, n2, p) -> int:
     u = f // 3
     fa = next_edge(f)
     fd = next_edge(fa)
-    d = at(tv, fd)
-    had, hdb = at(he, fa), at(he, fd)
+    d = tv[np.uint64(fd)]
+    had, hdb = he[np.uint64(fa)], he[np.uint64(fd)]
     set_triangle(tv, he, t, a, p, c, 3 * n2, 3 * n1 + 2, hca)
     set_triangle(tv, he, n1, p, b, c, 3 * u, hbc, 3 * t + 1)
     set_triangle(tv, he, u, b, p, d, 3 * n1, 3 * n2 + 2, hdb)
@@ -141,16 +141,16 @@ def flip(tv, he, e) -> None:
     opposite p, a→q (3t) and q→b (3u), are the ones to test next.
     """
     t = e // 3
-    f = at(he, e)
+    f = he[np.uint64(e)]
     u = f // 3
     eb = next_edge(e)
     ep = next_edge(eb)
     fa = next_edge(f)
     fq = next_edge(fa)
-    a, b, p = at(tv, e), at(tv, eb), at(tv, ep)
-    q = at(tv, fq)
-    hbp, hpa = at(he, eb), at(he, ep)
-    haq, hqb = at(he, fa), at(he, fq)
+    a, b, p = tv[np.uint64(e)], tv[np.uint64(eb)], tv[np.uint64(ep)]
+    q = tv[np.uint64(fq)]
+    hbp, hpa = he[np.uint64(eb)], he[np.uint64(ep)]
+    haq, hqb = he[np.uint64(fa)], he[np.uint64(fq)]
     set_triangle(tv, he, t, a, q, p, haq, 3 * u + 2, hpa)
     set_triangle(tv, he, u, q, b, p, hqb, hbp, 3 * t + 1)
 
