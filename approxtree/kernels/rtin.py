@@ -400,6 +400,9 @@ def _walk(
         tv[3 * nt - 3] = mark[ay * cols + ax]
         tv[3 * nt - 2] = mark[ly * cols + lx]
         tv[3 * nt - 1] = mark[ry * cols + rx]
+        # Unit right triangles (most leaves of a fine mesh) have no point but their corners.
+        if abs(lx - rx) == 1 and abs(ly - ry) == 1:
+            continue
         # Measure the leaf: every non-corner point, in the arithmetic of ``_scan_right`` (the
         # hierarchy's own values); interior points belong to this leaf alone, edge points
         # (row ends, rows along a horizontal edge) count once, marked −2 in mark.
