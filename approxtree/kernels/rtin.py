@@ -308,13 +308,12 @@ def _walk(
     rows: int,
     cols: int,
     mark: np.ndarray,
-    vx: np.ndarray,
-    vy: np.ndarray,
+    ij: np.ndarray,
     tv: np.ndarray,
     store: bool,
 ):
     """(triangles, vertices, max error, sum of squared errors, points measured) of the mesh at
-    threshold; with store, fills vx, vy, tv and measures every drawn leaf.
+    threshold; with store, fills ij (grid row, column) and tv, and measures every drawn leaf.
 
     mark: (rows·cols,) int64, −1 where no vertex yet; on return the index of each vertex, −2
     at the non-corner points on drawn edges (measured once: a conforming mesh has no vertex
@@ -389,8 +388,8 @@ def _walk(
             elif mark[key] < 0:
                 mark[key] = nv
                 if store:
-                    vx[nv] = px
-                    vy[nv] = py
+                    ij[nv, 0] = r0 + py
+                    ij[nv, 1] = c0 + px
                 nv += 1
         if hole:
             continue
@@ -460,7 +459,8 @@ def extract(
 
     Emits the triangles inside the window without nodata corners, orient > 0 in (column, row);
     the valid corners of leaves with a nodata corner are vertices too (exact, not drawn).
-    Returns (triangle count, vertex count, vx (n,), vy (n,) int64, tv (3m,) int32, max error,
+    Returns (triangle count, vertex count, ij (n, 2) int32 grid (row, column) of the vertices
+    (window offsets r0, c0 added), tv (3m,) int32 window-local triangles, max error,
     sum of squared errors, points measured): the exact error of the mesh over the window's
     non-vertex points (inf where a drawn triangle covers nodata; a point no drawn triangle
     covers is not measured: the caller compares the count). With count_only the arrays are
@@ -468,19 +468,17 @@ def extract(
     """
     mark = np.full(rows * cols, -1, dtype=np.int64)
     if count_only:
-        vx = np.empty(0, dtype=np.int64)
-        vy = np.empty(0, dtype=np.int64)
+        ij = np.empty((0, 2), dtype=np.int32)
         tv = np.empty(0, dtype=np.int32)
         nt, nv, vmax, sumsq, count = _walk(
-            err, threshold, heights, r0, c0, rows, cols, mark, vx, vy, tv, False
+            err, threshold, heights, r0, c0, rows, cols, mark, ij, tv, False
         )
-        return nt, nv, vx, vy, tv, vmax, sumsq, count
+        return nt, nv, ij, tv, vmax, sumsq, count
     # Room for the finest mesh (drawn triangles have area >= 1/2 and do not overlap): pages
     # are touched only as far as they are filled, and the result is copied out compact.
-    vx = np.empty(rows * cols, dtype=np.int64)
-    vy = np.empty(rows * cols, dtype=np.int64)
+    ij = np.empty((rows * cols, 2), dtype=np.int32)
     tv = np.empty(6 * max(rows - 1, 0) * max(cols - 1, 0), dtype=np.int32)
     nt, nv, vmax, sumsq, count = _walk(
-        err, threshold, heights, r0, c0, rows, cols, mark, vx, vy, tv, True
+        err, threshold, heights, r0, c0, rows, cols, mark, ij, tv, True
     )
-    return nt, nv, vx[:nv].copy(), vy[:nv].copy(), tv[: 3 * nt].copy(), vmax, sumsq, count
+    return nt, nv, ij[:nv].copy(), tv[: 3 * nt].copy(), vmax, sumsq, count

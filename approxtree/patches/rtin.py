@@ -132,10 +132,10 @@ class RTINPatch(LatticePatch):
 
         extract emits valid vertices and drawn triangles only, and measures the mesh as it
         goes (exact max and RMS over every valid point): the arrays are kept as they are,
-        (row, col) int32 built in place, triangles a view of tv.
+        ij (n, 2) int32 grid (row, col), triangles a view of tv.
         """
         z = grid.heights_array("building RTIN patches")
-        _, nv, vx, vy, tv, vmax, sumsq, count = extract(
+        _, nv, ij, tv, vmax, sumsq, count = extract(
             err, threshold, z, win.r0, win.c0, win.rows, win.cols, False
         )
         # Every valid point is a vertex (exact) or measured once in a drawn triangle; one
@@ -145,9 +145,6 @@ class RTINPatch(LatticePatch):
         rms = float(np.sqrt(sumsq / win.count)) if win.count else 0.0
         if not complete:
             rms = float("inf")
-        ij = np.empty((nv, 2), dtype=np.int32)
-        np.add(vy, win.r0, out=ij[:, 0], casting="unsafe")
-        np.add(vx, win.c0, out=ij[:, 1], casting="unsafe")
         return cls(grid, rect, ij, tv.reshape(-1, 3), error, rms, win.z_range, win.count)
 
     @classmethod
