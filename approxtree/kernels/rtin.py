@@ -308,14 +308,16 @@ def _walk(
     rows: int,
     cols: int,
     mark: np.ndarray,
-    vx: np.ndarray,
-    vy: np.ndarray,
+    ij: np.ndarray,
     tv: np.ndarray,
     store: bool,
 ):
-    """(triangle count, vertex count) of the mesh at threshold; with store, fills vx, vy, tv.
+    """(triangles, vertices, max error, sum of squared errors, points measured) of the mesh at
+    threshold; with store, fills ij (grid row, column) and tv, and measures every drawn leaf.
 
-    mark: (rows·cols,) int64, −1 where no vertex yet; on return the index of each vertex.
+    mark: (rows·cols,) int64, −1 where no vertex yet; on return the index of each vertex, −2
+    at the non-corner points on drawn edges (measured once: a conforming mesh has no vertex
+    inside an edge).
     Written without helpers taking arrays and without reassigning arrays: either costs
     reference counting per leaf, several times the work of the leaf itself.
     """
@@ -332,6 +334,9 @@ def _walk(
     sp = 2
     nt = 0
     nv = 0
+    vmax = 0.0
+    sumsq = 0.0
+    count = 0
     w1 = cols - 1
     h1 = rows - 1
     while sp > 0:
@@ -383,16 +388,60 @@ def _walk(
             elif mark[key] < 0:
                 mark[key] = nv
                 if store:
-                    vx[nv] = px
-                    vy[nv] = py
+                    ij[nv, 0] = r0 + py
+                    ij[nv, 1] = c0 + px
                 nv += 1
-        if not hole:
-            if store:
-                tv[3 * nt] = mark[ay * cols + ax]
-                tv[3 * nt + 1] = mark[ly * cols + lx]
-                tv[3 * nt + 2] = mark[ry * cols + rx]
-            nt += 1
-    return nt, nv
+        if hole:
+            continue
+        nt += 1
+        if not store:
+            continue
+        tv[3 * nt - 3] = mark[ay * cols + ax]
+        tv[3 * nt - 2] = mark[ly * cols + lx]
+        tv[3 * nt - 1] = mark[ry * cols + rx]
+        # Unit right triangles (most leaves of a fine mesh) have no point but their corners.
+        if abs(lx - rx) == 1 and abs(ly - ry) == 1:
+            continue
+        # Measure the leaf: every non-corner point, in the arithmetic of ``_scan_right`` (the
+        # hierarchy's own values); interior points belong to this leaf alone, edge points
+        # (row ends, rows along a horizontal edge) count once, marked −2 in mark.
+        za = np.float64(heights[r0 + ay, c0 + ax])
+        gx, gy = plane(
+            za,
+            np.float64(heights[r0 + ly, c0 + lx]),
+            np.float64(heights[r0 + ry, c0 + rx]),
+            ax, ay, lx, ly, rx, ry,
+        )  # fmt: skip
+        big = max(ax, max(lx, rx)) + 1
+        for y in range(min(ay, min(ly, ry)), max(ay, max(ly, ry)) + 1):
+            lo, hi = _edge_x(ax, ay, lx, ly, y, big, -1)
+            lo, hi = _edge_x(lx, ly, rx, ry, y, lo, hi)
+            lo, hi = _edge_x(rx, ry, ax, ay, y, lo, hi)
+            base = za + gy * (y - ay) + gx * (lo - ax)
+            flat = (ay == ly == y) or (ly == ry == y) or (ry == ay == y)
+            corner_row = y == ay or y == ly or y == ry
+            row = y * cols
+            for i in range(hi - lo + 1):
+                x = lo + i
+                if flat or x == lo or x == hi:
+                    if corner_row and (
+                        (x == ax and y == ay) or (x == lx and y == ly) or (x == rx and y == ry)
+                    ):
+                        continue
+                    if mark[row + x] != -1:
+                        continue
+                    mark[row + x] = -2
+                z = heights[r0 + y, c0 + x]
+                if np.isnan(z):
+                    # Nodata under a drawn triangle: the mesh would cover a hole.
+                    vmax = np.inf
+                    continue
+                e = abs(z - (base + gx * i))
+                count += 1
+                sumsq += e * e
+                if e > vmax:
+                    vmax = e
+    return nt, nv, vmax, sumsq, count
 
 
 @njit(cache=True)
@@ -410,62 +459,26 @@ def extract(
 
     Emits the triangles inside the window without nodata corners, orient > 0 in (column, row);
     the valid corners of leaves with a nodata corner are vertices too (exact, not drawn).
-    Returns (triangle count, vertex count, vx (n,), vy (n,) int64, tv (3m,) int32); with
-    count_only the arrays are empty.
+    Returns (triangle count, vertex count, ij (n, 2) int32 grid (row, column) of the vertices
+    (window offsets r0, c0 added), tv (3m,) int32 window-local triangles, max error,
+    sum of squared errors, points measured): the exact error of the mesh over the window's
+    non-vertex points (inf where a drawn triangle covers nodata; a point no drawn triangle
+    covers is not measured: the caller compares the count). With count_only the arrays are
+    empty and nothing is measured.
     """
     mark = np.full(rows * cols, -1, dtype=np.int64)
     if count_only:
-        vx = np.empty(0, dtype=np.int64)
-        vy = np.empty(0, dtype=np.int64)
+        ij = np.empty((0, 2), dtype=np.int32)
         tv = np.empty(0, dtype=np.int32)
-        nt, nv = _walk(err, threshold, heights, r0, c0, rows, cols, mark, vx, vy, tv, False)
-        return nt, nv, vx, vy, tv
+        nt, nv, vmax, sumsq, count = _walk(
+            err, threshold, heights, r0, c0, rows, cols, mark, ij, tv, False
+        )
+        return nt, nv, ij, tv, vmax, sumsq, count
     # Room for the finest mesh (drawn triangles have area >= 1/2 and do not overlap): pages
     # are touched only as far as they are filled, and the result is copied out compact.
-    vx = np.empty(rows * cols, dtype=np.int64)
-    vy = np.empty(rows * cols, dtype=np.int64)
+    ij = np.empty((rows * cols, 2), dtype=np.int32)
     tv = np.empty(6 * max(rows - 1, 0) * max(cols - 1, 0), dtype=np.int32)
-    nt, nv = _walk(err, threshold, heights, r0, c0, rows, cols, mark, vx, vy, tv, True)
-    return nt, nv, vx[:nv].copy(), vy[:nv].copy(), tv[: 3 * nt].copy()
-
-
-@njit(cache=True)
-def twins(vx: np.ndarray, vy: np.ndarray, tv: np.ndarray) -> np.ndarray:
-    """(3m,) int32 twin half-edge of each half-edge of an RTIN mesh tv (3m,), −1 on the border.
-
-    Same result as ``tin_mesh.half_edge_twins``, in one pass: RTIN edges run in one of four
-    directions from their first endpoint in (row, column) order (east, south-east, south,
-    south-west), and a conforming mesh has at most one edge per direction at a vertex, so a
-    slot per (vertex, direction) pairs the two half-edges of an edge.
-    """
-    ne = tv.shape[0]
-    out = np.full(ne, -1, dtype=np.int32)
-    slot = np.full(4 * vx.shape[0], -1, dtype=np.int32)
-    for e in range(ne):
-        u = tv[e]
-        # The next corner of the same triangle.
-        v = tv[e + 1] if (e + 1) % 3 else tv[e - 2]
-        dx = vx[v] - vx[u]
-        dy = vy[v] - vy[u]
-        p = u
-        if dy < 0 or (dy == 0 and dx < 0):
-            p = v
-            dx = -dx
-            dy = -dy
-        # East, south-east, south, south-west (dy >= 0 now, dx > 0 when dy == 0).
-        if dy == 0:
-            k = 0
-        elif dx > 0:
-            k = 1
-        elif dx == 0:
-            k = 2
-        else:
-            k = 3
-        s = 4 * p + k
-        f = slot[s]
-        if f < 0:
-            slot[s] = e
-        else:
-            out[e] = f
-            out[f] = e
-    return out
+    nt, nv, vmax, sumsq, count = _walk(
+        err, threshold, heights, r0, c0, rows, cols, mark, ij, tv, True
+    )
+    return nt, nv, ij[:nv].copy(), tv[: 3 * nt].copy(), vmax, sumsq, count

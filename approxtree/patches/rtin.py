@@ -19,10 +19,10 @@ import numpy as np
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
-from approxtree.kernels.rtin import extract, twins, vertex_errors
+from approxtree.kernels.rtin import extract, vertex_errors
 from approxtree.kernels.rtin_greedy import greedy_rtin
 from approxtree.patches.base import GeometryPatch
-from approxtree.patches.lattice import LatticePatch, Window, grid_window, measure, require_grid
+from approxtree.patches.lattice import LatticePatch, Window, grid_window, require_grid
 
 
 def lattice_size(rows: int, cols: int) -> int:
@@ -46,7 +46,7 @@ def _threshold(
 
     def fits(t: float) -> bool:
         z = grid.heights_array("building RTIN patches")
-        nt, nv, _, _, _ = extract(err, t, z, win.r0, win.c0, win.rows, win.cols, True)
+        nt, nv, *_ = extract(err, t, z, win.r0, win.c0, win.rows, win.cols, True)
         return (max_points is None or nv <= max_points) and (
             max_triangles is None or nt <= max_triangles
         )
@@ -113,24 +113,10 @@ def rtin_patch(
             0 if max_triangles is None else int(max_triangles),
             win.has_nan,
         )
-        _, _, vx, vy, tv = extract(
-            split,
-            0.5,
-            grid.heights_array("building RTIN patches"),
-            win.r0,
-            win.c0,
-            win.rows,
-            win.cols,
-            False,
-        )
-        he = twins(vx, vy, tv)
-        return RTINPatch.from_window_mesh(grid, rect, win, vx, vy, tv, he)  # type: ignore[return-value]
+        return RTINPatch.from_extract(grid, rect, win, split, 0.5)
     err = _vertex_errors(grid, win, size)
     t = _threshold(err, grid, win, max_error, max_points, max_triangles)
-    z = grid.heights_array("building RTIN patches")
-    _, _, vx, vy, tv = extract(err, t, z, win.r0, win.c0, win.rows, win.cols, False)
-    he = twins(vx, vy, tv)
-    return RTINPatch.from_window_mesh(grid, rect, win, vx, vy, tv, he)  # type: ignore[return-value]
+    return RTINPatch.from_extract(grid, rect, win, err, t)
 
 
 class RTINPatch(LatticePatch):
@@ -139,28 +125,27 @@ class RTINPatch(LatticePatch):
     kind = "rtin"
 
     @classmethod
-    def from_window_mesh(
-        cls,
-        grid: Grid,
-        rect: Rect,
-        win: Window,
-        vx: np.ndarray,
-        vy: np.ndarray,
-        tv: np.ndarray,
-        he: np.ndarray,
-    ) -> LatticePatch:
-        """``LatticePatch.from_window_mesh`` of an ``extract`` mesh, without filtering copies.
+    def from_extract(
+        cls, grid: Grid, rect: Rect, win: Window, err: np.ndarray, threshold: float
+    ) -> RTINPatch:
+        """The patch of ``kernels.rtin.extract`` at threshold over the (s+1, s+1) table err.
 
-        extract emits valid vertices and drawn triangles only, so the arrays are kept as they
-        are: (row, col) int32 built in place, triangles a view of tv.
+        extract emits valid vertices and drawn triangles only, and measures the mesh as it
+        goes (exact max and RMS over every valid point): the arrays are kept as they are,
+        ij (n, 2) int32 grid (row, col), triangles a view of tv.
         """
-        m = measure(grid, win, vx, vy, tv, he)
-        if not m.drawn.all():
-            return super().from_window_mesh(grid, rect, win, vx, vy, tv, he)
-        ij = np.empty((len(vx), 2), dtype=np.int32)
-        np.add(vy, win.r0, out=ij[:, 0], casting="unsafe")
-        np.add(vx, win.c0, out=ij[:, 1], casting="unsafe")
-        return cls(grid, rect, ij, tv.reshape(-1, 3), m.error, m.rms, win.z_range, win.count)
+        z = grid.heights_array("building RTIN patches")
+        _, nv, ij, tv, vmax, sumsq, count = extract(
+            err, threshold, z, win.r0, win.c0, win.rows, win.cols, False
+        )
+        # Every valid point is a vertex (exact) or measured once in a drawn triangle; one
+        # left out (under no drawn triangle) makes both figures infinite.
+        complete = count + nv >= win.count
+        error = float(vmax) if complete else float("inf")
+        rms = float(np.sqrt(sumsq / win.count)) if win.count else 0.0
+        if not complete:
+            rms = float("inf")
+        return cls(grid, rect, ij, tv.reshape(-1, 3), error, rms, win.z_range, win.count)
 
     @classmethod
     def build_many(
