@@ -129,6 +129,162 @@ def _patch_error(heights, r0, r1, c0, c1, sr, sc):
     return err, zmin, zmax, count
 
 
+@njit(cache=True, inline="always")
+def _plain(z) -> bool:
+    """A corner the branch-free rows may use: data, small enough that no difference overflows."""
+    return abs(z) <= 1e37
+
+
+@njit(cache=True)
+def _fractions(wc):
+    """dc / wc for dc = 0 .. wc, the same float64 quotients ``_block_value`` computes."""
+    out = np.empty(wc + 1)
+    for dc in range(wc + 1):
+        out[dc] = dc / wc
+    return out
+
+
+@njit(cache=True)
+def _patch_rows_error(heights, r0, r1, c0, c1, sr, sc, k_lo, k_hi):
+    """(error, zmin, zmax, count) of the rows of block rows k_lo .. k_hi − 1 of one grid patch.
+
+    Every point gets the same float value as in ``_patch_error`` (same operands, same order),
+    so the maxima are bit for bit the same; only the scan order differs. A block whose four
+    corners hold data draws both its triangles, so along one row the triangle changes once, at
+    dc = ceil(dr·wc / hr): each part fills a row of patch heights without branches. A second
+    pass folds the row into per-column maxima, minima and counts (element-wise, so it
+    vectorises); the columns are reduced at the end. Blocks with a nodata corner take the
+    per-point path of ``_patch_error``.
+    """
+    err = 0.0
+    w = c1 - c0 + 1
+    nbr = _block_count(r0, r1, sr)
+    nbc = _block_count(c0, c1, sc)
+    # A patch of step 1 holds every data point as a vertex: nothing to measure but its range.
+    vertices_only = sr == 1 and sc == 1
+    if sc < 8 and not vertices_only and k_lo == 0 and k_hi == nbr:
+        # Narrow blocks: the per-block set-up costs more than the per-point path saves.
+        return _patch_error(heights, r0, r1, c0, c1, sr, sc)
+    wl = c1 - (c0 + (nbc - 1) * sc)
+    f_full = _fractions(sc)
+    f_last = _fractions(wl)
+    # p: the patch's height along the row, NaN where the point is not measured here.
+    p = np.empty(w)
+    col_err = np.zeros(w)
+    col_min = np.full(w, np.inf)
+    col_max = np.full(w, -np.inf)
+    col_count = np.zeros(w, dtype=np.int64)
+    if vertices_only:
+        p[:] = np.nan
+    for kr in range(k_lo, k_hi):
+        rb = r0 + kr * sr
+        re = min(rb + sr, r1)
+        hr = re - rb
+        # Interior blocks leave their last row to the next block; the last block keeps it.
+        rend = re if kr == nbr - 1 else re - 1
+        for r in range(rb, rend + 1):
+            dr = r - rb
+            vrow = dr == 0 or r == re
+            fr = dr / hr
+            # Triangle A (corners 00, 01, 11) from dc·hr >= dr·wc on, triangle B before.
+            t_full = (dr * sc + hr - 1) // hr
+            t_last = (dr * wl + hr - 1) // hr
+            for kc in range(nbc):
+                if vertices_only:
+                    break
+                cb = c0 + kc * sc
+                ce = min(cb + sc, c1)
+                wc = ce - cb
+                last = kc == nbc - 1
+                cend = ce if last else ce - 1
+                z00 = heights[rb, cb]
+                z01 = heights[rb, ce]
+                z10 = heights[re, cb]
+                z11 = heights[re, ce]
+                # Nodata (or huge, overflow-prone) corners: the per-point path.
+                if not (_plain(z00) and _plain(z01) and _plain(z10) and _plain(z11)):
+                    for c in range(cb, cend + 1):
+                        p[c - c0] = np.nan
+                        dc = c - cb
+                        # Patch vertices are reproduced exactly.
+                        if vrow and (dc == 0 or c == ce):
+                            continue
+                        z = heights[r, c]
+                        v = _block_value(z00, z01, z10, z11, dr, dc, hr, wc)
+                        if np.isnan(v):
+                            v = _edge_value(heights, r, c, rb, re, cb, ce, sr, sc, kr, kc)
+                        err = _fold_error(err, z, not np.isnan(z), v)
+                    continue
+                frac = f_last if last else f_full
+                t = min(cb + (t_last if last else t_full), cend + 1)
+                base = z00 + fr * (z10 - z00)
+                d = z11 - z10
+                for c in range(cb, t):
+                    p[c - c0] = base + frac[c - cb] * d
+                q = fr * (z11 - z01)
+                d = z01 - z00
+                for c in range(t, cend + 1):
+                    p[c - c0] = z00 + frac[c - cb] * d + q
+                # Patch vertices are reproduced exactly.
+                if vrow:
+                    p[cb - c0] = np.nan
+                    if last:
+                        p[ce - c0] = np.nan
+            _fold_row(heights, r, c0, p, col_err, col_min, col_max, col_count)
+    zmin = np.inf
+    zmax = -np.inf
+    count = 0
+    for j in range(w):
+        err = max(err, col_err[j])
+        zmin = min(zmin, col_min[j])
+        zmax = max(zmax, col_max[j])
+        count += col_count[j]
+    return err, zmin, zmax, count
+
+
+@njit(cache=True)
+def _fold_row(heights, r, c0, p, col_err, col_min, col_max, col_count):
+    """Fold row r (columns c0 ..) against the patch heights p into the per-column figures.
+
+    A measured point (p not NaN) adds |z − p|, or infinity when z is nodata (the patch would
+    cover a hole); every point adds to the z range and count. Element-wise selects only.
+    """
+    # A row view indexed from 0: no negative-index wrap test, so the loop vectorises.
+    zrow = heights[r, c0 : c0 + p.shape[0]]
+    for j in range(p.shape[0]):
+        z = zrow[j]
+        pj = p[j]
+        valid = z == z
+        e = abs(z - pj)
+        e = e if e == e else (np.inf if pj == pj else 0.0)
+        col_err[j] = e if e > col_err[j] else col_err[j]
+        col_min[j] = z if z < col_min[j] else col_min[j]
+        col_max[j] = z if z > col_max[j] else col_max[j]
+        col_count[j] += valid
+
+
+@njit(cache=True)
+def _both_zeros(heights, r0, r1, c0, c1) -> bool:
+    """Whether rows r0 .. r1 × columns c0 .. c1 hold both +0.0 and −0.0."""
+    pos = False
+    neg = False
+    for r in range(r0, r1 + 1):
+        for c in range(c0, c1 + 1):
+            z = heights[r, c]
+            if z == 0.0:
+                if np.copysign(1.0, z) < 0.0:
+                    neg = True
+                else:
+                    pos = True
+        if pos and neg:
+            return True
+    return False
+
+
+# Work items a level is cut into at least (bands of block rows of its few coarse nodes).
+_ITEMS = 64
+
+
 @njit(cache=True, parallel=True)
 def grid_patch_errors(
     heights: np.ndarray, ranges: np.ndarray, steps: np.ndarray
@@ -142,12 +298,32 @@ def grid_patch_errors(
     count (n,) int64 of valid data points per node.
     """
     n = ranges.shape[0]
-    error = np.empty(n)
-    zmin = np.empty(n)
-    zmax = np.empty(n)
-    count = np.empty(n, dtype=np.int64)
-    for i in prange(n):
-        e, lo, hi, k = _patch_error(
+    # Work items: a few nodes of a coarse level are cut into bands of block rows, so that
+    # every thread has work; maxima, minima and counts of the bands combine exactly.
+    parts = np.empty(n, dtype=np.int64)
+    first = np.empty(n + 1, dtype=np.int64)
+    first[0] = 0
+    want = max(1, (_ITEMS + n - 1) // n)
+    for i in range(n):
+        parts[i] = min(want, _block_count(ranges[i, 0], ranges[i, 1], steps[i, 0]))
+        first[i + 1] = first[i] + parts[i]
+    m = first[n]
+    item_node = np.empty(m, dtype=np.int64)
+    item_lo = np.empty(m, dtype=np.int64)
+    item_hi = np.empty(m, dtype=np.int64)
+    for i in range(n):
+        nbr = _block_count(ranges[i, 0], ranges[i, 1], steps[i, 0])
+        for j in range(parts[i]):
+            item_node[first[i] + j] = i
+            item_lo[first[i] + j] = nbr * j // parts[i]
+            item_hi[first[i] + j] = nbr * (j + 1) // parts[i]
+    e_item = np.empty(m)
+    lo_item = np.empty(m)
+    hi_item = np.empty(m)
+    k_item = np.empty(m, dtype=np.int64)
+    for t in prange(m):
+        i = item_node[t]
+        e, lo, hi, k = _patch_rows_error(
             heights,
             ranges[i, 0],
             ranges[i, 1],
@@ -155,7 +331,41 @@ def grid_patch_errors(
             ranges[i, 3],
             steps[i, 0],
             steps[i, 1],
+            item_lo[t],
+            item_hi[t],
         )
+        e_item[t] = e
+        lo_item[t] = lo
+        hi_item[t] = hi
+        k_item[t] = k
+    error = np.empty(n)
+    zmin = np.empty(n)
+    zmax = np.empty(n)
+    count = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        e = 0.0
+        lo = np.inf
+        hi = -np.inf
+        k = 0
+        for t in range(first[i], first[i + 1]):
+            e = max(e, e_item[t])
+            lo = min(lo, lo_item[t])
+            hi = max(hi, hi_item[t])
+            k += k_item[t]
+        if (lo == 0.0 or hi == 0.0) and _both_zeros(
+            heights, ranges[i, 0], ranges[i, 1], ranges[i, 2], ranges[i, 3]
+        ):
+            # Which zero (+0 or −0) is the extreme depends on the scan order: take the reference
+            # order's, so results stay identical bit for bit.
+            _, lo, hi, _ = _patch_error(
+                heights,
+                ranges[i, 0],
+                ranges[i, 1],
+                ranges[i, 2],
+                ranges[i, 3],
+                steps[i, 0],
+                steps[i, 1],
+            )
         error[i] = e
         zmin[i] = lo if k > 0 else np.nan
         zmax[i] = hi if k > 0 else np.nan
