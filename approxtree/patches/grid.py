@@ -129,10 +129,13 @@ class GridPatch(GeometryPatch):
         spans = np.column_stack([ranges[:, 1] - ranges[:, 0], ranges[:, 3] - ranges[:, 2]])
         steps = np.maximum(1, -(-spans // (k - 1))).astype(np.int64)
         heights = grid.heights_array("building grid patches")
-        # No more threads than nodes: an idle thread still costs a hand-off per call, which
-        # dominates when a small subtree (a block of a blocked build) is built level by level.
+        # No more threads than nodes on a small level: an idle thread still costs a hand-off
+        # per call, which dominates when a small subtree (a block of a blocked build) is built
+        # level by level. A large one is cut into bands of rows by the kernel: all threads.
         threads = numba.get_num_threads()
-        numba.set_num_threads(max(1, min(threads, len(ranges))))
+        points = int(np.sum((ranges[:, 1] - ranges[:, 0] + 1) * (ranges[:, 3] - ranges[:, 2] + 1)))
+        work = len(ranges) if points < 1 << 18 else threads
+        numba.set_num_threads(max(1, min(threads, work)))
         try:
             error, zmin, zmax, count = grid_patch_errors(readonly(heights), ranges, steps)
         finally:
