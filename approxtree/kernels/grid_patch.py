@@ -145,16 +145,79 @@ def _fractions(wc):
 
 
 @njit(cache=True)
+def _block_fill(heights, p, r, c0, rb, re, cb, ce, cend, vrow, sr, sc, kr, kc, t_off, frac):
+    """Fill p over one block's part of row r; returns the error of its per-point path.
+
+    A block whose four corners hold data (and are small enough that no difference overflows)
+    draws both triangles: triangle B before dc = t_off, triangle A from there on, each a
+    branch-free run with the operands and order of ``_block_value``. Other blocks take the
+    per-point path of ``_patch_error`` and leave NaN in p (their error is returned instead).
+    """
+    hr = re - rb
+    wc = ce - cb
+    dr = r - rb
+    z00 = heights[rb, cb]
+    z01 = heights[rb, ce]
+    z10 = heights[re, cb]
+    z11 = heights[re, ce]
+    err = 0.0
+    if not (_plain(z00) and _plain(z01) and _plain(z10) and _plain(z11)):
+        for c in range(cb, cend + 1):
+            p[c - c0] = np.nan
+            dc = c - cb
+            # Patch vertices are reproduced exactly.
+            if vrow and (dc == 0 or c == ce):
+                continue
+            z = heights[r, c]
+            v = _block_value(z00, z01, z10, z11, dr, dc, hr, wc)
+            if np.isnan(v):
+                v = _edge_value(heights, r, c, rb, re, cb, ce, sr, sc, kr, kc)
+            err = _fold_error(err, z, not np.isnan(z), v)
+        return err
+    fr = dr / hr
+    t = min(cb + t_off, cend + 1)
+    for c in range(cb, t):
+        p[c - c0] = z00 + fr * (z10 - z00) + frac[c - cb] * (z11 - z10)
+    for c in range(t, cend + 1):
+        p[c - c0] = z00 + frac[c - cb] * (z01 - z00) + fr * (z11 - z01)
+    # Patch vertices are reproduced exactly.
+    if vrow:
+        p[cb - c0] = np.nan
+        if cend == ce:
+            p[ce - c0] = np.nan
+    return err
+
+
+@njit(cache=True)
+def _rows_range(heights, a0, a1, c0, c1):
+    """(0, zmin, zmax, count) of rows a0 .. a1 × columns c0 .. c1 (a patch of step 1)."""
+    zmin = np.inf
+    zmax = -np.inf
+    count = 0
+    for r in range(a0, a1 + 1):
+        for c in range(c0, c1 + 1):
+            z = heights[r, c]
+            if z == z:
+                count += 1
+                if z < zmin:
+                    zmin = z
+                if z > zmax:
+                    zmax = z
+    return 0.0, zmin, zmax, count
+
+
+@njit(cache=True)
 def _patch_rows_error(heights, r0, r1, c0, c1, sr, sc, k_lo, k_hi):
     """(error, zmin, zmax, count) of the rows of block rows k_lo .. k_hi − 1 of one grid patch.
 
     Every point gets the same float value as in ``_patch_error`` (same operands, same order),
-    so the maxima are bit for bit the same; only the scan order differs. A block whose four
-    corners hold data draws both its triangles, so along one row the triangle changes once, at
-    dc = ceil(dr·wc / hr): each part fills a row of patch heights without branches. A second
-    pass folds the row into per-column maxima, minima and counts (element-wise, so it
-    vectorises); the columns are reduced at the end. Blocks with a nodata corner take the
-    per-point path of ``_patch_error``.
+    so the maxima are bit for bit the same; only the scan order differs. Along one row of a
+    block the triangle changes once, at dc = ceil(dr·wc / hr), and all full-width blocks of a
+    row share that threshold: the patch heights of a row are filled offset by offset, each a
+    branch-free loop over the blocks (corners gathered once per block row). A second pass
+    folds the row into per-column maxima, minima and counts (element-wise, so it vectorises);
+    the columns are reduced at the end. The last (narrower) block and blocks with a nodata
+    corner are filled block by block (``_block_fill``).
     """
     err = 0.0
     w = c1 - c0 + 1
@@ -162,74 +225,99 @@ def _patch_rows_error(heights, r0, r1, c0, c1, sr, sc, k_lo, k_hi):
     nbc = _block_count(c0, c1, sc)
     # A patch of step 1 holds every data point as a vertex: nothing to measure but its range.
     vertices_only = sr == 1 and sc == 1
-    if sc < 8 and not vertices_only and k_lo == 0 and k_hi == nbr:
-        # Narrow blocks: the per-block set-up costs more than the per-point path saves.
+    if vertices_only:
+        return _rows_range(heights, r0 + k_lo, r0 + k_hi - 1 if k_hi < nbr else r1, c0, c1)
+    if w < 32 and k_lo == 0 and k_hi == nbr:
+        # Narrow patches: setting up the rows costs more than the per-point path.
         return _patch_error(heights, r0, r1, c0, c1, sr, sc)
     wl = c1 - (c0 + (nbc - 1) * sc)
     f_full = _fractions(sc)
     f_last = _fractions(wl)
+    nfull = nbc - 1
+    # Corners of the block row (top and bottom sampled lines), in the raster's dtype.
+    top = np.empty(nbc + 1, dtype=heights.dtype)
+    bot = np.empty(nbc + 1, dtype=heights.dtype)
+    plain = np.empty(nbc, dtype=np.bool_)
     # p: the patch's height along the row, NaN where the point is not measured here.
     p = np.empty(w)
     col_err = np.zeros(w)
     col_min = np.full(w, np.inf)
     col_max = np.full(w, -np.inf)
     col_count = np.zeros(w, dtype=np.int64)
-    if vertices_only:
-        p[:] = np.nan
     for kr in range(k_lo, k_hi):
         rb = r0 + kr * sr
         re = min(rb + sr, r1)
         hr = re - rb
         # Interior blocks leave their last row to the next block; the last block keeps it.
         rend = re if kr == nbr - 1 else re - 1
-        for r in range(rb, rend + 1):
-            dr = r - rb
-            vrow = dr == 0 or r == re
-            fr = dr / hr
-            # Triangle A (corners 00, 01, 11) from dc·hr >= dr·wc on, triangle B before.
-            t_full = (dr * sc + hr - 1) // hr
-            t_last = (dr * wl + hr - 1) // hr
+        rough = False
+        if not vertices_only:
+            for kc in range(nbc + 1):
+                col = min(c0 + kc * sc, c1)
+                top[kc] = heights[rb, col]
+                bot[kc] = heights[re, col]
             for kc in range(nbc):
-                if vertices_only:
-                    break
-                cb = c0 + kc * sc
-                ce = min(cb + sc, c1)
-                wc = ce - cb
-                last = kc == nbc - 1
-                cend = ce if last else ce - 1
-                z00 = heights[rb, cb]
-                z01 = heights[rb, ce]
-                z10 = heights[re, cb]
-                z11 = heights[re, ce]
-                # Nodata (or huge, overflow-prone) corners: the per-point path.
-                if not (_plain(z00) and _plain(z01) and _plain(z10) and _plain(z11)):
-                    for c in range(cb, cend + 1):
-                        p[c - c0] = np.nan
-                        dc = c - cb
-                        # Patch vertices are reproduced exactly.
-                        if vrow and (dc == 0 or c == ce):
-                            continue
-                        z = heights[r, c]
-                        v = _block_value(z00, z01, z10, z11, dr, dc, hr, wc)
-                        if np.isnan(v):
-                            v = _edge_value(heights, r, c, rb, re, cb, ce, sr, sc, kr, kc)
-                        err = _fold_error(err, z, not np.isnan(z), v)
-                    continue
-                frac = f_last if last else f_full
-                t = min(cb + (t_last if last else t_full), cend + 1)
-                base = z00 + fr * (z10 - z00)
-                d = z11 - z10
-                for c in range(cb, t):
-                    p[c - c0] = base + frac[c - cb] * d
-                q = fr * (z11 - z01)
-                d = z01 - z00
-                for c in range(t, cend + 1):
-                    p[c - c0] = z00 + frac[c - cb] * d + q
-                # Patch vertices are reproduced exactly.
+                plain[kc] = (
+                    _plain(top[kc])
+                    and _plain(top[kc + 1])
+                    and _plain(bot[kc])
+                    and _plain(bot[kc + 1])
+                )
+                rough |= not plain[kc]
+        for r in range(rb, rend + 1):
+            if not vertices_only:
+                dr = r - rb
+                vrow = dr == 0 or r == re
+                fr = dr / hr
+                # Triangle B (00, 11, 10) before offset t, triangle A (00, 01, 11) from t on.
+                t_full = (dr * sc + hr - 1) // hr
+                t_last = (dr * wl + hr - 1) // hr
+                for dc in range(sc):
+                    f = f_full[dc]
+                    if dc < t_full:
+                        for kc in range(nfull):
+                            z00 = top[kc]
+                            p[kc * sc + dc] = (
+                                z00 + fr * (bot[kc] - z00) + f * (bot[kc + 1] - bot[kc])
+                            )
+                    else:
+                        for kc in range(nfull):
+                            z00 = top[kc]
+                            p[kc * sc + dc] = (
+                                z00 + f * (top[kc + 1] - z00) + fr * (bot[kc + 1] - top[kc + 1])
+                            )
                 if vrow:
-                    p[cb - c0] = np.nan
-                    if last:
-                        p[ce - c0] = np.nan
+                    # Patch vertices are reproduced exactly.
+                    for kc in range(nfull):
+                        p[kc * sc] = np.nan
+                if rough:
+                    for kc in range(nfull):
+                        if not plain[kc]:
+                            cb = c0 + kc * sc
+                            e = _block_fill(
+                                heights,
+                                p,
+                                r,
+                                c0,
+                                rb,
+                                re,
+                                cb,
+                                cb + sc,
+                                cb + sc - 1,
+                                vrow,
+                                sr,
+                                sc,
+                                kr,
+                                kc,
+                                t_full,
+                                f_full,
+                            )
+                            err = max(err, e)
+                cb = c0 + nfull * sc
+                e = _block_fill(
+                    heights, p, r, c0, rb, re, cb, c1, c1, vrow, sr, sc, kr, nfull, t_last, f_last
+                )
+                err = max(err, e)
             _fold_row(heights, r, c0, p, col_err, col_min, col_max, col_count)
     zmin = np.inf
     zmax = -np.inf
