@@ -251,73 +251,66 @@ def _patch_rows_error(heights, r0, r1, c0, c1, sr, sc, k_lo, k_hi):
         # Interior blocks leave their last row to the next block; the last block keeps it.
         rend = re if kr == nbr - 1 else re - 1
         rough = False
-        if not vertices_only:
-            for kc in range(nbc + 1):
-                col = min(c0 + kc * sc, c1)
-                top[kc] = heights[rb, col]
-                bot[kc] = heights[re, col]
-            for kc in range(nbc):
-                plain[kc] = (
-                    _plain(top[kc])
-                    and _plain(top[kc + 1])
-                    and _plain(bot[kc])
-                    and _plain(bot[kc + 1])
-                )
-                rough |= not plain[kc]
+        for kc in range(nbc + 1):
+            col = min(c0 + kc * sc, c1)
+            top[kc] = heights[rb, col]
+            bot[kc] = heights[re, col]
+        for kc in range(nbc):
+            plain[kc] = (
+                _plain(top[kc]) and _plain(top[kc + 1]) and _plain(bot[kc]) and _plain(bot[kc + 1])
+            )
+            rough |= not plain[kc]
         for r in range(rb, rend + 1):
-            if not vertices_only:
-                dr = r - rb
-                vrow = dr == 0 or r == re
-                fr = dr / hr
-                # Triangle B (00, 11, 10) before offset t, triangle A (00, 01, 11) from t on.
-                t_full = (dr * sc + hr - 1) // hr
-                t_last = (dr * wl + hr - 1) // hr
-                for dc in range(sc):
-                    f = f_full[dc]
-                    if dc < t_full:
-                        for kc in range(nfull):
-                            z00 = top[kc]
-                            p[kc * sc + dc] = (
-                                z00 + fr * (bot[kc] - z00) + f * (bot[kc + 1] - bot[kc])
-                            )
-                    else:
-                        for kc in range(nfull):
-                            z00 = top[kc]
-                            p[kc * sc + dc] = (
-                                z00 + f * (top[kc + 1] - z00) + fr * (bot[kc + 1] - top[kc + 1])
-                            )
-                if vrow:
-                    # Patch vertices are reproduced exactly.
+            dr = r - rb
+            vrow = dr == 0 or r == re
+            fr = dr / hr
+            # Triangle B (00, 11, 10) before offset t, triangle A (00, 01, 11) from t on.
+            t_full = (dr * sc + hr - 1) // hr
+            t_last = (dr * wl + hr - 1) // hr
+            for dc in range(sc):
+                f = f_full[dc]
+                if dc < t_full:
                     for kc in range(nfull):
-                        p[kc * sc] = np.nan
-                if rough:
+                        z00 = top[kc]
+                        p[kc * sc + dc] = z00 + fr * (bot[kc] - z00) + f * (bot[kc + 1] - bot[kc])
+                else:
                     for kc in range(nfull):
-                        if not plain[kc]:
-                            cb = c0 + kc * sc
-                            e = _block_fill(
-                                heights,
-                                p,
-                                r,
-                                c0,
-                                rb,
-                                re,
-                                cb,
-                                cb + sc,
-                                cb + sc - 1,
-                                vrow,
-                                sr,
-                                sc,
-                                kr,
-                                kc,
-                                t_full,
-                                f_full,
-                            )
-                            err = max(err, e)
-                cb = c0 + nfull * sc
-                e = _block_fill(
-                    heights, p, r, c0, rb, re, cb, c1, c1, vrow, sr, sc, kr, nfull, t_last, f_last
-                )
-                err = max(err, e)
+                        z00 = top[kc]
+                        p[kc * sc + dc] = (
+                            z00 + f * (top[kc + 1] - z00) + fr * (bot[kc + 1] - top[kc + 1])
+                        )
+            if vrow:
+                # Patch vertices are reproduced exactly.
+                for kc in range(nfull):
+                    p[kc * sc] = np.nan
+            if rough:
+                for kc in range(nfull):
+                    if not plain[kc]:
+                        cb = c0 + kc * sc
+                        e = _block_fill(
+                            heights,
+                            p,
+                            r,
+                            c0,
+                            rb,
+                            re,
+                            cb,
+                            cb + sc,
+                            cb + sc - 1,
+                            vrow,
+                            sr,
+                            sc,
+                            kr,
+                            kc,
+                            t_full,
+                            f_full,
+                        )
+                        err = max(err, e)
+            cb = c0 + nfull * sc
+            e = _block_fill(
+                heights, p, r, c0, rb, re, cb, c1, c1, vrow, sr, sc, kr, nfull, t_last, f_last
+            )
+            err = max(err, e)
             _fold_row(heights, r, c0, p, col_err, col_min, col_max, col_count)
     zmin = np.inf
     zmax = -np.inf
