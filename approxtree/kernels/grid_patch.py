@@ -129,6 +129,243 @@ def _patch_error(heights, r0, r1, c0, c1, sr, sc):
     return err, zmin, zmax, count
 
 
+@njit(cache=True, inline="always")
+def _plain(z) -> bool:
+    """A corner the branch-free rows may use: data, small enough that no difference overflows."""
+    return abs(z) <= 1e37
+
+
+@njit(cache=True)
+def _fractions(wc):
+    """dc / wc for dc = 0 .. wc, the same float64 quotients ``_block_value`` computes."""
+    out = np.empty(wc + 1)
+    for dc in range(wc + 1):
+        out[dc] = dc / wc
+    return out
+
+
+@njit(cache=True)
+def _block_fill(heights, p, r, c0, rb, re, cb, ce, cend, vrow, sr, sc, kr, kc, t_off, frac):
+    """Fill p over one block's part of row r; returns the error of its per-point path.
+
+    A block whose four corners hold data (and are small enough that no difference overflows)
+    draws both triangles: triangle B before dc = t_off, triangle A from there on, each a
+    branch-free run with the operands and order of ``_block_value``. Other blocks take the
+    per-point path of ``_patch_error`` and leave NaN in p (their error is returned instead).
+    """
+    hr = re - rb
+    wc = ce - cb
+    dr = r - rb
+    z00 = heights[rb, cb]
+    z01 = heights[rb, ce]
+    z10 = heights[re, cb]
+    z11 = heights[re, ce]
+    err = 0.0
+    if not (_plain(z00) and _plain(z01) and _plain(z10) and _plain(z11)):
+        for c in range(cb, cend + 1):
+            p[c - c0] = np.nan
+            dc = c - cb
+            # Patch vertices are reproduced exactly.
+            if vrow and (dc == 0 or c == ce):
+                continue
+            z = heights[r, c]
+            v = _block_value(z00, z01, z10, z11, dr, dc, hr, wc)
+            if np.isnan(v):
+                v = _edge_value(heights, r, c, rb, re, cb, ce, sr, sc, kr, kc)
+            err = _fold_error(err, z, not np.isnan(z), v)
+        return err
+    fr = dr / hr
+    t = min(cb + t_off, cend + 1)
+    for c in range(cb, t):
+        p[c - c0] = z00 + fr * (z10 - z00) + frac[c - cb] * (z11 - z10)
+    for c in range(t, cend + 1):
+        p[c - c0] = z00 + frac[c - cb] * (z01 - z00) + fr * (z11 - z01)
+    # Patch vertices are reproduced exactly.
+    if vrow:
+        p[cb - c0] = np.nan
+        if cend == ce:
+            p[ce - c0] = np.nan
+    return err
+
+
+@njit(cache=True)
+def _rows_range(heights, a0, a1, c0, c1):
+    """(0, zmin, zmax, count) of rows a0 .. a1 × columns c0 .. c1 (a patch of step 1)."""
+    zmin = np.inf
+    zmax = -np.inf
+    count = 0
+    for r in range(a0, a1 + 1):
+        for c in range(c0, c1 + 1):
+            z = heights[r, c]
+            if z == z:
+                count += 1
+                if z < zmin:
+                    zmin = z
+                if z > zmax:
+                    zmax = z
+    return 0.0, zmin, zmax, count
+
+
+@njit(cache=True)
+def _patch_rows_error(heights, r0, r1, c0, c1, sr, sc, k_lo, k_hi):
+    """(error, zmin, zmax, count) of the rows of block rows k_lo .. k_hi − 1 of one grid patch.
+
+    Every point gets the same float value as in ``_patch_error`` (same operands, same order),
+    so the maxima are bit for bit the same; only the scan order differs. Along one row of a
+    block the triangle changes once, at dc = ceil(dr·wc / hr), and all full-width blocks of a
+    row share that threshold: the patch heights of a row are filled offset by offset, each a
+    branch-free loop over the blocks (corners gathered once per block row). A second pass
+    folds the row into per-column maxima, minima and counts (element-wise, so it vectorises);
+    the columns are reduced at the end. The last (narrower) block and blocks with a nodata
+    corner are filled block by block (``_block_fill``).
+    """
+    err = 0.0
+    w = c1 - c0 + 1
+    nbr = _block_count(r0, r1, sr)
+    nbc = _block_count(c0, c1, sc)
+    # A patch of step 1 holds every data point as a vertex: nothing to measure but its range.
+    vertices_only = sr == 1 and sc == 1
+    if vertices_only:
+        return _rows_range(heights, r0 + k_lo, r0 + k_hi - 1 if k_hi < nbr else r1, c0, c1)
+    if w < 32 and k_lo == 0 and k_hi == nbr:
+        # Narrow patches: setting up the rows costs more than the per-point path.
+        return _patch_error(heights, r0, r1, c0, c1, sr, sc)
+    wl = c1 - (c0 + (nbc - 1) * sc)
+    f_full = _fractions(sc)
+    f_last = _fractions(wl)
+    nfull = nbc - 1
+    # Corners of the block row (top and bottom sampled lines), in the raster's dtype.
+    top = np.empty(nbc + 1, dtype=heights.dtype)
+    bot = np.empty(nbc + 1, dtype=heights.dtype)
+    plain = np.empty(nbc, dtype=np.bool_)
+    # p: the patch's height along the row, NaN where the point is not measured here.
+    p = np.empty(w)
+    col_err = np.zeros(w)
+    col_min = np.full(w, np.inf)
+    col_max = np.full(w, -np.inf)
+    col_count = np.zeros(w, dtype=np.int64)
+    for kr in range(k_lo, k_hi):
+        rb = r0 + kr * sr
+        re = min(rb + sr, r1)
+        hr = re - rb
+        # Interior blocks leave their last row to the next block; the last block keeps it.
+        rend = re if kr == nbr - 1 else re - 1
+        rough = False
+        for kc in range(nbc + 1):
+            col = min(c0 + kc * sc, c1)
+            top[kc] = heights[rb, col]
+            bot[kc] = heights[re, col]
+        for kc in range(nbc):
+            plain[kc] = (
+                _plain(top[kc]) and _plain(top[kc + 1]) and _plain(bot[kc]) and _plain(bot[kc + 1])
+            )
+            rough |= not plain[kc]
+        for r in range(rb, rend + 1):
+            dr = r - rb
+            vrow = dr == 0 or r == re
+            fr = dr / hr
+            # Triangle B (00, 11, 10) before offset t, triangle A (00, 01, 11) from t on.
+            t_full = (dr * sc + hr - 1) // hr
+            t_last = (dr * wl + hr - 1) // hr
+            for dc in range(sc):
+                f = f_full[dc]
+                if dc < t_full:
+                    for kc in range(nfull):
+                        z00 = top[kc]
+                        p[kc * sc + dc] = z00 + fr * (bot[kc] - z00) + f * (bot[kc + 1] - bot[kc])
+                else:
+                    for kc in range(nfull):
+                        z00 = top[kc]
+                        p[kc * sc + dc] = (
+                            z00 + f * (top[kc + 1] - z00) + fr * (bot[kc + 1] - top[kc + 1])
+                        )
+            if vrow:
+                # Patch vertices are reproduced exactly.
+                for kc in range(nfull):
+                    p[kc * sc] = np.nan
+            if rough:
+                for kc in range(nfull):
+                    if not plain[kc]:
+                        cb = c0 + kc * sc
+                        e = _block_fill(
+                            heights,
+                            p,
+                            r,
+                            c0,
+                            rb,
+                            re,
+                            cb,
+                            cb + sc,
+                            cb + sc - 1,
+                            vrow,
+                            sr,
+                            sc,
+                            kr,
+                            kc,
+                            t_full,
+                            f_full,
+                        )
+                        err = max(err, e)
+            cb = c0 + nfull * sc
+            e = _block_fill(
+                heights, p, r, c0, rb, re, cb, c1, c1, vrow, sr, sc, kr, nfull, t_last, f_last
+            )
+            err = max(err, e)
+            _fold_row(heights, r, c0, p, col_err, col_min, col_max, col_count)
+    zmin = np.inf
+    zmax = -np.inf
+    count = 0
+    for j in range(w):
+        err = max(err, col_err[j])
+        zmin = min(zmin, col_min[j])
+        zmax = max(zmax, col_max[j])
+        count += col_count[j]
+    return err, zmin, zmax, count
+
+
+@njit(cache=True)
+def _fold_row(heights, r, c0, p, col_err, col_min, col_max, col_count):
+    """Fold row r (columns c0 ..) against the patch heights p into the per-column figures.
+
+    A measured point (p not NaN) adds |z − p|, or infinity when z is nodata (the patch would
+    cover a hole); every point adds to the z range and count. Element-wise selects only.
+    """
+    # A row view indexed from 0: no negative-index wrap test, so the loop vectorises.
+    zrow = heights[r, c0 : c0 + p.shape[0]]
+    for j in range(p.shape[0]):
+        z = zrow[j]
+        pj = p[j]
+        valid = z == z
+        e = abs(z - pj)
+        e = e if e == e else (np.inf if pj == pj else 0.0)
+        col_err[j] = e if e > col_err[j] else col_err[j]
+        col_min[j] = z if z < col_min[j] else col_min[j]
+        col_max[j] = z if z > col_max[j] else col_max[j]
+        col_count[j] += valid
+
+
+@njit(cache=True)
+def _both_zeros(heights, r0, r1, c0, c1) -> bool:
+    """Whether rows r0 .. r1 × columns c0 .. c1 hold both +0.0 and −0.0."""
+    pos = False
+    neg = False
+    for r in range(r0, r1 + 1):
+        for c in range(c0, c1 + 1):
+            z = heights[r, c]
+            if z == 0.0:
+                if np.copysign(1.0, z) < 0.0:
+                    neg = True
+                else:
+                    pos = True
+        if pos and neg:
+            return True
+    return False
+
+
+# Work items a level is cut into at least (bands of block rows of its few coarse nodes).
+_ITEMS = 64
+
+
 @njit(cache=True, parallel=True)
 def grid_patch_errors(
     heights: np.ndarray, ranges: np.ndarray, steps: np.ndarray
@@ -142,12 +379,32 @@ def grid_patch_errors(
     count (n,) int64 of valid data points per node.
     """
     n = ranges.shape[0]
-    error = np.empty(n)
-    zmin = np.empty(n)
-    zmax = np.empty(n)
-    count = np.empty(n, dtype=np.int64)
-    for i in prange(n):
-        e, lo, hi, k = _patch_error(
+    # Work items: a few nodes of a coarse level are cut into bands of block rows, so that
+    # every thread has work; maxima, minima and counts of the bands combine exactly.
+    parts = np.empty(n, dtype=np.int64)
+    first = np.empty(n + 1, dtype=np.int64)
+    first[0] = 0
+    want = max(1, (_ITEMS + n - 1) // n)
+    for i in range(n):
+        parts[i] = min(want, _block_count(ranges[i, 0], ranges[i, 1], steps[i, 0]))
+        first[i + 1] = first[i] + parts[i]
+    m = first[n]
+    item_node = np.empty(m, dtype=np.int64)
+    item_lo = np.empty(m, dtype=np.int64)
+    item_hi = np.empty(m, dtype=np.int64)
+    for i in range(n):
+        nbr = _block_count(ranges[i, 0], ranges[i, 1], steps[i, 0])
+        for j in range(parts[i]):
+            item_node[first[i] + j] = i
+            item_lo[first[i] + j] = nbr * j // parts[i]
+            item_hi[first[i] + j] = nbr * (j + 1) // parts[i]
+    e_item = np.empty(m)
+    lo_item = np.empty(m)
+    hi_item = np.empty(m)
+    k_item = np.empty(m, dtype=np.int64)
+    for t in prange(m):
+        i = item_node[t]
+        e, lo, hi, k = _patch_rows_error(
             heights,
             ranges[i, 0],
             ranges[i, 1],
@@ -155,7 +412,41 @@ def grid_patch_errors(
             ranges[i, 3],
             steps[i, 0],
             steps[i, 1],
+            item_lo[t],
+            item_hi[t],
         )
+        e_item[t] = e
+        lo_item[t] = lo
+        hi_item[t] = hi
+        k_item[t] = k
+    error = np.empty(n)
+    zmin = np.empty(n)
+    zmax = np.empty(n)
+    count = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        e = 0.0
+        lo = np.inf
+        hi = -np.inf
+        k = 0
+        for t in range(first[i], first[i + 1]):
+            e = max(e, e_item[t])
+            lo = min(lo, lo_item[t])
+            hi = max(hi, hi_item[t])
+            k += k_item[t]
+        if (lo == 0.0 or hi == 0.0) and _both_zeros(
+            heights, ranges[i, 0], ranges[i, 1], ranges[i, 2], ranges[i, 3]
+        ):
+            # Which zero (+0 or −0) is the extreme depends on the scan order: take the reference
+            # order's, so results stay identical bit for bit.
+            _, lo, hi, _ = _patch_error(
+                heights,
+                ranges[i, 0],
+                ranges[i, 1],
+                ranges[i, 2],
+                ranges[i, 3],
+                steps[i, 0],
+                steps[i, 1],
+            )
         error[i] = e
         zmin[i] = lo if k > 0 else np.nan
         zmax[i] = hi if k > 0 else np.nan

@@ -129,10 +129,13 @@ class GridPatch(GeometryPatch):
         spans = np.column_stack([ranges[:, 1] - ranges[:, 0], ranges[:, 3] - ranges[:, 2]])
         steps = np.maximum(1, -(-spans // (k - 1))).astype(np.int64)
         heights = grid.heights_array("building grid patches")
-        # No more threads than nodes: an idle thread still costs a hand-off per call, which
-        # dominates when a small subtree (a block of a blocked build) is built level by level.
+        # No more threads than nodes on a small level: an idle thread still costs a hand-off
+        # per call, which dominates when a small subtree (a block of a blocked build) is built
+        # level by level. A large one is cut into bands of rows by the kernel: all threads.
         threads = numba.get_num_threads()
-        numba.set_num_threads(max(1, min(threads, len(ranges))))
+        points = int(np.sum((ranges[:, 1] - ranges[:, 0] + 1) * (ranges[:, 3] - ranges[:, 2] + 1)))
+        work = len(ranges) if points < 1 << 18 else threads
+        numba.set_num_threads(max(1, min(threads, work)))
         try:
             error, zmin, zmax, count = grid_patch_errors(readonly(heights), ranges, steps)
         finally:
@@ -314,10 +317,14 @@ class GridPatch(GeometryPatch):
         ps: list[GridPatch] = list(patches)  # type: ignore[arg-type]
         k = len(ps)
         stats = ((p.error, *p.z_range, p.data_count) for p in ps)
+        index = gather((p.index for p in ps), k, 6, "<i8")
+        # stores_lattice of every patch at once, from the steps just gathered.
+        steps = index[0].reshape(k, 6)[:, 4:]
+        coarse = np.flatnonzero(steps.max(axis=1, initial=0) >= LATTICE_STORED_STEP)
         return {
-            "index": gather((p.index for p in ps), k, 6, "<i8"),
+            "index": index,
             "stats": gather(stats, k, 4, "<f8"),
-            "z": _lattices_many(ps),
+            "z": _lattices_many(ps, coarse.tolist()),
         }
 
     @classmethod
@@ -344,15 +351,19 @@ class GridPatch(GeometryPatch):
 LATTICE_STORED_STEP = 16
 
 
-def _lattices_many(patches: Sequence[GridPatch]) -> tuple[np.ndarray, np.ndarray]:
+def _lattices_many(
+    patches: Sequence[GridPatch], coarse: list[int] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """(flat, offsets) of the lattice heights of the patches that store them (none for others).
 
     All lattices over one grid are read with one index gather, so a windowed grid reads each of
-    its blocks once, however many coarse patches cover it.
+    its blocks once, however many coarse patches cover it. ``coarse``: the positions of the
+    patches that store their lattice, when already known (ascending).
     """
     k = len(patches)
     sizes = np.zeros(k, dtype=np.int64)
-    coarse = [i for i, p in enumerate(patches) if p.stores_lattice]
+    if coarse is None:
+        coarse = [i for i, p in enumerate(patches) if p.stores_lattice]
     flat = np.empty(0, dtype="<f8")
     if coarse:
         pieces: dict[int, np.ndarray] = {
