@@ -7,8 +7,10 @@ included; slope and curvature weights and cast shadows refine it for cartographi
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
+from itertools import islice
 
 import numpy as np
 from affine import Affine
@@ -23,6 +25,9 @@ ALGORITHMS = {"horn": hs.HORN, "zevenbergen-thorne": hs.ZEVENBERGEN_THORNE}
 
 #: Metres per degree used by gdaldem's documentation for geographic grids (-s 111120).
 METRES_PER_DEGREE = 111120.0
+
+#: Windows of a windowed DEM read ahead of the strip being shaded (a few strips of memory).
+_READ_AHEAD = 4
 
 
 def is_geographic(crs: str | None) -> bool:
@@ -202,12 +207,14 @@ class TopographicShading(ShadingTexture):
             z = np.asarray(heights.source.read(a, b, 0, width), dtype=heights.dtype)
             return a, np.ascontiguousarray(z)
 
+        # Several windows are queued ahead (_READ_AHEAD): the reader keeps reading while this
+        # thread holds the GIL (numba's first dispatch of the kernel, ~1 s, loads its cache).
+        starts = iter(range(0, height, rows))
         with ThreadPoolExecutor(1) as reader:
-            ahead = reader.submit(window, 0)
+            ahead = deque(reader.submit(window, r) for r in islice(starts, _READ_AHEAD))
             for r0 in range(0, height, rows):
-                a, z = ahead.result()
-                if r0 + rows < height:
-                    ahead = reader.submit(window, r0 + rows)
+                a, z = ahead.popleft().result()
+                ahead.extend(reader.submit(window, r) for r in islice(starts, 1))
                 strip = np.empty((2, min(rows, height - r0), width), dtype=np.uint8)
                 hs.hillshade_grey_alpha_rows(z, r0 - a, strip, *args)
                 yield strip
