@@ -26,8 +26,9 @@ ALGORITHMS = {"horn": hs.HORN, "zevenbergen-thorne": hs.ZEVENBERGEN_THORNE}
 #: Metres per degree used by gdaldem's documentation for geographic grids (-s 111120).
 METRES_PER_DEGREE = 111120.0
 
-#: Windows of a windowed DEM read ahead of the strip being shaded (a few strips of memory).
-_READ_AHEAD = 4
+#: Bytes of a windowed DEM's heights read ahead of the strip being shaded (at least 2 windows):
+#: the reader reads on during numba's first dispatch (~1 s holding the GIL), within this bound.
+_READ_AHEAD_BYTES = 64 * 2**20
 
 
 def is_geographic(crs: str | None) -> bool:
@@ -207,11 +208,13 @@ class TopographicShading(ShadingTexture):
             z = np.asarray(heights.source.read(a, b, 0, width), dtype=heights.dtype)
             return a, np.ascontiguousarray(z)
 
-        # Several windows are queued ahead (_READ_AHEAD): the reader keeps reading while this
-        # thread holds the GIL (numba's first dispatch of the kernel, ~1 s, loads its cache).
+        # Windows are queued ahead (up to _READ_AHEAD_BYTES): the reader keeps reading while
+        # this thread holds the GIL (numba's first dispatch of the kernel loads its cache).
         starts = iter(range(0, height, rows))
+        window_bytes = (rows + 2) * width * np.dtype(heights.dtype).itemsize
+        depth = max(2, _READ_AHEAD_BYTES // window_bytes)
         with ThreadPoolExecutor(1) as reader:
-            ahead = deque(reader.submit(window, r) for r in islice(starts, _READ_AHEAD))
+            ahead = deque(reader.submit(window, r) for r in islice(starts, depth))
             for r0 in range(0, height, rows):
                 a, z = ahead.popleft().result()
                 ahead.extend(reader.submit(window, r) for r in islice(starts, 1))
