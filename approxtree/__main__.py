@@ -1,6 +1,6 @@
 """``python -m approxtree`` runs the command line."""
 
-from approxtree.cli import main
+from approxtree.cli import run
 
 if __name__ == "__main__":
-    main()
+    run()

@@ -11,7 +11,7 @@ from conftest import data_file
 import approxtree as at
 from approxtree import InvalidParameterError
 from approxtree.datasets import fractal_terrain
-from approxtree.textures import GouraudShading, PhongShading, TopographicShading
+from approxtree.textures import GouraudShading, PhongShading, TexturePyramid, TopographicShading
 from approxtree.textures.bake import OVERLAY_COLOUR, bake, texture_lattice
 from approxtree.textures.thematic import ClassTable
 
@@ -212,6 +212,44 @@ def test_the_bake_command_does_not_import_the_tree_builder(tmp_path):
     from approxtree.tree import ApproximationTree as same
 
     assert ApproximationTree is same
+
+
+def test_the_program_ends_a_bake_without_the_teardown(tmp_path):
+    """``python -m approxtree bake`` ends its process as soon as the pyramid is written and
+    its summary printed (no atexit handlers: the interpreter's teardown is skipped), while a
+    failing bake and other commands end as usual (handlers run, exit code kept)."""
+    import subprocess
+    import sys
+
+    dem = tmp_path / "dem.tif"
+    z = np.linspace(0.0, 50.0, 64 * 48, dtype=np.float32).reshape(64, 48)
+    profile = {"driver": "GTiff", "width": 48, "height": 64, "count": 1, "dtype": "float32"}
+    with rasterio.open(dem, "w", **profile, transform=Affine(10, 0, 0, 0, -10, 640)) as ds:
+        ds.write(z, 1)
+    code = (
+        "import atexit, sys\n"
+        "atexit.register(lambda: print('TEARDOWN'))\n"
+        "from approxtree.cli import run\n"
+        "sys.argv = ['approxtree', *sys.argv[1:]]\n"
+        "run()\n"
+    )
+
+    def program(*args: str) -> subprocess.CompletedProcess:
+        cmd = [sys.executable, "-c", code, *args]
+        return subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path)
+
+    done = program("bake", str(dem), "--out", "p", "--no-gl", "--quiet", "--json")
+    assert done.returncode == 0, done.stderr
+    assert "TEARDOWN" not in done.stdout
+    # The summary was flushed before the end, and the pyramid is whole.
+    assert '"levels"' in done.stdout and (tmp_path / "p" / "pyramid.json").is_file()
+    pyramid = TexturePyramid(tmp_path / "p")
+    assert pyramid.level(0).shape == (64, 48, 4)
+    failed = program("bake", str(dem), "--out", "p", "--no-gl", "--palette", "nlcd")
+    assert failed.returncode == 2 and "Error:" in failed.stderr
+    assert "TEARDOWN" in failed.stdout
+    info = program("info", str(dem))
+    assert info.returncode == 0 and "TEARDOWN" in info.stdout
 
 
 @pytest.mark.parametrize("windowed", [False, True])

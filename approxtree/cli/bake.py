@@ -192,6 +192,10 @@ def bake_command(
             gl=not no_gl,
         )
     _emit(result.figures(), as_json)
+    # The pyramid is complete and every file closed: the program may skip the teardown.
+    from approxtree import cli
+
+    cli.end_without_teardown()
 
 
 def _rgba(text: str) -> tuple[int, int, int, int]:

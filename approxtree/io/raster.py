@@ -165,11 +165,27 @@ class RasterSource:
 
         ds = self._dataset()
         window = Window(c0, r0, c1 - c0, r1 - r0)
+        flags = ds.mask_flag_enums[self.band - 1]
+        # Without a mask band (every cell valid, or nodata alone) the window is read straight
+        # into the heights' dtype and nodata found by comparison: no masked array, no copies.
+        plain = all(f.name in ("all_valid", "nodata") for f in flags)
         with reading(self.name, "a GDAL raster"), rasterio.Env(GDAL_CACHEMAX=self.cache_mb):
-            values = ds.read(self.band, window=window, masked=True)
-        out = np.ma.getdata(values).astype(self.dtype, copy=True)
-        out[np.ma.getmaskarray(values)] = np.nan
-        out[np.isinf(out)] = np.nan
+            if plain:
+                out = np.empty((r1 - r0, c1 - c0), dtype=self.dtype)
+                ds.read(self.band, window=window, out=out)
+            else:
+                values = ds.read(self.band, window=window, masked=True)
+        if plain:
+            nodata = self.nodata
+            if any(f.name == "nodata" for f in flags) and nodata is not None:
+                if not np.isnan(nodata):
+                    np.copyto(out, np.nan, where=out == out.dtype.type(nodata))
+        else:
+            out = np.ma.getdata(values).astype(self.dtype, copy=True)
+            np.copyto(out, np.nan, where=np.ma.getmaskarray(values))
+        # Infinities are nodata too; looked for only when an extreme is not finite.
+        if out.size and not (np.isfinite(out.min()) and np.isfinite(out.max())):
+            np.copyto(out, np.nan, where=np.isinf(out))
         return out
 
 

@@ -56,10 +56,13 @@ def grey_into_bands(grey: np.ndarray, out: np.ndarray) -> None:
             out[3, r, c] = 255 if g > 0 else 0
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def halve_bands(src: np.ndarray, out: np.ndarray) -> None:
     """2 × 2 alpha-weighted box filter of (bands, rows, cols) uint8 planes, alpha last (R, G,
     B, A or grey, A), into ``out`` (bands, ⌈rows/2⌉, ⌈cols/2⌉) uint8.
+
+    Serial and without the GIL: the pyramid halves a strip on its writer thread while the
+    main thread makes the next strip (a parallel kernel may be launched from one thread only).
 
     Colour is the alpha-weighted mean of the four texels (0 where all four are transparent),
     alpha their mean, both rounded half to even. Odd sizes repeat the last row or column, so
@@ -70,7 +73,7 @@ def halve_bands(src: np.ndarray, out: np.ndarray) -> None:
     alpha = src.shape[0] - 1
     rows, cols = src.shape[1], src.shape[2]
     out_rows, out_cols = out.shape[1], out.shape[2]
-    for i in prange(out_rows):
+    for i in range(out_rows):
         # An odd last row or column pairs with itself.
         r0 = 2 * i
         r1 = min(r0 + 1, rows - 1)

@@ -24,6 +24,7 @@ import json
 import os
 import re
 import uuid
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
@@ -46,6 +47,9 @@ _CHUNK_ROWS = 512
 PYRAMID_FORMAT = 3
 #: Tile side of the level GeoTIFFs (texels), as COGs use.
 _TILE = 512
+#: Strips queued for the writer thread before the producer waits (each a copy of a strip).
+_WRITE_AHEAD = 3
+
 #: Level GeoTIFF creation options: tiled, ZSTD at its fastest level (a hillshade shrinks
 #: 2.4×, its alpha band to almost nothing), one plane per band (compresses better and faster
 #: than interleaved grey/alpha), compressed on every core.
@@ -103,7 +107,6 @@ def _write_level(
     height);
     ``on_rows(n)`` after each strip of n rows is written."""
     import rasterio
-    from rasterio.windows import Window
 
     rows, cols = shape
     profile = {
@@ -118,9 +121,9 @@ def _write_level(
         **_LEVEL_OPTIONS,
     }
     r0 = 0
-    # GDAL writes (and compresses) a strip on a writer thread, without the GIL, while this
-    # thread halves it and the texture makes the next one; one write is in flight at a time.
-    pending: Future | None = None
+    # GDAL writes (and compresses) a strip and halves it on a writer thread, without the GIL,
+    # while this thread makes the next ones; up to _WRITE_AHEAD strips wait in its queue.
+    pending: deque[Future] = deque()
     with rasterio.open(path, "w", **profile) as ds, ThreadPoolExecutor(1) as writer:
         ds.update_tags(**{_TAG_BUILD: build, _TAG_LEVEL: str(level)})
         for strip in strips:
@@ -136,21 +139,37 @@ def _write_level(
                 )
             # A strip is valid until the next is asked for: the writer gets its own copy.
             strip = np.array(strip, order="C")
-            if pending is not None:
-                pending.result()
-            pending = writer.submit(ds.write, strip, window=Window(0, r0, cols, n))
+            if len(pending) == _WRITE_AHEAD:
+                _keep(pending.popleft().result(), halved)
+            pending.append(writer.submit(_write_and_halve, ds, strip, r0, halved is not None))
             if on_rows is not None:
                 on_rows(n)
-            # The halving of a strip depends on that strip only (its rows pair up).
-            if halved is not None:
-                half = np.empty((bands, (n + 1) // 2, (cols + 1) // 2), dtype=np.uint8)
-                halve_bands(strip, half)
-                halved.append(half)
             r0 += n
-        if pending is not None:
-            pending.result()
+        while pending:
+            _keep(pending.popleft().result(), halved)
     if r0 != rows:
         raise InvalidParameterError(f"The texture's strips cover {r0} of its {rows} rows.")
+
+
+def _write_and_halve(ds, strip: np.ndarray, r0: int, halve: bool) -> np.ndarray | None:
+    """Write a (bands, n, cols) strip at row ``r0`` of ``ds`` and, if ``halve``, return its
+    (bands, ⌈n/2⌉, ⌈cols/2⌉) halving (it depends on that strip only: its rows pair up).
+    Both run without the GIL, on the writer thread, while the next strip is made."""
+    from rasterio.windows import Window
+
+    bands, n, cols = strip.shape
+    ds.write(strip, window=Window(0, r0, cols, n))
+    if not halve:
+        return None
+    half = np.empty((bands, (n + 1) // 2, (cols + 1) // 2), dtype=np.uint8)
+    halve_bands(strip, half)
+    return half
+
+
+def _keep(half: np.ndarray | None, halved: list[np.ndarray] | None) -> None:
+    """Append a written strip's halving to the next level's strips (when there is one)."""
+    if halved is not None and half is not None:
+        halved.append(half)
 
 
 #: fn(level, transform, (rows, cols)) -> (rows, cols, 4) uint8 drawn over that level, or None.

@@ -7,8 +7,10 @@ included; slope and curvature weights and cast shadows refine it for cartographi
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
+from itertools import islice
 
 import numpy as np
 from affine import Affine
@@ -23,6 +25,10 @@ ALGORITHMS = {"horn": hs.HORN, "zevenbergen-thorne": hs.ZEVENBERGEN_THORNE}
 
 #: Metres per degree used by gdaldem's documentation for geographic grids (-s 111120).
 METRES_PER_DEGREE = 111120.0
+
+#: Bytes of a windowed DEM's heights read ahead of the strip being shaded (at least 2 windows):
+#: the reader reads on during numba's first dispatch (~1 s holding the GIL), within this bound.
+_READ_AHEAD_BYTES = 64 * 2**20
 
 
 def is_geographic(crs: str | None) -> bool:
@@ -202,12 +208,16 @@ class TopographicShading(ShadingTexture):
             z = np.asarray(heights.source.read(a, b, 0, width), dtype=heights.dtype)
             return a, np.ascontiguousarray(z)
 
+        # Windows are queued ahead (up to _READ_AHEAD_BYTES): the reader keeps reading while
+        # this thread holds the GIL (numba's first dispatch of the kernel loads its cache).
+        starts = iter(range(0, height, rows))
+        window_bytes = (rows + 2) * width * np.dtype(heights.dtype).itemsize
+        depth = max(2, _READ_AHEAD_BYTES // window_bytes)
         with ThreadPoolExecutor(1) as reader:
-            ahead = reader.submit(window, 0)
+            ahead = deque(reader.submit(window, r) for r in islice(starts, depth))
             for r0 in range(0, height, rows):
-                a, z = ahead.result()
-                if r0 + rows < height:
-                    ahead = reader.submit(window, r0 + rows)
+                a, z = ahead.popleft().result()
+                ahead.extend(reader.submit(window, r) for r in islice(starts, 1))
                 strip = np.empty((2, min(rows, height - r0), width), dtype=np.uint8)
                 hs.hillshade_grey_alpha_rows(z, r0 - a, strip, *args)
                 yield strip
