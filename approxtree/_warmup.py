@@ -98,10 +98,18 @@ def mesh_step(work: Path) -> None:
         approximate(grid, strategy, max_error=1.0)
 
 
+def tiles_step(work: Path) -> None:
+    """``tiles --format quantized-mesh``: sampling and the tiles' TIN error check."""
+    from approxtree.tiles import write_quantized_mesh
+
+    write_quantized_mesh(_terrain(), work / "tiles")
+
+
 STEPS: dict[str, Callable[[Path], None]] = {
     "tree": tree_step,
     "bake": bake_step,
     "mesh": mesh_step,
+    "tiles": tiles_step,
 }
 
 
