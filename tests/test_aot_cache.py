@@ -179,3 +179,40 @@ def test_unusable_cache_folder_never_breaks_import(tmp_path, how):
     assert run.returncode == 0, run.stderr
     assert run.stdout.split()[0] in ("InTreeCacheLocator", "UserWideCacheLocator")
     assert not any(tmp_path.rglob("*.nbi"))
+
+
+def _setup_module(monkeypatch) -> dict:
+    """setup.py's definitions, without running setup()."""
+    import setuptools
+
+    monkeypatch.setattr(setuptools, "setup", lambda **kw: None)
+    path = Path(__file__).resolve().parents[1] / "setup.py"
+    namespace: dict = {"__name__": "approxtree_setup", "__file__": str(path)}
+    exec(compile(path.read_text(), str(path), "exec"), namespace)
+    return namespace
+
+
+@pytest.mark.parametrize("failure", ["warmup_exits_1", "hook_raises"])
+def test_build_hook_never_fails_the_build(tmp_path, monkeypatch, capsys, failure):
+    """setup.py's build_py hook: a failing warm-up, or an error in the hook itself, prints a
+    warning and the build goes on (the package then compiles its kernels on first use)."""
+    from setuptools import Distribution
+    from setuptools.command.build_py import build_py
+
+    setup = _setup_module(monkeypatch)
+    monkeypatch.setattr(build_py, "run", lambda self: None)
+    build_lib = tmp_path / "lib"
+    (build_lib / "approxtree").mkdir(parents=True)
+    (build_lib / "approxtree" / "__init__.py").write_text("")
+    (build_lib / "approxtree" / "_warmup.py").write_text("raise SystemExit(1)\n")
+    if failure == "hook_raises":
+        build_lib = tmp_path / "missing"
+    command = setup["BuildPyWithKernels"](Distribution())
+    command.build_lib = str(build_lib)
+    command.editable_mode = False
+    command.run()
+    assert "WARNING: approxtree:" in capsys.readouterr().err
+    # Editable installs skip the compile step altogether.
+    command.editable_mode = True
+    command.run()
+    assert capsys.readouterr().err == ""
