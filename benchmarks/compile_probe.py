@@ -86,6 +86,8 @@ def main(argv: list[str]) -> None:
             json.dump(
                 {
                     "command": command,
+                    # Which copy ran (bench_compile.py's fresh install vs the source tree).
+                    "approxtree_file": sys.modules["approxtree"].__file__,
                     "wall_s": wall,
                     "cpu_s": cpu,
                     "compile_s": sum(r["seconds"] for r in outer),

@@ -1,0 +1,218 @@
+"""Kernels compiled at install: the package's numba cache and the warm-up that fills it.
+
+``pip install .`` runs ``approxtree._warmup`` into ``approxtree/_kernel_cache`` (setup.py), and
+``approxtree.kernels._cache`` makes numba look there first. The guarantees: after a warm-up,
+the first ``demo``, ``render`` and ``mesh`` compile nothing (any kernel the warm-up misses is
+named); an entry is reused only for the same source and the same numba, llvmlite, numpy and
+Python; an unusable cache folder never breaks ``import approxtree``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from conftest import DATA_DIR
+
+from approxtree.kernels import _cache
+
+# Runs approxtree commands in one process and prints, per command, the kernels numba compiled
+# (the "numba:compile" event fires on cache misses only; benchmarks/compile_probe.py does the
+# same with timings).
+_PROBE = """
+import json, sys
+from numba.core import event
+
+compiled = []
+
+class Recorder(event.Listener):
+    def on_start(self, ev):
+        pass
+
+    def on_end(self, ev):
+        f = ev.data["dispatcher"].py_func
+        compiled.append(f"{f.__module__}.{f.__qualname__}{tuple(ev.data['args'])}")
+
+event.register("numba:compile", Recorder())
+from approxtree.cli import main
+
+report = {}
+for command in json.loads(sys.argv[1]):
+    compiled.clear()
+    main(command, standalone_mode=False)
+    report[command[0]] = list(compiled)
+print("REPORT" + json.dumps(report))
+"""
+
+
+def _env(cache: Path) -> dict[str, str]:
+    env = dict(os.environ, APPROXTREE_KERNEL_CACHE=str(cache))
+    env.pop("NUMBA_CACHE_DIR", None)
+    return env
+
+
+def _mesh_dem(tmp_path: Path) -> Path:
+    """The issue's DEM (nc/elev_ned_30m.tif, float32) when present, else a float32 GeoTIFF."""
+    dem = DATA_DIR / "nc" / "elev_ned_30m.tif"
+    if dem.is_file():
+        return dem
+    import rasterio
+    from affine import Affine
+
+    from approxtree.datasets import fractal_heights
+
+    dem = tmp_path / "dem.tif"
+    z = fractal_heights(129, 129, seed=4, relief=300.0)
+    profile = {"driver": "GTiff", "width": 129, "height": 129, "count": 1, "dtype": "float32"}
+    with rasterio.open(
+        dem, "w", **profile, crs="EPSG:32617", transform=Affine(30, 0, 0, 0, -30, 0)
+    ) as f:
+        f.write(z, 1)
+    return dem
+
+
+def test_warmed_cache_commands_compile_nothing(tmp_path):
+    """After ``python -m approxtree._warmup`` into an empty cache folder, the first demo,
+    render (of the demo's tree) and mesh (TIN, the issue's DEM) load every kernel from it."""
+    cache = tmp_path / "cache"
+    warm = subprocess.run(
+        [sys.executable, "-m", "approxtree._warmup"],
+        env=_env(cache),
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+    )
+    assert warm.returncode == 0, warm.stdout + warm.stderr
+    assert any(cache.rglob("*.nbi")), "the warm-up wrote no cache entry"
+    tree = str(tmp_path / "demo.zarr")
+    commands = [
+        ["demo", "--out", tree],
+        ["render", tree, "--out", str(tmp_path / "render.png")],
+        ["mesh", str(_mesh_dem(tmp_path)), "--strategy", "tin", "--max-error", "1"],
+    ]
+    run = subprocess.run(
+        [sys.executable, "-c", _PROBE, json.dumps(commands)],
+        env=_env(cache),
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+    )
+    assert run.returncode == 0, run.stdout + run.stderr
+    report = json.loads(run.stdout.split("REPORT", 1)[1])
+    assert set(report) == {"demo", "render", "mesh"}
+    assert report == {"demo": [], "render": [], "mesh": []}, f"compiled on first use: {report}"
+
+
+def test_stamp_follows_source_and_versions(tmp_path):
+    """An entry's stamp is the source's content plus the numba/llvmlite/numpy/Python versions:
+    not the file time (a wheel install does not keep it)."""
+    src = tmp_path / "k.py"
+    src.write_text("x = 1\n")
+    versions = ("0.68.1", "0.50.0", "2.4.6", "3.11.7")
+    stamp = _cache.source_stamp(src, versions)
+    os.utime(src, (1e9, 1e9))
+    assert _cache.source_stamp(src, versions) == stamp
+    src.write_text("x = 2\n")
+    assert _cache.source_stamp(src, versions) != stamp
+    src.write_text("x = 1\n")
+    assert _cache.source_stamp(src, versions) == stamp
+    for i in range(4):
+        other = tuple(v + ".1" if j == i else v for j, v in enumerate(versions))
+        assert _cache.source_stamp(src, other) != stamp
+    # The default versions are the running ones.
+    assert _cache.source_stamp(src) == _cache.source_stamp(src, _cache._versions())
+
+
+def _locator(dispatcher) -> object:
+    return dispatcher._cache._impl.locator
+
+
+def test_locator_serves_approxtree_kernels_only(tmp_path, monkeypatch):
+    """approxtree's kernels (kernels/ and render/) are cached in the package folder; other
+    code, and everything when NUMBA_CACHE_DIR is set, goes to numba's locators."""
+    from numba import njit
+    from numba.core import config
+
+    from approxtree.kernels.grid_patch import grid_patch_mesh
+    from approxtree.render.selector import _traverse
+
+    assert _cache.REGISTERED
+    for kernel, folder in ((grid_patch_mesh, "kernels"), (_traverse, "render")):
+        locator = _locator(kernel)
+        assert type(locator).__name__ == "PackageCacheLocator"
+        assert Path(locator.get_cache_path()) == _cache.cache_folder() / folder
+    src = tmp_path / "elsewhere.py"
+    src.write_text("def f(x):\n    return x + 1\n")
+    namespace: dict = {}
+    exec(compile(src.read_text(), str(src), "exec"), namespace)
+    assert type(_locator(njit(cache=True)(namespace["f"]))).__name__ != "PackageCacheLocator"
+    monkeypatch.setattr(config, "CACHE_DIR", str(tmp_path / "user"))
+    assert type(_locator(njit(cache=True)(_traverse.py_func))).__name__ == (
+        "UserProvidedCacheLocator"
+    )
+
+
+@pytest.mark.parametrize("how", ["under_a_file", "read_only"])
+def test_unusable_cache_folder_never_breaks_import(tmp_path, how):
+    """A cache folder that cannot be created or written: approxtree imports, and its kernels
+    fall back to numba's default locators (``__pycache__`` or the user-wide cache)."""
+    if how == "under_a_file":
+        (tmp_path / "file").write_text("")
+        cache = tmp_path / "file" / "cache"
+    else:
+        if os.geteuid() == 0:
+            pytest.skip("root writes into read-only folders")
+        cache = tmp_path / "ro"
+        cache.mkdir()
+        cache.chmod(0o555)
+    code = (
+        "from approxtree.kernels.rgba import bands_into_rgba\n"
+        "print(type(bands_into_rgba._cache._impl.locator).__name__)\n"
+    )
+    run = subprocess.run(
+        [sys.executable, "-c", code], env=_env(cache), capture_output=True, text=True
+    )
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.split()[0] in ("InTreeCacheLocator", "UserWideCacheLocator")
+    assert not any(tmp_path.rglob("*.nbi"))
+
+
+def _setup_module(monkeypatch) -> dict:
+    """setup.py's definitions, without running setup()."""
+    import setuptools
+
+    monkeypatch.setattr(setuptools, "setup", lambda **kw: None)
+    path = Path(__file__).resolve().parents[1] / "setup.py"
+    namespace: dict = {"__name__": "approxtree_setup", "__file__": str(path)}
+    exec(compile(path.read_text(), str(path), "exec"), namespace)
+    return namespace
+
+
+@pytest.mark.parametrize("failure", ["warmup_exits_1", "hook_raises"])
+def test_build_hook_never_fails_the_build(tmp_path, monkeypatch, capsys, failure):
+    """setup.py's build_py hook: a failing warm-up, or an error in the hook itself, prints a
+    warning and the build goes on (the package then compiles its kernels on first use)."""
+    from setuptools import Distribution
+    from setuptools.command.build_py import build_py
+
+    setup = _setup_module(monkeypatch)
+    monkeypatch.setattr(build_py, "run", lambda self: None)
+    build_lib = tmp_path / "lib"
+    (build_lib / "approxtree").mkdir(parents=True)
+    (build_lib / "approxtree" / "__init__.py").write_text("")
+    (build_lib / "approxtree" / "_warmup.py").write_text("raise SystemExit(1)\n")
+    if failure == "hook_raises":
+        build_lib = tmp_path / "missing"
+    command = setup["BuildPyWithKernels"](Distribution())
+    command.build_lib = str(build_lib)
+    command.editable_mode = False
+    command.run()
+    assert "WARNING: approxtree:" in capsys.readouterr().err
+    # Editable installs skip the compile step altogether.
+    command.editable_mode = True
+    command.run()
+    assert capsys.readouterr().err == ""
