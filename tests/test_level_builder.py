@@ -204,3 +204,58 @@ def test_a_policy_choosing_per_rectangle_is_asked_per_node():
     expected = np.where(tree.rects[:, 2] <= middle, "tin", "grid")
     np.testing.assert_array_equal(kinds, expected)
     assert set(kinds) == {"tin", "grid"}
+
+
+# -- grid levels as arrays ---------------------------------------------------------------------
+
+
+def test_grid_levels_make_patch_objects_only_when_asked():
+    """A grid build keeps each level's patches as arrays; a node's GridPatch, made on first
+    access, equals the one the constructor makes from the same figures (mesh included)."""
+    from approxtree.tree.patch_table import PatchTable
+
+    grid = fractal_terrain(70, 66, seed=5)
+    z = grid.heights.copy()
+    z[20:31, 8:40] = np.nan
+    grid = Grid(z, transform=grid.transform)
+    tree = ApproximationTree.build(grid, epsilon=0.5, max_points=25, progress=False)
+    table = tree._patches
+    assert isinstance(table, PatchTable) and table.held == 0 and len(tree) > 50
+    ref = GridPatch.build_many(grid, [at.Rect(*(float(v) for v in r)) for r in tree.rects], 25, 0.5)
+    for i, q in enumerate(ref):
+        p = tree.patch(i)
+        assert type(p) is GridPatch and p.grid is grid
+        assert p.index == q.index and type(p.data_count) is int
+        np.testing.assert_array_equal(
+            [p.error, *p.z_range, p.data_count], [q.error, *q.z_range, q.data_count]
+        )
+        assert p.rect == q.rect and tree.patch(i) is p
+        np.testing.assert_array_equal(p.vertices, q.vertices)
+        np.testing.assert_array_equal(p.triangles, q.triangles)
+    assert table.held == len(tree)
+    np.testing.assert_array_equal(tree.errors, [q.error for q in ref])
+    np.testing.assert_array_equal(tree.bboxes[:, 2], [q.z_range[0] for q in ref])
+    np.testing.assert_array_equal(tree.bboxes[:, 5], [q.z_range[1] for q in ref])
+
+
+def test_patch_table_mixes_objects_and_grid_arrays():
+    """Levels held as objects and levels held as arrays: figures and strategy codes per node
+    equal those read from the objects, names in order of first use."""
+    from approxtree.tree.patch_table import PatchTable
+
+    grid = fractal_terrain(40, seed=6)
+    boxes = np.array([[0.0, 0.0, 200.0, 200.0], [150.0, 120.0, 390.0, 390.0]])
+    tins = GridTINPatch.build_level(grid, boxes, 25, 0.5)
+    arrays = GridPatch.build_level_arrays(grid, boxes[::-1], 25)
+    table = PatchTable([tins, arrays, tins[:1]])
+    objects = [*tins, *arrays.patches(), tins[0]]
+    assert len(table) == 5 and table.held == 3
+    names, codes = table.strategies()
+    assert names == ["tin", "grid"]
+    np.testing.assert_array_equal(codes, [0, 0, 1, 1, 0])
+    np.testing.assert_array_equal(table.errors(), [p.error for p in objects])
+    lo, hi = table.z_ranges()
+    np.testing.assert_array_equal(lo, [p.z_range[0] for p in objects])
+    np.testing.assert_array_equal(hi, [p.z_range[1] for p in objects])
+    assert table[2].index == objects[2].index and table[0] is tins[0]
+    assert table.records(np.array([2, 3])) is not None and table.records(np.array([1, 2])) is None

@@ -514,3 +514,31 @@ def test_stored_overview_feeds_the_normal_map(tmp_path, monkeypatch):
 
 def _no_terrain_reads(*args, **kwargs):
     raise AssertionError("the normal map read the stored terrain")
+
+
+def test_saving_a_grid_build_writes_records_from_its_arrays(tmp_path):
+    """A built grid tree's records come straight from its level arrays, equal to the records
+    of its patch objects; saving makes objects only for the coarse patches whose records carry
+    their lattice, and the store loads back node for node."""
+    from approxtree.patches.grid import LATTICE_STORED_STEP, GridPatch
+
+    h = np.array(fractal_terrain(300, seed=11).heights)
+    h[40:90, 200:260] = np.nan
+    terrain = at.Grid(h, fractal_terrain(300, seed=11).transform)
+    tree = ApproximationTree.build(terrain, epsilon=0.1, max_points=9)
+    table = tree._patches
+    steps = table.arrays.index[table.row, 4:]
+    coarse = int((steps.max(axis=1) >= LATTICE_STORED_STEP).sum())
+    assert table.held == 0 and coarse >= 5
+    tree.save(tmp_path / "t.zarr")
+    assert table.held == coarse
+    back = load_tree(tmp_path / "t.zarr")
+    nodes = np.random.default_rng(1).permutation(len(tree))[: len(tree) // 2]
+    batch = table.records(nodes)
+    ref = GridPatch.records_many([tree.patch(int(i)) for i in nodes])
+    assert batch.keys() == ref.keys()
+    for name, (flat, offsets) in ref.items():
+        np.testing.assert_array_equal(batch[name][0], flat, err_msg=name)
+        np.testing.assert_array_equal(batch[name][1], offsets, err_msg=name)
+        assert batch[name][0].dtype == flat.dtype, name
+    same_tree(tree, back)

@@ -78,6 +78,18 @@ class GeometryPatch(ABC):
         return cls.build_many(terrain, [Rect(*b) for b in boxes], max_points, epsilon)
 
     @classmethod
+    def build_level_table(
+        cls,
+        terrain: GeometryData,
+        rects: np.ndarray,
+        max_points: int,
+        epsilon: float = 0.0,
+    ) -> Sequence[GeometryPatch]:
+        """``build_level``, or the level's patches as a table of arrays where the strategy has
+        one (``GridPatchArrays``: a tree makes the objects on first access)."""
+        return cls.build_level(terrain, rects, max_points, epsilon)
+
+    @classmethod
     def build(
         cls, terrain: GeometryData, rect: Rect, max_points: int, epsilon: float = 0.0
     ) -> GeometryPatch:

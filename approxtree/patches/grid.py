@@ -121,8 +121,33 @@ class GridPatch(GeometryPatch):
         max_points: int,
         epsilon: float = 0.0,
     ) -> list[GeometryPatch]:
-        # The steps depend on s alone: a regular grid cannot stop early at epsilon.
         grid = cls._require_grid(terrain)
+        patches = cls.build_level_arrays(grid, rects, max_points).patches()
+        if terrain is not grid:
+            from approxtree.patches.refined import refine_grid_patches
+
+            refine_grid_patches(terrain, patches)  # type: ignore[arg-type]
+        return patches  # type: ignore[return-value]
+
+    @classmethod
+    def build_level_table(
+        cls,
+        terrain: GeometryData,
+        rects: np.ndarray,
+        max_points: int,
+        epsilon: float = 0.0,
+    ) -> Sequence[GeometryPatch] | GridPatchArrays:  # type: ignore[override]
+        # A refined grid re-measures its patches: objects; a plain grid keeps arrays.
+        grid = cls._require_grid(terrain)
+        if terrain is not grid:
+            return cls.build_level(terrain, rects, max_points, epsilon)
+        return cls.build_level_arrays(grid, rects, max_points)
+
+    @classmethod
+    def build_level_arrays(cls, grid: Grid, rects: np.ndarray, max_points: int) -> GridPatchArrays:
+        """The grid patches of a level's (k, 4) float64 rectangles over ``grid``, as arrays
+        (no object per node: ``GridPatchArrays.patch`` makes one on demand)."""
+        # The steps depend on s alone: a regular grid cannot stop early at epsilon.
         k = math.isqrt(max_points)
         ranges = grid.index_ranges(rects)
         # grid_steps of every range at once: ceil((lines − 1) / (k − 1)), at least 1.
@@ -140,14 +165,9 @@ class GridPatch(GeometryPatch):
             error, zmin, zmax, count = grid_patch_errors(readonly(heights), ranges, steps)
         finally:
             numba.set_num_threads(threads)
-        patches = cls.from_arrays(
-            grid, rects, np.column_stack([ranges, steps]), error, zmin, zmax, count
-        )
-        if terrain is not grid:
-            from approxtree.patches.refined import refine_grid_patches
-
-            refine_grid_patches(terrain, patches)  # type: ignore[arg-type]
-        return patches  # type: ignore[return-value]
+        index = np.column_stack([ranges, steps])
+        rects = np.asarray(rects, dtype=np.float64).reshape(-1, 4)
+        return GridPatchArrays(grid, rects, index, error, zmin, zmax, count)
 
     @classmethod
     def from_arrays(
@@ -389,6 +409,89 @@ def _lattices_many(
     offsets = np.zeros(k + 1, dtype=np.int64)
     np.cumsum(sizes, out=offsets[1:])
     return flat, offsets
+
+
+class GridPatchArrays:
+    """The grid patches of k nodes as arrays (a level of a build): Python runs per level, and
+    a node's GridPatch is made only when asked for (``patch``).
+
+    rects: (k, 4) float64 D_N; index: (k, 6) int64 (r0, r1, c0, c1, sr, sc) over ``grid``;
+    error, zmin, zmax: (k,) float64; count: (k,) int64 valid data points.
+    """
+
+    kind = GridPatch.kind
+
+    def __init__(
+        self,
+        grid: Grid,
+        rects: np.ndarray,
+        index: np.ndarray,
+        error: np.ndarray,
+        zmin: np.ndarray,
+        zmax: np.ndarray,
+        count: np.ndarray,
+    ) -> None:
+        self.grid = grid
+        self.rects = rects
+        self.index = index
+        self.error = error
+        self.zmin = zmin
+        self.zmax = zmax
+        self.count = count
+
+    def __len__(self) -> int:
+        return len(self.error)
+
+    @classmethod
+    def concat(cls, parts: Sequence[GridPatchArrays]) -> GridPatchArrays:
+        """One table of the rows of ``parts`` (all over the same grid), in order."""
+        grids = {id(p.grid) for p in parts}
+        if len(grids) != 1:
+            raise ValueError("GridPatchArrays.concat needs parts over one grid")
+        return cls(
+            parts[0].grid,
+            *(np.concatenate([getattr(p, f) for p in parts]) for f in cls._fields),
+        )
+
+    _fields = ("rects", "index", "error", "zmin", "zmax", "count")
+
+    def patch(self, i: int) -> GridPatch:
+        """Row i's GridPatch (equal to the one ``patches`` makes)."""
+        rows = slice(i, i + 1)
+        return GridPatch.from_arrays(self.grid, *(getattr(self, f)[rows] for f in self._fields))[0]
+
+    def patches(self) -> list[GridPatch]:
+        """Every row's GridPatch, in order."""
+        return GridPatch.from_arrays(self.grid, *(getattr(self, f) for f in self._fields))
+
+    def coarse(self, rows: np.ndarray | None = None) -> np.ndarray:
+        """(j,) int64 positions in ``rows`` (default: every row) of the patches whose records
+        carry their lattice heights (``stores_lattice``)."""
+        steps = self.index[:, 4:] if rows is None else self.index[rows, 4:]
+        return np.flatnonzero(steps.max(axis=1, initial=0) >= LATTICE_STORED_STEP)
+
+    def records(self, rows: np.ndarray, lattices: Sequence[GridPatch]) -> Batch:
+        """The batch of records of ``rows`` (k,), equal to ``GridPatch.records_many`` of their
+        patches; ``lattices``: the patches of the rows among them that store their lattice
+        (``coarse``), in the same order (their heights are read through them)."""
+        rows = np.asarray(rows, dtype=np.int64)
+        k = len(rows)
+        index = np.ascontiguousarray(self.index[rows], dtype="<i8").reshape(-1)
+        stats = np.empty((k, 4), dtype="<f8")
+        stats[:, 0] = self.error[rows]
+        stats[:, 1] = self.zmin[rows]
+        stats[:, 2] = self.zmax[rows]
+        stats[:, 3] = self.count[rows]
+        at = self.coarse(rows)
+        held: list[GridPatch | None] = [None] * k
+        for j, p in zip(at.tolist(), lattices, strict=True):
+            held[j] = p
+        width = np.arange(k + 1, dtype=np.int64)
+        return {
+            "index": (index, width * 6),
+            "stats": (stats.reshape(-1), width * 4),
+            "z": _lattices_many(held, at.tolist()),  # type: ignore[arg-type]
+        }
 
 
 def _uniform_counts(rows: int, cols: int, step: int) -> tuple[int, int]:

@@ -22,6 +22,7 @@ from approxtree.patches import STRATEGIES, GeometryPatch, patch_class
 from approxtree.progress import ProgressCallback, as_callback
 from approxtree.tree.builder import build_levels
 from approxtree.tree.node import Node
+from approxtree.tree.patch_table import as_table
 from approxtree.tree.policy import StrategyPolicy
 from approxtree.tree.store import TreeFile, is_legacy_file, is_legacy_path, write_tree_file
 
@@ -203,23 +204,24 @@ class ApproximationTree:
         policy_obj: StrategyPolicy,
     ) -> ApproximationTree:
         """The tree of the nodes of a build (``build``)."""
-        n = len(built.patches)
-        names = list(dict.fromkeys(p.kind for p in built.patches))
+        # Figures straight from the build's arrays: no patch object is made here.
+        table = as_table(built.patches)
+        n = len(table)
+        names, strategies = table.strategies()
         bboxes = np.empty((n, 6))
         rects = np.asarray(built.rects, dtype=np.float64).reshape(n, 4)
         bboxes[:, [0, 1, 3, 4]] = rects
-        bboxes[:, 2] = [p.z_range[0] for p in built.patches]
-        bboxes[:, 5] = [p.z_range[1] for p in built.patches]
+        bboxes[:, 2], bboxes[:, 5] = table.z_ranges()
         tree = cls(
             terrain,
             rects=rects,
-            errors=np.array([p.error for p in built.patches], dtype=np.float64),
+            errors=table.errors(),
             bboxes=bboxes,
             levels=np.array(built.levels, dtype=np.int32),
             parents=np.array(built.parents, dtype=np.int64),
             child_start=np.array(built.child_start, dtype=np.int64),
             child_count=np.array(built.child_count, dtype=np.int64),
-            strategies=np.array([names.index(p.kind) for p in built.patches], dtype=np.uint8),
+            strategies=strategies,
             strategy_names=names,
             params={
                 "epsilon": float(epsilon),
@@ -227,7 +229,7 @@ class ApproximationTree:
                 "fanout": int(fanout),
                 "policy": policy_obj.name,
             },
-            patches=list(built.patches),
+            patches=table,  # type: ignore[arg-type]
         )
         tree.build_seconds = built.seconds
         return tree

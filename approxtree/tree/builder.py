@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -17,8 +18,10 @@ from approxtree.errors import InvalidParameterError, UnsupportedStrategyError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
 from approxtree.patches.base import GeometryPatch
+from approxtree.patches.grid import GridPatchArrays
 from approxtree.patches.table import patch_class
 from approxtree.progress import ProgressCallback, no_progress
+from approxtree.tree.patch_table import PatchTable
 from approxtree.tree.policy import StrategyPolicy
 from approxtree.tree.subdivision import FANOUTS, subdivide_level
 
@@ -28,11 +31,12 @@ class BuiltLevels:
     """The flat arrays of a freshly built tree (see ApproximationTree for their meaning).
 
     rects: (n, 4) float64; levels, parents, child_start, child_count: (n,) int64; patches: the
-    n patch objects, in the same breadth-first order.
+    n patches in the same breadth-first order (a list, or a PatchTable that makes the objects
+    of grid patches on first access).
     """
 
     rects: np.ndarray = field(default_factory=lambda: np.empty((0, 4)))
-    patches: list[GeometryPatch] = field(default_factory=list)
+    patches: Sequence[GeometryPatch] | PatchTable = field(default_factory=list)
     levels: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
     parents: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
     child_start: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
@@ -61,18 +65,19 @@ def _build_level(
     rects: np.ndarray,
     max_points: int,
     epsilon: float,
-) -> list[GeometryPatch]:
+) -> Sequence[GeometryPatch] | GridPatchArrays:
     """The patch of every node of one level, as the policy chooses among its candidates.
 
     rects: (k, 4) float64 rectangles of the level's nodes. Python runs per group of nodes
     sharing their candidates and per strategy; the strategies build whole arrays of nodes.
+    A level of one strategy that keeps arrays (grid patches) comes back as its table.
     """
     k = len(rects)
     groups = policy.candidates_level(terrain, level, rects)
     if len(groups) == 1 and len(groups[0][0]) == 1:
         # The common case: one strategy for the whole level.
         name = groups[0][0][0]
-        return patch_class(terrain, name).build_level(terrain, rects, max_points, epsilon)
+        return patch_class(terrain, name).build_level_table(terrain, rects, max_points, epsilon)
     # Candidate names per node, strategies in the order the nodes first name them.
     wanted: list[tuple[str, ...]] = [()] * k
     for names, idx in groups:
@@ -144,10 +149,13 @@ def build_levels(
     level = int(root_level)
     first = 0
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("rects", "levels", "parents", "cs", "cc")}
-    patches_out: list[GeometryPatch] = []
+    patches_out: list[Sequence[GeometryPatch] | GridPatchArrays] = []
     while len(rects):
         patches = _build_level(terrain, policy, level, rects, max_points, epsilon)
-        errors = np.fromiter((p.error for p in patches), dtype=np.float64, count=len(patches))
+        if isinstance(patches, GridPatchArrays):
+            errors = patches.error
+        else:
+            errors = np.fromiter((p.error for p in patches), dtype=np.float64, count=len(patches))
         split = np.flatnonzero(errors > epsilon)
         children, counts = subdivide_level(terrain, rects[split], fanout)
         count = np.zeros(len(rects), dtype=np.int64)
@@ -160,7 +168,7 @@ def build_levels(
         parts["parents"].append(parents)
         parts["cs"].append(start)
         parts["cc"].append(count)
-        patches_out.extend(patches)
+        patches_out.append(patches)
         leaf = count == 0
         if leaf.any():
             r = rects[leaf]
@@ -179,7 +187,7 @@ def build_levels(
         report(done, total)
     out = BuiltLevels(
         rects=np.concatenate(parts["rects"]),
-        patches=patches_out,
+        patches=PatchTable(patches_out),
         levels=np.concatenate(parts["levels"]),
         parents=np.concatenate(parts["parents"]),
         child_start=np.concatenate(parts["cs"]),

@@ -190,7 +190,12 @@ def _lattice_tap(tree: ApproximationTree) -> _LatticeTap | None:
     grid = tree.terrain
     if not getattr(grid, "is_windowed", False) or grid.index_offset != (0, 0):
         return None
+    from approxtree.tree.patch_table import PatchTable
+
     held = tree._patches
+    if isinstance(held, PatchTable):
+        # Only the coarse patches store a lattice: no object for the others.
+        held = held.lattice_holders()
     wanted = [
         p
         for p in held
@@ -256,8 +261,16 @@ def _write_batch(group: Any, batch: Batch) -> dict[str, int | None]:
 
 def _tree_batch(tree: ApproximationTree, nodes: np.ndarray, strategy: str) -> Batch:
     """The records of ``nodes`` (one strategy, storage order), from wherever they are."""
+    from approxtree.tree.patch_table import PatchTable
+
     source = tree._source
-    loaded = [tree._patches[i] for i in nodes]
+    held = tree._patches
+    if isinstance(held, PatchTable):
+        # A built tree's grid patches: records straight from its arrays, no object per node.
+        batch = held.records(nodes)
+        if batch is not None:
+            return batch
+    loaded = [held[i] for i in nodes]
     if all(p is not None for p in loaded):
         # One patch class per strategy and terrain: its batched gather; else record by record.
         classes = {type(p) for p in loaded}
