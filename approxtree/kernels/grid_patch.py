@@ -189,8 +189,8 @@ def _block_fill(heights, p, r, c0, rb, re, cb, ce, cend, vrow, sr, sc, kr, kc, t
 
 
 @njit(cache=True)
-def _rows_range(heights, a0, a1, c0, c1):
-    """(0, zmin, zmax, count) of rows a0 .. a1 × columns c0 .. c1 (a patch of step 1)."""
+def _rows_range_scalar(heights, a0, a1, c0, c1):
+    """``_rows_range`` point by point (narrow patches)."""
     zmin = np.inf
     zmax = -np.inf
     count = 0
@@ -204,6 +204,42 @@ def _rows_range(heights, a0, a1, c0, c1):
                 if z > zmax:
                     zmax = z
     return 0.0, zmin, zmax, count
+
+
+@njit(cache=True)
+def _rows_range(heights, a0, a1, c0, c1):
+    """(0, zmin, zmax, count) of rows a0 .. a1 × columns c0 .. c1 (a patch of step 1).
+
+    Per-column minima, maxima and counts in the raster's dtype, element-wise (so the row loop
+    vectorises), reduced at the end.
+    """
+    w = c1 - c0 + 1
+    if w < 32:
+        # Narrow: the per-column set-up costs more than it saves.
+        return _rows_range_scalar(heights, a0, a1, c0, c1)
+    lo = np.full(w, np.inf, dtype=heights.dtype)
+    hi = np.full(w, -np.inf, dtype=heights.dtype)
+    n = np.zeros(w, dtype=np.int64)
+    for r in range(a0, a1 + 1):
+        # A row view indexed from 0: no negative-index wrap test, so the loop vectorises.
+        zrow = heights[r, c0 : c0 + w]
+        for j in range(w):
+            z = zrow[j]
+            lo[j] = z if z < lo[j] else lo[j]
+            hi[j] = z if z > hi[j] else hi[j]
+            n[j] += z == z
+    zmin = np.inf
+    zmax = -np.inf
+    count = 0
+    for j in range(w):
+        zmin = min(zmin, lo[j])
+        zmax = max(zmax, hi[j])
+        count += n[j]
+    return 0.0, zmin, zmax, count
+
+
+# Block width from which a row's heights are filled block by block (else offset by offset).
+_WIDE = 16
 
 
 @njit(cache=True)
@@ -233,11 +269,19 @@ def _patch_rows_error(heights, r0, r1, c0, c1, sr, sc, k_lo, k_hi):
     wl = c1 - (c0 + (nbc - 1) * sc)
     f_full = _fractions(sc)
     f_last = _fractions(wl)
-    nfull = nbc - 1
+    # Full-width blocks go through the row fill; a narrower last block goes block by block.
+    nfull = nbc if wl == sc else nbc - 1
     # Corners of the block row (top and bottom sampled lines), in the raster's dtype.
     top = np.empty(nbc + 1, dtype=heights.dtype)
     bot = np.empty(nbc + 1, dtype=heights.dtype)
     plain = np.empty(nbc, dtype=np.bool_)
+    # Per full block: the row's constant terms of _block_value (aB, cA) and its corner
+    # differences (dB, dA), so a point costs one multiply and one or two adds.
+    a_b = np.empty(max(nfull, 1))
+    d_b = np.empty(max(nfull, 1))
+    z_a = np.empty(max(nfull, 1))
+    d_a = np.empty(max(nfull, 1))
+    c_a = np.empty(max(nfull, 1))
     # p: the patch's height along the row, NaN where the point is not measured here.
     p = np.empty(w)
     col_err = np.zeros(w)
@@ -260,6 +304,11 @@ def _patch_rows_error(heights, r0, r1, c0, c1, sr, sc, k_lo, k_hi):
                 _plain(top[kc]) and _plain(top[kc + 1]) and _plain(bot[kc]) and _plain(bot[kc + 1])
             )
             rough |= not plain[kc]
+        for kc in range(nfull):
+            # Differences in the raster's dtype, as _block_value takes them.
+            d_b[kc] = bot[kc + 1] - bot[kc]
+            d_a[kc] = top[kc + 1] - top[kc]
+            z_a[kc] = top[kc]
         for r in range(rb, rend + 1):
             dr = r - rb
             vrow = dr == 0 or r == re
@@ -267,26 +316,48 @@ def _patch_rows_error(heights, r0, r1, c0, c1, sr, sc, k_lo, k_hi):
             # Triangle B (00, 11, 10) before offset t, triangle A (00, 01, 11) from t on.
             t_full = (dr * sc + hr - 1) // hr
             t_last = (dr * wl + hr - 1) // hr
-            for dc in range(sc):
-                f = f_full[dc]
-                if dc < t_full:
-                    for kc in range(nfull):
-                        z00 = top[kc]
-                        p[kc * sc + dc] = z00 + fr * (bot[kc] - z00) + f * (bot[kc + 1] - bot[kc])
-                else:
-                    for kc in range(nfull):
-                        z00 = top[kc]
-                        p[kc * sc + dc] = (
-                            z00 + f * (top[kc + 1] - z00) + fr * (bot[kc + 1] - top[kc + 1])
-                        )
+            for kc in range(nfull):
+                # _block_value's operands and order: B = (z00 + fr·(z10 − z00)) + f·(z11 − z10),
+                # A = (z00 + f·(z01 − z00)) + fr·(z11 − z01).
+                z00 = top[kc]
+                a_b[kc] = z00 + fr * (bot[kc] - z00)
+                c_a[kc] = fr * (bot[kc + 1] - top[kc + 1])
+            if sc >= _WIDE:
+                # Wide blocks: contiguous runs per block.
+                for kc in range(nfull):
+                    base = kc * sc
+                    a = a_b[kc]
+                    d = d_b[kc]
+                    for dc in range(t_full):
+                        p[base + dc] = a + f_full[dc] * d
+                    z = z_a[kc]
+                    d = d_a[kc]
+                    c = c_a[kc]
+                    for dc in range(t_full, sc):
+                        p[base + dc] = z + f_full[dc] * d + c
+            else:
+                # Narrow blocks: offset by offset, a loop over the blocks each.
+                for dc in range(sc):
+                    f = f_full[dc]
+                    if dc < t_full:
+                        for kc in range(nfull):
+                            p[kc * sc + dc] = a_b[kc] + f * d_b[kc]
+                    else:
+                        for kc in range(nfull):
+                            p[kc * sc + dc] = z_a[kc] + f * d_a[kc] + c_a[kc]
+            if nfull == nbc:
+                # The last column (offset sc of the last block, which keeps it): triangle A.
+                p[w - 1] = z_a[nbc - 1] + f_full[sc] * d_a[nbc - 1] + c_a[nbc - 1]
             if vrow:
                 # Patch vertices are reproduced exactly.
                 for kc in range(nfull):
                     p[kc * sc] = np.nan
+                p[w - 1] = np.nan
             if rough:
                 for kc in range(nfull):
                     if not plain[kc]:
                         cb = c0 + kc * sc
+                        last = kc == nbc - 1
                         e = _block_fill(
                             heights,
                             p,
@@ -295,8 +366,8 @@ def _patch_rows_error(heights, r0, r1, c0, c1, sr, sc, k_lo, k_hi):
                             rb,
                             re,
                             cb,
-                            cb + sc,
-                            cb + sc - 1,
+                            c1 if last else cb + sc,
+                            c1 if last else cb + sc - 1,
                             vrow,
                             sr,
                             sc,
@@ -306,11 +377,12 @@ def _patch_rows_error(heights, r0, r1, c0, c1, sr, sc, k_lo, k_hi):
                             f_full,
                         )
                         err = max(err, e)
-            cb = c0 + nfull * sc
-            e = _block_fill(
-                heights, p, r, c0, rb, re, cb, c1, c1, vrow, sr, sc, kr, nfull, t_last, f_last
-            )
-            err = max(err, e)
+            if nfull < nbc:
+                cb = c0 + nfull * sc
+                e = _block_fill(
+                    heights, p, r, c0, rb, re, cb, c1, c1, vrow, sr, sc, kr, nfull, t_last, f_last
+                )
+                err = max(err, e)
             _fold_row(heights, r, c0, p, col_err, col_min, col_max, col_count)
     zmin = np.inf
     zmax = -np.inf
