@@ -542,3 +542,18 @@ def test_saving_a_grid_build_writes_records_from_its_arrays(tmp_path):
         np.testing.assert_array_equal(batch[name][1], offsets, err_msg=name)
         assert batch[name][0].dtype == flat.dtype, name
     same_tree(tree, back)
+
+
+def test_two_saves_of_a_tree_are_byte_identical(tmp_path):
+    """Every file of a store, the root zarr.json included (its metadata checksums are listed
+    by path), is the same byte for byte when the same tree is saved twice."""
+    tree = ApproximationTree.build(fractal_terrain(130, seed=12), epsilon=0.5, max_points=25)
+    stores = [tmp_path / "a.zarr", tmp_path / "b.zarr"]
+    for path in stores:
+        tree.save(path)
+    files = [sorted(p.relative_to(s) for p in s.rglob("*") if p.is_file()) for s in stores]
+    assert files[0] == files[1] and Path("zarr.json") in files[0]
+    for name in files[0]:
+        assert (stores[0] / name).read_bytes() == (stores[1] / name).read_bytes(), name
+    sums = json.loads((stores[0] / "zarr.json").read_text())["attributes"]["metadata_crc32c"]
+    assert list(sums) == sorted(sums)

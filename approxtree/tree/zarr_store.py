@@ -192,7 +192,9 @@ def _metadata_crc(node: Any) -> int:
 
 def _commit(root: Any, meta: dict[str, Any]) -> None:
     """Write the root attributes last: format, version, meta, metadata checksums."""
+    # Sorted by path: zarr lists members in no fixed order, and a store should be byte-stable.
     sums = {path: _metadata_crc(node) for path, node in root.members(max_depth=None)}
+    sums = dict(sorted(sums.items()))
     root.attrs.update(
         {"format": FORMAT, "format_version": FORMAT_VERSION, "meta": meta, "metadata_crc32c": sums}
     )
