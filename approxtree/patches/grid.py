@@ -457,12 +457,26 @@ class GridPatchArrays:
 
     def patch(self, i: int) -> GridPatch:
         """Row i's GridPatch (equal to the one ``patches`` makes)."""
-        rows = slice(i, i + 1)
-        return GridPatch.from_arrays(self.grid, *(getattr(self, f)[rows] for f in self._fields))[0]
+        p = object.__new__(GridPatch)
+        p.__dict__.update(
+            grid=self.grid,
+            _rect=None,
+            _box=self.rects[i].tolist(),
+            index=tuple(self.index[i].tolist()),
+            error=float(self.error[i]),
+            z_range=(float(self.zmin[i]), float(self.zmax[i])),
+            data_count=int(self.count[i]),
+            _mesh=None,
+            _lattice_z=None,
+        )
+        return p
 
-    def patches(self) -> list[GridPatch]:
-        """Every row's GridPatch, in order."""
-        return GridPatch.from_arrays(self.grid, *(getattr(self, f) for f in self._fields))
+    def patches(self, rows: np.ndarray | None = None) -> list[GridPatch]:
+        """The GridPatch of every row (or of ``rows``), in order."""
+        cols = [getattr(self, f) for f in self._fields]
+        if rows is not None:
+            cols = [c[rows] for c in cols]
+        return GridPatch.from_arrays(self.grid, *cols)
 
     def coarse(self, rows: np.ndarray | None = None) -> np.ndarray:
         """(j,) int64 positions in ``rows`` (default: every row) of the patches whose records

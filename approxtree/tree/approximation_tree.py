@@ -341,6 +341,9 @@ class ApproximationTree:
             "child_count": self.child_count,
             "strategies": self.strategies,
         }
+        fill = getattr(self._patches, "fill", None)
+        if fill is not None:
+            fill()  # a built tree's patch objects, in one batch
         patches = [({}, self.patch(i).to_record()) for i in range(len(self))]
         return write_tree_file(
             path,

@@ -33,6 +33,7 @@ from approxtree.patches.grid import GridPatch, grid_steps
 from approxtree.patches.table import patch_class
 from approxtree.progress import ProgressCallback, no_progress
 from approxtree.tree.builder import BuiltLevels, build_levels, validate_parameters
+from approxtree.tree.patch_table import PatchTable
 from approxtree.tree.policy import StrategyPolicy
 from approxtree.tree.subdivision import subdivide
 
@@ -315,15 +316,30 @@ def run_block(task: BlockTask) -> BlockResult:
             if close is not None:
                 close()
     n = len(built.patches)
-    # Grid patches (most nodes) travel as two arrays rather than one record each.
-    is_grid = [type(p) is GridPatch for p in built.patches]
-    grid_patches = [p for p, g in zip(built.patches, is_grid, strict=True) if g]
     offset = np.array(grid.index_offset, dtype=np.int64).repeat(2)  # r, r, c, c
-    grid_index = np.array([p.index for p in grid_patches], dtype=np.int64).reshape(-1, 6)
+    table = built.patches
+    if isinstance(table, PatchTable) and table.arrays is not None and (table.row >= 0).all():
+        # A block of grid levels: its arrays as they are, no patch object.
+        a = table.arrays
+        rows = table.row
+        is_grid = [True] * n
+        grid_index = np.array(a.index[rows], dtype=np.int64).reshape(-1, 6)
+        grid_stats = np.column_stack([a.error[rows], a.zmin[rows], a.zmax[rows], a.count[rows]])
+    else:
+        # Grid patches (most nodes) travel as two arrays rather than one record each.
+        is_grid = [type(p) is GridPatch for p in built.patches]
+        grid_patches = [p for p, g in zip(built.patches, is_grid, strict=True) if g]
+        grid_index = np.array([p.index for p in grid_patches], dtype=np.int64).reshape(-1, 6)
+        grid_stats = np.array(
+            [(p.error, *p.z_range, p.data_count) for p in grid_patches], dtype=np.float64
+        ).reshape(-1, 4)
     grid_index[:, :4] += offset
-    grid_stats = np.array(
-        [(p.error, *p.z_range, p.data_count) for p in grid_patches], dtype=np.float64
-    ).reshape(-1, 4)
+    kinds = [GridPatch.kind] * n if all(is_grid) else [p.kind for p in built.patches]
+    records = (
+        [None] * n
+        if all(is_grid)
+        else [None if g else p.to_record() for p, g in zip(built.patches, is_grid, strict=True)]
+    )
     return BlockResult(
         block=task.block,
         rects=np.asarray(built.rects, dtype=np.float64).reshape(n, 4),
@@ -331,8 +347,8 @@ def run_block(task: BlockTask) -> BlockResult:
         parents=np.array(built.parents, dtype=np.int64),
         child_start=np.array(built.child_start, dtype=np.int64),
         child_count=np.array(built.child_count, dtype=np.int64),
-        kinds=[p.kind for p in built.patches],
-        records=[None if g else p.to_record() for p, g in zip(built.patches, is_grid, strict=True)],
+        kinds=kinds,
+        records=records,
         grid_index=grid_index,
         grid_stats=grid_stats,
         ancestors=stats,

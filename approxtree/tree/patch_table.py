@@ -63,8 +63,19 @@ class PatchTable:
         self._held[i] = patch
 
     def __iter__(self) -> Iterator[GeometryPatch | None]:
-        for i in range(len(self)):
-            yield self[i]
+        self.fill()
+        return iter(list(self._held))
+
+    def fill(self) -> None:
+        """Make every patch not held yet, in one batch (before visiting all of them)."""
+        if self.arrays is None:
+            return
+        held = self._held
+        missing = [i for i in np.flatnonzero(self.row >= 0).tolist() if held[i] is None]
+        if missing:
+            made = self.arrays.patches(self.row[missing])
+            for i, p in zip(missing, made, strict=True):
+                held[i] = p
 
     # -- figures of every node, from the arrays where they are -------------------------------
 
