@@ -233,6 +233,11 @@ def test_grid_levels_make_patch_objects_only_when_asked():
         np.testing.assert_array_equal(p.vertices, q.vertices)
         np.testing.assert_array_equal(p.triangles, q.triangles)
     assert table.held == len(tree)
+    again = ApproximationTree.build(grid, epsilon=0.5, max_points=25, progress=False)
+    listed = list(again._patches)  # every object made in one batch
+    assert again._patches.held == len(tree)
+    assert [p.index for p in listed] == [q.index for q in ref]
+    assert [p.rect for p in listed] == [q.rect for q in ref]
     np.testing.assert_array_equal(tree.errors, [q.error for q in ref])
     np.testing.assert_array_equal(tree.bboxes[:, 2], [q.z_range[0] for q in ref])
     np.testing.assert_array_equal(tree.bboxes[:, 5], [q.z_range[1] for q in ref])
