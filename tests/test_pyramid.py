@@ -164,6 +164,33 @@ def test_uint8_halving_equals_the_float64_filter_on_every_texel(shape):
         np.testing.assert_array_equal(np.moveaxis(got, 0, -1), want)
 
 
+@pytest.mark.parametrize("bands", [2, 4])
+@pytest.mark.parametrize("shape", [(2, 2), (9, 7), (64, 33), (6, 1001), (512, 130)])
+def test_uint8_halving_of_mostly_opaque_planes_equals_the_float64_filter(shape, bands):
+    """Mostly opaque planes (a hillshade: transparent border, a few holes) take the plain
+    mean of four and redo only the texels with a non-opaque alpha among their four: every
+    texel is still the float64 formula's, for grey + alpha and RGBA, odd sizes included."""
+    from approxtree.kernels.rgba import halve_bands
+
+    rng = np.random.default_rng(shape[0] * 1000 + shape[1] + bands)
+    for _ in range(10):
+        a = np.zeros((*shape, 4), np.uint8)
+        a[..., :3] = rng.integers(0, 256, (*shape, 3))
+        if bands == 2:
+            a[..., 1] = a[..., 2] = a[..., 0]
+        a[..., 3] = 255
+        # Transparent border columns, and scattered partial or transparent texels.
+        a[:, 0, 3] = a[:, -1, 3] = 0
+        holes = rng.random(shape) < 0.02
+        a[..., 3][holes] = rng.choice([0, 1, 2, 127, 128, 253, 254], size=int(holes.sum()))
+        want = _halve_reference(a)
+        planes = np.moveaxis(a, -1, 0)[[0, 3]] if bands == 2 else np.moveaxis(a, -1, 0)
+        got = np.empty((bands, *want.shape[:2]), np.uint8)
+        halve_bands(np.ascontiguousarray(planes), got)
+        expected = np.moveaxis(want, -1, 0)[[0, 3]] if bands == 2 else np.moveaxis(want, -1, 0)
+        np.testing.assert_array_equal(got, expected)
+
+
 def test_patches_cover_their_node_with_power_of_two_sizes(pyramid, terrain):
     """Per node: power-of-two size within the limit, covers D_N, finest level that fits."""
     tree = ApproximationTree.build(terrain, epsilon=2.0, max_points=33 * 33)
