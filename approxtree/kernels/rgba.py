@@ -56,6 +56,10 @@ def grey_into_bands(grey: np.ndarray, out: np.ndarray) -> None:
             out[3, r, c] = 255 if g > 0 else 0
 
 
+#: Pairs of columns whose alphas ``halve_bands`` tests at once.
+_BLOCK = 64
+
+
 @njit(cache=True, inline="always")
 def _halve_texel(src, out, alpha, i, j, r0, r1, cols):
     """Texel (i, j) of ``halve_bands`` from rows r0, r1 of ``src``: the alpha-weighted mean."""
@@ -98,8 +102,6 @@ def halve_bands(src: np.ndarray, out: np.ndarray) -> None:
     rows, cols = src.shape[1], src.shape[2]
     out_rows, out_cols = out.shape[1], out.shape[2]
     pairs = cols // 2
-    # Output columns to redo with the alpha weights (one row's worth).
-    redo = np.empty(out_cols, dtype=np.int64)
     for i in range(out_rows):
         # An odd last row or column pairs with itself.
         r0 = 2 * i
@@ -120,20 +122,24 @@ def halve_bands(src: np.ndarray, out: np.ndarray) -> None:
                 o[j] = np.uint8(
                     (s + np.uint16(1) + ((s >> np.uint16(2)) & np.uint16(1))) >> np.uint16(2)
                 )
-        # Then the texels that are not (a transparent or partial alpha among the four), and an
-        # odd last column, with the weights: gathered first, so the scan stays a tight loop.
+        # Then, with the weights, the texels that are not (a transparent or partial alpha
+        # among the four): found by blocks of _BLOCK pairs, each tested at once in a
+        # vectorized loop, so only a block holding one is scanned texel by texel.
         a0 = src[alpha, r0]
         a1 = src[alpha, r1]
-        n = 0
-        for j in range(pairs):
-            if a0[2 * j] & a0[2 * j + 1] & a1[2 * j] & a1[2 * j + 1] != 255:
-                redo[n] = j
-                n += 1
+        for b0 in range(0, pairs, _BLOCK):
+            b1 = min(b0 + _BLOCK, pairs)
+            opaque = np.uint8(255)
+            for j in range(b0, b1):
+                opaque &= a0[2 * j] & a0[2 * j + 1] & a1[2 * j] & a1[2 * j + 1]
+            if opaque == 255:
+                continue
+            for j in range(b0, b1):
+                if a0[2 * j] & a0[2 * j + 1] & a1[2 * j] & a1[2 * j + 1] != 255:
+                    _halve_texel(src, out, alpha, i, j, r0, r1, cols)
+        # An odd last column.
         for j in range(pairs, out_cols):
-            redo[n] = j
-            n += 1
-        for m in range(n):
-            _halve_texel(src, out, alpha, i, redo[m], r0, r1, cols)
+            _halve_texel(src, out, alpha, i, j, r0, r1, cols)
 
 
 @njit(cache=True)
