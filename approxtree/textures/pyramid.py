@@ -124,9 +124,10 @@ def _write_level(
     # GDAL writes (and compresses) a strip and halves it on a writer thread, without the GIL,
     # while this thread makes the next ones; up to _WRITE_AHEAD strips wait in its queue.
     pending: deque[Future] = deque()
+    ring: list[np.ndarray | None] = [None] * (_WRITE_AHEAD + 1)
     with rasterio.open(path, "w", **profile) as ds, ThreadPoolExecutor(1) as writer:
         ds.update_tags(**{_TAG_BUILD: build, _TAG_LEVEL: str(level)})
-        for strip in strips:
+        for index, strip in enumerate(strips):
             n = strip.shape[1] if strip.ndim == 3 else 0
             if strip.ndim != 3 or strip.shape[::2] != (bands, cols) or strip.dtype != np.uint8:
                 raise InvalidParameterError(
@@ -137,11 +138,16 @@ def _write_level(
                 raise InvalidParameterError(
                     f"Texture strips must have an even number of rows and cover {rows} rows."
                 )
-            # A strip is valid until the next is asked for: the writer gets its own copy.
-            strip = np.array(strip, order="C")
             if len(pending) == _WRITE_AHEAD:
                 _keep(pending.popleft().result(), halved)
-            pending.append(writer.submit(_write_and_halve, ds, strip, r0, halved is not None))
+            # A strip is valid until the next is asked for: the writer gets its own copy, in
+            # a ring of _WRITE_AHEAD + 1 buffers (reused rather than faulted in afresh; the
+            # slot's last strip was written when the oldest pending write was waited for).
+            slot = index % len(ring)
+            if ring[slot] is None or ring[slot].shape != strip.shape:
+                ring[slot] = np.empty(strip.shape, dtype=np.uint8)
+            np.copyto(ring[slot], strip)
+            pending.append(writer.submit(_write_and_halve, ds, ring[slot], r0, halved is not None))
             if on_rows is not None:
                 on_rows(n)
             r0 += n
