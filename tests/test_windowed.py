@@ -602,7 +602,7 @@ def test_windowed_fill_equals_the_whole_band_fill(data_dir, relative):
 def test_read_into_fills_a_reused_buffer_like_read(tmp_path, case):
     """``RasterSource.read_into`` writes the window into the caller's buffer (returned as
     is) with ``read``'s values: nodata, masked cells and infinities of either sign as NaN,
-    huge finite heights kept (their sum overflows, yet nothing finite turns NaN)."""
+    huge finite heights kept."""
     import rasterio
 
     z = _synthetic(300, 260, seed=3)

@@ -190,11 +190,8 @@ class RasterSource:
         else:
             np.copyto(out, np.ma.getdata(values), casting="unsafe")
             np.copyto(out, np.nan, where=np.ma.getmaskarray(values))
-        # Infinities are nodata too; looked for only when the sum is not finite (a NaN, an
-        # infinity, or an overflow: one pass where the extremes took two).
-        with np.errstate(over="ignore", invalid="ignore"):
-            total = out.sum()
-        if out.size and not np.isfinite(total):
+        # Infinities are nodata too; looked for only when an extreme is not finite.
+        if out.size and not (np.isfinite(out.min()) and np.isfinite(out.max())):
             np.copyto(out, np.nan, where=np.isinf(out))
         return out
 
