@@ -437,3 +437,47 @@ def test_pyramid_files_get_umask_permissions_and_the_folder_keeps_its_mode(tmp_p
         assert mode(folder) == 0o750
     finally:
         os.umask(saved)
+
+
+def test_coarser_levels_are_written_while_level_0_is_made(tmp_path):
+    """Levels stream: each halving goes on to the next level's writer at once, so a texture
+    that holds back its last strip until a coarser level has written rows still bakes (a
+    pyramid written level after level would wait for that strip forever), and it equals the
+    pyramid of the same texels given whole."""
+    import threading
+
+    from affine import Affine
+
+    from approxtree.textures.base import TextureData
+
+    rgba = np.random.default_rng(5).integers(0, 256, (64, 48, 4)).astype(np.uint8)
+    rgba[..., 3] = 255
+    written = threading.Event()
+    given = [0]
+
+    def progress(done: int, total: int) -> None:
+        # Rows beyond those of level 0's strips handed out so far are a coarser level's.
+        if done > given[0]:
+            written.set()
+
+    class HeldBack(TextureData):
+        bands = 4
+
+        def __init__(self) -> None:
+            self.transform, self.shape, self.crs = Affine(1, 0, 0, 0, -1, 64), (64, 48), None
+
+        def rgba(self) -> np.ndarray:
+            return rgba
+
+        def level_strips(self, rows: int):
+            for r0 in range(0, 64, 16):
+                if r0 == 48:
+                    assert written.wait(30), "no coarser level written before level 0 ended"
+                given[0] = r0 + 16
+                yield np.ascontiguousarray(np.moveaxis(rgba[r0 : r0 + 16], -1, 0))
+
+    streamed = TexturePyramid.build(HeldBack(), tmp_path / "s", 32, progress=progress)
+    whole = TexturePyramid.build(rgba, tmp_path / "w", 32, transform=Affine(1, 0, 0, 0, -1, 64))
+    assert len(streamed) == len(whole) == 2
+    for k in range(2):
+        np.testing.assert_array_equal(streamed.level(k), whole.level(k))
