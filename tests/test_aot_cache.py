@@ -77,7 +77,8 @@ def _mesh_dem(tmp_path: Path) -> Path:
 
 def test_warmed_cache_commands_compile_nothing(tmp_path):
     """After ``python -m approxtree._warmup`` into an empty cache folder, the first demo,
-    render (of the demo's tree) and mesh (TIN, the issue's DEM) load every kernel from it."""
+    render (of the demo's tree), mesh (TIN, the issue's DEM) and bake (a pyramid of several
+    levels) load every kernel from it."""
     cache = tmp_path / "cache"
     warm = subprocess.run(
         [sys.executable, "-m", "approxtree._warmup"],
@@ -89,10 +90,13 @@ def test_warmed_cache_commands_compile_nothing(tmp_path):
     assert warm.returncode == 0, warm.stdout + warm.stderr
     assert any(cache.rglob("*.nbi")), "the warm-up wrote no cache entry"
     tree = str(tmp_path / "demo.zarr")
+    pyramid, small_limit = tmp_path / "pyramid", ["--max-texture-size", "64"]
     commands = [
         ["demo", "--out", tree],
         ["render", tree, "--out", str(tmp_path / "render.png")],
         ["mesh", str(_mesh_dem(tmp_path)), "--strategy", "tin", "--max-error", "1"],
+        # A pyramid of several levels (halved), as any DEM over 4096² bakes into.
+        ["bake", str(_mesh_dem(tmp_path)), "--out", str(pyramid), "--no-gl", *small_limit],
     ]
     run = subprocess.run(
         [sys.executable, "-c", _PROBE, json.dumps(commands)],
@@ -103,8 +107,10 @@ def test_warmed_cache_commands_compile_nothing(tmp_path):
     )
     assert run.returncode == 0, run.stdout + run.stderr
     report = json.loads(run.stdout.split("REPORT", 1)[1])
-    assert set(report) == {"demo", "render", "mesh"}
-    assert report == {"demo": [], "render": [], "mesh": []}, f"compiled on first use: {report}"
+    assert set(report) == {"demo", "render", "mesh", "bake"}
+    assert report == {"demo": [], "render": [], "mesh": [], "bake": []}, (
+        f"compiled on first use: {report}"
+    )
 
 
 def test_stamp_follows_source_and_versions(tmp_path):
