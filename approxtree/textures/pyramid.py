@@ -200,6 +200,26 @@ def _over(strips: Iterable[np.ndarray], rgba: np.ndarray | None) -> Iterator[np.
         r0 += n
 
 
+def _whole_tile_rows(strips: Iterable[np.ndarray]) -> Iterator[np.ndarray]:
+    """Band-order strips regrouped into strips of ``_TILE`` rows (the last may be shorter):
+    each write then fills whole tiles. A part of a tile written while other levels are
+    written too may be flushed (compressed) before the rest of it comes, then read back,
+    completed and stored again: more work, and a larger file."""
+    held: list[np.ndarray] = []
+    rows = 0
+    for strip in strips:
+        held.append(strip)
+        rows += strip.shape[1]
+        if rows >= _TILE:
+            block = np.concatenate(held, axis=1)
+            for r0 in range(0, rows - rows % _TILE, _TILE):
+                yield block[:, r0 : r0 + _TILE]
+            held = [block[:, rows - rows % _TILE :]] if rows % _TILE else []
+            rows %= _TILE
+    if rows:
+        yield np.concatenate(held, axis=1)
+
+
 class _Handoff:
     """The strips of a level, from the writer of the level before to its own writer: the
     finer writer ``append``s each halving, and ``close``s when done (or failed); iterating
@@ -443,7 +463,7 @@ class TexturePyramid:
 
             def write(k: int) -> None:
                 (rows, cols), t = plan[k]
-                level_strips = strips if k == 0 else iter(handoffs[k - 1])
+                level_strips = strips if k == 0 else _whole_tile_rows(handoffs[k - 1])
                 if k and level_overlay is not None:
                     level_strips = _over(level_strips, level_overlay(k, t, (rows, cols)))
                 sink = handoffs[k] if k < len(handoffs) else None
