@@ -450,7 +450,9 @@ def test_coarser_levels_are_written_while_level_0_is_made(tmp_path):
 
     from approxtree.textures.base import TextureData
 
-    rgba = np.random.default_rng(5).integers(0, 256, (64, 48, 4)).astype(np.uint8)
+    # 2048 rows in strips of 512: level 1 (written in whole 512-row tile rows) can write its
+    # first tile row once level 0 has written two strips.
+    rgba = np.random.default_rng(5).integers(0, 256, (2048, 24, 4)).astype(np.uint8)
     rgba[..., 3] = 255
     written = threading.Event()
     given = [0]
@@ -464,20 +466,20 @@ def test_coarser_levels_are_written_while_level_0_is_made(tmp_path):
         bands = 4
 
         def __init__(self) -> None:
-            self.transform, self.shape, self.crs = Affine(1, 0, 0, 0, -1, 64), (64, 48), None
+            self.transform, self.shape, self.crs = Affine(1, 0, 0, 0, -1, 2048), (2048, 24), None
 
         def rgba(self) -> np.ndarray:
             return rgba
 
         def level_strips(self, rows: int):
-            for r0 in range(0, 64, 16):
-                if r0 == 48:
+            for r0 in range(0, 2048, 512):
+                if r0 == 1536:
                     assert written.wait(30), "no coarser level written before level 0 ended"
-                given[0] = r0 + 16
-                yield np.ascontiguousarray(np.moveaxis(rgba[r0 : r0 + 16], -1, 0))
+                given[0] = r0 + 512
+                yield np.ascontiguousarray(np.moveaxis(rgba[r0 : r0 + 512], -1, 0))
 
-    streamed = TexturePyramid.build(HeldBack(), tmp_path / "s", 32, progress=progress)
-    whole = TexturePyramid.build(rgba, tmp_path / "w", 32, transform=Affine(1, 0, 0, 0, -1, 64))
+    streamed = TexturePyramid.build(HeldBack(), tmp_path / "s", 1024, progress=progress)
+    whole = TexturePyramid.build(rgba, tmp_path / "w", 1024, transform=Affine(1, 0, 0, 0, -1, 2048))
     assert len(streamed) == len(whole) == 2
     for k in range(2):
         np.testing.assert_array_equal(streamed.level(k), whole.level(k))
