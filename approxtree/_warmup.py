@@ -77,9 +77,13 @@ def bake_step(work: Path) -> None:
     from approxtree.textures.bake import bake
     from approxtree.textures.pyramid import TexturePyramid
 
-    folder = work / "textures"
-    bake(_terrain(), folder, shading_options={"azimuth": 315.0, "altitude": 45.0})
-    pyramid = TexturePyramid(folder)
+    options = {"azimuth": 315.0, "altitude": 45.0}
+    # With OpenGL when a context can be made (as the commands default to), and with numpy
+    # (--no-gl, or no context: the shading kernel), each under a texture limit below the
+    # terrain's size: the pyramid halves (as any DEM over 4096²).
+    for name, gl in (("textures", True), ("textures_numpy", False)):
+        bake(_terrain(), work / name, shading_options=options, max_texture_size=16, gl=gl)
+    pyramid = TexturePyramid(work / "textures")
     for k in range(len(pyramid)):
         pyramid.read(k, 0, 0, 4, 4)
 

@@ -18,9 +18,10 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
-from tqdm.auto import tqdm
+if TYPE_CHECKING:
+    from tqdm import tqdm
 
 
 class ProgressCallback(Protocol):
@@ -53,14 +54,20 @@ def progress_bar(
     """
     out = sys.stderr if file is None else file
     disable: bool | None = True if quiet else (False if force else None)
+    # tqdm's own rule for disable=None (no bar off a terminal), decided here so that a
+    # command whose stderr is a file or a pipe never imports tqdm (~20 ms of its start-up).
+    if disable is None and hasattr(out, "isatty") and not out.isatty():
+        disable = True
     # The bar opens at the first report, when its total is known (never a bogus 0/0).
     bars: list[tqdm] = []
 
     def report(done: int, total: int) -> None:
-        if quiet:
+        if disable:
             return
         total, done = int(total), int(done)
         if not bars:
+            from tqdm.auto import tqdm
+
             bars.append(
                 tqdm(
                     total=total,

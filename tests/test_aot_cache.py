@@ -77,7 +77,8 @@ def _mesh_dem(tmp_path: Path) -> Path:
 
 def test_warmed_cache_commands_compile_nothing(tmp_path):
     """After ``python -m approxtree._warmup`` into an empty cache folder, the first demo,
-    render (of the demo's tree) and mesh (TIN, the issue's DEM) load every kernel from it."""
+    render (of the demo's tree), mesh (TIN, the issue's DEM) and bake (a pyramid of several
+    levels) load every kernel from it."""
     cache = tmp_path / "cache"
     warm = subprocess.run(
         [sys.executable, "-m", "approxtree._warmup"],
@@ -89,10 +90,13 @@ def test_warmed_cache_commands_compile_nothing(tmp_path):
     assert warm.returncode == 0, warm.stdout + warm.stderr
     assert any(cache.rglob("*.nbi")), "the warm-up wrote no cache entry"
     tree = str(tmp_path / "demo.zarr")
+    pyramid, small_limit = tmp_path / "pyramid", ["--max-texture-size", "64"]
     commands = [
         ["demo", "--out", tree],
         ["render", tree, "--out", str(tmp_path / "render.png")],
         ["mesh", str(_mesh_dem(tmp_path)), "--strategy", "tin", "--max-error", "1"],
+        # A pyramid of several levels (halved), as any DEM over 4096² bakes into.
+        ["bake", str(_mesh_dem(tmp_path)), "--out", str(pyramid), "--no-gl", *small_limit],
     ]
     run = subprocess.run(
         [sys.executable, "-c", _PROBE, json.dumps(commands)],
@@ -103,8 +107,10 @@ def test_warmed_cache_commands_compile_nothing(tmp_path):
     )
     assert run.returncode == 0, run.stdout + run.stderr
     report = json.loads(run.stdout.split("REPORT", 1)[1])
-    assert set(report) == {"demo", "render", "mesh"}
-    assert report == {"demo": [], "render": [], "mesh": []}, f"compiled on first use: {report}"
+    assert set(report) == {"demo", "render", "mesh", "bake"}
+    assert report == {"demo": [], "render": [], "mesh": [], "bake": []}, (
+        f"compiled on first use: {report}"
+    )
 
 
 def test_stamp_follows_source_and_versions(tmp_path):
@@ -216,3 +222,68 @@ def test_build_hook_never_fails_the_build(tmp_path, monkeypatch, capsys, failure
     command.editable_mode = True
     command.run()
     assert capsys.readouterr().err == ""
+
+
+# Runs the bake's kernels (shading a strip, halving it) in one process and prints whether
+# numba's full target refresh ran (it imports every lowering registry, numba.np.arraymath
+# among them, and scipy.linalg for its BLAS check), the cache hits and misses, and the texels.
+_LOAD_PROBE = """
+import json, sys
+import numpy as np
+from approxtree.kernels import hillshade as hs
+from approxtree.kernels.rgba import halve_bands
+
+z = (np.arange(40 * 48, dtype=np.float32).reshape(40, 48) ** 1.5) % 97
+z[5, 7] = np.nan
+strip = np.empty((2, 38, 48), np.uint8)
+hs.hillshade_grey_alpha_rows(z, 1, strip, 30.0, -30.0, 1.0, 45.0, 315.0, hs.HORN, hs.STANDARD)
+half = np.empty((2, 19, 24), np.uint8)
+halve_bands(strip, half)
+kernels = (hs.hillshade_grey_alpha_rows, halve_bands)
+print("PROBE" + json.dumps({
+    "refreshed": "numba.np.arraymath" in sys.modules,
+    "scipy_linalg": "scipy.linalg" in sys.modules,
+    "hits": sum(sum(k.stats.cache_hits.values()) for k in kernels),
+    "misses": sum(sum(k.stats.cache_misses.values()) for k in kernels),
+    "texels": [strip.tolist(), half.tolist()],
+}))
+"""
+
+
+def _load_probe(cache: Path, **env: str) -> dict:
+    run = subprocess.run(
+        [sys.executable, "-c", _LOAD_PROBE],
+        env=dict(_env(cache), **env),
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert run.returncode == 0, run.stderr
+    return json.loads(run.stdout.split("PROBE", 1)[1])
+
+
+def test_cached_kernels_load_without_numbas_full_refresh(tmp_path):
+    """A fresh process loads the bake's cached kernels without numba's target refresh (the
+    ~0.3 s of importing every lowering registry and scipy.linalg), and they give the texels
+    of numba's own loading (APPROXTREE_FULL_REFRESH=1) and of the compiling run."""
+    cache = tmp_path / "cache"
+    compiled = _load_probe(cache)
+    assert compiled["misses"] == 2 and compiled["refreshed"]
+    light = _load_probe(cache)
+    assert light["hits"] == 2 and light["misses"] == 0
+    assert not light["refreshed"] and not light["scipy_linalg"]
+    full = _load_probe(cache, APPROXTREE_FULL_REFRESH="1")
+    assert full["hits"] == 2 and full["misses"] == 0 and full["refreshed"]
+    assert light["texels"] == full["texels"] == compiled["texels"]
+
+
+def test_entries_naming_refresh_only_symbols_take_numbas_path():
+    """An entry whose machine code names the string-hashing secrets (registered only by the
+    full refresh), or that is not object code, is loaded after numba's full refresh."""
+    plain = (("lib", "object", (b"\x7fELF...NRT_decref...", b"BC")), "fndesc")
+    hashing = (("lib", "object", (b"\x7fELF..._numba_hashsecret_siphash_k0...", b"BC")), "f")
+    assert not _cache._needs_full_refresh(plain)
+    assert _cache._needs_full_refresh(hashing)
+    assert _cache._needs_full_refresh((("lib", "bitcode", b"BC"), "fndesc"))
+    assert _cache._needs_full_refresh(None)
+    assert _cache.LIGHT_LOAD

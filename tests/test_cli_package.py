@@ -120,3 +120,22 @@ def test_names_reached_from_outside_stay_on_the_package():
     assert approxtree.cli.main is main
     assert approxtree.cli._is_tree("x.atree")
     assert not approxtree.cli._is_tree("dem.tif")
+
+
+def test_a_command_imports_its_own_module_only():
+    """Starting one command imports that command's module (and the shared helpers), not the
+    other commands' modules; help still lists every command."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from approxtree.cli import main\n"
+        "main(['fractal', '--help'], standalone_mode=False)\n"
+        "print(sorted(m for m in sys.modules if m.startswith('approxtree.cli.')))\n"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    loaded = run.stdout.strip().splitlines()[-1]
+    assert loaded == "['approxtree.cli.common', 'approxtree.cli.fractal', 'approxtree.cli.options']"
+    assert sorted(main.commands) == sorted(_command_modules())
+    assert main.get_command(click.Context(main), "nope") is None

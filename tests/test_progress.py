@@ -175,3 +175,18 @@ def test_cli_is_quiet_with_q_or_off_a_terminal(tmp_path):
     )
     assert proc.returncode == 0 and json.loads(proc.stdout)["nodes"] > 1
     assert proc.stderr == ""
+
+
+def test_no_bar_off_a_terminal_imports_no_tqdm():
+    """Off a terminal (or quiet) nothing is drawn, and tqdm is not even imported (a bake's
+    start-up); on a terminal the bar still comes (see the tests above)."""
+    code = (
+        "import io, sys\n"
+        "from approxtree.progress import progress_bar\n"
+        "for quiet in (False, True):\n"
+        "    with progress_bar('x', unit='row', quiet=quiet, file=io.StringIO()) as report:\n"
+        "        report(1, 2); report(2, 2)\n"
+        "print('tqdm' in sys.modules)\n"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert run.stdout.strip() == "False"

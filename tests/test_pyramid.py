@@ -164,6 +164,33 @@ def test_uint8_halving_equals_the_float64_filter_on_every_texel(shape):
         np.testing.assert_array_equal(np.moveaxis(got, 0, -1), want)
 
 
+@pytest.mark.parametrize("bands", [2, 4])
+@pytest.mark.parametrize("shape", [(2, 2), (9, 7), (64, 33), (6, 1001), (512, 130)])
+def test_uint8_halving_of_mostly_opaque_planes_equals_the_float64_filter(shape, bands):
+    """Mostly opaque planes (a hillshade: transparent border, a few holes) take the plain
+    mean of four and redo only the texels with a non-opaque alpha among their four: every
+    texel is still the float64 formula's, for grey + alpha and RGBA, odd sizes included."""
+    from approxtree.kernels.rgba import halve_bands
+
+    rng = np.random.default_rng(shape[0] * 1000 + shape[1] + bands)
+    for _ in range(10):
+        a = np.zeros((*shape, 4), np.uint8)
+        a[..., :3] = rng.integers(0, 256, (*shape, 3))
+        if bands == 2:
+            a[..., 1] = a[..., 2] = a[..., 0]
+        a[..., 3] = 255
+        # Transparent border columns, and scattered partial or transparent texels.
+        a[:, 0, 3] = a[:, -1, 3] = 0
+        holes = rng.random(shape) < 0.02
+        a[..., 3][holes] = rng.choice([0, 1, 2, 127, 128, 253, 254], size=int(holes.sum()))
+        want = _halve_reference(a)
+        planes = np.moveaxis(a, -1, 0)[[0, 3]] if bands == 2 else np.moveaxis(a, -1, 0)
+        got = np.empty((bands, *want.shape[:2]), np.uint8)
+        halve_bands(np.ascontiguousarray(planes), got)
+        expected = np.moveaxis(want, -1, 0)[[0, 3]] if bands == 2 else np.moveaxis(want, -1, 0)
+        np.testing.assert_array_equal(got, expected)
+
+
 def test_patches_cover_their_node_with_power_of_two_sizes(pyramid, terrain):
     """Per node: power-of-two size within the limit, covers D_N, finest level that fits."""
     tree = ApproximationTree.build(terrain, epsilon=2.0, max_points=33 * 33)
@@ -410,3 +437,49 @@ def test_pyramid_files_get_umask_permissions_and_the_folder_keeps_its_mode(tmp_p
         assert mode(folder) == 0o750
     finally:
         os.umask(saved)
+
+
+def test_coarser_levels_are_written_while_level_0_is_made(tmp_path):
+    """Levels stream: each halving goes on to the next level's writer at once, so a texture
+    that holds back its last strip until a coarser level has written rows still bakes (a
+    pyramid written level after level would wait for that strip forever), and it equals the
+    pyramid of the same texels given whole."""
+    import threading
+
+    from affine import Affine
+
+    from approxtree.textures.base import TextureData
+
+    # 2048 rows in strips of 512: level 1 (written in whole 512-row tile rows) can write its
+    # first tile row once level 0 has written two strips.
+    rgba = np.random.default_rng(5).integers(0, 256, (2048, 24, 4)).astype(np.uint8)
+    rgba[..., 3] = 255
+    written = threading.Event()
+    given = [0]
+
+    def progress(done: int, total: int) -> None:
+        # Rows beyond those of level 0's strips handed out so far are a coarser level's.
+        if done > given[0]:
+            written.set()
+
+    class HeldBack(TextureData):
+        bands = 4
+
+        def __init__(self) -> None:
+            self.transform, self.shape, self.crs = Affine(1, 0, 0, 0, -1, 2048), (2048, 24), None
+
+        def rgba(self) -> np.ndarray:
+            return rgba
+
+        def level_strips(self, rows: int):
+            for r0 in range(0, 2048, 512):
+                if r0 == 1536:
+                    assert written.wait(30), "no coarser level written before level 0 ended"
+                given[0] = r0 + 512
+                yield np.ascontiguousarray(np.moveaxis(rgba[r0 : r0 + 512], -1, 0))
+
+    streamed = TexturePyramid.build(HeldBack(), tmp_path / "s", 1024, progress=progress)
+    whole = TexturePyramid.build(rgba, tmp_path / "w", 1024, transform=Affine(1, 0, 0, 0, -1, 2048))
+    assert len(streamed) == len(whole) == 2
+    for k in range(2):
+        np.testing.assert_array_equal(streamed.level(k), whole.level(k))

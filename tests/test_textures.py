@@ -268,3 +268,26 @@ def test_grey_hillshade_kernel_rounds_like_numpy(algorithm, mode):
     args = (z, 2.0, -2.0, 1.5, 40.0, 300.0, algorithm, mode)
     want = np.rint(hs.hillshade(*args)).astype(np.uint8)
     np.testing.assert_array_equal(hs.hillshade_grey(*args), want)
+
+
+def test_texture_names_load_with_their_modules_only():
+    """``approxtree.textures`` imports a public name's module on first use: a bake's imports
+    (shading, pyramid) leave out the OpenGL bake, patches and palettes; every name of
+    ``__all__`` still resolves, ``blend`` to the function."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "import approxtree.textures.bake\n"
+        "print(sorted(m for m in sys.modules if m.startswith('approxtree.textures.')))\n"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    loaded = run.stdout.strip().splitlines()[-1]
+    for module in ("gl_bake", "patch", "palettes"):
+        assert f"approxtree.textures.{module}'" not in loaded
+    import approxtree.textures as textures
+    from approxtree.textures.blend import blend
+
+    assert all(getattr(textures, name) is not None for name in textures.__all__)
+    assert textures.blend is blend and set(textures.__all__) <= set(dir(textures))

@@ -596,3 +596,28 @@ def test_windowed_fill_equals_the_whole_band_fill(data_dir, relative):
     rows, cols = g.shape
     assert rows * cols * 4 <= small.cache_bytes // 4  # read block by block, not in one go
     np.testing.assert_array_equal(small[:, :], g.heights)
+
+
+@pytest.mark.parametrize("case", ["plain", "nodata", "mask"])
+def test_read_into_fills_a_reused_buffer_like_read(tmp_path, case):
+    """``RasterSource.read_into`` writes the window into the caller's buffer (returned as
+    is) with ``read``'s values: nodata, masked cells and infinities of either sign as NaN,
+    huge finite heights kept."""
+    import rasterio
+
+    z = _synthetic(300, 260, seed=3)
+    z[10, 20], z[200, 5], z[150, 150] = np.inf, -np.inf, 3.0e38
+    z[151, 150] = 3.0e38
+    tif = _write_tif(tmp_path / "dem.tif", z, nodata=-9999.0 if case == "nodata" else None)
+    if case == "mask":
+        with rasterio.open(tif, "r+") as ds:
+            ds.write_mask(np.where(np.isnan(z), 0, 255).astype(np.uint8))
+    source = RasterSource(str(tif))
+    want = z.copy()
+    want[np.isinf(want)] = np.nan
+    buffer = np.full((300, 260), 7.0, np.float32)
+    for r0, r1 in ((0, 120), (100, 300), (5, 6)):
+        out = source.read_into(r0, r1, 0, 260, buffer[: r1 - r0])
+        assert np.shares_memory(out, buffer)
+        np.testing.assert_array_equal(out, want[r0:r1])
+        np.testing.assert_array_equal(source.read(r0, r1, 0, 260), want[r0:r1])

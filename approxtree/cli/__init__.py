@@ -3,41 +3,76 @@
 Errors of the ApproxTreeError hierarchy are printed as one line on stderr (exit code 2), never
 as a traceback.
 
-One module per command; option groups shared by several commands in options.py, helpers in
-common.py.
+One module per command, imported only when its command is run or listed; option groups shared
+by several commands in options.py, helpers in common.py.
 """
 
 from __future__ import annotations
 
+import importlib
 import os
 import sys
 
 import click
 
-from approxtree.cli import bake, build, convert, demo, fractal, info, mesh, rd, render, tiles, view
 from approxtree.cli.common import _is_tree
 
 __all__ = ["_is_tree", "main", "run"]
 
+#: The commands: name → (module of approxtree.cli, the command's name there). A module is
+#: imported when its command is looked up (run, help), so starting one command imports its
+#: own module only, not every command's imports and options.
+_COMMANDS = {
+    "info": ("info", "info"),
+    "build": ("build", "build"),
+    "demo": ("demo", "demo"),
+    "fractal": ("fractal", "fractal"),
+    "render": ("render", "render"),
+    "mesh": ("mesh", "mesh"),
+    "tiles": ("tiles", "tiles"),
+    "bake": ("bake", "bake_command"),
+    "view": ("view", "view"),
+    "convert": ("convert", "convert"),
+    "rd": ("rd", "rd"),
+}
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+
+class _LazyGroup(click.Group):
+    """A click group whose commands (``_COMMANDS``) are imported on first look-up;
+    ``commands`` imports them all (help lists every one)."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        self._loaded: dict[str, click.Command] = {}
+        super().__init__(*args, **kwargs)
+
+    @property
+    def commands(self) -> dict[str, click.Command]:
+        for name in _COMMANDS:
+            self._command(name)
+        return self._loaded
+
+    @commands.setter
+    def commands(self, value: dict[str, click.Command]) -> None:
+        self._loaded = dict(value)
+
+    def _command(self, name: str) -> click.Command | None:
+        if name not in self._loaded and name in _COMMANDS:
+            module, attr = _COMMANDS[name]
+            command = getattr(importlib.import_module(f"approxtree.cli.{module}"), attr)
+            self._loaded[name] = command
+        return self._loaded.get(name)
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        return self._command(cmd_name)
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted({*_COMMANDS, *self._loaded})
+
+
+@click.group(cls=_LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="approxtree")
 def main() -> None:
     """approxtree: approximation trees for real-time terrain visualization."""
-
-
-# The commands, in the order of the one-module command line.
-main.add_command(info.info)
-main.add_command(build.build)
-main.add_command(demo.demo)
-main.add_command(fractal.fractal)
-main.add_command(render.render)
-main.add_command(mesh.mesh)
-main.add_command(tiles.tiles)
-main.add_command(bake.bake_command)
-main.add_command(view.view)
-main.add_command(convert.convert)
-main.add_command(rd.rd)
 
 
 #: Set by a command whose process may end without the interpreter's teardown (see ``run``).

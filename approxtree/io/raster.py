@@ -160,18 +160,25 @@ class RasterSource:
 
     def read(self, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
         """Rows [r0, r1), columns [c0, c1) as (r1 − r0, c1 − c0) heights, NaN for nodata."""
+        return self.read_into(r0, r1, c0, c1, None)
+
+    def read_into(self, r0: int, r1: int, c0: int, c1: int, out: np.ndarray | None) -> np.ndarray:
+        """``read`` into ``out``, a C-contiguous (r1 − r0, c1 − c0) array of ``dtype``
+        (a new one when None), and return it: a stream of windows reuses its buffers instead
+        of faulting in fresh memory for each."""
         import rasterio
         from rasterio.windows import Window
 
         ds = self._dataset()
         window = Window(c0, r0, c1 - c0, r1 - r0)
         flags = ds.mask_flag_enums[self.band - 1]
+        if out is None:
+            out = np.empty((r1 - r0, c1 - c0), dtype=self.dtype)
         # Without a mask band (every cell valid, or nodata alone) the window is read straight
         # into the heights' dtype and nodata found by comparison: no masked array, no copies.
         plain = all(f.name in ("all_valid", "nodata") for f in flags)
         with reading(self.name, "a GDAL raster"), rasterio.Env(GDAL_CACHEMAX=self.cache_mb):
             if plain:
-                out = np.empty((r1 - r0, c1 - c0), dtype=self.dtype)
                 ds.read(self.band, window=window, out=out)
             else:
                 values = ds.read(self.band, window=window, masked=True)
@@ -181,7 +188,7 @@ class RasterSource:
                 if not np.isnan(nodata):
                     np.copyto(out, np.nan, where=out == out.dtype.type(nodata))
         else:
-            out = np.ma.getdata(values).astype(self.dtype, copy=True)
+            np.copyto(out, np.ma.getdata(values), casting="unsafe")
             np.copyto(out, np.nan, where=np.ma.getmaskarray(values))
         # Infinities are nodata too; looked for only when an extreme is not finite.
         if out.size and not (np.isfinite(out.min()) and np.isfinite(out.max())):

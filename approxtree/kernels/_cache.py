@@ -19,6 +19,13 @@ Fallbacks, all silent (importing approxtree never fails because of the cache):
 - numba's caching internals not shaped as expected: nothing is registered.
 
 ``APPROXTREE_KERNEL_CACHE`` names another folder (tests and benchmarks use an empty one).
+
+Loading an entry skips numba's full target refresh (``install_light_load``): before loading any
+cached entry numba imports all its lowering registries and scipy.linalg (its BLAS check), ~0.3 s
+holding the GIL in a fresh process, which machine code does not need. Entries of this cache get
+the runtime initialized instead; a miss compiles (and refreshes) as usual, and an entry naming
+a symbol only the refresh registers takes numba's own path. ``APPROXTREE_FULL_REFRESH=1`` turns
+it off.
 """
 
 from __future__ import annotations
@@ -32,6 +39,7 @@ from pathlib import Path
 # The approxtree package folder: only kernels defined below it are located here.
 PACKAGE_ROOT = Path(__file__).resolve().parent.parent
 ENV_FOLDER = "APPROXTREE_KERNEL_CACHE"
+FULL_REFRESH_ENV = "APPROXTREE_FULL_REFRESH"
 
 
 def cache_folder() -> Path:
@@ -125,4 +133,82 @@ def install() -> bool:
         return False
 
 
+#: Names that compiled code can only link against after numba's full target refresh: the
+#: string-hashing secrets (``numba.cpython.hashing``, imported by ``load_additional_registries``).
+#: Every other symbol a cached library names is registered without it: numba's C helpers and
+#: math functions when its CPU context is made, the runtime (NRT) by ``rtsys.initialize``, the
+#: threading layer by the entry's own reload hooks (parallel kernels).
+_REFRESH_ONLY_SYMBOLS = (b"_numba_hashsecret_",)
+
+
+def _needs_full_refresh(data: object) -> bool:
+    """Whether a cached entry (numba's reduced compile result) may name a symbol that only a
+    full refresh registers; True for anything not shaped as an object-code library."""
+    try:
+        _name, kind, (object_code, _bitcode) = data[0]
+        if kind != "object" or not isinstance(object_code, bytes):
+            return True
+        return any(symbol in object_code for symbol in _REFRESH_ONLY_SYMBOLS)
+    except (TypeError, ValueError, IndexError):
+        return True
+
+
+def _light_load_overload(original):
+    """numba's ``Cache.load_overload`` for approxtree's kernels without the target refresh.
+
+    numba refreshes its CPU target before loading any cached entry: it imports every lowering
+    registry (and scipy.linalg, for its BLAS check), ~0.3 s of a fresh process holding the
+    GIL, though loading machine code needs none of it. For an entry of the package locator
+    this initializes only the runtime and loads the entry; a miss returns None as before (the
+    compile that follows refreshes the target itself), and an entry that may need more (see
+    ``_needs_full_refresh``), or any other cache, takes numba's own path.
+    """
+
+    def load_overload(self, sig, target_context):
+        impl = getattr(self, "_impl", None)
+        locator = getattr(impl, "_locator", None)
+        if type(locator).__name__ != "PackageCacheLocator" or not getattr(self, "_enabled", 0):
+            return original(self, sig, target_context)
+        from numba.core.runtime import rtsys
+
+        with self._guard_against_spurious_io_errors():
+            data = self._cache_file.load(self._index_key(sig, target_context.codegen()))
+            if data is None:
+                return None
+            if _needs_full_refresh(data):
+                target_context.refresh()
+            else:
+                rtsys.initialize(target_context)
+            return impl.rebuild(target_context, data)
+        return None
+
+    load_overload.approxtree_light = True
+    return load_overload
+
+
+def install_light_load() -> bool:
+    """Load approxtree's cached kernels without numba's full target refresh (once). True
+    when installed; numba's own loading stays when its internals are not as expected."""
+    try:
+        from numba.core import caching
+
+        cache = caching.Cache
+        if getattr(cache.load_overload, "approxtree_light", False):
+            return True
+        for name in ("_guard_against_spurious_io_errors", "_index_key", "load_overload"):
+            if not hasattr(cache, name):
+                return False
+        from numba.core.runtime import rtsys
+
+        if not hasattr(rtsys, "initialize"):
+            return False
+        cache.load_overload = _light_load_overload(cache.load_overload)
+        return True
+    except Exception:
+        return False
+
+
 REGISTERED = install()
+#: Cached kernels load without numba's full target refresh (``APPROXTREE_FULL_REFRESH=1``:
+#: numba's own loading, as for every other package).
+LIGHT_LOAD = REGISTERED and os.environ.get(FULL_REFRESH_ENV) != "1" and install_light_load()

@@ -9,7 +9,9 @@ level 0 (odd sizes add at most one texel at the east and south edges). A grey te
 texture patch decodes only the tiles of its window (``TexturePyramid.read``) and gives RGBA
 either way, so pyramids larger than memory work. ``pyramid.json`` lists the levels. A build
 streams: the texture arrives in band-order strips (``TextureData.level_strips``), each written
-and halved at once (uint8 kernels, ``kernels.rgba``), so level 0 is never whole in memory.
+and halved at once (uint8 kernels, ``kernels.rgba``), and each halving goes straight on to the
+next level's writer (its own thread), so no level is ever whole in memory and the coarser
+levels are written while level 0 is made.
 
 A pyramid is written all or nothing: built in a temp folder beside its folder, then swapped in
 (``atomic_directory``). Each build has an id, stored in pyramid.json and in every level's
@@ -22,7 +24,9 @@ from __future__ import annotations
 
 import json
 import os
+import queue
 import re
+import threading
 import uuid
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
@@ -97,15 +101,15 @@ def _write_level(
     crs: str | None,
     build: str,
     level: int,
-    halved: list[np.ndarray] | None,
+    halved: list[np.ndarray] | _Handoff | None,
     on_rows: Callable[[int], None] | None = None,
 ) -> None:
     """Write the (bands, rows, cols) uint8 band-order strips of a level (RGBA, or grey and
     alpha), top to bottom, as a tiled compressed GeoTIFF tagged with the pyramid's build id and
-    the level number (into the pyramid's temp folder); when ``halved`` is a list, append to it
-    the strips of the level's halving, made while each strip is at hand (strips of even
-    height);
-    ``on_rows(n)`` after each strip of n rows is written."""
+    the level number (into the pyramid's temp folder); when ``halved`` is given (a list, or
+    the next level's ``_Handoff``), append to it the strips of the level's halving, made while
+    each strip is at hand (strips of even height); ``on_rows(n)`` after each strip of n rows
+    is written."""
     import rasterio
 
     rows, cols = shape
@@ -124,9 +128,10 @@ def _write_level(
     # GDAL writes (and compresses) a strip and halves it on a writer thread, without the GIL,
     # while this thread makes the next ones; up to _WRITE_AHEAD strips wait in its queue.
     pending: deque[Future] = deque()
+    ring: list[np.ndarray | None] = [None] * (_WRITE_AHEAD + 1)
     with rasterio.open(path, "w", **profile) as ds, ThreadPoolExecutor(1) as writer:
         ds.update_tags(**{_TAG_BUILD: build, _TAG_LEVEL: str(level)})
-        for strip in strips:
+        for index, strip in enumerate(strips):
             n = strip.shape[1] if strip.ndim == 3 else 0
             if strip.ndim != 3 or strip.shape[::2] != (bands, cols) or strip.dtype != np.uint8:
                 raise InvalidParameterError(
@@ -137,60 +142,103 @@ def _write_level(
                 raise InvalidParameterError(
                     f"Texture strips must have an even number of rows and cover {rows} rows."
                 )
-            # A strip is valid until the next is asked for: the writer gets its own copy.
-            strip = np.array(strip, order="C")
             if len(pending) == _WRITE_AHEAD:
-                _keep(pending.popleft().result(), halved)
-            pending.append(writer.submit(_write_and_halve, ds, strip, r0, halved is not None))
+                pending.popleft().result()
+            # A strip is valid until the next is asked for: the writer gets its own copy, in
+            # a ring of _WRITE_AHEAD + 1 buffers (reused rather than faulted in afresh; the
+            # slot's last strip was written when the oldest pending write was waited for).
+            slot = index % len(ring)
+            if ring[slot] is None or ring[slot].shape != strip.shape:
+                ring[slot] = np.empty(strip.shape, dtype=np.uint8)
+            np.copyto(ring[slot], strip)
+            pending.append(writer.submit(_write_and_halve, ds, ring[slot], r0, halved))
             if on_rows is not None:
                 on_rows(n)
             r0 += n
         while pending:
-            _keep(pending.popleft().result(), halved)
+            pending.popleft().result()
     if r0 != rows:
         raise InvalidParameterError(f"The texture's strips cover {r0} of its {rows} rows.")
 
 
-def _write_and_halve(ds, strip: np.ndarray, r0: int, halve: bool) -> np.ndarray | None:
-    """Write a (bands, n, cols) strip at row ``r0`` of ``ds`` and, if ``halve``, return its
-    (bands, ⌈n/2⌉, ⌈cols/2⌉) halving (it depends on that strip only: its rows pair up).
-    Both run without the GIL, on the writer thread, while the next strip is made."""
+def _write_and_halve(
+    ds, strip: np.ndarray, r0: int, halved: list[np.ndarray] | _Handoff | None
+) -> None:
+    """Write a (bands, n, cols) strip at row ``r0`` of ``ds`` and, if ``halved`` is given,
+    append its (bands, ⌈n/2⌉, ⌈cols/2⌉) halving to it (it depends on that strip only: its
+    rows pair up). Both run without the GIL, on the level's writer thread (one, so halvings
+    arrive in order), while the next strip is made; the next level gets each at once."""
     from rasterio.windows import Window
 
     bands, n, cols = strip.shape
     ds.write(strip, window=Window(0, r0, cols, n))
-    if not halve:
-        return None
+    if halved is None:
+        return
     half = np.empty((bands, (n + 1) // 2, (cols + 1) // 2), dtype=np.uint8)
     halve_bands(strip, half)
-    return half
-
-
-def _keep(half: np.ndarray | None, halved: list[np.ndarray] | None) -> None:
-    """Append a written strip's halving to the next level's strips (when there is one)."""
-    if halved is not None and half is not None:
-        halved.append(half)
+    halved.append(half)
 
 
 #: fn(level, transform, (rows, cols)) -> (rows, cols, 4) uint8 drawn over that level, or None.
 LevelOverlay = Callable[[int, Affine, tuple[int, int]], "np.ndarray | None"]
 
 
-def _over(strips: list[np.ndarray], rgba: np.ndarray | None) -> list[np.ndarray]:
+def _over(strips: Iterable[np.ndarray], rgba: np.ndarray | None) -> Iterator[np.ndarray]:
     """Band-order strips (4, n, cols) of a level with ``rgba`` (rows, cols, 4) drawn over
-    them (alpha over, straight alpha); the strips unchanged without an overlay."""
-    if rgba is None:
-        return strips
-    out, r0 = [], 0
+    them (alpha over, straight alpha), one by one; the strips unchanged without an overlay."""
+    r0 = 0
     for strip in strips:
+        if rgba is None:
+            yield strip
+            continue
         n = strip.shape[1]
         top = np.moveaxis(rgba[r0 : r0 + n], -1, 0).astype(np.float32)
         a = top[3:] / 255.0
         mixed = top * a + strip.astype(np.float32) * (1.0 - a)
         mixed[3:] = np.maximum(strip[3:], top[3:])
-        out.append(np.clip(np.rint(mixed), 0, 255).astype(np.uint8))
+        yield np.clip(np.rint(mixed), 0, 255).astype(np.uint8)
         r0 += n
-    return out
+
+
+def _whole_tile_rows(strips: Iterable[np.ndarray]) -> Iterator[np.ndarray]:
+    """Band-order strips regrouped into strips of ``_TILE`` rows (the last may be shorter):
+    each write then fills whole tiles. A part of a tile written while other levels are
+    written too may be flushed (compressed) before the rest of it comes, then read back,
+    completed and stored again: more work, and a larger file."""
+    held: list[np.ndarray] = []
+    rows = 0
+    for strip in strips:
+        held.append(strip)
+        rows += strip.shape[1]
+        if rows >= _TILE:
+            block = np.concatenate(held, axis=1)
+            for r0 in range(0, rows - rows % _TILE, _TILE):
+                yield block[:, r0 : r0 + _TILE]
+            held = [block[:, rows - rows % _TILE :]] if rows % _TILE else []
+            rows %= _TILE
+    if rows:
+        yield np.concatenate(held, axis=1)
+
+
+class _Handoff:
+    """The strips of a level, from the writer of the level before to its own writer: the
+    finer writer ``append``s each halving, and ``close``s when done (or failed); iterating
+    yields them in order until then."""
+
+    _END = object()
+
+    def __init__(self) -> None:
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+
+    def append(self, strip: np.ndarray) -> None:
+        self._queue.put(strip)
+
+    def close(self) -> None:
+        self._queue.put(self._END)
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        while (strip := self._queue.get()) is not self._END:
+            yield strip
 
 
 def _strips(rgba: np.ndarray) -> Iterator[np.ndarray]:
@@ -388,44 +436,71 @@ class TexturePyramid:
         report = progress or no_progress
         total = _pyramid_rows(shape, max_texture_size)
         written = [0]
+        # Levels are written on several threads at once: one count, one report at a time.
+        progress_lock = threading.Lock()
 
         def on_rows(n: int) -> None:
-            written[0] += n
-            report(min(written[0], total), total)
+            with progress_lock:
+                written[0] += n
+                report(min(written[0], total), total)
 
         report(0, total)
+        # Every level's shape and georeference: texels exactly twice as large keep every level
+        # registered on level 0; an odd size repeats its last texel, so a coarser level may
+        # reach one finer texel further. The last level is the first that fits.
+        plan = [(tuple(shape), transform)]
+        while max(plan[-1][0]) > max_texture_size:
+            (rows, cols), t = plan[-1]
+            plan.append(((-(-rows // 2), -(-cols // 2)), t @ Affine.scale(2.0)))
         # All or nothing: the levels and pyramid.json go to a temp folder swapped in at the end.
         with atomic_directory(folder) as tmp:
-            levels = []
-            level = 0
-            t = transform
-            while True:
-                rows, cols = shape
-                path = tmp / f"level{level}.tif"
-                # Texels exactly twice as large keep every level registered on level 0; an odd
-                # size repeats its last texel, so a coarser level may reach one finer texel
-                # further.
-                last = max(rows, cols) <= max_texture_size
-                halved: list[np.ndarray] | None = None if last else []
-                _write_level(
-                    path, strips, (rows, cols), bands, t, crs, build, level, halved, on_rows
-                )
-                levels.append(
-                    {
-                        "file": path.name,
-                        "width": cols,
-                        "height": rows,
-                        "transform": list(t)[:6],
-                        "bytes": path.stat().st_size,
-                    }
-                )
-                if halved is None:
-                    break
-                strips, shape = halved, (-(-rows // 2), -(-cols // 2))
-                t = t @ Affine.scale(2.0)
-                level += 1
-                if level_overlay is not None:
-                    strips = _over(strips, level_overlay(level, t, shape))
+            # Levels stream: level k's writer halves each strip it writes and hands the halving
+            # at once to level k + 1, written on its own thread, so the coarser levels are
+            # written (and compressed) while level 0 is still being made, not after it, and
+            # no level is ever held whole. Level 0 is written on this thread (it runs the
+            # texture's kernels).
+            handoffs = [_Handoff() for _ in plan[1:]]
+
+            def write(k: int) -> None:
+                (rows, cols), t = plan[k]
+                level_strips = strips if k == 0 else _whole_tile_rows(handoffs[k - 1])
+                if k and level_overlay is not None:
+                    level_strips = _over(level_strips, level_overlay(k, t, (rows, cols)))
+                sink = handoffs[k] if k < len(handoffs) else None
+                try:
+                    path = tmp / f"level{k}.tif"
+                    _write_level(
+                        path, level_strips, (rows, cols), bands, t, crs, build, k, sink, on_rows
+                    )
+                finally:
+                    if sink is not None:
+                        sink.close()
+
+            with ThreadPoolExecutor(max(1, len(handoffs))) as coarser:
+                futures = [coarser.submit(write, k) for k in range(1, len(plan))]
+                errors: list[BaseException] = []
+                try:
+                    write(0)
+                except BaseException as exc:
+                    errors.append(exc)
+                for future in futures:
+                    try:
+                        future.result()
+                    except BaseException as exc:
+                        errors.append(exc)
+            # A finer level's failure starves the coarser ones: the first is the cause.
+            if errors:
+                raise errors[0]
+            levels = [
+                {
+                    "file": f"level{k}.tif",
+                    "width": cols,
+                    "height": rows,
+                    "transform": list(t)[:6],
+                    "bytes": (tmp / f"level{k}.tif").stat().st_size,
+                }
+                for k, ((rows, cols), t) in enumerate(plan)
+            ]
             meta = {
                 "format": PYRAMID_FORMAT,
                 "build": build,

@@ -10,7 +10,6 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
-from itertools import islice
 
 import numpy as np
 from affine import Affine
@@ -188,10 +187,13 @@ class TopographicShading(ShadingTexture):
         strips of ``grey_alpha_strips(self.shade(), rows)``."""
         args = self._light_args()
         height, width = self.shape
+        # One strip buffer, reused: a strip is valid until the next is asked for (the
+        # pyramid copies it), and fresh memory for each would be faulted in and zeroed.
+        buffer = np.empty((2, min(rows, height), width), dtype=np.uint8)
         if not self.terrain.is_windowed:
             z = self._heights()
             for r0 in range(0, height, rows):
-                strip = np.empty((2, min(rows, height - r0), width), dtype=np.uint8)
+                strip = _strip(buffer, min(rows, height - r0))
                 hs.hillshade_grey_alpha_rows(z, r0, strip, *args)
                 yield strip
             return
@@ -202,23 +204,37 @@ class TopographicShading(ShadingTexture):
         # Straight from the height source (as a block of the windowed heights reads): the
         # strips pass once, the block cache would only hold them.
         heights = self.terrain.heights
-
-        def window(r0: int) -> tuple[int, np.ndarray]:
-            a, b = max(r0 - 1, 0), min(r0 + rows + 1, height)
-            z = np.asarray(heights.source.read(a, b, 0, width), dtype=heights.dtype)
-            return a, np.ascontiguousarray(z)
-
-        # Windows are queued ahead (up to _READ_AHEAD_BYTES): the reader keeps reading while
-        # this thread holds the GIL (numba's first dispatch of the kernel loads its cache).
-        starts = iter(range(0, height, rows))
+        source = heights.source
+        read_into = getattr(source, "read_into", None)
+        starts = range(0, height, rows)
         window_bytes = (rows + 2) * width * np.dtype(heights.dtype).itemsize
         depth = max(2, _READ_AHEAD_BYTES // window_bytes)
+        # Windows are queued ahead (up to _READ_AHEAD_BYTES): the reader keeps reading while
+        # this thread loads the kernel. A source that reads into an array gets a ring of
+        # depth + 1 buffers: window i reuses the buffer of window i − depth − 1, shaded
+        # before window i is queued.
+        ring = (
+            [np.empty((min(rows + 2, height), width), heights.dtype) for _ in range(depth + 1)]
+            if read_into is not None and np.dtype(source.dtype) == heights.dtype
+            else None
+        )
+
+        def window(i: int) -> tuple[int, np.ndarray]:
+            r0 = starts[i]
+            a, b = max(r0 - 1, 0), min(r0 + rows + 1, height)
+            if ring is not None:
+                return a, read_into(a, b, 0, width, ring[i % len(ring)][: b - a])
+            z = np.asarray(source.read(a, b, 0, width), dtype=heights.dtype)
+            return a, np.ascontiguousarray(z)
+
+        count = len(starts)
         with ThreadPoolExecutor(1) as reader:
-            ahead = deque(reader.submit(window, r) for r in islice(starts, depth))
-            for r0 in range(0, height, rows):
+            ahead = deque(reader.submit(window, i) for i in range(min(depth, count)))
+            for i, r0 in enumerate(starts):
                 a, z = ahead.popleft().result()
-                ahead.extend(reader.submit(window, r) for r in islice(starts, 1))
-                strip = np.empty((2, min(rows, height - r0), width), dtype=np.uint8)
+                if i + depth < count:
+                    ahead.append(reader.submit(window, i + depth))
+                strip = _strip(buffer, min(rows, height - r0))
                 hs.hillshade_grey_alpha_rows(z, r0 - a, strip, *args)
                 yield strip
 
@@ -242,6 +258,14 @@ class TopographicShading(ShadingTexture):
         if self.shadows:
             v = np.where(valid & self.shadow_mask(), np.maximum(1.0, 0.5 * v), v)
         return np.round(v).astype(np.uint8)
+
+
+def _strip(buffer: np.ndarray, n: int) -> np.ndarray:
+    """The (bands, n, cols) strip of a reused (bands, rows, cols) buffer: the buffer itself,
+    or for a shorter last strip a new C-contiguous array (the kernels take C arrays only)."""
+    if n == buffer.shape[1]:
+        return buffer
+    return np.empty((buffer.shape[0], n, buffer.shape[2]), dtype=buffer.dtype)
 
 
 def _light_vector(azimuth: float, altitude: float) -> np.ndarray:
