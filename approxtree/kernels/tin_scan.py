@@ -191,6 +191,30 @@ def _by_rows(ax, ay, bx, by, cx, cy):
     return tx, ty, mx, my, lx, ly, mid_left
 
 
+@njit(cache=True, inline="always")
+def _midpoint_candidate(heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy):
+    """``scan_candidate`` of a triangle of twice the area 2: its one non-corner point is the
+    midpoint of the edge whose steps are both even. The error is evaluated as the row scan
+    would (from the first point of the point's row), so it is the same to the last bit."""
+    if (bx - ax) % 2 == 0 and (by - ay) % 2 == 0:
+        mx, my = (ax + bx) // 2, (ay + by) // 2
+    elif (cx - bx) % 2 == 0 and (cy - by) % 2 == 0:
+        mx, my = (bx + cx) // 2, (by + cy) // 2
+    else:
+        mx, my = (cx + ax) // 2, (cy + ay) // 2
+    # The row's first point: the midpoint or a corner on its row left of it.
+    lo = mx
+    if ay == my:
+        lo = min(lo, ax)
+    if by == my:
+        lo = min(lo, bx)
+    if cy == my:
+        lo = min(lo, cx)
+    base = za + gy * (my - ay) + gx * (lo - ax)
+    e = abs(heights[np.uint64(r0 + my), np.uint64(c0 + mx)] - (base + gx * (mx - lo)))
+    return e, np.int64(my), np.int64(mx)
+
+
 @njit(cache=True, _nrt=False)
 def scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy):
     """(key, candidate y, candidate x) of a triangle on a grid without nodata.
@@ -201,11 +225,19 @@ def scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy):
     counts on the arguments, would cost atomic updates per row and per call, which dominate
     on the small triangles of a fine mesh.
     """
+    # The smallest triangles of a fine mesh, by Pick's theorem (2·area = 2·interior + border
+    # points − 2): twice the area 1 holds no point but its corners, 2 exactly one, the midpoint
+    # of its one edge with even steps. Answered without the row walks, with the same result.
+    o = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+    if o == 1:
+        return NO_CANDIDATE, np.int64(-1), np.int64(-1)
     # Unsigned indices: no negative-index wraparound per load.
     za = np.float64(heights[np.uint64(r0 + ay), np.uint64(c0 + ax)])
     zb = np.float64(heights[np.uint64(r0 + by), np.uint64(c0 + bx)])
     zc = np.float64(heights[np.uint64(r0 + cy), np.uint64(c0 + cx)])
     gx, gy = plane(za, zb, zc, ax, ay, bx, by, cx, cy)
+    if o == 2:
+        return _midpoint_candidate(heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy)
     best = NO_CANDIDATE
     # int64 throughout (no literal −1, no int32 row): every ``_scan_rows`` call below is then
     # one compiled signature.
@@ -332,6 +364,26 @@ def _sse_rows(
     return sse
 
 
+@njit(cache=True, inline="always")
+def _edge_row_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, y, lo, w) -> float:
+    """``triangle_sse`` of a triangle of twice the area 1 with a horizontal edge on row y
+    starting at column lo: the weighted squared errors of that edge's two corners, summed as
+    ``_sse_rows`` sums a short row."""
+    za = np.float64(heights[r0 + ay, c0 + ax])
+    zb = np.float64(heights[r0 + by, c0 + bx])
+    zc = np.float64(heights[r0 + cy, c0 + cx])
+    gx, gy = plane(za, zb, zc, ax, ay, bx, by, cx, cy)
+    base = za + gy * (y - ay) + gx * (lo - ax)
+    s = 0.0
+    ur = np.uint64(r0 + y)
+    us = np.uint64(c0 + lo)
+    for i in range(2):
+        e = abs(float(heights[ur, us + np.uint64(i)]) - (base + gx * i))
+        s += e * e
+    s *= w
+    return max(0.0 + s, 0.0)
+
+
 @njit(cache=True, _nrt=False)
 def triangle_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca) -> float:
     """The triangle's owned sum of squared errors on a grid without nodata.
@@ -341,6 +393,17 @@ def triangle_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca) -> floa
     every non-vertex point once (up to round-off: both neighbours interpolate the same line).
     Rows are walked as in ``scan_candidate``; the sum runs in row order.
     """
+    # Twice the area 1: only the corners (see ``scan_candidate``); each row then adds exactly
+    # zero (a corner's own error is taken back off), except a horizontal edge's row, whose two
+    # corners are weighted as an edge. That row alone, with the same arithmetic.
+    if (bx - ax) * (cy - ay) - (by - ay) * (cx - ax) == 1:
+        if ay == by:
+            return _edge_row_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, ay, min(ax, bx), wab)
+        if by == cy:
+            return _edge_row_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, by, min(bx, cx), wbc)
+        if cy == ay:
+            return _edge_row_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, cy, min(cx, ax), wca)
+        return 0.0
     za = np.float64(heights[r0 + ay, c0 + ax])
     zb = np.float64(heights[r0 + by, c0 + bx])
     zc = np.float64(heights[r0 + cy, c0 + cx])
