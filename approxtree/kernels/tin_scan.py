@@ -162,8 +162,12 @@ def _scan_rows(
         # Unsigned indices: no negative-index wraparound per load (see ``_grid_row_max``).
         ur = np.uint64(r)
         us = np.uint64(start)
+        # The offset as a float counted alongside (exact: small integers), not converted
+        # from i at every point: the same values.
+        fi = 0.0
         for i in range(n):
-            e = abs(heights[ur, us + np.uint64(i)] - (base + gx * i))
+            e = abs(heights[ur, us + np.uint64(i)] - (base + gx * fi))
+            fi += 1.0
             if e > best:
                 x = lo + i
                 # Corners are reproduced exactly; round-off must not make them candidates.
@@ -348,8 +352,10 @@ def _sse_rows(
             s = 0.0
             ur = np.uint64(r)
             us = np.uint64(start)
+            fi = 0.0
             for i in range(n):
-                e = abs(float(heights[ur, us + np.uint64(i)]) - (base + gx * i))
+                e = abs(float(heights[ur, us + np.uint64(i)]) - (base + gx * fi))
+                fi += 1.0
                 s += e * e
         # Edge points are shared: a row along a horizontal edge lies wholly on it, otherwise
         # only the row's two ends can touch an edge.
