@@ -44,12 +44,9 @@ def _sift_down(heap, hkey, pos, i, t, k, size) -> None:
         if child >= size:
             break
         uc = np.uint64(child)
-        # The larger child (the left one on a tie), chosen without a branch: which one wins
-        # is data, a coin flip for the branch predictor.
-        if child + 1 < size:
-            right = np.uint64(hkey[uc + np.uint64(1)] > hkey[uc])
-            uc += right
-            child += np.int64(right)
+        if child + 1 < size and hkey[uc + np.uint64(1)] > hkey[uc]:
+            child += 1
+            uc += np.uint64(1)
         if hkey[uc] <= k:
             break
         _place(heap, hkey, pos, i, heap[uc], hkey[uc])
