@@ -162,8 +162,12 @@ def _scan_rows(
         # Unsigned indices: no negative-index wraparound per load (see ``_grid_row_max``).
         ur = np.uint64(r)
         us = np.uint64(start)
+        # The offset as a float counted alongside (exact: small integers), not converted
+        # from i at every point: the same values.
+        fi = 0.0
         for i in range(n):
-            e = abs(heights[ur, us + np.uint64(i)] - (base + gx * i))
+            e = abs(heights[ur, us + np.uint64(i)] - (base + gx * fi))
+            fi += 1.0
             if e > best:
                 x = lo + i
                 # Corners are reproduced exactly; round-off must not make them candidates.
@@ -191,6 +195,36 @@ def _by_rows(ax, ay, bx, by, cx, cy):
     return tx, ty, mx, my, lx, ly, mid_left
 
 
+@njit(cache=True, inline="always")
+def _midpoint(ax, ay, bx, by, cx, cy):
+    """The one non-corner point of a triangle of twice the area 2: the midpoint of the edge
+    whose steps are both even (Pick's theorem: 4 border points, none inside)."""
+    if (bx - ax) % 2 == 0 and (by - ay) % 2 == 0:
+        return np.int64((ax + bx) // 2), np.int64((ay + by) // 2)
+    if (cx - bx) % 2 == 0 and (cy - by) % 2 == 0:
+        return np.int64((bx + cx) // 2), np.int64((by + cy) // 2)
+    return np.int64((cx + ax) // 2), np.int64((cy + ay) // 2)
+
+
+@njit(cache=True, inline="always")
+def _midpoint_candidate(heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy):
+    """``scan_candidate`` of a triangle of twice the area 2: its one non-corner point is the
+    midpoint of the edge whose steps are both even. The error is evaluated as the row scan
+    would (from the first point of the point's row), so it is the same to the last bit."""
+    mx, my = _midpoint(ax, ay, bx, by, cx, cy)
+    # The row's first point: the midpoint or a corner on its row left of it.
+    lo = mx
+    if ay == my:
+        lo = min(lo, ax)
+    if by == my:
+        lo = min(lo, bx)
+    if cy == my:
+        lo = min(lo, cx)
+    base = za + gy * (my - ay) + gx * (lo - ax)
+    e = abs(heights[np.uint64(r0 + my), np.uint64(c0 + mx)] - (base + gx * (mx - lo)))
+    return e, np.int64(my), np.int64(mx)
+
+
 @njit(cache=True, _nrt=False)
 def scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy):
     """(key, candidate y, candidate x) of a triangle on a grid without nodata.
@@ -201,11 +235,19 @@ def scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy):
     counts on the arguments, would cost atomic updates per row and per call, which dominate
     on the small triangles of a fine mesh.
     """
+    # The smallest triangles of a fine mesh, by Pick's theorem (2·area = 2·interior + border
+    # points − 2): twice the area 1 holds no point but its corners, 2 exactly one, the midpoint
+    # of its one edge with even steps. Answered without the row walks, with the same result.
+    o = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+    if o == 1:
+        return NO_CANDIDATE, np.int64(-1), np.int64(-1)
     # Unsigned indices: no negative-index wraparound per load.
     za = np.float64(heights[np.uint64(r0 + ay), np.uint64(c0 + ax)])
     zb = np.float64(heights[np.uint64(r0 + by), np.uint64(c0 + bx)])
     zc = np.float64(heights[np.uint64(r0 + cy), np.uint64(c0 + cx)])
     gx, gy = plane(za, zb, zc, ax, ay, bx, by, cx, cy)
+    if o == 2:
+        return _midpoint_candidate(heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy)
     best = NO_CANDIDATE
     # int64 throughout (no literal −1, no int32 row): every ``_scan_rows`` call below is then
     # one compiled signature.
@@ -310,8 +352,10 @@ def _sse_rows(
             s = 0.0
             ur = np.uint64(r)
             us = np.uint64(start)
+            fi = 0.0
             for i in range(n):
-                e = abs(float(heights[ur, us + np.uint64(i)]) - (base + gx * i))
+                e = abs(float(heights[ur, us + np.uint64(i)]) - (base + gx * fi))
+                fi += 1.0
                 s += e * e
         # Edge points are shared: a row along a horizontal edge lies wholly on it, otherwise
         # only the row's two ends can touch an edge.
@@ -332,6 +376,92 @@ def _sse_rows(
     return sse
 
 
+@njit(cache=True, inline="always")
+def _short_row_sse(heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, wab, wbc, wca, y, lo, hi):
+    """One row's term of ``_sse_rows`` (a short row, lo..hi), with the same arithmetic."""
+    n = hi - lo + 1
+    base = za + gy * (y - ay) + gx * (lo - ax)
+    r = r0 + y
+    start = c0 + lo
+    s = 0.0
+    ur = np.uint64(r)
+    us = np.uint64(start)
+    for i in range(n):
+        e = abs(float(heights[ur, us + np.uint64(i)]) - (base + gx * i))
+        s += e * e
+    if ay == by == y:
+        s *= wab
+    elif by == cy == y:
+        s *= wbc
+    elif cy == ay == y:
+        s *= wca
+    else:
+        e = abs(float(heights[r, start]) - base)
+        s -= (1.0 - _edge_weight(ax, ay, bx, by, cx, cy, lo, y, wab, wbc, wca)) * e * e
+        if hi > lo:
+            e = abs(float(heights[r, c0 + hi]) - (base + gx * (n - 1)))
+            w = _edge_weight(ax, ay, bx, by, cx, cy, hi, y, wab, wbc, wca)
+            s -= (1.0 - w) * e * e
+    return s
+
+
+@njit(cache=True, inline="always")
+def _small_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca, o) -> float:
+    """``triangle_sse`` of a triangle of twice the area o <= 2 (its corners and at most one
+    edge midpoint, see ``scan_candidate``). A row holding a lone corner adds exactly zero (the
+    corner's error is taken back off), so only two rows can count: a horizontal edge's (its
+    corners, and the midpoint if it lies on that edge, weighted as the edge) and the
+    midpoint's. They are summed as ``_sse_rows`` sums them, in row order: the same value.
+    """
+    hy = np.int64(-1)
+    hlo = np.int64(0)
+    hhi = np.int64(0)
+    if ay == by:
+        hy, hlo, hhi = np.int64(ay), np.int64(min(ax, bx)), np.int64(max(ax, bx))
+    elif by == cy:
+        hy, hlo, hhi = np.int64(by), np.int64(min(bx, cx)), np.int64(max(bx, cx))
+    elif cy == ay:
+        hy, hlo, hhi = np.int64(cy), np.int64(min(cx, ax)), np.int64(max(cx, ax))
+    my = np.int64(-1)
+    mlo = np.int64(0)
+    mhi = np.int64(0)
+    if o == 2:
+        mx, my = _midpoint(ax, ay, bx, by, cx, cy)
+        if my == hy:
+            my = np.int64(-1)
+        else:
+            # The midpoint's row: the midpoint and a corner on that row, if any.
+            mlo = mx
+            mhi = mx
+            if ay == my:
+                mlo, mhi = min(mlo, ax), max(mhi, ax)
+            if by == my:
+                mlo, mhi = min(mlo, bx), max(mhi, bx)
+            if cy == my:
+                mlo, mhi = min(mlo, cx), max(mhi, cx)
+    if hy < 0 and my < 0:
+        return 0.0
+    za = np.float64(heights[r0 + ay, c0 + ax])
+    zb = np.float64(heights[r0 + by, c0 + bx])
+    zc = np.float64(heights[r0 + cy, c0 + cx])
+    gx, gy = plane(za, zb, zc, ax, ay, bx, by, cx, cy)
+    sse = 0.0
+    # In row order (the sum's order): the edge's row first when it lies above.
+    if hy >= 0 and (my < 0 or hy < my):
+        sse += _short_row_sse(
+            heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, wab, wbc, wca, hy, hlo, hhi
+        )
+    if my >= 0:
+        sse += _short_row_sse(
+            heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, wab, wbc, wca, my, mlo, mhi
+        )
+        if 0 <= hy and my < hy:
+            sse += _short_row_sse(
+                heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, wab, wbc, wca, hy, hlo, hhi
+            )
+    return max(sse, 0.0)
+
+
 @njit(cache=True, _nrt=False)
 def triangle_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca) -> float:
     """The triangle's owned sum of squared errors on a grid without nodata.
@@ -341,6 +471,10 @@ def triangle_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca) -> floa
     every non-vertex point once (up to round-off: both neighbours interpolate the same line).
     Rows are walked as in ``scan_candidate``; the sum runs in row order.
     """
+    # The smallest triangles of a fine mesh without the row walks (same value).
+    o = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+    if o <= 2:
+        return _small_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca, o)
     za = np.float64(heights[r0 + ay, c0 + ax])
     zb = np.float64(heights[r0 + by, c0 + bx])
     zc = np.float64(heights[r0 + cy, c0 + cx])

@@ -62,6 +62,12 @@ def grid_window(grid: Grid, rect: Rect) -> Window:
     r0, r1, c0, c1 = grid.index_range(rect)
     # Lattice builds read the whole band (checked once on a windowed grid, never a huge read).
     z = grid.heights_array("building lattice (TIN, RTIN) patches")[r0 : r1 + 1, c0 : c1 + 1]
+    # Two reductions settle a window without nodata (NaN or ±inf propagate into them): no mask
+    # and no masked copies, a fixed cost of every TIN and RTIN build.
+    if z.size:
+        lo, hi = z.min(), z.max()
+        if np.isfinite(lo) and np.isfinite(hi):
+            return Window(r0, r1, c0, c1, z.size, (float(lo), float(hi)), False)
     valid = np.isfinite(z)
     count = int(np.count_nonzero(valid))
     if count:
@@ -175,22 +181,25 @@ class LatticePatch(GeometryPatch):
     @property
     def vertices(self) -> np.ndarray:
         g = self.grid
-        r, c = self.ij[:, 0], self.ij[:, 1]
+        # Contiguous native indices and flat takes: about half the time of fancy indexing with
+        # strided int32 columns.
+        r = self.ij[:, 0].astype(np.intp)
+        c = self.ij[:, 1].astype(np.intp)
         # Filled column by column: no (n, 3) temporaries on million-vertex meshes.
         out = np.empty((len(self.ij), 3), dtype=np.float64)
-        out[:, 0] = g.x_coords[c]
-        out[:, 1] = g.y_coords[r]
-        out[:, 2] = g.heights[r, c]
+        out[:, 0] = g.x_coords.take(c)
+        out[:, 1] = g.y_coords.take(r)
+        h = g.heights
+        out[:, 2] = h.take(r * h.shape[1] + c) if isinstance(h, np.ndarray) else h[r, c]
         return out
 
     @property
     def triangles(self) -> np.ndarray:
         # Index space is (col, row); a north-up transform mirrors it, so flip to stay CCW.
         order = (0, 2, 1) if self.grid.transform.a * self.grid.transform.e < 0 else (0, 1, 2)
-        t = np.empty((len(self.tris), 3), dtype=np.int64)
-        for k in range(3):
-            t[:, k] = self.tris[:, order[k]]
-        return t
+        # One gather in the stored dtype, then one widening pass (faster than three strided
+        # column copies).
+        return self.tris[:, order].astype(np.int64)
 
     @property
     def point_count(self) -> int:
