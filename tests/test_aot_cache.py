@@ -133,6 +133,29 @@ def test_stamp_follows_source_and_versions(tmp_path):
     assert _cache.source_stamp(src) == _cache.source_stamp(src, _cache._versions())
 
 
+def test_stamp_follows_the_kernels_a_kernel_calls(tmp_path):
+    """A kernel compiles in the kernels it calls from other modules: editing one of those must
+    change every entry's stamp, or the cache would keep serving the old code; editing a module
+    without kernels must not (a CLI edit does not recompile everything)."""
+    root = tmp_path / "pkg"
+    (root / "kernels").mkdir(parents=True)
+    caller = root / "kernels" / "caller.py"
+    callee = root / "kernels" / "callee.py"
+    plain = root / "cli.py"
+    caller.write_text("from numba import njit\nfrom .callee import f\n")
+    callee.write_text("from numba import njit\n\n@njit\ndef f(x):\n    return x + 1\n")
+    plain.write_text("x = 1\n")
+    versions = ("0.68.1", "0.50.0", "2.4.6", "3.11.7")
+    stamp = _cache.source_stamp(caller, versions, root)
+    plain.write_text("x = 2\n")
+    assert _cache.source_stamp(caller, versions, root) == stamp
+    callee.write_text("from numba import njit\n\n@njit\ndef f(x):\n    return x + 2\n")
+    assert _cache.source_stamp(caller, versions, root) != stamp
+    # The installed package's stamp covers its kernel modules, this one among them.
+    names = [p.name for p in _cache._kernel_files(_cache.PACKAGE_ROOT)]
+    assert "greedy_tin.py" in names and "tin_scan.py" in names and "errors.py" not in names
+
+
 def _locator(dispatcher) -> object:
     return dispatcher._cache._impl.locator
 

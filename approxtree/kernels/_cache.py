@@ -7,10 +7,12 @@ next to the source and key entries by the interpreter's idea of the file, so thi
 :class:`PackageCacheLocator` at the front of numba's locator list. It applies only to
 approxtree's own source files; everything else goes to numba's locators unchanged.
 
-The entry stamp is a content hash of the source file plus the numba, llvmlite, numpy and Python
-versions: a wheel install does not preserve file times, and a cache built against other
-versions must simply miss. (numba also keys each entry by the CPU name and features, so a cache
-built on another machine misses too, and is refilled on first use.)
+The entry stamp is a content hash of the source file, of every other kernel source of the package
+(each ``.py`` file below it that names numba) and of the numba, llvmlite, numpy and Python
+versions: a wheel install does not preserve file times, a kernel carries compiled copies of the
+kernels it calls from other modules (an edit there must reach it), and a cache built against
+other versions must simply miss. (numba also keys each entry by the CPU name and features, so
+a cache built on another machine misses too, and is refilled on first use.)
 
 Fallbacks, all silent (importing approxtree never fails because of the cache):
 - ``NUMBA_CACHE_DIR`` set: numba's ``UserProvidedCacheLocator`` wins (the locator steps aside);
@@ -64,10 +66,39 @@ def _stamp(path: str, mtime: float, size: int, versions: tuple[str, ...]) -> str
     return digest.hexdigest()
 
 
-def source_stamp(path: str | os.PathLike, versions: tuple[str, ...] | None = None) -> str:
-    """Content hash of ``path`` plus the numba, llvmlite, numpy and Python versions."""
+@functools.cache
+def _kernel_files(root: Path) -> tuple[Path, ...]:
+    """The ``.py`` files below ``root`` that name numba (where kernels live), sorted; listed
+    once per process (a file added while running is not seen until the next one)."""
+    files = [p for p in root.rglob("*.py") if b"numba" in p.read_bytes()]
+    return tuple(sorted(files, key=lambda p: p.relative_to(root).as_posix()))
+
+
+def kernel_sources_digest(root: str | os.PathLike = PACKAGE_ROOT) -> str:
+    """Content hash of every kernel source below ``root`` (relative names and contents).
+
+    numba compiles a kernel together with the kernels it calls, including other modules'; a
+    stamp of the kernel's own file alone would keep serving the old code after an edit there.
+    """
+    root = Path(root)
+    digest = hashlib.sha256()
+    for p in _kernel_files(root):
+        digest.update(p.relative_to(root).as_posix().encode() + b"\0")
+        st = p.stat()
+        digest.update(_stamp(str(p), st.st_mtime, st.st_size, ()).encode())
+    return digest.hexdigest()
+
+
+def source_stamp(
+    path: str | os.PathLike,
+    versions: tuple[str, ...] | None = None,
+    root: str | os.PathLike = PACKAGE_ROOT,
+) -> str:
+    """Content hash of ``path``, of every kernel source below ``root``
+    (:func:`kernel_sources_digest`) and of the numba, llvmlite, numpy and Python versions."""
     st = os.stat(path)
-    return _stamp(str(path), st.st_mtime, st.st_size, versions or _versions())
+    own = _stamp(str(path), st.st_mtime, st.st_size, versions or _versions())
+    return hashlib.sha256((own + kernel_sources_digest(root)).encode()).hexdigest()
 
 
 def _make_locator_class() -> type:
