@@ -37,6 +37,19 @@ def test_info_counts_nodata_of_kauai(data_dir):
     assert json.loads(result.output)["nodata_count"] == 4279
 
 
+def test_info_text_on_a_point_set_says_what_does_not_apply(data_dir):
+    """info's text on a LAZ point set shows a dash for the grid figures (no width, height or
+    cell size), never Python's None; --json keeps them null."""
+    path = str(data_file(data_dir, "lidar/autzen_trim.laz"))
+    result = run("info", path)
+    assert result.exit_code == 0, result.output
+    rows = dict(line.split(None, 1) for line in result.output.splitlines())
+    assert rows["kind"] == "tinpointset" and rows["points"] == "109993"
+    assert rows["width"] == rows["height"] == rows["cell_size"] == "—"
+    assert "None" not in result.output
+    assert json.loads(run("info", path, "--json").output)["width"] is None
+
+
 def test_build_json_and_tree_file(data_dir, tmp_path):
     """build --json writes a loadable tree whose figures match the printed ones."""
     out = tmp_path / "nc.atree"

@@ -54,7 +54,9 @@ def _emit(figures: dict[str, Any], as_json: bool) -> None:
     else:
         width = max(len(k) for k in figures)
         for k, v in figures.items():
-            click.echo(f"{k:<{width}}  {v}")
+            # A figure that does not apply (a point set's width, no warning) reads as a dash,
+            # not as Python's None; --json keeps null.
+            click.echo(f"{k:<{width}}  {'—' if v is None else v}")
 
 
 def _open(
