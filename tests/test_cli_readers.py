@@ -36,9 +36,9 @@ class Reader:
     options: reader options the format needs. points, z: valid data points and z range.
     epsilon: ε of the test build (large for the 1201² SRTM tiles, to stay quick).
     texel: bake texel size (None: the terrain's own cell size or point spacing).
-    visible: the overview frame shows terrain (every format now: the fitted default view frames
-    even the .npz, whose degree cells without a CRS make it 0.33 × 0.29 units wide and 840 tall,
-    a sub-pixel sliver in the old overview).
+    visible: the fitted default view shows terrain over a transparent background (every format;
+    the .npz is read with --crs EPSG:4326: its degree cells without a CRS make it 0.33 × 0.29
+    units wide and 840 tall, a needle no view shows, and the reader warns).
     """
 
     id: str
@@ -78,6 +78,7 @@ READERS = [
         "grid",
         138632,
         (236.0, 1076.0),
+        options=("--crs", "EPSG:4326"),
         epsilon=20,
     ),
     Reader("las", "made:small.las", "tinpointset", 400, (45.71, 61.25), epsilon=1.0),
@@ -291,6 +292,8 @@ def test_bake(reader, files, tmp_path):
         options["height_scale"] = float(reader.options[1])
     if "--ground-only" in reader.options:
         options["ground_only"] = True
+    if "--crs" in reader.options:
+        options["crs"] = reader.options[1]
     domain = open_terrain(path_of(reader, files), **options).domain
     with rasterio.open(folder / "level0.tif") as ds:
         b = ds.bounds

@@ -19,6 +19,7 @@ from approxtree import (
     EmptyTerrainError,
     Grid,
     InvalidParameterError,
+    TerrainDataWarning,
     TerrainFormatError,
     TINPointSet,
 )
@@ -322,7 +323,9 @@ def test_jacksboro_npz_swapped_extent():
         stored = npz["elevation"]
         ymin, ymax = float(npz["ymin"]), float(npz["ymax"])
     assert ymin > ymax  # the file's quirk this test is about
-    grid = open_terrain(path)
+    # Degree cells without a CRS: the reader warns (tests/test_degrees_without_crs.py).
+    with pytest.warns(TerrainDataWarning, match="--crs EPSG:4326"):
+        grid = open_terrain(path)
     assert (grid.width, grid.height) == (403, 344) and grid.crs is None
     assert np.array_equal(grid.heights, stored.astype(np.float32))
     assert grid.cell_size == pytest.approx((ARCSEC_3, ARCSEC_3), rel=1e-6)

@@ -90,6 +90,7 @@ _READER_FLAGS = {
     "ground_only": "--ground-only",
     "height_scale": "--height-scale",
     "windowed": "--windowed",
+    "crs": "--crs",
 }
 
 
@@ -106,6 +107,11 @@ def _given_reader_options(
         options["ground_only"] = True
     if height_scale is not None:
         options["height_scale"] = height_scale
+    # --crs lives in the click context (reader_options), like --windowed.
+    ctx = click.get_current_context(silent=True)
+    crs = ctx.meta.get("approxtree.crs") if ctx is not None else None
+    if crs is not None:
+        options["crs"] = crs
     return options
 
 

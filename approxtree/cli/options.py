@@ -71,6 +71,14 @@ def reader_options(fn: Callable[..., Any]) -> Callable[..., Any]:
     )(fn)
     # Kept in the click context (not a parameter of every command): _open reads it.
     fn = click.option(
+        "--crs",
+        default=None,
+        expose_value=False,
+        callback=_remember_crs,
+        help="CRS of a file that carries none or a wrong one (EPSG:4326, a PROJ string or a "
+        "WKT); e.g. a .npz, PGM or PNG in degrees.",
+    )(fn)
+    fn = click.option(
         "--windowed",
         type=click.Choice(["auto", "on", "off"]),
         default=None,
@@ -168,3 +176,8 @@ def _size(ctx: click.Context, param: click.Parameter, value: str) -> tuple[int, 
     except ValueError:
         raise click.BadParameter(f"expected WxH in pixels, e.g. 1280x720, got {value!r}") from None
     return w, h
+
+
+def _remember_crs(ctx: click.Context, _param: click.Parameter, value: str | None) -> None:
+    """Keep --crs in the context for _open (None when not given)."""
+    ctx.meta["approxtree.crs"] = value

@@ -33,6 +33,7 @@ from approxtree.io.pointcloud import read_point_cloud
 from approxtree.io.quantized_mesh import read_quantized_mesh, tile_bounds
 from approxtree.io.raster import is_gdal_raster, read_raster
 from approxtree.io.scape import read_pgm, read_stm
+from approxtree.io.unitless import warn_degrees_without_crs
 
 
 @dataclass(frozen=True)
@@ -153,7 +154,11 @@ def open_terrain(path: str | os.PathLike, **options: object) -> GeometryData:
     given = {name: value for name, value in options.items() if value is not None}
     fmt = detect_format(p, encoding=given.get("encoding"))  # type: ignore[arg-type]
     _check_options(fmt, given)
-    return fmt.reader(p, **given)
+    terrain = fmt.reader(p, **given)
+    # A grid in degrees read without its CRS would be drawn as a needle: say how to fix it.
+    if isinstance(terrain, Grid):
+        warn_degrees_without_crs(terrain, path)
+    return terrain
 
 
 def read_grid(path: str | os.PathLike, **options: object) -> Grid:

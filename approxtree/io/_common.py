@@ -171,13 +171,24 @@ def check_bounds(bounds: object) -> tuple[float, float, float, float] | None:
 
 
 def check_crs(crs: object) -> str | None:
-    """A CRS string (EPSG code or WKT), or None."""
+    """A CRS string (EPSG code, PROJ string or WKT) that pyproj understands, or None."""
     if crs is None:
         return None
     if not isinstance(crs, str) or not crs.strip():
         raise InvalidParameterError(
             f"crs must be a non-empty string such as 'EPSG:4326' or a WKT, got {crs!r}."
         )
+    # A CRS no library can read would fail later, at the first display scale or reprojection.
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+
+    try:
+        CRS.from_user_input(crs.strip())
+    except CRSError as exc:
+        raise InvalidParameterError(
+            f"crs {crs.strip()!r} is not a CRS pyproj knows ({exc}); give an EPSG code such as "
+            "'EPSG:4326', a PROJ string or a WKT."
+        ) from None
     return crs.strip()
 
 
