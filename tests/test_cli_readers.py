@@ -233,7 +233,10 @@ def test_build_then_render(reader, built, tmp_path):
     assert figures["max_leaf_error"] <= reader.epsilon
     assert tree.terrain.point_count == reader.points
     png = tmp_path / "frame.png"
-    code, stdout, stderr = run("render", out, "--out", png, "--size", "160x120", "--json")
+    # A transparent background: alpha then says where terrain was drawn (the sky is opaque).
+    code, stdout, stderr = run(
+        "render", out, "--out", png, "--size", "160x120", "--background", "transparent", "--json"
+    )
     assert code == 0, stderr
     stats = json.loads(stdout)
     assert stats["triangles"] > 0 and stats["patches"] >= 1
