@@ -410,6 +410,21 @@ def test_explicit_reader_options_still_apply_to_their_format():
     assert filled["nodata_count"] == 0 and filled["points"] == 76 * 55
 
 
+def test_cell_size_reaches_the_grid_readers(files):
+    """--cell-size gives a grid without a georeference its cells (one number or DX,DY); it is
+    refused for point clouds, and a value that is not one or two positive numbers is an error."""
+    png = files / "gray16.png"
+    scale = ("--height-scale", "0.1")
+    assert run_json("info", png, *scale)["cell_size"] == [1.0, 1.0]
+    assert run_json("info", png, *scale, "--cell-size", "30")["cell_size"] == [30.0, 30.0]
+    assert run_json("info", png, *scale, "--cell-size", "30,20")["cell_size"] == [30.0, 20.0]
+    code, _, err = run("info", files / "small.las", "--cell-size", "3")
+    assert code == 2 and err.startswith("Error: ") and "--cell-size does not apply" in err
+    for bad in ("x", "-3", "1,2,3", "nan"):
+        code, _, err = run("info", png, *scale, "--cell-size", bad)
+        assert code == 2 and "Invalid value for '--cell-size'" in err, (bad, err)
+
+
 def test_reader_options_with_a_tree_file_are_refused(built, files, tmp_path):
     """Reader options choose how a terrain file is read; with a built tree they are an error
     (they used to be ignored silently)."""

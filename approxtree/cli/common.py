@@ -91,6 +91,7 @@ _READER_FLAGS = {
     "height_scale": "--height-scale",
     "windowed": "--windowed",
     "crs": "--crs",
+    "cell_size": "--cell-size",
 }
 
 
@@ -107,11 +108,12 @@ def _given_reader_options(
         options["ground_only"] = True
     if height_scale is not None:
         options["height_scale"] = height_scale
-    # --crs lives in the click context (reader_options), like --windowed.
+    # --crs and --cell-size live in the click context (reader_options), like --windowed.
     ctx = click.get_current_context(silent=True)
-    crs = ctx.meta.get("approxtree.crs") if ctx is not None else None
-    if crs is not None:
-        options["crs"] = crs
+    meta = ctx.meta if ctx is not None else {}
+    for key in ("crs", "cell_size"):
+        if meta.get(f"approxtree.{key}") is not None:
+            options[key] = meta[f"approxtree.{key}"]
     return options
 
 

@@ -79,6 +79,14 @@ def reader_options(fn: Callable[..., Any]) -> Callable[..., Any]:
         "WKT); e.g. a .npz, PGM or PNG in degrees.",
     )(fn)
     fn = click.option(
+        "--cell-size",
+        default=None,
+        expose_value=False,
+        callback=_remember_cell_size,
+        help="Grid cell size D or DX,DY in CRS units, for a file without a georeference "
+        "(SCAPE .stm, PGM, PNG, arrays read with cell size 1) or to replace its own.",
+    )(fn)
+    fn = click.option(
         "--windowed",
         type=click.Choice(["auto", "on", "off"]),
         default=None,
@@ -181,3 +189,19 @@ def _size(ctx: click.Context, param: click.Parameter, value: str) -> tuple[int, 
 def _remember_crs(ctx: click.Context, _param: click.Parameter, value: str | None) -> None:
     """Keep --crs in the context for _open (None when not given)."""
     ctx.meta["approxtree.crs"] = value
+
+
+def _remember_cell_size(ctx: click.Context, param: click.Parameter, value: str | None) -> None:
+    """Keep --cell-size in the context for _open: a number, or a pair from "DX,DY"."""
+    if value is None:
+        ctx.meta["approxtree.cell_size"] = None
+        return
+    try:
+        parts = [float(v) for v in value.split(",")]
+    except ValueError:
+        parts = []
+    if len(parts) not in (1, 2) or not all(0.0 < v < float("inf") for v in parts):
+        raise click.BadParameter(
+            f"{value!r}: give one positive number D or two, DX,DY.", ctx, param
+        )
+    ctx.meta["approxtree.cell_size"] = parts[0] if len(parts) == 1 else tuple(parts)
