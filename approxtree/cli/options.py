@@ -84,7 +84,7 @@ def reader_options(fn: Callable[..., Any]) -> Callable[..., Any]:
         expose_value=False,
         callback=_remember_cell_size,
         help="Grid cell size D or DX,DY in CRS units, for a file without a georeference "
-        "(SCAPE .stm, PGM, PNG, arrays read with cell size 1) or to replace its own.",
+        "(SCAPE .stm, PGM, PNG, arrays: cell size 1 otherwise).",
     )(fn)
     fn = click.option(
         "--windowed",
