@@ -69,12 +69,13 @@ def reader_options(fn: Callable[..., Any]) -> Callable[..., Any]:
     fn = click.option(
         "--height-scale", type=float, help="16-bit grayscale PNG: metres per grey level."
     )(fn)
-    # Kept in the click context (not a parameter of every command): _open reads it.
+    # --crs, --cell-size and --windowed are kept in the click context as "approxtree.NAME"
+    # (not parameters of every command): _given_reader_options and _open read them.
     fn = click.option(
         "--crs",
         default=None,
         expose_value=False,
-        callback=_remember_crs,
+        callback=_remember,
         help="CRS of a file that carries none or a wrong one (EPSG:4326, a PROJ string or a "
         "WKT); e.g. a .npz, PGM or PNG in degrees.",
     )(fn)
@@ -91,16 +92,16 @@ def reader_options(fn: Callable[..., Any]) -> Callable[..., Any]:
         type=click.Choice(["auto", "on", "off"]),
         default=None,
         expose_value=False,
-        callback=_remember_windowed,
+        callback=_remember,
         help="GDAL rasters: read by windows on demand (on), into memory (off), or windowed when "
         "the band exceeds 1 GiB (auto; APPROXTREE_WINDOWED_BYTES overrides) [default: auto].",
     )(fn)
     return fn
 
 
-def _remember_windowed(ctx: click.Context, _param: click.Parameter, value: str | None) -> None:
-    """Keep --windowed in the context for _open (None when not given)."""
-    ctx.meta["approxtree.windowed"] = value
+def _remember(ctx: click.Context, param: click.Parameter, value: object) -> None:
+    """Keep a reader option in the context as "approxtree.NAME" (None when not given)."""
+    ctx.meta[f"approxtree.{param.name}"] = value
 
 
 def quiet_option(fn: Callable[..., Any]) -> Callable[..., Any]:
@@ -186,22 +187,17 @@ def _size(ctx: click.Context, param: click.Parameter, value: str) -> tuple[int, 
     return w, h
 
 
-def _remember_crs(ctx: click.Context, _param: click.Parameter, value: str | None) -> None:
-    """Keep --crs in the context for _open (None when not given)."""
-    ctx.meta["approxtree.crs"] = value
-
-
 def _remember_cell_size(ctx: click.Context, param: click.Parameter, value: str | None) -> None:
-    """Keep --cell-size in the context for _open: a number, or a pair from "DX,DY"."""
-    if value is None:
-        ctx.meta["approxtree.cell_size"] = None
-        return
-    try:
-        parts = [float(v) for v in value.split(",")]
-    except ValueError:
-        parts = []
-    if len(parts) not in (1, 2) or not all(0.0 < v < float("inf") for v in parts):
-        raise click.BadParameter(
-            f"{value!r}: give one positive number D or two, DX,DY.", ctx, param
-        )
-    ctx.meta["approxtree.cell_size"] = parts[0] if len(parts) == 1 else tuple(parts)
+    """Keep --cell-size in the context like _remember: a number, or a pair from "DX,DY"."""
+    cell: float | tuple[float, ...] | None = None
+    if value is not None:
+        try:
+            parts = [float(v) for v in value.split(",")]
+        except ValueError:
+            parts = []
+        if len(parts) not in (1, 2) or not all(0.0 < v < float("inf") for v in parts):
+            raise click.BadParameter(
+                f"{value!r}: give one positive number D or two, DX,DY.", ctx, param
+            )
+        cell = parts[0] if len(parts) == 1 else tuple(parts)
+    _remember(ctx, param, cell)
