@@ -172,6 +172,74 @@ def _no_reader_flags_for_tree(path: str, options: dict[str, Any]) -> None:
         )
 
 
+def _tree_of(
+    path: str,
+    build: Any,
+    encoding: str | None,
+    nodata_policy: str | None,
+    ground_only: bool,
+    height_scale: float | None,
+    verify: bool = True,
+):
+    """The tree of any terrain, for the commands that draw or tile one (render, tiles, view).
+
+    A saved tree (store, .zip, URL, legacy .atree) is loaded (``verify``: every patch's
+    checksum now); any terrain file (raster DEM, height PNG, array, SCAPE, point cloud, TIN)
+    is read with the reader options (as the command received them, see ``_open``) and built
+    into a tree in memory, as ``approxtree build`` builds it with the same options. build: the
+    command's ``BuildChoices`` (cli/options.py). Reader and build options given with a saved
+    tree are an InvalidParameterError: it is read and built already.
+    """
+    from approxtree.tree import ApproximationTree, load_tree
+
+    reader = (encoding, nodata_policy, ground_only, height_scale)
+    if _is_tree(path):
+        _no_reader_flags_for_tree(path, _given_reader_options(*reader))
+        _no_build_flags_for_tree(path, build.given)
+        return load_tree(path, verify=verify)
+    return ApproximationTree.build(_open(path, *reader), **build.kwargs(), progress=False)
+
+
+def _terrain_of(
+    path: str,
+    encoding: str | None,
+    nodata_policy: str | None,
+    ground_only: bool,
+    height_scale: float | None,
+):
+    """The terrain of any terrain file or saved tree, for the commands that work on the
+    terrain itself (tiles --format quantized-mesh, bake, mesh, rd).
+
+    A terrain file is read with the reader options (``_open``); a tree store gives its stored
+    terrain (a grid's heights read by windows from the store, nothing else of the tree
+    loaded), a legacy .atree its terrain. Reader options given with a saved tree are an
+    InvalidParameterError.
+    """
+    reader = (encoding, nodata_policy, ground_only, height_scale)
+    if not _is_tree(path):
+        return _open(path, *reader)
+    _no_reader_flags_for_tree(path, _given_reader_options(*reader))
+    if Path(path).suffix.lower() == ".atree":
+        from approxtree.tree import load_tree
+
+        return load_tree(path).terrain
+    from approxtree.tree.tree_store import load_store_terrain
+
+    return load_store_terrain(path)
+
+
+def _no_build_flags_for_tree(path: str, given: tuple[str, ...]) -> None:
+    """InvalidParameterError when build options (--epsilon, ...) are given with a saved tree."""
+    from approxtree.errors import InvalidParameterError
+
+    if given:
+        verb = "chooses" if len(given) == 1 else "choose"
+        raise InvalidParameterError(
+            f"{', '.join(given)} {verb} how a terrain file is built into a tree; {path} is a "
+            "saved tree, already built. Leave them out, or rebuild it with `approxtree build`."
+        )
+
+
 def terrain_figures(terrain) -> dict[str, Any]:
     """The figures of ``approxtree info`` for any terrain."""
     from approxtree.geometry import Grid

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import click
@@ -97,6 +98,73 @@ def reader_options(fn: Callable[..., Any]) -> Callable[..., Any]:
         "the band exceeds 1 GiB (auto; APPROXTREE_WINDOWED_BYTES overrides) [default: auto].",
     )(fn)
     return fn
+
+
+@dataclass(frozen=True)
+class BuildChoices:
+    """How a terrain file given where a tree is meant is built into one (``build_options``).
+
+    given: the flags the user gave explicitly (a saved tree refuses them: it is built already).
+    """
+
+    epsilon: float
+    max_points: int
+    fanout: int
+    policy: str
+    given: tuple[str, ...] = ()
+
+    def kwargs(self) -> dict[str, Any]:
+        """The keywords of ``ApproximationTree.build``."""
+        return {
+            "epsilon": self.epsilon,
+            "max_points": self.max_points,
+            "fanout": self.fanout,
+            "policy": self.policy,
+        }
+
+
+#: The build options of the commands that take a tree or a terrain file, by keyword: the flag,
+#: the default (the same as ``approxtree build``'s) and the help text.
+BUILD_OPTIONS = {
+    "epsilon": ("--epsilon", 1.0, "Terrain file: threshold ε of the tree built (z units)."),
+    "max_points": ("--max-points", 33 * 33, "Terrain file: s, most data points per patch."),
+    "fanout": ("--fanout", "4", "Terrain file: d, children per node (4 quadtree, 2 k-d tree)."),
+    "policy": (
+        "--policy",
+        "type",
+        "Terrain file: strategy per node (type, auto, a name, level:…, semantic:…).",
+    ),
+}
+
+
+def build_options(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """--epsilon, --max-points, --fanout, --policy: how a terrain file (DEM, point cloud, TIN)
+    given where a tree is meant is built in memory, with ``approxtree build``'s defaults
+    (render, tiles, view). Passed to the command as keyword ``build``, a BuildChoices."""
+    types = {"epsilon": float, "max_points": int, "fanout": click.Choice(["2", "4"]), "policy": str}
+    for name, (flag, default, text) in reversed(BUILD_OPTIONS.items()):
+        fn = click.option(
+            flag, name, type=types[name], default=default, show_default=True, help=text
+        )(fn)
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        ctx = click.get_current_context()
+        given = tuple(
+            flag
+            for name, (flag, _, _) in BUILD_OPTIONS.items()
+            if ctx.get_parameter_source(name) != click.core.ParameterSource.DEFAULT
+        )
+        kwargs["build"] = BuildChoices(
+            epsilon=kwargs.pop("epsilon"),
+            max_points=kwargs.pop("max_points"),
+            fanout=int(kwargs.pop("fanout")),
+            policy=kwargs.pop("policy"),
+            given=given,
+        )
+        return fn(*args, **kwargs)
+
+    return wrapper
 
 
 def _remember(ctx: click.Context, param: click.Parameter, value: object) -> None:

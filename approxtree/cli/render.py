@@ -1,4 +1,4 @@
-"""``approxtree render``: Render a saved tree (store or .atree) to a PNG and print the stats."""
+"""``approxtree render``: Render a saved tree or any terrain file to a PNG and print the stats."""
 
 from __future__ import annotations
 
@@ -7,12 +7,15 @@ from typing import Any
 
 import click
 
-from approxtree.cli.common import _emit, _render_to_png, _reports_errors
+from approxtree.cli.common import _emit, _render_to_png, _reports_errors, _tree_of
 from approxtree.cli.options import (
+    BuildChoices,
     _size,
+    build_options,
     cartographic_options,
     fov_option,
     json_option,
+    reader_options,
     threshold_options,
 )
 
@@ -57,6 +60,8 @@ def _xyz(ctx: click.Context, param: click.Parameter, value: str | None):
 )
 @click.option("--no-lighting", is_flag=True, help="Same as --lighting off (decal mode).")
 @cartographic_options
+@build_options
+@reader_options
 @json_option
 @_reports_errors
 def render(
@@ -73,17 +78,22 @@ def render(
     out: str,
     textures: str | None,
     no_lighting: bool,
+    encoding,
+    nodata_policy,
+    ground_only,
+    height_scale,
     as_json: bool,
     style: dict[str, Any],
+    build: BuildChoices,
 ) -> None:
-    """Render a saved tree (store or .atree) to a PNG and print the stats. Without --eye the
-    terrain is fitted to the frame, seen from the south; --background transparent leaves
-    alpha 0 where no terrain is drawn."""
+    """Render a saved tree (store or .atree), or any terrain file built into a tree in memory
+    (--epsilon, ...), to a PNG and print the stats. Without --eye the terrain is fitted to the
+    frame, seen from the south; --background transparent leaves alpha 0 where no terrain is
+    drawn."""
     from approxtree.io.output_path import check_output_file
-    from approxtree.tree import load_tree
 
     check_output_file(out, "image")
-    tree = load_tree(tree_file)
+    tree = _tree_of(tree_file, build, encoding, nodata_policy, ground_only, height_scale)
     stats = _render_to_png(
         tree,
         Path(out),

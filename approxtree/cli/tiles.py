@@ -1,5 +1,5 @@
-"""``approxtree tiles``: Write TREE (a tree store from `approxtree build`; for quantized-mesh
-also a raster DEM) as web tiles into the folder --out, replaced as a whole when done.
+"""``approxtree tiles``: Write TREE (a tree store from `approxtree build`, or any terrain file)
+as web tiles into the folder --out, replaced as a whole when done.
 """
 
 from __future__ import annotations
@@ -10,15 +10,8 @@ from typing import Any
 
 import click
 
-from approxtree.cli import common
-from approxtree.cli.common import (
-    _emit,
-    _given_reader_options,
-    _is_tree,
-    _no_reader_flags_for_tree,
-    _reports_errors,
-)
-from approxtree.cli.options import json_option, reader_options
+from approxtree.cli.common import _emit, _is_tree, _reports_errors, _terrain_of, _tree_of
+from approxtree.cli.options import BuildChoices, build_options, json_option, reader_options
 
 
 def _store_epsilon(path: str) -> float | None:
@@ -33,21 +26,6 @@ def _store_epsilon(path: str) -> float | None:
 
     eps = (StoreReader(path).meta.get("params") or {}).get("epsilon")
     return float(eps) if eps else None
-
-
-def _tiles_terrain(path: str, reader: dict[str, Any]):
-    """The terrain to tile: a tree store's stored terrain (windowed), a legacy tree's, or a
-    raster DEM read now."""
-    if _is_tree(path):
-        _no_reader_flags_for_tree(path, _given_reader_options(**reader))
-        if Path(path).suffix.lower() == ".atree":
-            from approxtree.tree import load_tree
-
-            return load_tree(path).terrain
-        from approxtree.tree.tree_store import load_store_terrain
-
-        return load_store_terrain(path)
-    return common._open(path, **reader)
 
 
 @click.command()
@@ -124,7 +102,7 @@ def _tiles_terrain(path: str, reader: dict[str, Any]):
     default=None,
     help="quantized-mesh: the deepest level's tiles (CesiumJS keeps showing them as the camera "
     "comes closer) are within this many metres of the terrain [default: the tree store's ε, "
-    "1 m for a raster DEM].",
+    "1 m for a terrain file].",
 )
 @click.option(
     "--workers",
@@ -139,6 +117,7 @@ def _tiles_terrain(path: str, reader: dict[str, Any]):
     help="Write the tiles as dask tasks on an existing cluster: its scheduler address "
     "(e.g. tcp://host:8786); its workers must see --out.",
 )
+@build_options
 @reader_options
 @json_option
 @_reports_errors
@@ -163,9 +142,11 @@ def tiles(
     ground_only,
     height_scale,
     as_json: bool,
+    build: BuildChoices,
 ) -> None:
-    """Write TREE (a tree store from `approxtree build`; for quantized-mesh also a raster DEM)
-    as web tiles into the folder --out, replaced as a whole when done."""
+    """Write TREE (a tree store from `approxtree build`, or any terrain file: 3dtiles builds
+    its tree in memory with --epsilon, ...) as web tiles into the folder --out, replaced as a
+    whole when done."""
 
     reader = {
         "encoding": encoding,
@@ -175,16 +156,34 @@ def tiles(
     }
     if tile_format == "3dtiles":
         _tiles_3dtiles(
-            tree, out, textures, texture_format, origin, no_skirts, workers, scheduler, as_json
+            tree,
+            out,
+            textures,
+            texture_format,
+            origin,
+            no_skirts,
+            workers,
+            scheduler,
+            as_json,
+            reader,
+            build,
         )
         return
+    if build.given:
+        from approxtree.errors import InvalidParameterError
+
+        # Quantized-mesh tiles sample the terrain itself, not a tree: no tree is built.
+        raise InvalidParameterError(
+            f"{', '.join(build.given)} build the tree of --format 3dtiles; quantized-mesh "
+            "tiles the terrain itself (its deepest level within --leaf-error). Leave them out."
+        )
     from approxtree.tiles import write_quantized_mesh
     from approxtree.tiles.quantized_mesh import DEFAULT_LEAF_ERROR, check_output
 
     # The output folder is checked before the terrain is read.
     check_output(out)
     t0 = time.perf_counter()
-    terrain = _tiles_terrain(tree, reader)
+    terrain = _terrain_of(tree, **reader)
     if leaf_error is None:
         leaf_error = _store_epsilon(tree) or DEFAULT_LEAF_ERROR
     figures = write_quantized_mesh(
@@ -214,15 +213,17 @@ def _tiles_3dtiles(
     workers: int,
     scheduler: str | None,
     as_json: bool,
+    reader: dict[str, Any],
+    build: BuildChoices,
 ) -> None:
-    """`approxtree tiles --format 3dtiles`: the 3D Tiles tileset of a tree store."""
+    """`approxtree tiles --format 3dtiles`: the 3D Tiles tileset of a tree store, or of the
+    tree of a terrain file built in memory."""
     from approxtree.tiles import write_3dtiles
     from approxtree.tiles.parallel import check_workers
-    from approxtree.tree import load_tree
 
     check_workers(workers, scheduler)
     # verify=False: the patches are read one by one as the tiles are written.
-    tree = load_tree(tree_path, verify=False)
+    tree = _tree_of(tree_path, build, **reader, verify=False)
     figures = write_3dtiles(
         tree,
         out,

@@ -9,33 +9,16 @@ from typing import Any
 
 import click
 
-from approxtree.cli import common
-from approxtree.cli.common import (
-    _given_reader_options,
-    _is_tree,
-    _no_reader_flags_for_tree,
-    _reports_errors,
-)
+from approxtree.cli.common import _reports_errors, _tree_of
 from approxtree.cli.options import (
+    BuildChoices,
     _size,
+    build_options,
     cartographic_options,
     fov_option,
     reader_options,
     threshold_options,
 )
-
-
-def _open_tree(path: str, epsilon: float, reader: dict[str, Any]):
-    """A saved tree (store or .atree), or any terrain file built into a tree now.
-
-    reader: the reader options given (encoding, nodata_policy, ground_only, height_scale).
-    """
-    from approxtree.tree import ApproximationTree, load_tree
-
-    if _is_tree(path):
-        _no_reader_flags_for_tree(path, _given_reader_options(**reader))
-        return load_tree(path)
-    return ApproximationTree.build(common._open(path, **reader), epsilon=epsilon, progress=False)
 
 
 @click.command()
@@ -46,9 +29,6 @@ def _open_tree(path: str, epsilon: float, reader: dict[str, Any]):
     multiple=True,
     type=click.Path(exists=True, file_okay=False),
     help="Baked texture pyramid folder (repeat for several; TAB cycles, T toggles).",
-)
-@click.option(
-    "--epsilon", type=float, default=1.0, show_default=True, help="ε when SOURCE is a DEM."
 )
 @click.option(
     "--size", callback=_size, default="1280x720", show_default=True, help="Window size WxH."
@@ -105,12 +85,12 @@ def _open_tree(path: str, epsilon: float, reader: dict[str, Any]):
     help="Bookmark file [default: $XDG_CONFIG_HOME/approxtree/bookmarks.json].",
 )
 @cartographic_options
+@build_options
 @reader_options
 @_reports_errors
 def view(
     source: str,
     textures: tuple[str, ...],
-    epsilon: float,
     size: tuple[int, int],
     alpha: float,
     gamma: float,
@@ -125,6 +105,7 @@ def view(
     legend: str | None,
     bookmarks_path: str | None,
     style: dict[str, Any],
+    build: BuildChoices,
     encoding,
     nodata_policy,
     ground_only,
@@ -154,7 +135,7 @@ def view(
         ground_only=ground_only,
         height_scale=height_scale,
     )
-    tree = _open_tree(source, epsilon, reader)
+    tree = _tree_of(source, build, **reader)
     with Viewer(
         tree,
         textures=list(textures),
