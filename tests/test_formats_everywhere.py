@@ -171,3 +171,25 @@ def test_build_option_defaults_are_those_of_build():
     assert set(expected) == set(BUILD_OPTIONS)
     for name in ("render", "tiles", "view"):
         assert defaults(name) == expected, name
+
+
+def test_mesh_and_rd_take_a_tree_store_terrain(data_dir, store):
+    """mesh and rd of a tree store work on its stored terrain: the figures of the DEM's."""
+    dem = data_file(data_dir, "nc/elev_ned_30m.tif")
+    goal = ("--max-error", "5")
+    of_store, of_dem = run_json("mesh", store, *goal), run_json("mesh", dem, *goal)
+    for key in ("vertices", "triangles", "max_error", "rms_error"):
+        assert of_store[key] == of_dem[key]
+    rd = ("--methods", "uniform", "--rates", "512", "-q")
+    rows = [run_json("rd", source, *rd)["methods"]["uniform"]["rows"] for source in (store, dem)]
+    assert rows[0] == rows[1] and rows[0][0]["triangles"] > 0
+
+
+def test_bake_takes_a_point_quadtree_store(data_dir, tmp_path):
+    """bake shades the terrain of a point-quadtree store (it used to ask for an
+    approximation tree)."""
+    laz = data_file(data_dir, "lidar/autzen_trim.laz")
+    out = tmp_path / "pq.zarr"
+    run_json("build", laz, "--ground-only", "--kind", "point-quadtree", "--out", out, "-q")
+    figures = run_json("bake", out, "--no-gl", "--out", tmp_path / "pyramid", "-q")
+    assert figures["levels"] >= 1 and (tmp_path / "pyramid" / "pyramid.json").exists()

@@ -6,14 +6,7 @@ from typing import Any
 
 import click
 
-from approxtree.cli import common
-from approxtree.cli.common import (
-    _emit,
-    _given_reader_options,
-    _is_tree,
-    _no_reader_flags_for_tree,
-    _reports_errors,
-)
+from approxtree.cli.common import _emit, _is_tree, _reports_errors, _terrain_of
 from approxtree.cli.options import json_option, quiet_option, reader_options
 
 
@@ -141,14 +134,7 @@ def bake_command(
     from approxtree.textures.bake import bake
 
     check_output_folder(out, "texture pyramid folder")
-    if _is_tree(source):
-        from approxtree.tree import ApproximationTree
-
-        _no_reader_flags_for_tree(
-            source, _given_reader_options(encoding, nodata_policy, ground_only, height_scale)
-        )
-        terrain = ApproximationTree.load(source).terrain
-    else:
+    if not _is_tree(source):
         ctx = click.get_current_context()
         if (
             ctx.meta.get("approxtree.windowed") is None
@@ -161,7 +147,7 @@ def bake_command(
             # A hillshade of the DEM's own lattice is shaded strip by strip: a raster read by
             # windows streams through (read, shade, write overlap; the band is never whole).
             ctx.meta["approxtree.windowed"] = "on"
-        terrain = common._open(source, encoding, nodata_policy, ground_only, height_scale)
+    terrain = _terrain_of(source, encoding, nodata_policy, ground_only, height_scale)
     options: dict[str, Any] = {"azimuth": azimuth, "altitude": altitude, "z_factor": z_factor}
     if shading == "topographic":
         if alg is not None:

@@ -7,13 +7,12 @@ from __future__ import annotations
 
 import click
 
-from approxtree.cli import common
-from approxtree.cli.common import _emit, _reports_errors
+from approxtree.cli.common import _emit, _reports_errors, _terrain_of
 from approxtree.cli.options import json_option, quiet_option, reader_options
 
 
 @click.command()
-@click.argument("dem", type=click.Path(dir_okay=False))
+@click.argument("dem", type=click.Path())
 @click.option(
     "--strategy",
     type=click.Choice(["grid", "nonregular", "tin", "rtin"]),
@@ -89,7 +88,7 @@ def mesh(
         from approxtree.errors import InvalidParameterError
 
         raise InvalidParameterError("--textures and --skirts shape the written mesh: give --out.")
-    terrain = common._open(dem, encoding, nodata_policy, ground_only, height_scale)
+    terrain = _terrain_of(dem, encoding, nodata_policy, ground_only, height_scale)
     _check_mesh_strategy(dem, terrain, strategy)
     with progress_bar(f"mesh ({strategy})", unit="stage", quiet=quiet) as on_progress:
         result = approximate(

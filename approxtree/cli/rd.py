@@ -9,8 +9,7 @@ from pathlib import Path
 
 import click
 
-from approxtree.cli import common
-from approxtree.cli.common import _reports_errors
+from approxtree.cli.common import _reports_errors, _terrain_of
 from approxtree.cli.options import json_option, quiet_option, reader_options
 
 
@@ -26,7 +25,7 @@ def _rates(ctx: click.Context, param: click.Parameter, value: str) -> list[int]:
 
 
 @click.command()
-@click.argument("dem", type=click.Path(dir_okay=False))
+@click.argument("dem", type=click.Path())
 @click.option(
     "--rates",
     callback=_rates,
@@ -75,7 +74,7 @@ def rd(
         from approxtree.io.output_path import check_output_file
 
         check_output_file(plot, "plot")
-    terrain = common._open(dem, encoding, nodata_policy, ground_only, height_scale)
+    terrain = _terrain_of(dem, encoding, nodata_policy, ground_only, height_scale)
     if not isinstance(terrain, Grid):
         from approxtree.errors import InvalidParameterError
 
