@@ -20,6 +20,7 @@ from affine import Affine
 
 from approxtree.errors import EmptyTerrainError, InvalidParameterError, TerrainFormatError
 from approxtree.geometry.base import GeometryData
+from approxtree.geometry.dataarray import is_dataarray
 from approxtree.geometry.rect import Rect
 from approxtree.geometry.windowed import WindowedHeights, band_statistics, check_whole_band
 from approxtree.kernels.grid_interp import cell_height_at, grid_height_at
@@ -72,12 +73,36 @@ def _check_not_empty(n_valid: int, shape: tuple[int, int], allow_empty: bool | N
         )
 
 
+def _from_dataarray(
+    da: Any, transform: Affine | None, crs: str | None, nodata: float | None
+) -> tuple[np.ndarray | WindowedHeights, Affine | None, str | None, float | None]:
+    """(heights, transform, crs, nodata) of an xarray DataArray given to Grid: its own
+    georeference (``geometry.dataarray``). A transform given as well is refused when the
+    array has one; a crs or nodata given replaces its own."""
+    from approxtree.geometry.dataarray import grid_parts
+
+    parts = grid_parts(da)
+    if transform is not None and parts.transform is not None:
+        raise InvalidParameterError(
+            "The DataArray carries its own georeference (x/y coordinates or rioxarray's "
+            "transform); leave transform out, or drop its coordinates first."
+        )
+    return (
+        parts.heights,
+        parts.transform if transform is None else transform,
+        parts.crs if crs is None else crs,
+        parts.nodata if nodata is None else nodata,
+    )
+
+
 class Grid(GeometryData):
     """A regular grid of heights with an affine georeference.
 
     heights: (rows, cols) float32 or float64, NaN where there is no data; or a WindowedHeights
         (float32/float64 source), which makes a windowed grid read by blocks and never scanned
-        at construction (point count and z range are computed blockwise when first asked).
+        at construction (point count and z range are computed blockwise when first asked); or
+        an xarray DataArray, placed by its own georeference (``geometry.dataarray``: rioxarray's
+        transform and CRS, or regular x/y coordinates; dask-backed ones read by windows).
     transform: affine map from (col, row) pixel-corner coordinates to world (x, y); rotation and
         shear are not supported. Defaults to cell size 1 with row 0 at the top (y = rows).
     crs: EPSG code or WKT of x and y, or None.
@@ -93,6 +118,8 @@ class Grid(GeometryData):
         index_offset: tuple[int, int] = (0, 0),
         allow_empty: bool = False,
     ) -> None:
+        if is_dataarray(heights):
+            heights, transform, crs, nodata = _from_dataarray(heights, transform, crs, nodata)
         windowed = isinstance(heights, WindowedHeights)
         h = heights if windowed else _as_heights(heights)
         if windowed and h.dtype not in (np.float32, np.float64):

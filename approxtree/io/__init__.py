@@ -8,6 +8,7 @@ One module per format family, each delegating to the library made for the format
     scape           SCAPE .stm (numpy) and PGM (Pillow)
     pointcloud      LAS / LAZ (laspy + lazrs)
     quantized_mesh  Cesium quantized-mesh .terrain (quantized_mesh_tile)
+    dataarray       an xarray / rioxarray DataArray in memory (no file)
 
 Every reader raises TerrainFormatError for a missing, unknown or corrupt file (with the path
 and the library's reason), EmptyTerrainError when no usable data point is left, and
@@ -23,11 +24,14 @@ import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from approxtree.errors import InvalidParameterError, TerrainFormatError
 from approxtree.geometry import GeometryData, Grid
+from approxtree.geometry.dataarray import is_dataarray
 from approxtree.io._common import NODATA_POLICIES, existing_file
 from approxtree.io.arrays import read_array
+from approxtree.io.dataarray import check_dataarray_options, read_dataarray
 from approxtree.io.encoded_png import ENCODINGS, read_png
 from approxtree.io.pointcloud import read_point_cloud
 from approxtree.io.quantized_mesh import read_quantized_mesh, tile_bounds
@@ -140,8 +144,10 @@ def _check_options(fmt: Format, options: dict[str, object]) -> None:
             )
 
 
-def open_terrain(path: str | os.PathLike, **options: object) -> GeometryData:
-    """Read a terrain file with the reader its extension (or content) calls for.
+def open_terrain(path: str | os.PathLike | Any, **options: object) -> GeometryData:
+    """Read a terrain file with the reader its extension (or content) calls for; or place an
+    xarray / rioxarray DataArray given in place of the path (``io.dataarray``: its transform
+    or regular x/y coordinates, CRS and nodata; options nodata, crs, windowed).
 
     Options (None means "not given"): nodata ("mask" | "fill"), band, encoding ("terrain-rgb" |
     "terrarium"), height_scale, height_offset, ground_only, cell_size, origin, crs, key, bounds,
@@ -150,8 +156,19 @@ def open_terrain(path: str | os.PathLike, **options: object) -> GeometryData:
     Returns a Grid for rasters, images and arrays, a TINPointSet for point clouds and a TIN for
     quantized-mesh tiles.
     """
-    p = existing_file(path)
     given = {name: value for name, value in options.items() if value is not None}
+    if is_dataarray(path):
+        check_dataarray_options(given)
+        terrain: GeometryData = read_dataarray(path, **given)  # type: ignore[arg-type]
+        warn_degrees_without_crs(terrain, "the DataArray")  # type: ignore[arg-type]
+        return terrain
+    if not isinstance(path, str | os.PathLike):
+        raise InvalidParameterError(
+            f"open_terrain takes the path of a terrain file or an xarray DataArray, got "
+            f"{type(path).__name__} {path!r:.40}; for a numpy array of heights use "
+            "Grid(heights, transform)."
+        )
+    p = existing_file(path)
     fmt = detect_format(p, encoding=given.get("encoding"))  # type: ignore[arg-type]
     _check_options(fmt, given)
     terrain = fmt.reader(p, **given)
@@ -180,6 +197,7 @@ __all__ = [
     "detect_format",
     "open_terrain",
     "read_array",
+    "read_dataarray",
     "read_grid",
     "read_pgm",
     "read_png",

@@ -17,6 +17,7 @@ from approxtree import __version__
 from approxtree.errors import InvalidParameterError, StoreError
 from approxtree.geometry import TERRAIN_TYPES, TIN, Grid, GridRefinement
 from approxtree.geometry.base import GeometryData
+from approxtree.geometry.dataarray import is_dataarray
 from approxtree.geometry.rect import Rect
 from approxtree.patches import STRATEGIES, GeometryPatch, patch_class
 from approxtree.progress import ProgressCallback, as_callback
@@ -112,9 +113,10 @@ class ApproximationTree:
     ) -> ApproximationTree:
         """Build A(s,d)(T): split nodes while ε_T(N) > epsilon, patches of at most s points.
 
-        epsilon: threshold ε in z units (>= 0); max_points: s (>= 4); fanout: d (4 quadtree,
-        2 k-d tree); policy: strategy name or "auto"; progress: a ``ProgressCallback`` called with
-        (done, total) — points covered by finished leaves, or blocks done in a blocked build —,
+        terrain: any GeometryData, or an xarray DataArray (a Grid of it); epsilon: threshold ε
+        in z units (>= 0); max_points: s (>= 4); fanout: d (4 quadtree, 2 k-d tree); policy:
+        strategy name or "auto"; progress: a ``ProgressCallback`` called with (done, total) —
+        points covered by finished leaves, or blocks done in a blocked build —,
         True for a tqdm bar on a terminal, None/False for nothing (``approxtree.progress``).
 
         Blocked builds (same tree, node for node; Grid terrains): ``workers`` N builds the
@@ -126,6 +128,9 @@ class ApproximationTree:
         import the main module).
         """
         policy_obj = StrategyPolicy.resolve(policy)
+        # An xarray DataArray is the Grid its georeference places (geometry.dataarray).
+        if is_dataarray(terrain):
+            terrain = Grid(terrain)
         if microstructures:
             terrain = with_microstructures(terrain, microstructures)
         blocked = (
