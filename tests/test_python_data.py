@@ -3,9 +3,14 @@
 In: an xarray / rioxarray DataArray is a terrain (``Grid(da)``, ``open_terrain(da)``,
 ``ApproximationTree.build(da)``) placed by its own georeference, as the file it came from
 reads; what cannot be placed is refused saying why; a dask-backed one is read by windows.
+Out: a geometry patch, a cut (``tree.cut_mesh``: a frame's nodes or the leaves) and a point
+quadtree's view mesh as ``trimesh.Trimesh`` and ``pyvista.PolyData``, with every vertex and
+triangle as the engine has them.
 """
 
 from __future__ import annotations
+
+import sys
 
 import numpy as np
 import pytest
@@ -13,7 +18,7 @@ from affine import Affine
 from conftest import data_file
 
 import approxtree as at
-from approxtree import ApproximationTree, Grid, InvalidParameterError
+from approxtree import ApproximationTree, ApproxTreeError, Grid, InvalidParameterError
 
 xr = pytest.importorskip("xarray")
 
@@ -171,3 +176,107 @@ def test_dask_dataarray_is_not_computed_whole():
     assert grid.is_windowed and source.cells == 0
     assert grid.height_at(np.array([10.5]), np.array([n - 20.5]))[0] == pytest.approx(30.0)
     assert 0 < source.cells <= n * n // 4
+
+
+# -- meshes out -----------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def nc_tree(nc_path) -> ApproximationTree:
+    return ApproximationTree.build(at.open_terrain(nc_path), epsilon=2.0, progress=False)
+
+
+def check_mesh(mesh_vertices, mesh_faces, vertices, triangles) -> None:
+    """Assert that a converted mesh has the very vertices (float64) and triangles."""
+    assert mesh_vertices.dtype == np.float64
+    np.testing.assert_array_equal(mesh_vertices, vertices)
+    np.testing.assert_array_equal(mesh_faces, triangles)
+
+
+def test_patch_to_trimesh_and_pyvista(nc_tree):
+    """A node's patch converts to trimesh and pyvista with its vertices and triangles, z as
+    point data, counter-clockwise faces seen from above, and pyvista's bounds its box."""
+    pv = pytest.importorskip("pyvista")
+    for node in (nc_tree.root, *nc_tree.root.children, nc_tree.node(int(nc_tree.leaves[-1]))):
+        patch = node.patch
+        tm = patch.to_trimesh()
+        check_mesh(tm.vertices, tm.faces, patch.vertices, patch.triangles)
+        np.testing.assert_array_equal(tm.vertex_attributes["z"], patch.vertices[:, 2])
+        # Counter-clockwise from above: every face normal points up.
+        assert (tm.face_normals[:, 2] > 0).all()
+        mesh = patch.to_pyvista()
+        assert isinstance(mesh, pv.PolyData)
+        assert (mesh.n_points, mesh.n_cells) == (len(patch.vertices), len(patch.triangles))
+        check_mesh(mesh.points, mesh.regular_faces, patch.vertices, patch.triangles)
+        np.testing.assert_array_equal(mesh.point_data["z"], patch.vertices[:, 2])
+        r, z = node.rect, patch.vertices[:, 2]
+        assert tuple(mesh.bounds) == (r.xmin, r.xmax, r.ymin, r.ymax, z.min(), z.max())
+        assert node.bbox[2] <= z.min() and z.max() <= node.bbox[5]
+
+
+def test_cut_mesh_of_the_leaves_partitions_the_domain(nc_tree):
+    """tree.cut_mesh() (the leaves) is every leaf patch in world coordinates, one face per
+    patch triangle tagged by its node, covering the domain once (signed areas sum to it)."""
+    cut = nc_tree.cut_mesh()
+    leaves = nc_tree.leaves
+    assert len(cut.triangles) == sum(len(nc_tree.patch(i).triangles) for i in leaves)
+    assert np.array_equal(np.unique(cut.nodes), leaves) and not cut.skirt.any()
+    v = cut.vertices[cut.triangles]
+    area = 0.5 * np.cross(v[:, 1, :2] - v[:, 0, :2], v[:, 2, :2] - v[:, 0, :2])
+    d = nc_tree.terrain.domain
+    assert (area > 0).all()
+    assert area.sum() == pytest.approx((d.xmax - d.xmin) * (d.ymax - d.ymin), rel=1e-12)
+    tm = cut.to_trimesh()
+    np.testing.assert_array_equal(tm.face_attributes["node"], cut.nodes)
+    check_mesh(tm.vertices, tm.faces, cut.vertices, cut.triangles)
+
+
+def test_cut_mesh_of_a_frame_is_what_it_drew(nc_tree):
+    """tree.cut_mesh(frame.selection.nodes, skirts=True) has the triangles the frame drew,
+    skirts included; without skirts, its nodes' patch triangles."""
+    from approxtree.render import Engine, framing_camera
+
+    with Engine(nc_tree) as engine:
+        camera = framing_camera(nc_tree.bboxes[0], engine.scale, (320, 240))
+        frame = engine.render(camera, (320, 240), alpha=1.0)
+    nodes = frame.selection.nodes
+    with_skirts = nc_tree.cut_mesh(nodes, skirts=True)
+    assert len(with_skirts.triangles) == frame.stats["triangles"]
+    assert with_skirts.skirt.any()
+    plain = nc_tree.cut_mesh(nodes)
+    assert len(plain.triangles) == sum(len(nc_tree.patch(i).triangles) for i in nodes)
+    assert len(plain.triangles) == np.count_nonzero(~with_skirts.skirt)
+    pv = pytest.importorskip("pyvista")
+    mesh = with_skirts.to_pyvista()
+    assert isinstance(mesh, pv.PolyData) and mesh.n_cells == frame.stats["triangles"]
+    np.testing.assert_array_equal(mesh.cell_data["node"], with_skirts.nodes)
+
+
+def test_cut_mesh_refuses_bad_node_ids(nc_tree):
+    """Node ids outside the tree or not integers are an InvalidParameterError."""
+    with pytest.raises(InvalidParameterError, match="node ids must lie"):
+        nc_tree.cut_mesh(np.array([0, len(nc_tree)]))
+    with pytest.raises(InvalidParameterError, match="1-D array of node ids"):
+        nc_tree.cut_mesh(np.array([0.5]))
+
+
+def test_point_quadtree_lod_mesh_to_trimesh():
+    """A point quadtree's view mesh converts with its vertices, triangles and face nodes."""
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(0, 100, (400, 2))
+    z = 10 + 0.2 * xy[:, 0] + 3 * np.sin(xy[:, 1] / 7)
+    quadtree = at.PointQuadtree(at.TINPointSet(np.column_stack([xy, z])), max_points=20)
+    lod = quadtree.lod_mesh((50.0, -150.0, 120.0), 60.0, 640)
+    tm = lod.to_trimesh()
+    check_mesh(tm.vertices, tm.faces, lod.vertices, lod.triangles)
+    assert len(tm.face_attributes["node"]) == len(lod.triangles) > 0
+    assert len(np.unique(lod.face_nodes)) == lod.nodes
+
+
+def test_to_pyvista_without_pyvista_says_how_to_install_it(nc_tree, monkeypatch):
+    """Without pyvista, to_pyvista fails when called with an ApproxTreeError naming
+    `pip install pyvista` (approxtree imports and to_trimesh still work)."""
+    monkeypatch.setitem(sys.modules, "pyvista", None)
+    with pytest.raises(ApproxTreeError, match="pip install pyvista"):
+        nc_tree.root.patch.to_pyvista()
+    assert len(nc_tree.root.patch.to_trimesh().faces) == len(nc_tree.root.patch.triangles)

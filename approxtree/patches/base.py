@@ -16,6 +16,7 @@ import numpy as np
 
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
+from approxtree.patches.mesh_objects import MeshConversions
 from approxtree.patches.records import Batch, concat_records
 
 
@@ -34,8 +35,12 @@ def ccw_triangles(vertices: np.ndarray, tris: np.ndarray) -> np.ndarray:
     return t
 
 
-class GeometryPatch(ABC):
-    """T_N: up to s data points approximating the terrain on a rectangle D_N."""
+class GeometryPatch(MeshConversions, ABC):
+    """T_N: up to s data points approximating the terrain on a rectangle D_N.
+
+    ``to_trimesh()`` and ``to_pyvista()`` give it as a trimesh or pyvista mesh (same vertices
+    and triangles, height z as point data; ``patches.mesh_objects``).
+    """
 
     #: Strategy name, as used by policies, the CLI and tree files.
     kind: ClassVar[str]

@@ -28,6 +28,7 @@ from approxtree.tree.policy import StrategyPolicy
 from approxtree.tree.store import TreeFile, is_legacy_file, is_legacy_path, write_tree_file
 
 if TYPE_CHECKING:
+    from approxtree.tree.cut_mesh import CutMesh
     from approxtree.tree.tree_store import TreeStoreSource
 
 
@@ -285,6 +286,15 @@ class ApproximationTree:
         kind = self.strategy_names[int(self.strategies[index])]
         rect = Rect(*(float(v) for v in self.rects[index]))
         return patch_class(self.terrain, kind).from_record(self.terrain, rect, arrays)
+
+    def cut_mesh(self, nodes: np.ndarray | None = None, skirts: bool = False) -> CutMesh:
+        """The patches of a cut as one mesh in world coordinates (``tree.cut_mesh``):
+        ``nodes`` (k,) node ids, e.g. ``frame.selection.nodes`` of an Engine frame, or None for
+        the leaves; ``skirts`` hangs the renderer's walls. ``.to_trimesh()``/``.to_pyvista()``
+        of the result carry z and the node of each face."""
+        from approxtree.tree.cut_mesh import cut_mesh
+
+        return cut_mesh(self, nodes, skirts)
 
     @property
     def epsilon(self) -> float:

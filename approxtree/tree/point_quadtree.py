@@ -53,6 +53,7 @@ from approxtree.kernels.point_quadtree import (
     node_meshes,
     range_z_bounds,
 )
+from approxtree.patches.mesh_objects import MeshConversions
 
 #: ``meta["tree_kind"]`` of a point quadtree inside a .atree tree file.
 TREE_KIND = "point_quadtree"
@@ -104,14 +105,20 @@ class LODCut:
 
 
 @dataclass
-class LODMesh:
-    """A view-dependent mesh: vertices (n, 3) world, triangles (m, 3), figures of the cut."""
+class LODMesh(MeshConversions):
+    """A view-dependent mesh: vertices (n, 3) world, triangles (m, 3), figures of the cut;
+    face_nodes: (m,) int64 node row of each face. ``to_trimesh()``/``to_pyvista()`` carry z
+    and "node" (the face's node row)."""
 
     vertices: np.ndarray
     triangles: np.ndarray
     nodes: int
     leaves_refined: int
     points_inserted: int
+    face_nodes: np.ndarray | None = None
+
+    def _face_data(self) -> dict[str, np.ndarray]:
+        return {} if self.face_nodes is None else {"node": self.face_nodes}
 
 
 class PointQuadtree:
@@ -656,6 +663,7 @@ class PointQuadtree:
             len(cut.rows),
             int((cut.inserted > 0).sum()),
             int(cut.inserted[cut.inserted > 0].sum()),
+            face_nodes=np.repeat(np.asarray(cut.rows, dtype=np.int64), np.diff(tstart)),
         )
 
     # -- storage -------------------------------------------------------------------------------
