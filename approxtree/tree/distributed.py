@@ -9,6 +9,7 @@ and turns a failed task or a lost worker into an ApproxTreeError naming the bloc
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import uuid
 from collections.abc import Callable, Iterator
@@ -57,6 +58,9 @@ def dask_client(
         threads_per_worker=1,
         processes=processes,
         dashboard_address=":0",
+        # A failed task comes back through its future as one error; the workers' own log
+        # of it ("Compute Failed" and its traceback, per task) would bury that line.
+        silence_logs=logging.CRITICAL,
     )
     client = Client(cluster)
     try:

@@ -1,0 +1,143 @@
+"""Damaged inputs end in one clear error (issue 24, item 3), never a traceback, silent garbage
+or a runaway job: tree stores with a deleted or damaged chunk, texture pyramids with damaged
+tiles, corrupt rasters, requests larger than the machine, runaway options, and a relative path
+to a zipped SRTM tile."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+from affine import Affine
+from click.testing import CliRunner
+
+from approxtree import ApproximationTree, load_tree
+from approxtree.cli import main
+from approxtree.datasets import fractal_heights
+from approxtree.errors import StoreError
+from approxtree.geometry import Grid
+
+
+def run(*args: object) -> tuple[int, str, str]:
+    """(exit code, stdout, stderr) of the CLI run in-process."""
+    result = CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+    return result.exit_code, result.stdout, result.stderr
+
+
+def assert_one_error_line(code: int, stderr: str, *words: str) -> None:
+    """Exit 2 and a single ``Error:`` line holding every one of ``words``."""
+    assert code == 2, stderr
+    assert stderr.startswith("Error: "), stderr
+    assert len(stderr.strip().splitlines()) == 1 and "Traceback" not in stderr, stderr
+    for w in words:
+        assert w in stderr, (w, stderr)
+
+
+def flip_middle(path: Path, count: int = 1) -> None:
+    """Flip ``count`` bytes in the middle of a file."""
+    data = bytearray(path.read_bytes())
+    mid = len(data) // 2
+    for i in range(mid, mid + count):
+        data[i] ^= 0x5A
+    path.write_bytes(bytes(data))
+
+
+def zip_folder(folder: Path, target: Path) -> Path:
+    """A zip store holding the files of a folder store (stored, as the writer does)."""
+    with zipfile.ZipFile(target, "w", compression=zipfile.ZIP_STORED) as z:
+        for f in sorted(folder.rglob("*")):
+            if f.is_file():
+                z.write(f, f.relative_to(folder).as_posix())
+    return target
+
+
+# -- tree stores -------------------------------------------------------------------------------
+
+#: Chunks whose deletion went unnoticed by info and tiles (a ZeroDivisionError for the index).
+DELETED = [
+    "patches/grid/z_data/c/0",
+    "terrain/heights/c/0/0",
+    "nodes/errors/c/0",
+    "patches/grid/index/c/0/0",
+    "nodes/patch_slot/c/0",
+]
+
+
+@pytest.fixture(scope="module")
+def good_store(tmp_path_factory) -> Path:
+    """A small grid tree store over a 129 × 129 fractal placed in degrees (tiles both formats)."""
+    heights = fractal_heights(129, seed=5) * 200.0
+    grid = Grid(heights, Affine(0.0005, 0, -72.0, 0, -0.0005, 45.0), crs="EPSG:4326")
+    tree = ApproximationTree.build(grid, epsilon=0.5, max_points=81, policy="grid", progress=False)
+    path = tmp_path_factory.mktemp("store") / "good.zarr"
+    tree.save(path)
+    for key in DELETED:
+        assert (path / key).is_file(), key
+    return path
+
+
+def damaged_copy(good: Path, tmp_path: Path, key: str, kind: str) -> Path:
+    """A copy of the store without the chunk file ``key``, as a folder or a zip store."""
+    folder = tmp_path / "damaged.zarr"
+    shutil.copytree(good, folder)
+    (folder / key).unlink()
+    if kind == "dir":
+        return folder
+    return zip_folder(folder, tmp_path / "damaged.zarr.zip")
+
+
+@pytest.mark.parametrize("kind", ["dir", "zip"])
+@pytest.mark.parametrize("key", DELETED)
+def test_every_store_reader_refuses_a_deleted_chunk(good_store, tmp_path, key, kind):
+    """info, tiles (both formats), render, convert and load_tree name the missing chunk."""
+    store = damaged_copy(good_store, tmp_path, key, kind)
+    array, chunk = key.split("/c/")
+    words = (str(store), array, f"c/{chunk}", "missing")
+    with pytest.raises(StoreError, match="missing"):
+        load_tree(store)
+    for args in [
+        ("info", store),
+        ("tiles", store, "--out", tmp_path / "t3", "--format", "3dtiles"),
+        ("tiles", store, "--out", tmp_path / "qm", "--format", "quantized-mesh"),
+        ("render", store, "--out", tmp_path / "r.png", "--size", "64x48"),
+        ("convert", store, tmp_path / "copy.zarr"),
+    ]:
+        code, _, err = run(*args)
+        assert_one_error_line(code, err, *words)
+    assert not (tmp_path / "t3").exists() and not (tmp_path / "qm").exists()
+
+
+@pytest.mark.parametrize("fmt", ["3dtiles", "quantized-mesh"])
+@pytest.mark.parametrize("key", ["terrain/heights/c/0/0", "patches/grid/index/c/0/0"])
+def test_tiles_refuse_a_damaged_chunk_read_lazily(good_store, tmp_path, key, fmt):
+    """A flipped byte in a chunk that tiles read as they go (terrain windows, patches) is one
+    Error line naming the chunk, not different tiles."""
+    store = tmp_path / "flipped.zarr"
+    shutil.copytree(good_store, store)
+    flip_middle(store / key)
+    code, _, err = run("tiles", store, "--out", tmp_path / "out", "--format", fmt)
+    if fmt == "quantized-mesh" and key.startswith("patches/"):
+        # Quantized-mesh tiles sample the stored terrain only: the patches are never read.
+        assert code == 0, err
+        return
+    array, chunk = key.split("/c/")
+    assert_one_error_line(code, err, "corrupted", array, f"c/{chunk}")
+
+
+def test_a_damaged_chunk_on_dask_workers_is_one_line(good_store, tmp_path):
+    """With --workers 2 the workers' own logs of the failed tasks do not bury the Error line."""
+    store = tmp_path / "flipped.zarr"
+    shutil.copytree(good_store, store)
+    flip_middle(store / "terrain/heights/c/0/0")
+    args = ["tiles", store, "--out", tmp_path / "out", "--format", "quantized-mesh"]
+    done = subprocess.run(
+        [sys.executable, "-m", "approxtree", *map(str, args), "--workers", "2"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert_one_error_line(done.returncode, done.stderr, "corrupted", "terrain/heights", "c/0/0")
