@@ -141,3 +141,46 @@ def test_a_damaged_chunk_on_dask_workers_is_one_line(good_store, tmp_path):
         timeout=300,
     )
     assert_one_error_line(done.returncode, done.stderr, "corrupted", "terrain/heights", "c/0/0")
+
+
+# -- texture pyramids --------------------------------------------------------------------------
+
+
+def flip_in_first_tile(level: Path, count: int) -> None:
+    """Flip ``count`` bytes inside the compressed data of tile (0, 0), band 1, of a level."""
+    import rasterio
+
+    with rasterio.open(level) as ds:
+        offset = int(ds.get_tag_item("BLOCK_OFFSET_0_0", "TIFF", bidx=1))
+        size = int(ds.get_tag_item("BLOCK_SIZE_0_0", "TIFF", bidx=1))
+    data = bytearray(level.read_bytes())
+    for i in range(offset + size // 2, offset + size // 2 + count):
+        data[i] ^= 0x5A
+    level.write_bytes(bytes(data))
+
+
+@pytest.fixture(scope="module")
+def baked(good_store, tmp_path_factory) -> Path:
+    """The shading pyramid (grey and alpha, one tile) of the good store."""
+    folder = tmp_path_factory.mktemp("tex") / "tex"
+    code, _, err = run("bake", good_store, "--out", folder, "--no-gl", "-q")
+    assert code == 0, err
+    return folder
+
+
+@pytest.mark.parametrize("count", [1, 64])
+def test_render_and_tiles_refuse_a_damaged_pyramid(good_store, baked, tmp_path, count):
+    """render --textures and tiles --textures on a pyramid whose level has flipped bytes: one
+    Error line naming the level and tile (a ZSTD traceback, or the damaged texels drawn with
+    exit 0, before)."""
+    tex = tmp_path / "tex"
+    shutil.copytree(baked, tex)
+    flip_in_first_tile(tex / "level0.tif", count)
+    words = ("level0.tif is damaged", "tile (0, 0)", "rebake")
+    code, _, err = run(
+        "render", good_store, "--textures", tex, "--out", tmp_path / "r.png", "--size", "64x48"
+    )
+    assert_one_error_line(code, err, *words)
+    out = tmp_path / "t3"
+    code, _, err = run("tiles", good_store, "--textures", tex, "--out", out, "--format", "3dtiles")
+    assert_one_error_line(code, err, *words)
