@@ -30,7 +30,6 @@ StoreError too.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import queue
@@ -675,60 +674,78 @@ class TexturePyramid:
         r1, c1 = min(row0 + rows, lv.height), min(col0 + cols, lv.width)
         if r1 <= row0 or c1 <= col0:
             return out
-        planes = np.empty((self.bands, r1 - row0, c1 - col0), dtype=np.uint8)
-        with contextlib.ExitStack() as files:
-            opened: list = []
-            # Each tile the window touches, from the cache or decoded and checked, copied in.
-            for tr in range(row0 // _TILE, (r1 - 1) // _TILE + 1):
-                for tc in range(col0 // _TILE, (c1 - 1) // _TILE + 1):
-                    tile = self._tile(k, tr, tc, files, opened)
-                    t0, t1 = max(row0, tr * _TILE), min(r1, (tr + 1) * _TILE)
-                    u0, u1 = max(col0, tc * _TILE), min(c1, (tc + 1) * _TILE)
-                    planes[:, t0 - row0 : t1 - row0, u0 - col0 : u1 - col0] = tile[
-                        :, t0 - tr * _TILE : t1 - tr * _TILE, u0 - tc * _TILE : u1 - tc * _TILE
-                    ]
+        tiles = [
+            (tr, tc)
+            for tr in range(row0 // _TILE, (r1 - 1) // _TILE + 1)
+            for tc in range(col0 // _TILE, (c1 - 1) // _TILE + 1)
+        ]
+        # The whole tiles the window touches: block rows R0..R1, columns C0..C1.
+        r0_, c0_ = tiles[0][0] * _TILE, tiles[0][1] * _TILE
+        r1_ = min(lv.height, (tiles[-1][0] + 1) * _TILE)
+        c1_ = min(lv.width, (tiles[-1][1] + 1) * _TILE)
+        held = {t: self._tiles.get((k, *t)) for t in tiles}
+        if all(v is not None for v in held.values()):
+            block = np.empty((self.bands, r1_ - r0_, c1_ - c0_), dtype=np.uint8)
+            for (tr, tc), tile in held.items():
+                a, b = tr * _TILE - r0_, tc * _TILE - c0_
+                block[:, a : a + tile.shape[1], b : b + tile.shape[2]] = tile
+        else:
+            # One read of the whole tiles (GDAL decodes whole tiles anyway), then each tile
+            # not checked yet is checked (a contiguous copy, kept in the cache).
+            block = self._decode(k, r0_, c0_, r1_, c1_, tiles)
+            for (tr, tc), tile in held.items():
+                if tile is None:
+                    a, b = tr * _TILE - r0_, tc * _TILE - c0_
+                    self._check_tile(k, tr, tc, block[:, a : a + _TILE, b : b + _TILE])
+        planes = np.ascontiguousarray(block[:, row0 - r0_ : r1 - r0_, col0 - c0_ : c1 - c0_])
         # Grey and alpha fill R, G, B and A; RGBA fills them as stored.
         bands_into_rgba(planes, out)
         return out
 
-    def _tile(
-        self, k: int, tr: int, tc: int, files: contextlib.ExitStack, opened: list
+    def _decode(
+        self, k: int, r0: int, c0: int, r1: int, c1: int, tiles: list[tuple[int, int]]
     ) -> np.ndarray:
-        """(bands, h, w) uint8 tile (tr, tc) of level k (edge tiles clipped), checked against
-        its CRC-32C in pyramid.json; the level's file is opened into ``files`` on first need
-        (``opened`` holds it)."""
-        import crc32c
+        """(bands, r1 − r0, c1 − c0) texels of level k as GDAL decodes them; a StoreError
+        naming the first of ``tiles`` that does not decode when the read fails."""
         import rasterio
         from rasterio.windows import Window
 
-        key = (k, tr, tc)
-        tile = self._tiles.get(key)
-        if tile is not None:
-            return tile
         lv = self.levels[k]
-        r0, c0 = tr * _TILE, tc * _TILE
-        window = Window(c0, r0, min(_TILE, lv.width - c0), min(_TILE, lv.height - r0))
         failed = None
         try:
-            if not opened:
-                opened.append(files.enter_context(rasterio.open(lv.path)))
-            tile = opened[0].read(window=window)
+            with rasterio.open(lv.path) as ds:
+                return ds.read(window=Window(c0, r0, c1 - c0, r1 - r0))
         except rasterio.errors.RasterioError as exc:
             failed = _cause(exc)
-        if failed is not None:
-            # Raised outside the handler: GDAL's chained errors, kept as the context, do not
-            # survive pickling back from a dask worker.
+        # Raised outside the handler: GDAL's chained errors, kept as the context, do not
+        # survive pickling back from a dask worker. Tile by tile to name the damaged one.
+        where = ""
+        with rasterio.open(lv.path) as ds:
+            for tr, tc in tiles:
+                a, b = tr * _TILE, tc * _TILE
+                window = Window(b, a, min(_TILE, lv.width - b), min(_TILE, lv.height - a))
+                try:
+                    ds.read(window=window)
+                except rasterio.errors.RasterioError:
+                    where = f"tile ({tr}, {tc}) of "
+                    break
+        raise StoreError(
+            f"{lv.path} is damaged: {where}level {k} does not decode ({failed}); rebake the "
+            "pyramid (approxtree bake)."
+        )
+
+    def _check_tile(self, k: int, tr: int, tc: int, texels: np.ndarray) -> None:
+        """StoreError unless the (bands, h, w) texels of tile (tr, tc) of level k match its
+        CRC-32C in pyramid.json; a match goes into the tile cache."""
+        import crc32c
+
+        tile = np.ascontiguousarray(texels)
+        if crc32c.crc32c(tile) != self.tile_crc32c[k][tr][tc]:
             raise StoreError(
-                f"{lv.path} is damaged: tile ({tr}, {tc}) of level {k} does not decode "
-                f"({failed}); rebake the pyramid (approxtree bake)."
+                f"{self.levels[k].path} is damaged: tile ({tr}, {tc}) of level {k} does not "
+                "match its checksum in pyramid.json; rebake the pyramid (approxtree bake)."
             )
-        if crc32c.crc32c(np.ascontiguousarray(tile)) != self.tile_crc32c[k][tr][tc]:
-            raise StoreError(
-                f"{lv.path} is damaged: tile ({tr}, {tc}) of level {k} does not match its "
-                "checksum in pyramid.json; rebake the pyramid (approxtree bake)."
-            )
-        self._tiles.put(key, tile)
-        return tile
+        self._tiles.put((k, tr, tc), tile if tile is not texels else tile.copy())
 
     def level(self, k: int) -> np.ndarray:
         """Level k whole, as a (rows, cols, 4) uint8 RGBA array in memory (``read`` reads a
