@@ -9,8 +9,8 @@ Every array is chunked and encoded as blosc(zstd, shuffle) then a crc32c checksu
 written (``write_empty_chunks``), so a missing chunk file is found when the store is opened
 (zarr alone would read it as its fill value). The root group's attributes hold the format
 name and version, the tree's meta data (JSON, no pickle) and a CRC-32C of every array's and
-group's metadata document (``zarr.json``), checked when it is opened. Any error of zarr or numcodecs reading a store becomes a StoreError naming the
-store and what to do.
+group's metadata document (``zarr.json``), checked when it is opened. Any error of zarr or
+numcodecs reading a store becomes a StoreError naming the store and what to do.
 
 Atomic writes (``writing``): a folder store is written into a hidden temp folder beside the
 target (``.NAME.PID.TOKEN.tmp``, ``io.atomic``) and renamed into place, replacing an
