@@ -11,9 +11,11 @@ import sys
 import zipfile
 from pathlib import Path
 
+import numpy as np
 import pytest
 from affine import Affine
 from click.testing import CliRunner
+from conftest import data_file
 
 from approxtree import ApproximationTree, load_tree
 from approxtree.cli import main
@@ -184,3 +186,67 @@ def test_render_and_tiles_refuse_a_damaged_pyramid(good_store, baked, tmp_path, 
     out = tmp_path / "t3"
     code, _, err = run("tiles", good_store, "--textures", tex, "--out", out, "--format", "3dtiles")
     assert_one_error_line(code, err, *words)
+
+
+# -- corrupt rasters and vector layers -----------------------------------------------------------
+
+
+def classes_tif(path: Path) -> Path:
+    """A 120 × 140 uint8 class raster with a colour table, over the good store's domain."""
+    import rasterio
+
+    values = (np.arange(120 * 140).reshape(120, 140) // 3000 % 4 + 1).astype(np.uint8)
+    transform = Affine(0.064 / 140, 0, -72.0, 0, -0.064 / 120, 45.0)
+    with rasterio.open(
+        path, "w", driver="GTiff", width=140, height=120, count=1, dtype="uint8",
+        crs="EPSG:4326", transform=transform,
+    ) as ds:  # fmt: skip
+        ds.write(values, 1)
+        ds.write_colormap(1, {1: (200, 0, 0), 2: (0, 200, 0), 3: (0, 0, 200), 4: (90, 90, 90)})
+    return path
+
+
+def damaged_files(tmp_path: Path) -> dict[str, Path]:
+    """A class raster cut in half (its header intact) and one that is no raster at all."""
+    good = classes_tif(tmp_path / "classes.tif")
+    data = good.read_bytes()
+    (tmp_path / "cut.tif").write_bytes(data[: len(data) // 2])
+    (tmp_path / "junk.tif").write_bytes(b"not a raster " * 64)
+    return {"cut": tmp_path / "cut.tif", "junk": tmp_path / "junk.tif"}
+
+
+@pytest.mark.parametrize("damage", ["cut", "junk"])
+def test_a_corrupt_thematic_raster_is_one_error_line(good_store, tmp_path, damage):
+    """bake --thematic with a truncated or non-raster file: one Error line naming it as a
+    thematic raster (a RasterioIOError traceback before), as the same file is as a DEM and as
+    a water mask."""
+    bad = damaged_files(tmp_path)[damage]
+    for texel in ([], ["--texel", "0.0005"]):
+        code, _, err = run("bake", good_store, "--thematic", bad, "--out", tmp_path / "t", *texel)
+        assert_one_error_line(code, err, str(bad), "thematic raster")
+    code, _, err = run("info", bad)
+    assert_one_error_line(code, err, str(bad))
+    out = tmp_path / "qm"
+    code, _, err = run(
+        "tiles", good_store, "--format", "quantized-mesh", "--water-mask", bad, "--out", out
+    )
+    assert_one_error_line(code, err, str(bad))
+
+
+def test_a_truncated_shapefile_is_refused_not_half_drawn(good_store, data_dir, tmp_path):
+    """A shapefile cut short (GDAL reads the features past the cut as having no geometry,
+    without a word) is refused as --roads, --water and --microstructures: one Error line."""
+
+    streams = data_file(data_dir, "nc/streams.shp")
+    cut = tmp_path / "cut.shp"
+    cut.write_bytes(streams.read_bytes()[:3000])
+    for ext in (".shx", ".dbf", ".prj"):
+        shutil.copy(streams.with_suffix(ext), cut.with_suffix(ext))
+    dem = data_file(data_dir, "nc/elev_ned_30m.tif")
+    for args in [
+        ("bake", dem, "--roads", cut, "--out", tmp_path / "t"),
+        ("bake", dem, "--water", cut, "--out", tmp_path / "t"),
+        ("build", dem, "--microstructures", cut, "--out", tmp_path / "b.zarr"),
+    ]:
+        code, _, err = run(*args)
+        assert_one_error_line(code, err, "cut.shp is truncated", "3000")
