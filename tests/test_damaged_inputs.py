@@ -250,3 +250,39 @@ def test_a_truncated_shapefile_is_refused_not_half_drawn(good_store, data_dir, t
     ]:
         code, _, err = run(*args)
         assert_one_error_line(code, err, "cut.shp is truncated", "3000")
+
+
+# -- requests larger than the machine --------------------------------------------------------------
+
+
+def test_bake_refuses_a_texel_no_machine_can_hold(data_dir, tmp_path):
+    """bake --texel 1e-6 on a 15 km DEM: one Error line saying what it would take (texture
+    size, memory, the GeoTIFF side limit) and the texel that fits, before any work (an
+    _ArrayMemoryError of 112 GiB before); the folder is not created."""
+    dem = data_file(data_dir, "nc/elev_ned_30m.tif")
+    code, _, err = run("bake", dem, "--texel", "1e-6", "--out", tmp_path / "t")
+    assert_one_error_line(code, err, "15000000000 × 13500000000", "memory", "texels a side")
+    assert "Use a texel of at least" in err and not (tmp_path / "t").exists()
+
+
+def test_bake_budget_counts_memory_disk_and_names_the_texel_that_fits(tmp_path):
+    """check_bake_size: memory from the measured bytes per texel of each layer, disk from the
+    uncompressed pyramid (refused only past the best compression), and the texel it names
+    passes the same check."""
+    from approxtree.errors import InvalidParameterError
+    from approxtree.textures.bake_budget import BEST_COMPRESSION, check_bake_size
+
+    shape, layers = (20_000, 30_000), ["resampled", "thematic"]
+    need = 20_000 * 30_000 * (240 + 16)
+    args = dict(cell=30.0, layers=layers, bands=4, max_texture_size=4096, folder=tmp_path)
+    check_bake_size(shape, 1.0, memory=need, free_disk=10**15, **args)
+    with pytest.raises(InvalidParameterError, match=r"about 154 GB in memory.*256 bytes") as e:
+        check_bake_size(shape, 1.0, memory=need // 4, free_disk=10**15, **args)
+    fits = float(str(e.value).split("at least ")[1].split(" ")[0])
+    assert 2.0 <= fits <= 2.1
+    rows, cols = round(20_000 / fits), round(30_000 / fits)
+    check_bake_size((rows, cols), fits, memory=need // 4, free_disk=10**15, **args)
+    raw = sum(-(-20_000 // 2**k) * -(-30_000 // 2**k) for k in range(4)) * 4
+    check_bake_size(shape, 1.0, memory=need, free_disk=raw // BEST_COMPRESSION + 1, **args)
+    with pytest.raises(InvalidParameterError, match="uncompressed"):
+        check_bake_size(shape, 1.0, memory=need, free_disk=raw // BEST_COMPRESSION - 10, **args)

@@ -67,7 +67,7 @@ TILE_CACHE_BYTES = 32 << 20
 
 #: Level GeoTIFF creation options: tiled, ZSTD at its fastest level (a hillshade shrinks
 #: 2.4×, its alpha band to almost nothing), one plane per band (compresses better and faster
-#: than interleaved grey/alpha), compressed on every core.
+#: than interleaved grey/alpha), compressed on every core, BigTIFF past 4 GB.
 _LEVEL_OPTIONS = {
     "tiled": True,
     "blockxsize": _TILE,
@@ -77,6 +77,8 @@ _LEVEL_OPTIONS = {
     "interleave": "band",
     "num_threads": "ALL_CPUS",
     "alpha": "YES",
+    # A level that may pass 4 GB (classic TIFF's limit) is written as a BigTIFF.
+    "bigtiff": "IF_SAFER",
 }
 #: GeoTIFF tags naming a level's build and its number in the pyramid.
 _TAG_BUILD = "APPROXTREE_PYRAMID"
