@@ -286,3 +286,128 @@ def test_bake_budget_counts_memory_disk_and_names_the_texel_that_fits(tmp_path):
     check_bake_size(shape, 1.0, memory=need, free_disk=raw // BEST_COMPRESSION + 1, **args)
     with pytest.raises(InvalidParameterError, match="uncompressed"):
         check_bake_size(shape, 1.0, memory=need, free_disk=raw // BEST_COMPRESSION - 10, **args)
+
+
+# -- runaway options ---------------------------------------------------------------------------
+
+
+@pytest.fixture
+def no_cluster(monkeypatch):
+    """Starting a local dask cluster fails the test (a runaway --workers must be refused
+    before one starts)."""
+    import approxtree.tiles.parallel as parallel
+    import approxtree.tree.distributed as distributed
+
+    def refuse(*args, **kwargs):
+        raise AssertionError(f"a dask cluster was started with {args}")
+
+    monkeypatch.setattr(distributed, "dask_client", refuse)
+    monkeypatch.setattr(parallel, "dask_client", refuse)
+
+
+def test_runaway_workers_are_refused_before_a_cluster_starts(good_store, tmp_path, no_cluster):
+    """build, tiles (both formats) and fractal --workers 100000: one Error line with the most
+    this machine takes (4 a core), before any worker starts."""
+    import os
+
+    most = str(4 * (os.cpu_count() or 1))
+    dem = tmp_path / "dem.npy"
+    np.save(dem, fractal_heights(40, seed=1))
+    for args in [
+        ("build", dem, "--out", tmp_path / "b.zarr", "--workers", "100000"),
+        (
+            "tiles",
+            good_store,
+            "--out",
+            tmp_path / "t",
+            "--format",
+            "3dtiles",
+            "--workers",
+            "100000",
+        ),
+        (
+            "tiles",
+            good_store,
+            "--out",
+            tmp_path / "q",
+            "--format",
+            "quantized-mesh",
+            "--workers",
+            "100000",
+        ),
+        ("fractal", tmp_path / "f.tif", "--size", "64", "--workers", "100000"),
+    ]:
+        code, _, err = run(*args)
+        assert_one_error_line(code, err, "100000", f"at most {most}")
+
+
+def test_a_local_cluster_has_no_more_workers_than_tasks(monkeypatch):
+    """A build of 4 blocks on workers=8 starts 4 workers (the others would only wait)."""
+    import contextlib
+
+    import approxtree.tree.distributed as distributed
+    from approxtree.tree.blocks import BlockTask
+
+    started = []
+
+    @contextlib.contextmanager
+    def fake_client(workers, scheduler, processes=True):
+        started.append(workers)
+        raise RuntimeError("stop here")
+        yield  # pragma: no cover
+
+    monkeypatch.setattr(distributed, "dask_client", fake_client)
+    monkeypatch.setattr(distributed.os, "cpu_count", lambda: 2)
+    run_tasks = distributed.dask_runner(workers=8)
+    tasks = [object.__new__(BlockTask) for _ in range(4)]
+    with pytest.raises(RuntimeError, match="stop here"):
+        run_tasks(tasks)
+    assert started == [4]
+
+
+def test_a_block_size_below_the_least_is_refused_with_its_reason(tmp_path):
+    """build --block-size 1 (minutes on a 500 × 450 DEM): one Error line naming the least
+    block size and why."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, fractal_heights(40, seed=1))
+    code, _, err = run("build", dem, "--out", tmp_path / "b.zarr", "--block-size", "1")
+    assert_one_error_line(code, err, "--block-size 1", "64", "schedule")
+    assert not (tmp_path / "b.zarr").exists()
+    code, _, err = run("build", dem, "--out", tmp_path / "b.zarr", "--block-size", "64", "-q")
+    assert code == 0, err
+
+
+def test_mesh_refuses_a_lattice_strategy_of_a_point_cloud_before_reading_it(
+    data_dir, tmp_path, monkeypatch
+):
+    """mesh x.laz --strategy grid is refused from the format: the points are never read
+    (reading triangulates them all: 70 s for 5 million, so a large cloud ran past 90 s before
+    the refusal a small one got at once)."""
+    import approxtree.io as io
+
+    laz = data_file(data_dir, "lidar/autzen_trim.laz")
+
+    def never(*args, **kwargs):
+        raise AssertionError("the point cloud was read")
+
+    monkeypatch.setitem(
+        io.FORMATS, "LAS/LAZ point cloud", io.Format("LAS/LAZ point cloud", (".las", ".laz"), never)
+    )
+    code, _, err = run("mesh", laz, "--strategy", "grid", "--max-error", "1")
+    assert_one_error_line(code, err, "--strategy grid needs a raster grid", "tinpointset")
+
+
+def test_mesh_budgets_beyond_the_terrain_are_clamped_with_a_warning(tmp_path):
+    """--max-points 99999999999 and --max-triangles 99999999999: one Warning line each, and
+    the mesh of every point (no larger budget is carried into the kernels)."""
+    import json
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, fractal_heights(33, seed=2))
+    for goal, word in (("--max-points", "data points"), ("--max-triangles", "triangles")):
+        code, out, err = run("mesh", dem, goal, "99999999999", "--json", "-q")
+        assert code == 0, err
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("Warning: ") and word in lines[0], err
+        figures = json.loads(out)
+        assert figures["vertices"] <= 33 * 33 and figures["max_error"] == 0.0

@@ -93,6 +93,15 @@ def check_shapefile_length(path: str | os.PathLike) -> None:
             )
 
 
+#: Workers (processes or threads) per core at most: more only wait for a core.
+MAX_WORKERS_PER_CORE = 4
+
+
+def most_workers() -> int:
+    """The most workers a local pool may start here: MAX_WORKERS_PER_CORE × the core count."""
+    return MAX_WORKERS_PER_CORE * (os.cpu_count() or 1)
+
+
 def available_memory() -> int:
     """Bytes of memory this process may still use: MemAvailable, else the physical memory."""
     try:
