@@ -411,3 +411,21 @@ def test_mesh_budgets_beyond_the_terrain_are_clamped_with_a_warning(tmp_path):
         assert len(lines) == 1 and lines[0].startswith("Warning: ") and word in lines[0], err
         figures = json.loads(out)
         assert figures["vertices"] <= 33 * 33 and figures["max_error"] == 0.0
+
+
+# -- relative paths ----------------------------------------------------------------------------
+
+
+def test_a_zipped_srtm_tile_opens_from_a_relative_path(data_dir, monkeypatch):
+    """info and open_terrain of N22W160v2.3a.hgt.zip from its own folder (a relative path):
+    the tile reads as from its absolute path ("/vsizip/... does not exist" before)."""
+    import approxtree as at
+
+    tile = data_file(data_dir, "srtm/N22W160v2.3a.hgt.zip")
+    whole = at.open_terrain(tile)
+    monkeypatch.chdir(tile.parent)
+    near = at.open_terrain(tile.name)
+    assert near.shape == whole.shape == (1201, 1201) and near.crs == whole.crs
+    np.testing.assert_array_equal(np.asarray(near.heights), np.asarray(whole.heights))
+    code, out, err = run("info", tile.name)
+    assert code == 0 and "1201" in out, err
