@@ -260,9 +260,10 @@ def die():
     os.kill(os.getpid(), getattr(signal, how))
 
 def killing_write(path, *args):
-    write_level(path, *args)
+    sums = write_level(path, *args)
     if at == "level1" and path.name == "level1.tif":
         die()
+    return sums
 
 def killing_exchange(a, b):
     if at == "swap":
@@ -483,3 +484,115 @@ def test_coarser_levels_are_written_while_level_0_is_made(tmp_path):
     assert len(streamed) == len(whole) == 2
     for k in range(2):
         np.testing.assert_array_equal(streamed.level(k), whole.level(k))
+
+
+def _level_tile_sums(path) -> list[list[int]]:
+    """CRC-32C of each 512² tile of a level as GDAL decodes it (bands, rows, cols), edge tiles
+    clipped: recomputed here without the pyramid's code."""
+    import crc32c
+
+    with rasterio.open(path) as ds:
+        texels = ds.read()
+    _, rows, cols = texels.shape
+    return [
+        [
+            crc32c.crc32c(np.ascontiguousarray(texels[:, r0 : r0 + 512, c0 : c0 + 512]).tobytes())
+            for c0 in range(0, cols, 512)
+        ]
+        for r0 in range(0, rows, 512)
+    ]
+
+
+def _odd_strips(rgba: np.ndarray, transform):
+    """A TextureData of a (rows, cols, 4) texture handed out in strips of 98 rows, which
+    straddle the 512-row tile rows."""
+    from approxtree.textures.base import TextureData
+
+    class OddStrips(TextureData):
+        bands = 4
+
+        def __init__(self) -> None:
+            self.transform, self.shape, self.crs = transform, rgba.shape[:2], None
+
+        def rgba(self) -> np.ndarray:
+            return rgba
+
+        def level_strips(self, rows: int):
+            for r0 in range(0, rgba.shape[0], 98):
+                yield np.ascontiguousarray(np.moveaxis(rgba[r0 : r0 + 98], -1, 0))
+
+    return OddStrips()
+
+
+def test_every_tile_carries_the_checksum_of_its_decoded_texels(pyramid, tmp_path):
+    """pyramid.json (format 4) lists, per level, rows of tiles, each the CRC-32C of the tile's
+    decoded texels (band-sequential, edge tiles clipped), for grey and RGBA pyramids, whole
+    strips or strips that straddle tile rows."""
+    from affine import Affine
+
+    rgba = np.random.default_rng(3).integers(0, 256, (1100, 1300, 4)).astype(np.uint8)
+    transform = Affine(1, 0, 0, 0, -1, 1100)
+    whole = TexturePyramid.build(rgba, tmp_path / "whole", 512, transform=transform)
+    odd = TexturePyramid.build(_odd_strips(rgba, transform), tmp_path / "odd", 512)
+    for built in (pyramid, whole, odd):
+        meta = json.loads((built.folder / "pyramid.json").read_text())
+        assert meta["format"] == 4
+        for entry, lv in zip(meta["levels"], built.levels, strict=True):
+            assert entry["tile_crc32c"] == _level_tile_sums(lv.path), lv.path
+    level0 = json.loads((tmp_path / "odd" / "pyramid.json").read_text())["levels"][0]
+    assert [len(row) for row in level0["tile_crc32c"]] == [3, 3, 3]
+    np.testing.assert_array_equal(odd.level(0), whole.level(0))
+
+
+def _flip(path, at: int, count: int) -> None:
+    data = bytearray(path.read_bytes())
+    for i in range(at, at + count):
+        data[i] ^= 0x5A
+    path.write_bytes(bytes(data))
+
+
+def _tile_bytes(path, tile: int) -> tuple[int, int]:
+    """(offset, bytes) of a tile of band 1 in a level GeoTIFF."""
+    with rasterio.open(path) as ds:
+        offset = int(ds.get_tag_item("BLOCK_OFFSET_0_0", "TIFF", bidx=1) or 0)
+        size = int(ds.get_tag_item("BLOCK_SIZE_0_0", "TIFF", bidx=1) or 0)
+    assert tile == 0 and offset and size
+    return offset, size
+
+
+@pytest.mark.parametrize(("count", "found_by"), [(1, "checksum"), (64, "does not decode")])
+def test_a_damaged_tile_is_a_store_error_never_drawn(tmp_path, count, found_by):
+    """Bytes flipped inside a tile's compressed data: a StoreError naming the level's file and
+    the tile, whether ZSTD notices (a decode error, no GDAL traceback) or the texels decode
+    to something else (the checksum); other windows of the level still read."""
+    from affine import Affine
+
+    rgba = np.random.default_rng(4).integers(0, 256, (600, 700, 4)).astype(np.uint8)
+    rgba[..., 3] = 255
+    built = TexturePyramid.build(rgba, tmp_path / "p", 512, transform=Affine(1, 0, 0, 0, -1, 600))
+    level0 = built.levels[0].path
+    offset, size = _tile_bytes(level0, 0)
+    _flip(level0, offset + size // 2, count)
+    damaged = TexturePyramid(tmp_path / "p")
+    with pytest.raises(StoreError, match=r"level0\.tif is damaged: tile \(0, 0\) of level 0") as e:
+        damaged.read(0, 10, 10, 64, 64)
+    assert found_by in str(e.value) and "rebake" in str(e.value)
+    # Tile (1, 1) is whole: its window reads, equal to the texels baked.
+    np.testing.assert_array_equal(damaged.read(0, 520, 520, 60, 60), rgba[520:580, 520:580])
+
+
+def test_a_pyramid_of_format_3_asks_for_a_rebake(pyramid, tmp_path):
+    """A pyramid.json of format 3 (no tile checksums) is refused with the rebake message."""
+    folder = tmp_path / "old"
+    shutil.copytree(pyramid.folder, folder)
+    meta = json.loads((folder / "pyramid.json").read_text())
+    meta["format"] = 3
+    for lv in meta["levels"]:
+        lv.pop("tile_crc32c")
+    (folder / "pyramid.json").write_text(json.dumps(meta))
+    with pytest.raises(StoreError, match=r"format 3.*Rebake"):
+        TexturePyramid(folder)
+    meta["format"] = 4
+    (folder / "pyramid.json").write_text(json.dumps(meta))
+    with pytest.raises(StoreError, match=r"malformed.*tile_crc32c"):
+        TexturePyramid(folder)

@@ -88,8 +88,14 @@ def mesh(
         from approxtree.errors import InvalidParameterError
 
         raise InvalidParameterError("--textures and --skirts shape the written mesh: give --out.")
+    # A lattice strategy of a point cloud is refused from the file's format, before reading it
+    # (reading triangulates every point: over a minute for 5 million).
+    _check_mesh_strategy(dem, _format_kind(dem, encoding), strategy)
     terrain = _terrain_of(dem, encoding, nodata_policy, ground_only, height_scale)
-    _check_mesh_strategy(dem, terrain, strategy)
+    from approxtree.geometry import Grid
+
+    _check_mesh_strategy(dem, "grid" if isinstance(terrain, Grid) else terrain.kind, strategy)
+    max_points, max_triangles = _bounded_goals(terrain, max_points, max_triangles)
     with progress_bar(f"mesh ({strategy})", unit="stage", quiet=quiet) as on_progress:
         result = approximate(
             terrain,
@@ -126,13 +132,55 @@ def mesh(
     _emit(figures, as_json)
 
 
-def _check_mesh_strategy(path: str, terrain, strategy: str) -> None:
-    """InvalidParameterError for a lattice strategy asked of a TIN or a point cloud."""
-    from approxtree.errors import InvalidParameterError
-    from approxtree.geometry import Grid
+def _format_kind(path: str, encoding: str | None) -> str | None:
+    """The terrain kind a file's format always reads as when it is not a grid ("tinpointset"
+    for LAS/LAZ, "tin" for quantized-mesh), else None (grids, or decided once read)."""
+    from approxtree.errors import ApproxTreeError
+    from approxtree.io import detect_format
+    from approxtree.io._common import existing_file
 
-    if strategy != "tin" and not isinstance(terrain, Grid):
+    try:
+        name = detect_format(existing_file(path), encoding=encoding).name
+    except (ApproxTreeError, OSError):
+        return None  # the reader says what is wrong with the file
+    return {"LAS/LAZ point cloud": "tinpointset", "quantized-mesh tile": "tin"}.get(name)
+
+
+def _check_mesh_strategy(path: str, kind: str | None, strategy: str) -> None:
+    """InvalidParameterError for a lattice strategy asked of a TIN or a point cloud (a terrain
+    ``kind`` other than a grid's; None: not known yet)."""
+    from approxtree.errors import InvalidParameterError
+
+    if strategy != "tin" and kind not in (None, "grid"):
         raise InvalidParameterError(
-            f"--strategy {strategy} needs a raster grid; {path} reads as a {terrain.kind} "
+            f"--strategy {strategy} needs a raster grid; {path} reads as a {kind} "
             "(scattered points or triangles): use --strategy tin."
         )
+
+
+def _bounded_goals(terrain, max_points: int | None, max_triangles: int | None):
+    """(max_points, max_triangles) clamped to what the terrain has: a mesh has at most its
+    data points (a budget above them means all of them) and a triangulation of n points at
+    most 2n triangles; a warning line says so."""
+    import warnings
+
+    from approxtree.errors import ApproxTreeWarning
+
+    n = int(terrain.point_count)
+    if max_points is not None and max_points > n:
+        warnings.warn(
+            f"--max-points {max_points} is more than the terrain's {n} data points; all of them "
+            "are used.",
+            ApproxTreeWarning,
+            stacklevel=2,
+        )
+        max_points = n
+    if max_triangles is not None and max_triangles > 2 * n:
+        warnings.warn(
+            f"--max-triangles {max_triangles} is more than the {2 * n} triangles {n} data "
+            "points can make; every point is used.",
+            ApproxTreeWarning,
+            stacklevel=2,
+        )
+        max_triangles = 2 * n
+    return max_points, max_triangles

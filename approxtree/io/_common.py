@@ -42,7 +42,13 @@ def existing_file(path: str | os.PathLike) -> Path:
 
 
 def _reason(exc: BaseException) -> str:
-    """The library's message for an exception, or its type name when it has none."""
+    """The library's message for an exception, or its type name when it has none. A message
+    that only points at the exception before it (rasterio's "Read failed. See previous
+    exception for details.") gives way to the innermost one in the chain (GDAL's own)."""
+    while "previous exception" in str(exc) and exc.__cause__ is not None:
+        exc = exc.__cause__
+        while exc.__cause__ is not None:
+            exc = exc.__cause__
     text = str(exc).strip()
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
@@ -59,6 +65,41 @@ def reading(path: str | os.PathLike, what: str) -> Iterator[None]:
         raise
     except Exception as exc:
         raise TerrainFormatError(f"Cannot read {path} as {what}: {_reason(exc)}") from exc
+
+
+def check_shapefile_length(path: str | os.PathLike) -> None:
+    """TerrainFormatError when a shapefile's .shp (or its .shx) is shorter than its header
+    says: GDAL reads a truncated shapefile without a word, the features past the cut with no
+    geometry. Any other file is left to its reader."""
+    path = Path(path)
+    if path.suffix.lower() != ".shp":
+        return
+    index = [p for p in (path.with_suffix(".shx"), path.with_suffix(".SHX")) if p.is_file()]
+    for part in [path, *index[:1]]:
+        with open(part, "rb") as f:
+            header = f.read(100)
+        # Bytes 0-3: file code 9994; bytes 24-27: the file's length in 16-bit words (both
+        # big-endian, ESRI's shapefile white paper).
+        if len(header) < 100 or int.from_bytes(header[:4], "big") != 9994:
+            raise TerrainFormatError(
+                f"{part} is not a shapefile part (no shapefile header); restore it from a copy."
+            )
+        declared = int.from_bytes(header[24:28], "big") * 2
+        actual = part.stat().st_size
+        if actual < declared:
+            raise TerrainFormatError(
+                f"{part} is truncated: its header declares {declared} bytes, the file holds "
+                f"{actual}. Restore it from a copy."
+            )
+
+
+#: Workers (processes or threads) per core at most: more only wait for a core.
+MAX_WORKERS_PER_CORE = 4
+
+
+def most_workers() -> int:
+    """The most workers a local pool may start here: MAX_WORKERS_PER_CORE × the core count."""
+    return MAX_WORKERS_PER_CORE * (os.cpu_count() or 1)
 
 
 def available_memory() -> int:

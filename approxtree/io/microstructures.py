@@ -23,6 +23,7 @@ import numpy as np
 from approxtree.errors import EmptyTerrainError, InvalidParameterError, TerrainFormatError
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.tin import TIN
+from approxtree.io._common import check_shapefile_length
 
 VECTOR_SUFFIXES = (".shp", ".gpkg", ".geojson", ".json", ".fgb", ".gml", ".kml")
 PROFILES = ("incised", "resampled")
@@ -39,6 +40,7 @@ def read_lines(path: str | os.PathLike, crs: str | None = None) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise TerrainFormatError(f"Vector layer {path} does not exist.")
+    check_shapefile_length(path)
     try:
         info = pyogrio.read_info(path)
         _, _, wkb, _ = pyogrio.raw.read(path, columns=[])

@@ -57,7 +57,8 @@ def rasterio_source(path: Path) -> str:
             f"{path} must hold exactly one raster ({', '.join(RASTER_EXTENSIONS)}); it holds "
             f"{found}. Unzip it and open the raster you want."
         )
-    return f"zip://{path}!{rasters[0]}"
+    # Absolute: GDAL looks a relative /vsizip/ path up from the root, not the working folder.
+    return f"zip://{os.path.abspath(path)}!{rasters[0]}"
 
 
 #: GDAL block cache (MB) while a band is read whole, and while a windowed raster is read.

@@ -17,6 +17,7 @@ import numpy as np
 
 from approxtree.errors import InvalidParameterError, StoreError
 from approxtree.geometry.windowed import HeightSource
+from approxtree.io._common import MAX_WORKERS_PER_CORE, most_workers
 
 #: Internal tile edge (cells): the COG default, and what GDAL readers expect.
 TILE = 512
@@ -124,8 +125,11 @@ def write_tiled_geotiff(
         raise InvalidParameterError(
             f"block must be a multiple of {TILE} cells (the tile size), got {block!r}."
         )
-    if workers is not None and (isinstance(workers, bool) or workers < 1):
-        raise InvalidParameterError(f"workers must be at least 1, got {workers!r}.")
+    if workers is not None and (isinstance(workers, bool) or not 1 <= workers <= most_workers()):
+        raise InvalidParameterError(
+            f"workers must be a number of threads from 1 to at most {most_workers()} "
+            f"({MAX_WORKERS_PER_CORE} a core here), got {workers!r}."
+        )
     crs = _check_crs(crs)
     rows, cols = source.shape
     blocks = _dask_blocks(source, block)

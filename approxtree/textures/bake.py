@@ -28,8 +28,10 @@ from approxtree.errors import InvalidParameterError, TerrainFormatError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rasterize import rasterize
+from approxtree.io._common import reading
 from approxtree.io.output_path import check_output_folder
 from approxtree.progress import ProgressCallback
+from approxtree.textures.bake_budget import check_bake_size
 from approxtree.textures.base import TextureData
 from approxtree.textures.blend import BLEND_MODES, MultiTexture
 from approxtree.textures.pyramid import TexturePyramid, check_pyramid_target
@@ -119,7 +121,7 @@ def _thematic_on_lattice(
         mapper = ColourRamp(palette)
     classes = isinstance(mapper, ClassTable)
     values = np.full(shape, np.nan, dtype=np.float64)
-    with rasterio.open(path) as ds:
+    with reading(path, "a thematic raster"), rasterio.open(path) as ds:
         dst_crs = crs or (ds.crs.to_string() if ds.crs else None)
         reproject(
             source=np.where(src.valid, src.values, np.nan).astype(np.float64),
@@ -228,9 +230,21 @@ def bake(
     if texel_size is None and thematic_path is not None:
         import rasterio
 
-        with rasterio.open(thematic_path) as ds:
+        with reading(thematic_path, "a thematic raster"), rasterio.open(thematic_path) as ds:
             texel = min(texel, *ds.res)
     transform, shape = texture_lattice(terrain, texel)
+    # Refuse at once what this machine cannot bake (a texel far below the DEM's cell).
+    same = shape == terrain.shape and transform.almost_equals(terrain.transform)
+    vectors = [*(overlays or []), *(water or [])]
+    check_bake_size(
+        shape,
+        texel,
+        min(terrain.cell_size),
+        _budget_layers(terrain, same, shading, gl, thematic_path, vectors),
+        2 if thematic_path is None and not vectors else 4,
+        max_texture_size,
+        folder,
+    )
     used_gl = False
     layers: list[TextureData] = []
     names: list[str] = []
@@ -290,6 +304,26 @@ def bake(
         progress=progress,
     )
     return BakeResult(pyramid, time.perf_counter() - t0, names, used_gl)
+
+
+def _budget_layers(
+    terrain: Grid, same: bool, shading: str | None, gl: bool, thematic: Path | None, vectors: list
+) -> list[str]:
+    """The ``bake_budget.BYTES_PER_TEXEL`` keys of a bake: its shading (on the DEM's lattice,
+    streamed from a windowed raster, or on a resampled one), thematic layer and overlays."""
+    layers = []
+    if shading is not None:
+        if not same:
+            layers.append("resampled")
+        if shading != "topographic":
+            layers.append(shading)
+        elif same:
+            streamed = getattr(terrain, "is_windowed", False) and not gl
+            layers.append("streamed" if streamed else "topographic")
+    if thematic is not None:
+        layers.append("thematic")
+    layers += ["overlay"] * len(vectors)
+    return layers
 
 
 def _gl_shading(

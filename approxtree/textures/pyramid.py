@@ -18,6 +18,14 @@ A pyramid is written all or nothing: built in a temp folder beside its folder, t
 GeoTIFF tags with the level's number; opening a pyramid checks every level against
 pyramid.json (id, number, size, bytes, bands, alpha, halving chain), so a level of another
 bake, a missing, extra or truncated level is refused instead of draped.
+
+Every tile carries a checksum: each level entry of pyramid.json has ``tile_crc32c``, rows of
+512 × 512 tiles (row-major lists), each the CRC-32C of the tile's *decoded* uint8 texels in
+band-sequential C order (bands, rows, cols), edge tiles clipped to the level's size. The
+writer computes them from the strips it writes (one tile row at a time); a read decodes the
+whole tiles its window touches and checks each (``_TileCache`` keeps the checked ones), so a
+damaged tile is a StoreError, never texels drawn silently. A decode error (ZSTD, TIFF) is a
+StoreError too.
 """
 
 from __future__ import annotations
@@ -28,7 +36,7 @@ import queue
 import re
 import threading
 import uuid
-from collections import deque
+from collections import OrderedDict, deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
@@ -47,16 +55,19 @@ from approxtree.textures.base import TextureData
 _CHUNK_ROWS = 512
 
 #: pyramid.json format: 2 added the build id, the level tags and the level byte counts; 3
-#: tiled, compressed levels (no longer memory-mapped) and grey + alpha levels for shadings.
-PYRAMID_FORMAT = 3
+#: tiled, compressed levels (no longer memory-mapped) and grey + alpha levels for shadings;
+#: 4 a CRC-32C of every tile's decoded texels (``tile_crc32c``).
+PYRAMID_FORMAT = 4
 #: Tile side of the level GeoTIFFs (texels), as COGs use.
 _TILE = 512
 #: Strips queued for the writer thread before the producer waits (each a copy of a strip).
 _WRITE_AHEAD = 3
+#: Decoded, checked tiles a pyramid keeps for reads of neighbouring windows (bytes).
+TILE_CACHE_BYTES = 32 << 20
 
 #: Level GeoTIFF creation options: tiled, ZSTD at its fastest level (a hillshade shrinks
 #: 2.4×, its alpha band to almost nothing), one plane per band (compresses better and faster
-#: than interleaved grey/alpha), compressed on every core.
+#: than interleaved grey/alpha), compressed on every core, BigTIFF past 4 GB.
 _LEVEL_OPTIONS = {
     "tiled": True,
     "blockxsize": _TILE,
@@ -66,6 +77,8 @@ _LEVEL_OPTIONS = {
     "interleave": "band",
     "num_threads": "ALL_CPUS",
     "alpha": "YES",
+    # A level that may pass 4 GB (classic TIFF's limit) is written as a BigTIFF.
+    "bigtiff": "IF_SAFER",
 }
 #: GeoTIFF tags naming a level's build and its number in the pyramid.
 _TAG_BUILD = "APPROXTREE_PYRAMID"
@@ -103,13 +116,13 @@ def _write_level(
     level: int,
     halved: list[np.ndarray] | _Handoff | None,
     on_rows: Callable[[int], None] | None = None,
-) -> None:
+) -> list[list[int]]:
     """Write the (bands, rows, cols) uint8 band-order strips of a level (RGBA, or grey and
     alpha), top to bottom, as a tiled compressed GeoTIFF tagged with the pyramid's build id and
     the level number (into the pyramid's temp folder); when ``halved`` is given (a list, or
     the next level's ``_Handoff``), append to it the strips of the level's halving, made while
     each strip is at hand (strips of even height); ``on_rows(n)`` after each strip of n rows
-    is written."""
+    is written. Returns the level's ``tile_crc32c`` (rows of tiles, ``_TileChecksums``)."""
     import rasterio
 
     rows, cols = shape
@@ -129,6 +142,7 @@ def _write_level(
     # while this thread makes the next ones; up to _WRITE_AHEAD strips wait in its queue.
     pending: deque[Future] = deque()
     ring: list[np.ndarray | None] = [None] * (_WRITE_AHEAD + 1)
+    sums = _TileChecksums(shape, bands)
     with rasterio.open(path, "w", **profile) as ds, ThreadPoolExecutor(1) as writer:
         ds.update_tags(**{_TAG_BUILD: build, _TAG_LEVEL: str(level)})
         for index, strip in enumerate(strips):
@@ -151,7 +165,7 @@ def _write_level(
             if ring[slot] is None or ring[slot].shape != strip.shape:
                 ring[slot] = np.empty(strip.shape, dtype=np.uint8)
             np.copyto(ring[slot], strip)
-            pending.append(writer.submit(_write_and_halve, ds, ring[slot], r0, halved))
+            pending.append(writer.submit(_write_and_halve, ds, ring[slot], r0, halved, sums))
             if on_rows is not None:
                 on_rows(n)
             r0 += n
@@ -159,19 +173,74 @@ def _write_level(
             pending.popleft().result()
     if r0 != rows:
         raise InvalidParameterError(f"The texture's strips cover {r0} of its {rows} rows.")
+    return sums.rows
+
+
+class _TileChecksums:
+    """The ``tile_crc32c`` of a level, from its band-order strips as they are written.
+
+    A tile's checksum covers its (bands, h, w) texels in C order, so it needs the tile's whole
+    height at once: a strip that is a whole tile row (the usual case: levels are written in
+    512-row strips) is summed as it is; other strips are gathered in one tile-row buffer
+    first. Called on the level's writer thread only, in row order.
+    """
+
+    def __init__(self, shape: tuple[int, int], bands: int) -> None:
+        self.height, self.width = shape
+        self.bands = bands
+        #: Finished tile rows: one list of crc32c per tile row, west to east.
+        self.rows: list[list[int]] = []
+        self._buffer: np.ndarray | None = None
+        self._filled = 0
+
+    def add(self, strip: np.ndarray, r0: int) -> None:
+        """Take the (bands, n, cols) strip written at row ``r0``."""
+        n = strip.shape[1]
+        if not self._filled and (n == _TILE or r0 + n == self.height) and n <= _TILE:
+            self.rows.append(tile_row_checksums(strip))
+            return
+        at = 0
+        while at < n:
+            if self._buffer is None:
+                self._buffer = np.empty((self.bands, _TILE, self.width), dtype=np.uint8)
+            take = min(n - at, _TILE - self._filled)
+            self._buffer[:, self._filled : self._filled + take] = strip[:, at : at + take]
+            self._filled += take
+            at += take
+            if self._filled == _TILE or r0 + at == self.height:
+                self.rows.append(tile_row_checksums(self._buffer[:, : self._filled]))
+                self._filled = 0
+
+
+def tile_row_checksums(block: np.ndarray) -> list[int]:
+    """CRC-32C of each tile of a (bands, h ≤ 512, cols) uint8 tile row, west to east (the last
+    clipped to ``cols``): the tile's texels in band-sequential C order."""
+    import crc32c
+
+    cols = block.shape[2]
+    return [
+        crc32c.crc32c(np.ascontiguousarray(block[:, :, c0 : c0 + _TILE]))
+        for c0 in range(0, cols, _TILE)
+    ]
 
 
 def _write_and_halve(
-    ds, strip: np.ndarray, r0: int, halved: list[np.ndarray] | _Handoff | None
+    ds,
+    strip: np.ndarray,
+    r0: int,
+    halved: list[np.ndarray] | _Handoff | None,
+    sums: _TileChecksums,
 ) -> None:
-    """Write a (bands, n, cols) strip at row ``r0`` of ``ds`` and, if ``halved`` is given,
-    append its (bands, ⌈n/2⌉, ⌈cols/2⌉) halving to it (it depends on that strip only: its
-    rows pair up). Both run without the GIL, on the level's writer thread (one, so halvings
-    arrive in order), while the next strip is made; the next level gets each at once."""
+    """Write a (bands, n, cols) strip at row ``r0`` of ``ds``, add it to the level's tile
+    checksums and, if ``halved`` is given, append its (bands, ⌈n/2⌉, ⌈cols/2⌉) halving to it
+    (it depends on that strip only: its rows pair up). All run on the level's writer thread
+    (one, so strips and halvings come in order; GDAL and the kernel without the GIL), while
+    the next strip is made; the next level gets each halving at once."""
     from rasterio.windows import Window
 
     bands, n, cols = strip.shape
     ds.write(strip, window=Window(0, r0, cols, n))
+    sums.add(strip, r0)
     if halved is None:
         return
     half = np.empty((bands, (n + 1) // 2, (cols + 1) // 2), dtype=np.uint8)
@@ -287,6 +356,63 @@ def _check_level(path: Path, level: PyramidLevel, bands: int, build: str, k: int
         raise StoreError(f"{path} is georeferenced unlike pyramid.json says; rebake the pyramid.")
 
 
+def _dump_meta(meta: dict) -> str:
+    """pyramid.json's text: indented, each level's ``tile_crc32c`` one tile row a line."""
+    rows_text = {}
+    for k, lv in enumerate(meta["levels"]):
+        rows_text[k] = lv["tile_crc32c"]
+        lv = lv | {"tile_crc32c": f"@tiles{k}@"}
+        meta = meta | {"levels": [*meta["levels"][:k], lv, *meta["levels"][k + 1 :]]}
+    text = json.dumps(meta, indent=2)
+    for k, rows in rows_text.items():
+        inner = ",\n".join("        " + json.dumps(r, separators=(",", ":")) for r in rows)
+        text = text.replace(f'"@tiles{k}@"', "[\n" + inner + "\n      ]")
+    return text
+
+
+def _tile_sums(entry: dict, width: int, height: int) -> list[list[int]]:
+    """A level entry's ``tile_crc32c``, checked to hold one int per tile of the level."""
+    sums = entry["tile_crc32c"]
+    shape = (-(-height // _TILE), -(-width // _TILE))
+    if not isinstance(sums, list) or len(sums) != shape[0]:
+        raise ValueError(f"tile_crc32c of {entry['file']} is not {shape[0]} rows of tiles")
+    out = []
+    for row in sums:
+        if not isinstance(row, list) or len(row) != shape[1]:
+            raise ValueError(f"tile_crc32c of {entry['file']} is not rows of {shape[1]} tiles")
+        out.append([int(v) for v in row])
+    return out
+
+
+class _TileCache:
+    """Decoded tiles that passed their checksum, least recently used first, bounded in bytes;
+    shared by the threads reading a pyramid."""
+
+    def __init__(self, limit: int) -> None:
+        self.limit = limit
+        self._tiles: OrderedDict[tuple[int, int, int], np.ndarray] = OrderedDict()
+        self._bytes = 0
+        self._lock = threading.Lock()
+
+    def get(self, key: tuple[int, int, int]) -> np.ndarray | None:
+        with self._lock:
+            tile = self._tiles.get(key)
+            if tile is not None:
+                self._tiles.move_to_end(key)
+            return tile
+
+    def put(self, key: tuple[int, int, int], tile: np.ndarray) -> None:
+        tile.flags.writeable = False
+        with self._lock:
+            if key in self._tiles:
+                return
+            self._tiles[key] = tile
+            self._bytes += tile.nbytes
+            while self._bytes > self.limit and len(self._tiles) > 1:
+                _, old = self._tiles.popitem(last=False)
+                self._bytes -= old.nbytes
+
+
 def check_pyramid_target(folder: str | os.PathLike) -> None:
     """Refuse, before any work, a folder that a new pyramid cannot replace whole: a file, or
     a folder holding anything besides a texture pyramid (the swap would delete it)."""
@@ -302,6 +428,13 @@ def check_pyramid_target(folder: str | os.PathLike) -> None:
                 f"pyramid ({shown}), and a bake replaces the whole folder. Bake into a new or "
                 "empty folder, or one that holds only a pyramid."
             )
+
+
+def _cause(exc: BaseException) -> str:
+    """The innermost message of a chained GDAL error (ZSTD's, not "Read failed")."""
+    while exc.__cause__ is not None:
+        exc = exc.__cause__
+    return str(exc).strip()
 
 
 class TexturePyramid:
@@ -322,7 +455,7 @@ class TexturePyramid:
                 raise StoreError(
                     f"{self.folder} is a texture pyramid of format {version}; this approxtree "
                     f"reads format {PYRAMID_FORMAT} (tiled, compressed levels checked against "
-                    "pyramid.json). Rebake it (approxtree bake)."
+                    "pyramid.json, a checksum per tile). Rebake it (approxtree bake)."
                 )
             self.build_id: str = str(meta["build"])
             self.crs: str | None = meta["crs"]
@@ -334,6 +467,10 @@ class TexturePyramid:
             entries = meta["levels"]
             files = [str(lv["file"]) for lv in entries]
             sizes = [int(lv["bytes"]) for lv in entries]
+            #: Per level, rows of tiles: the CRC-32C of each tile's decoded texels.
+            self.tile_crc32c = [
+                _tile_sums(lv, int(lv["width"]), int(lv["height"])) for lv in entries
+            ]
             self.levels = [
                 PyramidLevel(
                     self.folder / lv["file"],
@@ -349,6 +486,7 @@ class TexturePyramid:
         for k, lv in enumerate(self.levels):
             _check_level(lv.path, lv, self.bands, self.build_id, k)
         self._check_chain()
+        self._tiles = _TileCache(TILE_CACHE_BYTES)
 
     def _check_levels(self, files: list[str], sizes: list[int]) -> None:
         """pyramid.json's level list against the folder: names, missing or extra files, bytes."""
@@ -460,6 +598,7 @@ class TexturePyramid:
             # no level is ever held whole. Level 0 is written on this thread (it runs the
             # texture's kernels).
             handoffs = [_Handoff() for _ in plan[1:]]
+            tile_sums: dict[int, list[list[int]]] = {}
 
             def write(k: int) -> None:
                 (rows, cols), t = plan[k]
@@ -469,7 +608,7 @@ class TexturePyramid:
                 sink = handoffs[k] if k < len(handoffs) else None
                 try:
                     path = tmp / f"level{k}.tif"
-                    _write_level(
+                    tile_sums[k] = _write_level(
                         path, level_strips, (rows, cols), bands, t, crs, build, k, sink, on_rows
                     )
                 finally:
@@ -498,6 +637,7 @@ class TexturePyramid:
                     "height": rows,
                     "transform": list(t)[:6],
                     "bytes": (tmp / f"level{k}.tif").stat().st_size,
+                    "tile_crc32c": tile_sums[k],
                 }
                 for k, ((rows, cols), t) in enumerate(plan)
             ]
@@ -509,30 +649,105 @@ class TexturePyramid:
                 "bands": bands,
                 "levels": levels,
             }
-            (tmp / "pyramid.json").write_text(json.dumps(meta, indent=2))
+            # Indented, but each level's tile_crc32c rows one per line (a level has thousands).
+            (tmp / "pyramid.json").write_text(_dump_meta(meta))
         return cls(folder)
+
+    def __getstate__(self) -> dict:
+        """Pickled (a dask task's job) without its tile cache and lock."""
+        state = dict(self.__dict__)
+        del state["_tiles"]
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._tiles = _TileCache(TILE_CACHE_BYTES)
 
     def __len__(self) -> int:
         return len(self.levels)
 
     def read(self, k: int, row0: int, col0: int, rows: int, cols: int) -> np.ndarray:
         """A (rows, cols, 4) uint8 RGBA window of level k from texel (row0, col0); texels past
-        the level's edge are transparent (0). Decodes only the tiles the window touches; grey
-        levels come back with R = G = B = grey. Opens the file per call, so threads may read
-        at once."""
-        import rasterio
-        from rasterio.windows import Window
-
+        the level's edge are transparent (0). Decodes only the tiles the window touches, each
+        whole and checked against its checksum (StoreError when damaged); grey levels come
+        back with R = G = B = grey. Opens the file per call, so threads may read at once."""
         lv = self.levels[k]
         out = np.zeros((rows, cols, 4), dtype=np.uint8)
         r1, c1 = min(row0 + rows, lv.height), min(col0 + cols, lv.width)
         if r1 <= row0 or c1 <= col0:
             return out
-        with rasterio.open(lv.path) as ds:
-            planes = ds.read(window=Window(col0, row0, c1 - col0, r1 - row0))
+        tiles = [
+            (tr, tc)
+            for tr in range(row0 // _TILE, (r1 - 1) // _TILE + 1)
+            for tc in range(col0 // _TILE, (c1 - 1) // _TILE + 1)
+        ]
+        # The whole tiles the window touches: block rows R0..R1, columns C0..C1.
+        r0_, c0_ = tiles[0][0] * _TILE, tiles[0][1] * _TILE
+        r1_ = min(lv.height, (tiles[-1][0] + 1) * _TILE)
+        c1_ = min(lv.width, (tiles[-1][1] + 1) * _TILE)
+        held = {t: self._tiles.get((k, *t)) for t in tiles}
+        if all(v is not None for v in held.values()):
+            block = np.empty((self.bands, r1_ - r0_, c1_ - c0_), dtype=np.uint8)
+            for (tr, tc), tile in held.items():
+                a, b = tr * _TILE - r0_, tc * _TILE - c0_
+                block[:, a : a + tile.shape[1], b : b + tile.shape[2]] = tile
+        else:
+            # One read of the whole tiles (GDAL decodes whole tiles anyway), then each tile
+            # not checked yet is checked (a contiguous copy, kept in the cache).
+            block = self._decode(k, r0_, c0_, r1_, c1_, tiles)
+            for (tr, tc), tile in held.items():
+                if tile is None:
+                    a, b = tr * _TILE - r0_, tc * _TILE - c0_
+                    self._check_tile(k, tr, tc, block[:, a : a + _TILE, b : b + _TILE])
+        planes = np.ascontiguousarray(block[:, row0 - r0_ : r1 - r0_, col0 - c0_ : c1 - c0_])
         # Grey and alpha fill R, G, B and A; RGBA fills them as stored.
-        bands_into_rgba(np.ascontiguousarray(planes), out)
+        bands_into_rgba(planes, out)
         return out
+
+    def _decode(
+        self, k: int, r0: int, c0: int, r1: int, c1: int, tiles: list[tuple[int, int]]
+    ) -> np.ndarray:
+        """(bands, r1 − r0, c1 − c0) texels of level k as GDAL decodes them; a StoreError
+        naming the first of ``tiles`` that does not decode when the read fails."""
+        import rasterio
+        from rasterio.windows import Window
+
+        lv = self.levels[k]
+        failed = None
+        try:
+            with rasterio.open(lv.path) as ds:
+                return ds.read(window=Window(c0, r0, c1 - c0, r1 - r0))
+        except rasterio.errors.RasterioError as exc:
+            failed = _cause(exc)
+        # Raised outside the handler: GDAL's chained errors, kept as the context, do not
+        # survive pickling back from a dask worker. Tile by tile to name the damaged one.
+        where = ""
+        with rasterio.open(lv.path) as ds:
+            for tr, tc in tiles:
+                a, b = tr * _TILE, tc * _TILE
+                window = Window(b, a, min(_TILE, lv.width - b), min(_TILE, lv.height - a))
+                try:
+                    ds.read(window=window)
+                except rasterio.errors.RasterioError:
+                    where = f"tile ({tr}, {tc}) of "
+                    break
+        raise StoreError(
+            f"{lv.path} is damaged: {where}level {k} does not decode ({failed}); rebake the "
+            "pyramid (approxtree bake)."
+        )
+
+    def _check_tile(self, k: int, tr: int, tc: int, texels: np.ndarray) -> None:
+        """StoreError unless the (bands, h, w) texels of tile (tr, tc) of level k match its
+        CRC-32C in pyramid.json; a match goes into the tile cache."""
+        import crc32c
+
+        tile = np.ascontiguousarray(texels)
+        if crc32c.crc32c(tile) != self.tile_crc32c[k][tr][tc]:
+            raise StoreError(
+                f"{self.levels[k].path} is damaged: tile ({tr}, {tc}) of level {k} does not "
+                "match its checksum in pyramid.json; rebake the pyramid (approxtree bake)."
+            )
+        self._tiles.put((k, tr, tc), tile if tile is not texels else tile.copy())
 
     def level(self, k: int) -> np.ndarray:
         """Level k whole, as a (rows, cols, 4) uint8 RGBA array in memory (``read`` reads a

@@ -25,6 +25,7 @@ import numpy as np
 from affine import Affine
 
 from approxtree.errors import InvalidParameterError, TerrainFormatError
+from approxtree.io._common import check_shapefile_length, reading
 from approxtree.textures.base import TextureData
 
 Colour = tuple[int, int, int, int]
@@ -112,11 +113,12 @@ class ClassTable:
         """The colour table embedded in a raster (e.g. a GeoTIFF palette)."""
         import rasterio
 
-        try:
-            with rasterio.open(path) as ds:
-                return cls(ds.colormap(band))
-        except ValueError as exc:
-            raise TerrainFormatError(f"{path} has no embedded colour table: {exc}") from exc
+        with reading(path, "a thematic raster"):
+            try:
+                with rasterio.open(path) as ds:
+                    return cls(ds.colormap(band))
+            except ValueError as exc:
+                raise TerrainFormatError(f"{path} has no embedded colour table: {exc}") from exc
 
     @classmethod
     def legend(cls, name: str, amount: float = SOFTEN) -> ClassTable:
@@ -278,20 +280,18 @@ class ThematicTexture(TextureData):
         path = Path(path)
         if not path.is_file():
             raise TerrainFormatError(f"Thematic raster {path} does not exist.")
-        try:
-            with rasterio.open(path) as ds:
-                data = ds.read(band, masked=True)
-                transform, crs = ds.transform, ds.crs.to_string() if ds.crs else None
-                if mapper is None:
-                    try:
-                        mapper = ClassTable(ds.colormap(band))
-                    except ValueError as exc:
-                        raise InvalidParameterError(
-                            f"{path} has no embedded colour table; give a mapper (a colour "
-                            "ramp or a colour file)."
-                        ) from exc
-        except rasterio.errors.RasterioIOError as exc:
-            raise TerrainFormatError(f"Cannot read {path}: {exc}") from exc
+        # A file GDAL cannot open or decode is one TerrainFormatError, as a DEM's would be.
+        with reading(path, "a thematic raster"), rasterio.open(path) as ds:
+            data = ds.read(band, masked=True)
+            transform, crs = ds.transform, ds.crs.to_string() if ds.crs else None
+            if mapper is None:
+                try:
+                    mapper = ClassTable(ds.colormap(band))
+                except ValueError as exc:
+                    raise InvalidParameterError(
+                        f"{path} has no embedded colour table; give a mapper (a colour "
+                        "ramp or a colour file)."
+                    ) from exc
         valid = ~np.ma.getmaskarray(data)
         return cls(np.ma.getdata(data), transform, mapper, crs=crs, valid=valid)
 
@@ -321,6 +321,7 @@ def rasterize_lines(
     path = Path(path)
     if not path.is_file():
         raise TerrainFormatError(f"Vector layer {path} does not exist.")
+    check_shapefile_length(path)
     try:
         info = pyogrio.read_info(path)
         _, _, wkb, _ = pyogrio.raw.read(path, read_geometry=True, columns=[])

@@ -24,7 +24,8 @@ R = TypeVar("R")
 
 
 def check_workers(workers: int, scheduler: str | None) -> None:
-    """InvalidParameterError for a worker count below 1 (or not an int) or a blank address."""
+    """InvalidParameterError for a worker count below 1 (or not an int), a local cluster
+    larger than the machine (``check_cluster_options``) or a blank address."""
     if not (isinstance(workers, int) and not isinstance(workers, bool) and workers >= 1):
         raise InvalidParameterError(f"workers must be an integer >= 1, got {workers!r}.")
     # Both only when workers is left at 1: a scheduler's cluster has its own workers.
@@ -60,7 +61,9 @@ def run_batches(
     # A cluster with N workers: batches sized for them (or for 8 per default on a scheduler).
     batches = batches_of(items, workers if scheduler is None else 8)
     out: list[R] = []
-    with dask_client(None if scheduler else workers, scheduler, processes) as client:
+    # No more local workers than batches: the others would start only to wait.
+    local = None if scheduler else max(1, min(workers, len(batches)))
+    with dask_client(local, scheduler, processes) as client:
         # The job goes to every worker once (it holds the terrain), not with each task.
         [shared] = client.scatter([job], broadcast=True, hash=False)  # type: ignore[attr-defined]
         # Keys unique to this run: a key reused on a shared cluster could return another

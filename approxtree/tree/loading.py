@@ -17,7 +17,8 @@ def load_tree(path: str | os.PathLike, verify: bool = True) -> ApproximationTree
         from approxtree.tree.tree_store import load_quadtree_store, load_tree_store
         from approxtree.tree.zarr_store import StoreReader
 
-        if StoreReader(path).meta.get("tree_kind") == TREE_KIND:
+        # check=False: the loader below opens the store again and checks its chunks then.
+        if StoreReader(path, check=False).meta.get("tree_kind") == TREE_KIND:
             return load_quadtree_store(path)
         return load_tree_store(path, verify=verify)
     if TreeFile(path).meta.get("tree_kind") == TREE_KIND:

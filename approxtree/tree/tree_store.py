@@ -409,8 +409,9 @@ def _check_meta(reader: StoreReader) -> dict[str, Any]:
 def load_tree_store(path: str | os.PathLike, verify: bool = True) -> ApproximationTree:
     """The ApproximationTree of a store; patches are read on first access.
 
-    verify: check now that every chunk is present and read every array but the terrain's
-    (the terrain's chunks are checked as they are read), so corruption fails here."""
+    Every chunk's presence is checked when the store is opened. verify: also read every
+    array but the terrain's now (the terrain's chunks are checked as they are read), so a
+    damaged chunk fails here rather than when its patch is paged in."""
     from approxtree.tree.approximation_tree import ApproximationTree
 
     reader = StoreReader(path)

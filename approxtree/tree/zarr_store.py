@@ -6,11 +6,11 @@ an fsspec URL (``memory://...``, ``s3://...``; anything with ``://``).
 
 Every array is chunked and encoded as blosc(zstd, shuffle) then a crc32c checksum
 (``zarr.codecs.Crc32cCodec``), so a flipped byte in any chunk fails its read. Every chunk is
-written (``write_empty_chunks``), so a missing chunk file is found by ``verify``. The root
-group's attributes hold the format name and version, the tree's meta data (JSON, no pickle)
-and a CRC-32C of every array's and group's metadata document (``zarr.json``), checked when
-it is opened. Any error of zarr or numcodecs reading a store becomes a StoreError naming the
-store and what to do.
+written (``write_empty_chunks``), so a missing chunk file is found when the store is opened
+(zarr alone would read it as its fill value). The root group's attributes hold the format
+name and version, the tree's meta data (JSON, no pickle) and a CRC-32C of every array's and
+group's metadata document (``zarr.json``), checked when it is opened. Any error of zarr or
+numcodecs reading a store becomes a StoreError naming the store and what to do.
 
 Atomic writes (``writing``): a folder store is written into a hidden temp folder beside the
 target (``.NAME.PID.TOKEN.tmp``, ``io.atomic``) and renamed into place, replacing an
@@ -24,6 +24,7 @@ URL removes what was there first (object stores cannot swap prefixes).
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import math
 import os
@@ -268,10 +269,14 @@ class StoreReader:
     """A tree store opened read-only: checked root attributes, arrays on demand.
 
     Every read goes through the crc32c codec; zarr's and numcodecs' errors become
-    StoreErrors naming the store.
+    StoreErrors naming the store. Opening checks that every chunk of every array is there
+    (``check_chunks``): zarr reads a missing chunk as its fill value without a word, so a
+    deleted chunk file would otherwise pass as zeros.
+
+    check: False only where a checked reader is reopened (a pickled copy in a dask worker).
     """
 
-    def __init__(self, path: str | os.PathLike) -> None:
+    def __init__(self, path: str | os.PathLike, check: bool = True) -> None:
         import zarr
 
         self.location = str(path)
@@ -299,6 +304,8 @@ class StoreReader:
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise _wrap(self.location, "root attributes", exc) from exc
         self._nodes: dict[str, Any] = {}
+        if check:
+            self.check_chunks()
         self._cache: OrderedDict[tuple[str, int], np.ndarray] = OrderedDict()
         self._cache_bytes = 0
         # Background loaders (the paging renderer) read patches from several threads.
@@ -310,7 +317,8 @@ class StoreReader:
         return {"location": self.location}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__init__(state["location"])  # type: ignore[misc]
+        # The sender checked the chunks when it opened the store; a worker need not list it.
+        self.__init__(state["location"], check=False)  # type: ignore[misc]
 
     def node(self, path: str) -> Any:
         """The zarr array or group at ``path``, its metadata checksum verified."""
@@ -349,7 +357,7 @@ class StoreReader:
         try:
             return np.asarray(arr[selection])
         except Exception as exc:
-            raise _wrap(self.location, f"chunk of {path}", exc) from exc
+            raise _wrap(self.location, f"chunk {_bad_chunk(arr, selection)}of {path}", exc) from exc
 
     def read_rows(self, path: str, start: int, stop: int) -> np.ndarray:
         """Rows start..stop of a row-chunked array through a small LRU cache of decoded
@@ -388,23 +396,44 @@ class StoreReader:
 
         return isinstance(self.node(path), zarr.Array)
 
-    def verify(self, read_skip: tuple[str, ...] = ()) -> None:
-        """Check that every chunk of every array is present, and each one's checksum by
-        reading it (except arrays under the ``read_skip`` path prefixes)."""
-        for path in self.arrays():
+    def check_chunks(self) -> None:
+        """StoreError naming the first array and chunk key whose chunk is not in the store.
+
+        One listing of the store's keys against each array's chunk grid (every chunk is
+        written, ``write_empty_chunks``): no chunk is read, so it is cheap enough for every
+        open.
+        """
+        from zarr.core.sync import sync
+
+        async def keys() -> set[str]:
+            return {k async for k in self._store.list()}
+
+        try:
+            listed = sync(keys())
+        except Exception as exc:
+            raise _wrap(self.location, "listing", exc) from exc
+        for path in sorted(self.arrays()):
             arr = self.node(path)
-            try:
-                present = arr.nchunks_initialized
-            except Exception as exc:
-                raise _wrap(self.location, f"chunks of {path}", exc) from exc
-            if present != arr.nchunks:
+            grid = [range(n) for n in arr.cdata_shape]
+            missing = [
+                key
+                for key in (arr.metadata.encode_chunk_key(c) for c in itertools.product(*grid))
+                if f"{path}/{key}" not in listed
+            ]
+            if missing:
                 raise StoreError(
-                    f"Tree store {self.location} is incomplete: {path} has "
-                    f"{present} of {arr.nchunks} chunks. Rebuild it with `approxtree build`, "
-                    "or restore it from a copy."
+                    f"Tree store {self.location} is incomplete: chunk {missing[0]} of {path} "
+                    f"is missing ({len(missing)} of its {arr.nchunks} chunks absent). "
+                    "Rebuild it with `approxtree build`, or restore it from a copy."
                 )
+
+    def verify(self, read_skip: tuple[str, ...] = ()) -> None:
+        """Check each chunk's checksum by reading it (except arrays under the ``read_skip``
+        path prefixes); that every chunk is present was checked when the store was opened."""
+        for path in self.arrays():
             if path.startswith(read_skip):
                 continue
+            arr = self.node(path)
             for block in _blocks(arr.shape, arr.chunks):
                 self.read(path, block)
 
@@ -431,6 +460,27 @@ class StoreReader:
             self._store.close()
 
 
+def _bad_chunk(arr: Any, selection: Any) -> str:
+    """The key of the first chunk under ``selection`` (slices, an Ellipsis) that fails to
+    decode, followed by a space; "" when none is found alone (or the selection is another
+    kind). Only called once a read has failed, to name the chunk in the error."""
+    sel = selection if isinstance(selection, tuple) else (selection,)
+    if any(s is not Ellipsis and not isinstance(s, slice) for s in sel):
+        return ""
+    sel = tuple(s for s in sel if s is not Ellipsis)
+    sel = sel + (slice(None),) * (len(arr.shape) - len(sel))
+    ranges = []
+    for s, n, c in zip(sel, arr.shape, arr.chunks, strict=False):
+        start, stop, _ = s.indices(n)
+        ranges.append(range(start // c, -(-stop // c)) if stop > start else range(0))
+    for coords in itertools.islice(itertools.product(*ranges), 4096):
+        try:
+            arr.blocks[coords]
+        except Exception:
+            return f"{arr.metadata.encode_chunk_key(coords)} "
+    return ""
+
+
 def _blocks(shape: tuple[int, ...], chunks: tuple[int, ...]) -> Iterator[tuple[slice, ...]]:
     """Selections of a few chunks at a time along axis 0 (bounded memory when verifying)."""
     if not shape or not math.prod(shape):
@@ -454,7 +504,10 @@ class ZarrHeightSource:
         self.location = location
         self.path = path
         self._reader = reader
+        self._check = True
         arr = self._open().node(path)
+        # Checked now (or by the reader passed in): a reopened copy after pickling need not be.
+        self._check = False
         self.shape: tuple[int, int] = (int(arr.shape[0]), int(arr.shape[1]))
         self.dtype = np.dtype(arr.dtype).newbyteorder("=")
         #: The array's chunks: the blocks a WindowedHeights over this source reads whole.
@@ -462,7 +515,7 @@ class ZarrHeightSource:
 
     def _open(self) -> StoreReader:
         if self._reader is None:
-            self._reader = StoreReader(self.location)
+            self._reader = StoreReader(self.location, check=self._check)
         return self._reader
 
     def read(self, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
