@@ -14,7 +14,13 @@ from approxtree.cli.common import (
     _no_reader_flags_for_tree,
     _reports_errors,
 )
-from approxtree.cli.options import json_option, quiet_option, reader_options
+from approxtree.cli.options import (
+    json_option,
+    overwrite_option,
+    quiet_option,
+    reader_options,
+    replaceable,
+)
 
 
 def _takes_windowed(path: str, encoding: str | None) -> bool:
@@ -96,6 +102,7 @@ def _takes_windowed(path: str, encoding: str | None) -> bool:
     "--out", required=True, type=click.Path(file_okay=False), help="Folder of the pyramid."
 )
 @reader_options
+@overwrite_option
 @quiet_option
 @json_option
 @_reports_errors
@@ -141,6 +148,7 @@ def bake_command(
     from approxtree.textures.bake import bake
 
     check_output_folder(out, "texture pyramid folder")
+    replaceable(out, "texture pyramid")
     if _is_tree(source):
         from approxtree.tree import ApproximationTree
 

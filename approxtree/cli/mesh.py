@@ -9,7 +9,13 @@ import click
 
 from approxtree.cli import common
 from approxtree.cli.common import _emit, _reports_errors
-from approxtree.cli.options import json_option, quiet_option, reader_options
+from approxtree.cli.options import (
+    json_option,
+    overwrite_option,
+    quiet_option,
+    reader_options,
+    replaceable,
+)
 
 
 @click.command()
@@ -51,6 +57,7 @@ from approxtree.cli.options import json_option, quiet_option, reader_options
     help="tin on grids: data-dependent triangulation (edge flips by error) instead of Delaunay.",
 )
 @reader_options
+@overwrite_option
 @quiet_option
 @json_option
 @_reports_errors
@@ -81,6 +88,7 @@ def mesh(
     check_goal(max_error, max_points, max_triangles)
     if out is not None:
         kind = mesh_format(out)
+        replaceable(out, "mesh file")
         if textures is not None and kind != "glb":
             from approxtree.errors import InvalidParameterError
 

@@ -11,7 +11,13 @@ import click
 
 from approxtree.cli import common
 from approxtree.cli.common import _reports_errors
-from approxtree.cli.options import json_option, quiet_option, reader_options
+from approxtree.cli.options import (
+    json_option,
+    overwrite_option,
+    quiet_option,
+    reader_options,
+    replaceable,
+)
 
 
 def _rates(ctx: click.Context, param: click.Parameter, value: str) -> list[int]:
@@ -48,6 +54,7 @@ def _rates(ctx: click.Context, param: click.Parameter, value: str) -> list[int]:
 )
 @click.option("--plot", type=click.Path(dir_okay=False), help="PNG of the L2 and L∞ curves.")
 @reader_options
+@overwrite_option
 @quiet_option
 @json_option
 @_reports_errors
@@ -75,6 +82,7 @@ def rd(
         from approxtree.io.output_path import check_output_file
 
         check_output_file(plot, "plot")
+        replaceable(plot, "image")
     terrain = common._open(dem, encoding, nodata_policy, ground_only, height_scale)
     if not isinstance(terrain, Grid):
         from approxtree.errors import InvalidParameterError

@@ -1,4 +1,5 @@
-"""``approxtree render``: Render a saved tree (store or .atree) to a PNG and print the stats."""
+"""``approxtree render``: Render a saved tree (store or .atree) to a PNG (or JPEG) and print the
+stats."""
 
 from __future__ import annotations
 
@@ -7,12 +8,14 @@ from typing import Any
 
 import click
 
-from approxtree.cli.common import _emit, _render_to_png, _reports_errors
+from approxtree.cli.common import _emit, _render_to_png, _reports_errors, image_format
 from approxtree.cli.options import (
     _size,
     cartographic_options,
     fov_option,
     json_option,
+    overwrite_option,
+    replaceable,
     threshold_options,
 )
 
@@ -48,7 +51,12 @@ def _xyz(ctx: click.Context, param: click.Parameter, value: str | None):
     default=None,
     help="Triangle budget (skirts included) instead of --alpha: smallest α that fits.",
 )
-@click.option("--out", required=True, type=click.Path(dir_okay=False), help="PNG to write (RGBA).")
+@click.option(
+    "--out",
+    required=True,
+    type=click.Path(dir_okay=False),
+    help="Image to write: .png (RGBA) or .jpg (RGB, composited on the background).",
+)
 @click.option(
     "--textures",
     type=click.Path(file_okay=False),
@@ -57,6 +65,7 @@ def _xyz(ctx: click.Context, param: click.Parameter, value: str | None):
 )
 @click.option("--no-lighting", is_flag=True, help="Same as --lighting off (decal mode).")
 @cartographic_options
+@overwrite_option
 @json_option
 @_reports_errors
 def render(
@@ -76,13 +85,15 @@ def render(
     as_json: bool,
     style: dict[str, Any],
 ) -> None:
-    """Render a saved tree (store or .atree) to a PNG and print the stats. Without --eye the
-    terrain is fitted to the frame, seen from the south; --background transparent leaves
-    alpha 0 where no terrain is drawn."""
+    """Render a saved tree (store or .atree) to a PNG (or JPEG) and print the stats. Without
+    --eye the terrain is fitted to the frame, seen from the south; --background transparent
+    leaves alpha 0 where no terrain is drawn (a PNG's)."""
     from approxtree.io.output_path import check_output_file
     from approxtree.tree import load_tree
 
     check_output_file(out, "image")
+    image_format(out)
+    replaceable(out, "image")
     tree = load_tree(tree_file)
     stats = _render_to_png(
         tree,

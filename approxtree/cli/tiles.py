@@ -18,7 +18,7 @@ from approxtree.cli.common import (
     _no_reader_flags_for_tree,
     _reports_errors,
 )
-from approxtree.cli.options import json_option, reader_options
+from approxtree.cli.options import json_option, overwrite_option, reader_options, replaceable
 
 
 def _store_epsilon(path: str) -> float | None:
@@ -140,6 +140,7 @@ def _tiles_terrain(path: str, reader: dict[str, Any]):
     "(e.g. tcp://host:8786); its workers must see --out.",
 )
 @reader_options
+@overwrite_option
 @json_option
 @_reports_errors
 def tiles(
@@ -182,6 +183,7 @@ def tiles(
     from approxtree.tiles.quantized_mesh import DEFAULT_LEAF_ERROR, check_output
 
     # The output folder is checked before the terrain is read.
+    replaceable(out, "terrain tileset")
     check_output(out)
     t0 = time.perf_counter()
     terrain = _tiles_terrain(tree, reader)
@@ -216,11 +218,15 @@ def _tiles_3dtiles(
     as_json: bool,
 ) -> None:
     """`approxtree tiles --format 3dtiles`: the 3D Tiles tileset of a tree store."""
+    from approxtree.io.output_path import check_output_folder
     from approxtree.tiles import write_3dtiles
     from approxtree.tiles.parallel import check_workers
     from approxtree.tree import load_tree
 
     check_workers(workers, scheduler)
+    # The output folder is checked before the tree is opened.
+    check_output_folder(out, "tileset folder")
+    replaceable(out, "3D Tiles tileset")
     # verify=False: the patches are read one by one as the tiles are written.
     tree = load_tree(tree_path, verify=False)
     figures = write_3dtiles(

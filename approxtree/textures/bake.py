@@ -28,6 +28,7 @@ from approxtree.errors import InvalidParameterError, TerrainFormatError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rasterize import rasterize
+from approxtree.io.gdal import no_side_files
 from approxtree.io.output_path import check_output_folder
 from approxtree.progress import ProgressCallback
 from approxtree.textures.base import TextureData
@@ -119,7 +120,7 @@ def _thematic_on_lattice(
         mapper = ColourRamp(palette)
     classes = isinstance(mapper, ClassTable)
     values = np.full(shape, np.nan, dtype=np.float64)
-    with rasterio.open(path) as ds:
+    with no_side_files(), rasterio.open(path) as ds:
         dst_crs = crs or (ds.crs.to_string() if ds.crs else None)
         reproject(
             source=np.where(src.valid, src.values, np.nan).astype(np.float64),
@@ -228,7 +229,7 @@ def bake(
     if texel_size is None and thematic_path is not None:
         import rasterio
 
-        with rasterio.open(thematic_path) as ds:
+        with no_side_files(), rasterio.open(thematic_path) as ds:
             texel = min(texel, *ds.res)
     transform, shape = texture_lattice(terrain, texel)
     used_gl = False

@@ -25,6 +25,7 @@ import numpy as np
 from affine import Affine
 
 from approxtree.errors import InvalidParameterError, TerrainFormatError
+from approxtree.io.gdal import no_side_files
 from approxtree.textures.base import TextureData
 
 Colour = tuple[int, int, int, int]
@@ -113,7 +114,7 @@ class ClassTable:
         import rasterio
 
         try:
-            with rasterio.open(path) as ds:
+            with no_side_files(), rasterio.open(path) as ds:
                 return cls(ds.colormap(band))
         except ValueError as exc:
             raise TerrainFormatError(f"{path} has no embedded colour table: {exc}") from exc
@@ -279,7 +280,7 @@ class ThematicTexture(TextureData):
         if not path.is_file():
             raise TerrainFormatError(f"Thematic raster {path} does not exist.")
         try:
-            with rasterio.open(path) as ds:
+            with no_side_files(), rasterio.open(path) as ds:
                 data = ds.read(band, masked=True)
                 transform, crs = ds.transform, ds.crs.to_string() if ds.crs else None
                 if mapper is None:
