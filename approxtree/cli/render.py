@@ -19,6 +19,9 @@ from approxtree.cli.options import (
     threshold_options,
 )
 
+#: Largest camera coordinate accepted (world units): a million km, beyond any terrain's frame.
+MAX_COORDINATE = 1e9
+
 
 def _xyz(ctx: click.Context, param: click.Parameter, value: str | None):
     """Parse "X,Y,Z" into three floats (None when the option is absent)."""
@@ -31,6 +34,11 @@ def _xyz(ctx: click.Context, param: click.Parameter, value: str | None):
         xyz = ()
     if len(xyz) != 3:
         raise click.BadParameter(f"expected X,Y,Z (three numbers), got {value!r}")
+    # Beyond this the camera's matrices overflow (and no terrain is that far).
+    if not all(abs(v) <= MAX_COORDINATE for v in xyz):
+        raise click.BadParameter(
+            f"expected finite coordinates within ±{MAX_COORDINATE:g} world units, got {value!r}"
+        )
     return xyz
 
 

@@ -283,12 +283,15 @@ def _check_crs(crs: str | None) -> Any:
     """A CRS rasterio understands, or an error saying how to name one."""
     if crs is None:
         return None
+    import pyproj
     from rasterio.crs import CRS
     from rasterio.errors import CRSError
 
+    # pyproj first: it refuses an unknown CRS without GDAL printing "ERROR 1: PROJ" lines.
     try:
+        pyproj.CRS.from_user_input(crs)
         return CRS.from_user_input(crs)
-    except (CRSError, ValueError) as exc:
+    except (pyproj.exceptions.CRSError, CRSError, ValueError, TypeError) as exc:
         raise InvalidParameterError(
             f"Unknown CRS {crs!r}; give it as EPSG:NNNN, a WKT string or a PROJ string."
         ) from exc
