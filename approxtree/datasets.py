@@ -236,8 +236,11 @@ def write_fractal_terrain(
     Blocks of ``block`` × ``block`` cells are computed by dask threads and written by one writer,
     so memory stays at a few blocks whatever the size. Square cells of ``cell_size`` map units;
     origin: (x, y) of the north-west corner [default (0, rows × cell_size): the south-west
-    corner at (0, 0)]. Written beside ``path`` and renamed into place. Returns the path.
+    corner at (0, 0)]. Written beside ``path`` and renamed into place, tagged as approxtree's
+    (``own_output.GEOTIFF_TAG``); refused before the first block when the disk lacks the room.
+    Returns the path.
     """
+    from approxtree.io.own_output import GEOTIFF_TAG
     from approxtree.io.tiled_geotiff import write_tiled_geotiff
 
     cols = rows if cols is None else cols
@@ -259,6 +262,7 @@ def write_fractal_terrain(
         workers=workers,
         block=block,
         progress=progress,
+        tags={GEOTIFF_TAG: "fractal"},
     )
 
 

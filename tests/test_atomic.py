@@ -172,3 +172,83 @@ def test_a_write_that_cannot_be_done_is_a_store_error(tmp_path):
     ):
         f.write(b"x")
     assert os.listdir(tmp_path) == ["out.bin"]
+
+
+# -- folders: never through a link, never a folder of the user's; a full disk -------------------
+
+
+def test_a_folder_swap_never_follows_a_symlink(tmp_path):
+    """atomic_directory of a symbolic link is refused and what it points to is kept (it took
+    the link's realpath and emptied the target)."""
+    from approxtree import StoreError
+    from approxtree.io.atomic import atomic_directory
+
+    real = tmp_path / "real"
+    real.mkdir()
+    (real / "tileset.json").write_text('{"asset": {"generator": "approxtree"}}')
+    (tmp_path / "link").symlink_to(real)
+    with pytest.raises(StoreError, match="symbolic link"), atomic_directory(tmp_path / "link"):
+        pass
+    assert os.listdir(real) == ["tileset.json"] and (tmp_path / "link").is_symlink()
+    assert sorted(os.listdir(tmp_path)) == ["link", "real"]
+
+
+def test_a_folder_of_the_users_is_replaced_only_when_allowed(tmp_path):
+    """atomic_directory refuses to swap out a folder holding files approxtree did not write;
+    within an ``overwriting`` block (--overwrite) it replaces it; an empty folder and an
+    approxtree output folder are replaced without a word."""
+    from approxtree import StoreError
+    from approxtree.io.atomic import atomic_directory
+    from approxtree.io.own_output import overwriting
+
+    mine = tmp_path / "mine"
+    (mine / "mydata").mkdir(parents=True)
+    (mine / "mydata" / "keep.txt").write_text("keep")
+    with pytest.raises(StoreError, match="did not write"), atomic_directory(mine) as tmp:
+        (tmp / "layer.json").write_text("{}")
+    assert (mine / "mydata" / "keep.txt").read_text() == "keep"
+    with overwriting(mine), atomic_directory(mine) as tmp:
+        (tmp / "new.txt").write_text("new")
+    assert os.listdir(mine) == ["new.txt"]
+    # Outside the block the permission is gone again.
+    with pytest.raises(StoreError), atomic_directory(mine):
+        pass
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with atomic_directory(empty) as tmp:
+        (tmp / "pyramid.json").write_text('{"build": "b", "levels": []}')
+    with atomic_directory(empty) as tmp:
+        (tmp / "pyramid.json").write_text('{"build": "c", "levels": []}')
+    assert "c" in (empty / "pyramid.json").read_text()
+    assert sorted(os.listdir(tmp_path)) == ["empty", "mine"]
+
+
+@pytest.mark.parametrize("step", ["write", "fsync"])
+def test_a_full_disk_is_a_store_error_that_says_so(tmp_path, monkeypatch, step):
+    """ENOSPC while writing (or flushing) a file is one StoreError saying the disk is full at
+    the folder (it was an OSError traceback); the temp goes, the old file stays."""
+    import errno
+
+    from approxtree import StoreError
+
+    target = tmp_path / "out.bin"
+    target.write_bytes(b"old")
+
+    def no_room(*args):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    if step == "fsync":
+        monkeypatch.setattr("approxtree.io.atomic.os.fsync", no_room)
+    with pytest.raises(StoreError, match=f"disk is full at {tmp_path}"), atomic_write(target) as f:
+        if step == "write":
+            no_room()
+        f.write(b"new")
+    assert target.read_bytes() == b"old" and os.listdir(tmp_path) == ["out.bin"]
+
+
+def test_other_errors_of_the_callers_block_pass_as_they_are(tmp_path):
+    """An OSError of the caller's own (reading a missing input) is not reworded as a failed
+    write: only errors of writing become StoreErrors."""
+    with pytest.raises(FileNotFoundError), atomic_write(tmp_path / "out.bin"):
+        open(tmp_path / "missing.txt", "rb")
+    assert os.listdir(tmp_path) == []

@@ -294,3 +294,82 @@ def test_empty_frames_say_so_in_stats_and_a_warning(folder, tmp_path):
         assert stats["empty"] is True and words in stats["warning"]
         assert err.startswith("Warning: ") and words in err and len(err.splitlines()) == 1
         assert not (np.asarray(Image.open(png))[..., 3] > 0).any()
+
+
+# -- one Error line for small slips -------------------------------------------------------------
+
+
+def test_usage_errors_are_one_error_line(folder):
+    """An unknown option, a missing argument or option and a bad choice are one ``Error:``
+    line naming the help to read, exit 2 (click printed usage, hint and error: three lines);
+    --help still prints the whole help, exit 0."""
+    tree = folder / "hills.atree"
+    for args, words in (
+        (["render", tree, "--bogus"], "No such option '--bogus'"),
+        (["render"], "Missing argument 'TREE_FILE'"),
+        (["tiles", tree, "--format", "3dtiles"], "Missing option '--out'"),
+        (["tiles", tree, "--out", "x", "--format", "kml"], "'kml' is not one of"),
+        (["nosuch"], "No such command 'nosuch'"),
+        (["--bogus"], "No such option '--bogus'"),
+    ):
+        code, _, err = run(*args)
+        assert_one_error_line(code, err, words)
+        assert "--help" in err
+    code, out, _ = run("render", "--help")
+    assert code == 0 and out.startswith("Usage: ") and "render [OPTIONS]" in out
+    assert "--overwrite" in out
+
+
+def test_camera_coordinates_are_checked_before_any_warning(folder, tmp_path):
+    """--eye 1e300,… and an infinite --target are one Error line (numpy's overflow warnings
+    came first, then a near/far error)."""
+    for option, value in (("--eye", "1e300,1,1"), ("--target", "inf,0,0"), ("--eye", "0,nan,5")):
+        code, _, err = run(
+            "render", folder / "hills.atree", option, value, "--out", tmp_path / "r.png"
+        )
+        assert_one_error_line(code, err, "finite coordinates")
+        assert "Warning" not in err
+    assert not (tmp_path / "r.png").exists()
+
+
+def test_bake_refuses_an_infinite_or_non_positive_z_factor(folder, tmp_path):
+    """--z-factor inf (exit 0 with a numpy RuntimeWarning and a black texture), nan, 0 and −1
+    are one Error line; nothing is written."""
+    for z in ("inf", "nan", "0", "-1"):
+        code, _, err = run(
+            "bake", folder / "dem.npy", f"--z-factor={z}", "--no-gl", "--out", tmp_path / "t"
+        )
+        assert_one_error_line(code, err, "z_factor (--z-factor) must be a finite number > 0")
+    assert not (tmp_path / "t").exists()
+
+
+def test_an_unknown_crs_is_one_line_without_gdal_noise(tmp_path):
+    """`fractal --crs EPSG:999999` from the installed program prints our one Error line only
+    (GDAL printed a raw "ERROR 1: PROJ" line before it)."""
+    exe = Path(sys.executable).with_name("approxtree")
+    proc = subprocess.run(
+        [exe, "fractal", tmp_path / "f.tif", "--size", "64", "--crs", "EPSG:999999"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert_one_error_line(proc.returncode, proc.stderr, "Unknown CRS 'EPSG:999999'")
+    assert os.listdir(tmp_path) == []
+
+
+def test_render_writes_the_format_its_extension_names(folder, tmp_path):
+    """--out r.jpg is a JPEG (it was a PNG named .jpg), opaque RGB composited on the
+    background; r.png is an RGBA PNG; another extension is refused before the work."""
+    tree = folder / "hills.atree"
+    for name, fmt, mode in (
+        ("r.jpg", "JPEG", "RGB"),
+        ("r.jpeg", "JPEG", "RGB"),
+        ("r.png", "PNG", "RGBA"),
+    ):
+        code, _, err = run("render", tree, "--out", tmp_path / name, "--size", "64x48")
+        assert code == 0, err
+        with Image.open(tmp_path / name) as im:
+            assert (im.format, im.mode, im.size) == (fmt, mode, (64, 48))
+    code, _, err = run("render", tree, "--out", tmp_path / "r.gif")
+    assert_one_error_line(code, err, "unknown extension '.gif'")
+    assert not (tmp_path / "r.gif").exists()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 
@@ -30,7 +31,10 @@ def gdaldem(*args: str) -> None:
     """Run gdaldem (Debian package gdal-bin, installed by .ci/run); fail clearly without it."""
     if shutil.which("gdaldem") is None:
         pytest.fail("gdaldem is missing: install the Debian package gdal-bin")
-    subprocess.run(["gdaldem", *args, "-q"], check=True)
+    # PAM off: color-relief with percentages computes the source's statistics, which GDAL
+    # would save as X.aux.xml beside the shared data.
+    env = {**os.environ, "GDAL_PAM_ENABLED": "NO"}
+    subprocess.run(["gdaldem", *args, "-q"], check=True, env=env)
 
 
 def read_bands(path) -> np.ndarray:

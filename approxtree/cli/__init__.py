@@ -1,7 +1,10 @@
 """The ``approxtree`` command line (click). Every command with --json prints one JSON object.
 
 Errors of the ApproxTreeError hierarchy are printed as one line on stderr (exit code 2), never
-as a traceback.
+as a traceback; so are click's usage errors (an unknown option, a bad value: ``_LazyGroup``).
+GDAL's own stderr messages (printed where rasterio has no handler installed) go to
+``CPL_LOG`` = the null device unless the user set it: every error reaches the user as one
+``Error:`` line of ours.
 
 One module per command, imported only when its command is run or listed; option groups shared
 by several commands in options.py, helpers in common.py.
@@ -37,9 +40,28 @@ _COMMANDS = {
 }
 
 
+class _UsageError(click.ClickException):
+    """A click usage error shown as one ``Error:`` line (click's own adds the usage and a
+    hint line before it); exit code 2 as click's."""
+
+    exit_code = 2
+
+
+#: click's "no arguments: show the help" is a UsageError that shows the help: kept as it is.
+_SHOWS_HELP = getattr(click.exceptions, "NoArgsIsHelpError", ())
+
+
+def _one_line(exc: click.UsageError) -> click.ClickException:
+    if isinstance(exc, _SHOWS_HELP):
+        return exc
+    where = exc.ctx.command_path if exc.ctx is not None else "approxtree"
+    return _UsageError(f"{exc.format_message().rstrip('.')} (see '{where} --help').")
+
+
 class _LazyGroup(click.Group):
     """A click group whose commands (``_COMMANDS``) are imported on first look-up;
-    ``commands`` imports them all (help lists every one)."""
+    ``commands`` imports them all (help lists every one). Usage errors of the group and its
+    commands are one ``Error:`` line."""
 
     def __init__(self, *args, **kwargs) -> None:
         self._loaded: dict[str, click.Command] = {}
@@ -65,6 +87,19 @@ class _LazyGroup(click.Group):
     def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
         return self._command(cmd_name)
 
+    def make_context(self, *args, **kwargs) -> click.Context:
+        try:
+            return super().make_context(*args, **kwargs)
+        except click.UsageError as exc:
+            raise _one_line(exc) from exc
+
+    def invoke(self, ctx: click.Context) -> object:
+        # The command's own arguments are parsed here (an unknown option, a bad value).
+        try:
+            return super().invoke(ctx)
+        except click.UsageError as exc:
+            raise _one_line(exc) from exc
+
     def list_commands(self, ctx: click.Context) -> list[str]:
         return sorted({*_COMMANDS, *self._loaded})
 
@@ -73,6 +108,8 @@ class _LazyGroup(click.Group):
 @click.version_option(package_name="approxtree")
 def main() -> None:
     """approxtree: approximation trees for real-time terrain visualization."""
+    # GDAL reads CPL_LOG when it prints its first message: set before any command's work.
+    os.environ.setdefault("CPL_LOG", os.devnull)
 
 
 #: Set by a command whose process may end without the interpreter's teardown (see ``run``).

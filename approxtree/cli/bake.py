@@ -7,7 +7,13 @@ from typing import Any
 import click
 
 from approxtree.cli.common import _emit, _is_tree, _reports_errors, _terrain_of
-from approxtree.cli.options import json_option, quiet_option, reader_options
+from approxtree.cli.options import (
+    json_option,
+    overwrite_option,
+    quiet_option,
+    reader_options,
+    replaceable,
+)
 
 
 def _takes_windowed(path: str, encoding: str | None) -> bool:
@@ -89,6 +95,7 @@ def _takes_windowed(path: str, encoding: str | None) -> bool:
     "--out", required=True, type=click.Path(file_okay=False), help="Folder of the pyramid."
 )
 @reader_options
+@overwrite_option
 @quiet_option
 @json_option
 @_reports_errors
@@ -134,6 +141,7 @@ def bake_command(
     from approxtree.textures.bake import bake
 
     check_output_folder(out, "texture pyramid folder")
+    replaceable(out, "texture pyramid")
     if not _is_tree(source):
         ctx = click.get_current_context()
         if (

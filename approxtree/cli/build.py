@@ -11,7 +11,7 @@ import click
 
 from approxtree.cli import common
 from approxtree.cli.common import _check_tree_output, _emit, _reports_errors, tree_figures
-from approxtree.cli.options import json_option, quiet_option, reader_options
+from approxtree.cli.options import json_option, overwrite_option, quiet_option, reader_options
 
 
 def _refine(terrain, files, width: float, depth: float, profile: str, spacing: float | None):
@@ -141,6 +141,7 @@ def _refine(terrain, files, width: float, depth: float, profile: str, spacing: f
     help="Write the dask performance report (task stream of the blocks) to this HTML file.",
 )
 @reader_options
+@overwrite_option
 @quiet_option
 @json_option
 @_reports_errors

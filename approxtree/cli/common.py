@@ -148,7 +148,9 @@ def _is_tree(path: str) -> bool:
 
 
 def _check_tree_output(out: str) -> None:
-    """StoreError now, before any work, when the tree cannot be written at ``out``."""
+    """StoreError now, before any work, when the tree cannot be written at ``out`` (or would
+    replace what approxtree did not write, without --overwrite)."""
+    from approxtree.cli.options import replaceable
     from approxtree.io.output_path import check_output_file, check_output_folder
     from approxtree.tree.zarr_store import is_url, is_zip
 
@@ -156,8 +158,50 @@ def _check_tree_output(out: str) -> None:
         return
     if is_zip(out) or Path(out).suffix.lower() == ".atree":
         check_output_file(out, "tree file")
+        replaceable(out, "tree file")
     else:
         check_output_folder(out, "tree store")
+        replaceable(out, "tree store")
+
+
+#: Image extensions of a rendered frame → Pillow format.
+IMAGE_FORMATS = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}
+
+
+def image_format(path: str | Path) -> str:
+    """The Pillow format an image ``path`` names by its extension; InvalidParameterError for
+    another extension."""
+    from approxtree.errors import InvalidParameterError
+
+    suffix = Path(path).suffix.lower()
+    if suffix not in IMAGE_FORMATS:
+        raise InvalidParameterError(
+            f"Cannot write the image {path}: unknown extension {suffix or '(none)'!r}; use .png "
+            "(RGBA) or .jpg (no transparency)."
+        )
+    return IMAGE_FORMATS[suffix]
+
+
+def _save_image(path: Path, image: Any, background: Any) -> None:
+    """Write the (h, w, 4) uint8 RGBA frame atomically as the format ``path`` names, with
+    approxtree's mark; JPEG has no alpha, so the frame is composited on the background's
+    colour (black for a transparent one; the sky is drawn opaque already)."""
+    import numpy as np
+    from PIL import Image
+
+    from approxtree.io.atomic import atomic_write
+    from approxtree.io.own_output import MARK, png_info
+
+    fmt = image_format(path)
+    with atomic_write(path) as f:
+        if fmt == "PNG":
+            Image.fromarray(image, mode="RGBA").save(f, format="PNG", pnginfo=png_info())
+            return
+        rgba = np.asarray(image, dtype=np.float32) / 255.0
+        colour = np.asarray(background.colour, dtype=np.float32)
+        rgb = rgba[..., :3] * rgba[..., 3:] + colour * (1.0 - rgba[..., 3:])
+        rgb8 = np.round(rgb * 255.0).astype(np.uint8)
+        Image.fromarray(rgb8, mode="RGB").save(f, format="JPEG", quality=92, comment=MARK)
 
 
 def _no_reader_flags_for_tree(path: str, options: dict[str, Any]) -> None:
@@ -303,20 +347,19 @@ def _render_to_png(
     max_triangles: int | None = None,
     style: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Render one frame of ``tree`` to an RGBA PNG at ``path``; returns the frame's stats.
+    """Render one frame of ``tree`` to an RGBA PNG (or a JPEG, by ``path``'s extension) at
+    ``path``; returns the frame's stats.
 
     Without ``eye``: the terrain fitted to the frame (``framing_camera``, from the south).
     Without ``target``: the centre of the tree's root box. textures: folder of a texture
     pyramid; lighting: "auto", "on"/True or "off"/False (decal). style: exaggeration, sun,
     palette, background, lighting (``cartographic_options``; its lighting wins).
     """
-    from PIL import Image
-
-    from approxtree.io.atomic import atomic_write
     from approxtree.render import Camera, Engine, framing_camera
     from approxtree.render.engine import EmptyFrameWarning
     from approxtree.render.style import Background, Sun
 
+    image_format(path)
     style = dict(style or {})
     lighting = style.pop("lighting", lighting)
     # Bad style values fail before any GL work.
@@ -353,8 +396,7 @@ def _render_to_png(
             sun=sun,
             background=background,
         )
-    with atomic_write(path) as f:
-        Image.fromarray(frame.image, mode="RGBA").save(f, format="PNG")
+    _save_image(path, frame.image, background)
     stats = {k: (_finite(v) if isinstance(v, float) else v) for k, v in frame.stats.items()}
     stats["image"] = str(path)
     if stats.get("warning"):

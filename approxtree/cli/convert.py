@@ -10,12 +10,13 @@ import time
 import click
 
 from approxtree.cli.common import _check_tree_output, _emit, _is_tree, _reports_errors
-from approxtree.cli.options import json_option
+from approxtree.cli.options import json_option, overwrite_option
 
 
 @click.command()
 @click.argument("source", type=click.Path())
 @click.argument("target", type=click.Path())
+@overwrite_option
 @json_option
 @_reports_errors
 def convert(source: str, target: str, as_json: bool) -> None:

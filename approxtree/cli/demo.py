@@ -16,10 +16,16 @@ from approxtree.cli.common import (
     _emit,
     _render_to_png,
     _reports_errors,
+    image_format,
     terrain_figures,
     tree_figures,
 )
-from approxtree.cli.options import cartographic_options, json_option
+from approxtree.cli.options import (
+    cartographic_options,
+    json_option,
+    overwrite_option,
+    replaceable,
+)
 
 
 @click.command()
@@ -40,6 +46,7 @@ from approxtree.cli.options import cartographic_options, json_option
     help="Where to write the rendered overview [default: --out with .png, i.e. demo.png].",
 )
 @cartographic_options
+@overwrite_option
 @json_option
 @_reports_errors
 def demo(out: str, epsilon: float, png: str | None, as_json: bool, style: dict[str, Any]) -> None:
@@ -60,7 +67,10 @@ def demo(out: str, epsilon: float, png: str | None, as_json: bool, style: dict[s
     folder = Path(out).with_name(Path(out).stem + "_textures")
     _check_tree_output(out)
     check_output_file(png_path, "image")
+    image_format(png_path)
+    replaceable(str(png_path), "image")
     check_output_folder(folder, "texture pyramid folder")
+    replaceable(str(folder), "texture pyramid")
     terrain = sample_terrain()
     t0 = time.perf_counter()
     tree = ApproximationTree.build(terrain, epsilon=epsilon)

@@ -9,7 +9,7 @@ import time
 import click
 
 from approxtree.cli.common import _emit, _reports_errors
-from approxtree.cli.options import json_option
+from approxtree.cli.options import json_option, overwrite_option, replaceable
 
 
 @click.command()
@@ -61,6 +61,7 @@ from approxtree.cli.options import json_option
     show_default=True,
     help="Cells per computed block edge (a multiple of 512).",
 )
+@overwrite_option
 @json_option
 @_reports_errors
 def fractal(
@@ -82,11 +83,13 @@ def fractal(
 ) -> None:
     """Write a seeded fractal DEM of any size as a tiled, compressed GeoTIFF, block by block
     (memory stays at a few blocks). Heights depend on (row, col, seed) only: a smaller DEM of
-    the same seed is a crop of a larger one."""
+    the same seed is a crop of a larger one. The bytes it will take are checked against the
+    disk's free space before the first block (and shown on the progress bar)."""
     from approxtree.datasets import write_fractal_terrain
     from approxtree.io.output_path import check_output_file
 
     check_output_file(out, "GeoTIFF")
+    replaceable(out, "GeoTIFF")
     t0 = time.perf_counter()
     path = write_fractal_terrain(
         out,

@@ -8,7 +8,13 @@ from __future__ import annotations
 import click
 
 from approxtree.cli.common import _emit, _reports_errors, _terrain_of
-from approxtree.cli.options import json_option, quiet_option, reader_options
+from approxtree.cli.options import (
+    json_option,
+    overwrite_option,
+    quiet_option,
+    reader_options,
+    replaceable,
+)
 
 
 @click.command()
@@ -50,6 +56,7 @@ from approxtree.cli.options import json_option, quiet_option, reader_options
     help="tin on grids: data-dependent triangulation (edge flips by error) instead of Delaunay.",
 )
 @reader_options
+@overwrite_option
 @quiet_option
 @json_option
 @_reports_errors
@@ -80,6 +87,7 @@ def mesh(
     check_goal(max_error, max_points, max_triangles)
     if out is not None:
         kind = mesh_format(out)
+        replaceable(out, "mesh file")
         if textures is not None and kind != "glb":
             from approxtree.errors import InvalidParameterError
 

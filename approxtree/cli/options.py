@@ -30,6 +30,34 @@ def json_option(fn: Callable[..., Any]) -> Callable[..., Any]:
     return fn
 
 
+def overwrite_option(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """--overwrite, the same on every command that writes a file or folder (rio's convention):
+    without it an existing output approxtree did not write is refused (``replaceable``)."""
+    return click.option(
+        "--overwrite",
+        is_flag=True,
+        default=False,
+        expose_value=False,
+        callback=_remember,
+        help="Replace an existing output even when approxtree did not write it (a symbolic "
+        "link never is).",
+    )(fn)
+
+
+def replaceable(out: str, what: str) -> None:
+    """StoreError before any work unless ``out`` may be written as a ``what``
+    (``own_output.check_replaceable``: new, empty, or this kind of approxtree output, or
+    anything but a link with --overwrite); with --overwrite, the command's writers may then
+    replace it (``own_output.overwriting``, until the command ends)."""
+    from approxtree.io.own_output import check_replaceable, overwriting
+
+    ctx = click.get_current_context()
+    overwrite = bool(ctx.meta.get("approxtree.overwrite"))
+    check_replaceable(out, what, overwrite)
+    if overwrite:
+        ctx.with_resource(overwriting(out))
+
+
 def threshold_options(fn: Callable[..., Any]) -> Callable[..., Any]:
     """--alpha, --gamma, the same on render, view."""
     fn = click.option(

@@ -10,7 +10,13 @@ from pathlib import Path
 import click
 
 from approxtree.cli.common import _reports_errors, _terrain_of
-from approxtree.cli.options import json_option, quiet_option, reader_options
+from approxtree.cli.options import (
+    json_option,
+    overwrite_option,
+    quiet_option,
+    reader_options,
+    replaceable,
+)
 
 
 def _rates(ctx: click.Context, param: click.Parameter, value: str) -> list[int]:
@@ -47,6 +53,7 @@ def _rates(ctx: click.Context, param: click.Parameter, value: str) -> list[int]:
 )
 @click.option("--plot", type=click.Path(dir_okay=False), help="PNG of the L2 and L∞ curves.")
 @reader_options
+@overwrite_option
 @quiet_option
 @json_option
 @_reports_errors
@@ -74,6 +81,7 @@ def rd(
         from approxtree.io.output_path import check_output_file
 
         check_output_file(plot, "plot")
+        replaceable(plot, "image")
     terrain = _terrain_of(dem, encoding, nodata_policy, ground_only, height_scale)
     if not isinstance(terrain, Grid):
         from approxtree.errors import InvalidParameterError

@@ -1,4 +1,5 @@
-"""``approxtree render``: Render a saved tree or any terrain file to a PNG and print the stats."""
+"""``approxtree render``: Render a saved tree or any terrain file to a PNG (or JPEG) and print
+the stats."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from typing import Any
 
 import click
 
-from approxtree.cli.common import _emit, _render_to_png, _reports_errors, _tree_of
+from approxtree.cli.common import _emit, _render_to_png, _reports_errors, _tree_of, image_format
 from approxtree.cli.options import (
     BuildChoices,
     _size,
@@ -15,9 +16,14 @@ from approxtree.cli.options import (
     cartographic_options,
     fov_option,
     json_option,
+    overwrite_option,
     reader_options,
+    replaceable,
     threshold_options,
 )
+
+#: Largest camera coordinate accepted (world units): a million km, beyond any terrain's frame.
+MAX_COORDINATE = 1e9
 
 
 def _xyz(ctx: click.Context, param: click.Parameter, value: str | None):
@@ -31,6 +37,11 @@ def _xyz(ctx: click.Context, param: click.Parameter, value: str | None):
         xyz = ()
     if len(xyz) != 3:
         raise click.BadParameter(f"expected X,Y,Z (three numbers), got {value!r}")
+    # Beyond this the camera's matrices overflow (and no terrain is that far).
+    if not all(abs(v) <= MAX_COORDINATE for v in xyz):
+        raise click.BadParameter(
+            f"expected finite coordinates within ±{MAX_COORDINATE:g} world units, got {value!r}"
+        )
     return xyz
 
 
@@ -51,7 +62,12 @@ def _xyz(ctx: click.Context, param: click.Parameter, value: str | None):
     default=None,
     help="Triangle budget (skirts included) instead of --alpha: smallest α that fits.",
 )
-@click.option("--out", required=True, type=click.Path(dir_okay=False), help="PNG to write (RGBA).")
+@click.option(
+    "--out",
+    required=True,
+    type=click.Path(dir_okay=False),
+    help="Image to write: .png (RGBA) or .jpg (RGB, composited on the background).",
+)
 @click.option(
     "--textures",
     type=click.Path(file_okay=False),
@@ -62,6 +78,7 @@ def _xyz(ctx: click.Context, param: click.Parameter, value: str | None):
 @cartographic_options
 @build_options
 @reader_options
+@overwrite_option
 @json_option
 @_reports_errors
 def render(
@@ -87,12 +104,14 @@ def render(
     build: BuildChoices,
 ) -> None:
     """Render a saved tree (store or .atree), or any terrain file built into a tree in memory
-    (--epsilon, ...), to a PNG and print the stats. Without --eye the terrain is fitted to the
-    frame, seen from the south; --background transparent leaves alpha 0 where no terrain is
-    drawn."""
+    (--epsilon, ...), to a PNG (or JPEG) and print the stats. Without --eye the terrain is
+    fitted to the frame, seen from the south; --background transparent leaves alpha 0 where no
+    terrain is drawn (a PNG's)."""
     from approxtree.io.output_path import check_output_file
 
     check_output_file(out, "image")
+    image_format(out)
+    replaceable(out, "image")
     tree = _tree_of(tree_file, build, encoding, nodata_policy, ground_only, height_scale)
     stats = _render_to_png(
         tree,

@@ -11,7 +11,14 @@ from typing import Any
 import click
 
 from approxtree.cli.common import _emit, _is_tree, _reports_errors, _terrain_of, _tree_of
-from approxtree.cli.options import BuildChoices, build_options, json_option, reader_options
+from approxtree.cli.options import (
+    BuildChoices,
+    build_options,
+    json_option,
+    overwrite_option,
+    reader_options,
+    replaceable,
+)
 
 
 def _store_epsilon(path: str) -> float | None:
@@ -119,6 +126,7 @@ def _store_epsilon(path: str) -> float | None:
 )
 @build_options
 @reader_options
+@overwrite_option
 @json_option
 @_reports_errors
 def tiles(
@@ -181,6 +189,7 @@ def tiles(
     from approxtree.tiles.quantized_mesh import DEFAULT_LEAF_ERROR, check_output
 
     # The output folder is checked before the terrain is read.
+    replaceable(out, "terrain tileset")
     check_output(out)
     t0 = time.perf_counter()
     terrain = _terrain_of(tree, **reader)
@@ -218,10 +227,14 @@ def _tiles_3dtiles(
 ) -> None:
     """`approxtree tiles --format 3dtiles`: the 3D Tiles tileset of a tree store, or of the
     tree of a terrain file built in memory."""
+    from approxtree.io.output_path import check_output_folder
     from approxtree.tiles import write_3dtiles
     from approxtree.tiles.parallel import check_workers
 
     check_workers(workers, scheduler)
+    # The output folder is checked before the tree is opened.
+    check_output_folder(out, "tileset folder")
+    replaceable(out, "3D Tiles tileset")
     # verify=False: the patches are read one by one as the tiles are written.
     tree = _tree_of(tree_path, build, **reader, verify=False)
     figures = write_3dtiles(

@@ -8,6 +8,11 @@ An interrupted write leaves the previous file (or nothing) in place, never half 
   removes the temp files of writers that no longer run.
 - Permissions are those a plain ``open()`` would give: a new file gets 0666 & ~umask (a new
   folder 0777 & ~umask), and a replaced file or folder keeps its mode.
+- A symbolic link is never replaced nor written through (what it points to would be lost),
+  and a folder is replaced only when it is empty or approxtree's own output
+  (``own_output.is_own_folder``) unless an ``own_output.overwriting`` block allows it.
+- Any failure is a StoreError saying what could not be written and why; a full disk says so,
+  with the folder (``disk_full``). The temp file or folder goes, the old target stays.
 """
 
 from __future__ import annotations
@@ -136,13 +141,80 @@ def _check_folder(target: Path) -> Path:
     return folder
 
 
+#: errno values that mean the disk (or the user's quota) has no room.
+_NO_ROOM = (errno.ENOSPC, errno.EDQUOT)
+#: errno values that can only come from writing (the block's own OSErrors of these kinds
+#: become StoreErrors about the target).
+_WRITE_ERRNOS = (*_NO_ROOM, errno.EFBIG, errno.EROFS, errno.EIO)
+
+
+#: Any temp name of ours; group 1 is the target's name.
+_ANY_TEMP = re.compile(r"^\.(.+)\.\d+\.[a-z0-9]{8}\.tmp$")
+
+
+def public_path(path: str | os.PathLike) -> Path:
+    """``path`` as the user knows it: each temp folder or file of ours (``.NAME.PID.TOKEN.tmp``)
+    in it named as its target (for messages)."""
+    parts = []
+    for part in Path(path).parts:
+        m = _ANY_TEMP.match(part)
+        parts.append(m.group(1) if m else part)
+    return Path(*parts)
+
+
+def disk_full(path: str | os.PathLike) -> str:
+    """The words for a full disk where ``path`` is written, with the space left there."""
+    folder = public_path(Path(path).absolute()).parent
+    while not folder.is_dir() and folder != folder.parent:
+        folder = folder.parent
+    try:
+        free = f" ({shutil.disk_usage(folder).free:,} bytes free)"
+    except OSError:
+        free = ""
+    return f"the disk is full at {folder}{free}; free some space or write elsewhere"
+
+
+def why_not_written(target: str | os.PathLike, exc: OSError) -> str:
+    """Why ``exc`` kept ``target`` from being written, in words (a full disk says so)."""
+    if exc.errno in _NO_ROOM:
+        return disk_full(target)
+    return exc.strerror or str(exc)
+
+
 @contextlib.contextmanager
-def _os_errors(what: str) -> Iterator[None]:
+def _os_errors(what: str, target: Path | None = None) -> Iterator[None]:
     """An OSError of the block as a StoreError saying what could not be done and why."""
     try:
         yield
     except OSError as exc:
-        raise StoreError(f"{what}: {exc.strerror or exc}.") from exc
+        why = why_not_written(target, exc) if target is not None else exc.strerror or exc
+        raise StoreError(f"{what}: {why}.") from exc
+
+
+@contextlib.contextmanager
+def _write_errors(target: Path, tmp: Path) -> Iterator[None]:
+    """The caller's block writing ``tmp``: an OSError of writing (a full disk, a read-only
+    file system) or one about a path inside ``tmp`` becomes a StoreError about ``target``;
+    other OSErrors are the caller's own (a missing input) and pass as they are."""
+    try:
+        yield
+    except OSError as exc:
+        name = str(exc.filename or "")
+        if exc.errno in _WRITE_ERRNOS or (name and name.startswith(str(tmp))):
+            raise StoreError(f"Cannot write {target}: {why_not_written(target, exc)}.") from exc
+        raise
+
+
+def refuse_link(target: str | os.PathLike, what: str = "") -> None:
+    """StoreError when ``target`` is a symbolic link (``what`` names it in the message)."""
+    target = Path(target)
+    if target.is_symlink():
+        raise StoreError(
+            f"Cannot write {what + ' ' if what else ''}{target}: it is a symbolic link (to "
+            f"{os.readlink(target)}); "
+            "approxtree never replaces a link nor writes through one, so that nothing it "
+            "points to is lost. Give the real path, or a new one."
+        )
 
 
 def _existing_mode(path: Path) -> int | None:
@@ -158,21 +230,22 @@ def atomic_write(path: str | os.PathLike) -> Iterator[BinaryIO]:
     """Open a binary temp file that replaces ``path`` only when the block finishes cleanly."""
     target = Path(path)
     _check_folder(target)
+    refuse_link(target)
     remove_stale_temps(target)
     keep_mode = _existing_mode(target)
     tmp = _temp_path(target)
     with _sigterm_unwinds(), _registered(tmp):
         try:
             # O_EXCL with 0666: the kernel applies the umask, as for a plain open().
-            with _os_errors(f"Cannot write {target}"):
+            with _os_errors(f"Cannot write {target}", target):
                 fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-            with os.fdopen(fd, "wb") as f:
+            with _write_errors(target, tmp), os.fdopen(fd, "wb") as f:
                 if keep_mode is not None:
                     os.chmod(tmp, keep_mode)
                 yield f
                 f.flush()
                 os.fsync(f.fileno())
-            with _os_errors(f"Cannot replace {target}"):
+            with _os_errors(f"Cannot replace {target}", target):
                 os.replace(tmp, target)
         except BaseException:
             with contextlib.suppress(FileNotFoundError):
@@ -208,26 +281,37 @@ def atomic_directory(path: str | os.PathLike) -> Iterator[Path]:
     cleanly (all or nothing); on failure it is removed and ``path`` is left as it was.
 
     An existing ``path`` is swapped out in one step where the OS can (Linux), else renamed
-    aside and back in; the old folder is then removed. The caller checks beforehand that the
-    old folder holds nothing that must survive.
+    aside and back in; the old folder is then removed. It must be empty or approxtree's own
+    output holding nothing foreign (``own_output``), unless an ``overwriting`` block allows
+    it; a symbolic link is refused (its target is never emptied). Callers check the same
+    beforehand with ``own_output.check_replaceable``, so that no work is wasted.
     """
-    target = Path(os.path.realpath(path))
+    from approxtree.io.own_output import is_own_folder, overwrite_allowed
+
+    target = Path(path)
     _check_folder(target)
+    refuse_link(target)
     remove_stale_temps(target)
     keep_mode = _existing_mode(target)
     if keep_mode is not None and not target.is_dir():
         raise StoreError(f"Cannot write the folder {target}: a file of that name exists.")
+    if keep_mode is not None and not (is_own_folder(target) or overwrite_allowed(target)):
+        raise StoreError(
+            f"Cannot write the folder {target}: it holds files approxtree did not write, and "
+            "writing replaces the whole folder. Give a new or empty folder."
+        )
     tmp = _temp_path(target)
     aside = _temp_path(target)
     with _sigterm_unwinds(), _registered(tmp), _registered(aside):
         try:
             # mkdir with 0777: the kernel applies the umask, as for a plain mkdir.
-            with _os_errors(f"Cannot write {target}"):
+            with _os_errors(f"Cannot write {target}", target):
                 os.mkdir(tmp, 0o777)
             if keep_mode is not None:
                 os.chmod(tmp, keep_mode)
-            yield tmp
-            with _os_errors(f"Cannot replace {target}"):
+            with _write_errors(target, tmp):
+                yield tmp
+            with _os_errors(f"Cannot replace {target}", target):
                 if keep_mode is None:
                     os.rename(tmp, target)
                 elif not _exchange(tmp, target):
@@ -252,13 +336,15 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     and ``path`` is left as it was."""
     target = Path(path)
     _check_folder(target)
+    refuse_link(target)
     remove_stale_temps(target)
     keep_mode = _existing_mode(target)
     tmp = _temp_path(target)
     with _sigterm_unwinds(), _registered(tmp):
         try:
-            yield tmp
-            with _os_errors(f"Cannot replace {target}"):
+            with _write_errors(target, tmp):
+                yield tmp
+            with _os_errors(f"Cannot replace {target}", target):
                 if keep_mode is not None:
                     os.chmod(tmp, keep_mode)
                 with open(tmp, "rb+") as f:

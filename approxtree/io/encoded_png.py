@@ -32,6 +32,7 @@ from approxtree.io._common import (
     reading,
     resolve_transform,
 )
+from approxtree.io.gdal import no_side_files
 
 #: Known RGB height encodings.
 ENCODINGS = ("terrain-rgb", "terrarium")
@@ -117,7 +118,7 @@ def read_png(
         # Plain PNGs have no georeference; they get cell size 1 below.
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
-            with rasterio.open(p) as ds:
+            with no_side_files(), rasterio.open(p) as ds:
                 # Every band, the mask and the float heights: about (count + 3) × 8 bytes a cell.
                 cells = ds.width * ds.height
                 need = cells * 8 * (ds.count + 3)

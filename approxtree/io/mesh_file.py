@@ -25,6 +25,7 @@ import numpy as np
 from approxtree.errors import InvalidParameterError
 from approxtree.io.atomic import atomic_write
 from approxtree.io.output_path import check_output_file
+from approxtree.io.own_output import marked_mesh
 
 #: Extension → trimesh file type.
 MESH_FORMATS = {".ply": "ply", ".obj": "obj", ".glb": "glb"}
@@ -88,6 +89,8 @@ def write_mesh(
         data = trimesh.Trimesh(v, t, process=False).export(file_type=kind)
     if isinstance(data, str):
         data = data.encode("utf-8")
+    # The mark that lets a later write recognise the file as approxtree's (own_output).
+    data = marked_mesh(data, kind)
     with atomic_write(path) as f:
         f.write(data)
     return out

@@ -3,7 +3,8 @@
 A build or a bake can take minutes; a PermissionError when the result is finally written
 wastes them. These checks create (and remove) a probe file where the output will go, so they
 answer for the real file system — a read-only mount, a full quota, a path under a regular file —
-whoever the user is (root passes every permission bit, not a read-only mount).
+whoever the user is (root passes every permission bit, not a read-only mount). A symbolic link
+as the output is refused (``atomic.refuse_link``): it is never replaced nor written through.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import tempfile
 from pathlib import Path
 
 from approxtree.errors import StoreError
+from approxtree.io.atomic import refuse_link
 
 
 def _blocking_file(path: Path) -> Path | None:
@@ -62,6 +64,7 @@ def check_output_file(path: str | os.PathLike, what: str = "file") -> Path:
     the message ("tree file", "image", ...)."""
     p = Path(path)
     folder = _existing_parent(p, what)
+    refuse_link(p, f"the {what}")
     if p.is_dir():
         raise StoreError(f"Cannot write the {what} {p}: it is a folder. Give a file name.")
     _probe(folder, p, what)
@@ -73,6 +76,7 @@ def check_output_folder(path: str | os.PathLike, what: str = "folder") -> Path:
     a new one whose parent exists and is writable (parents are never created); StoreError
     otherwise."""
     p = Path(path)
+    refuse_link(p, f"the {what}")
     if p.exists():
         if not p.is_dir():
             raise StoreError(f"Cannot write the {what} {p}: it is a file, not a folder.")

@@ -36,6 +36,7 @@ from approxtree.io._common import (
     reading,
     resolve_transform,
 )
+from approxtree.io.gdal import no_side_files
 
 #: Extensions of rasters GDAL reads that we look for inside a .zip.
 RASTER_EXTENSIONS = (".tif", ".tiff", ".asc", ".hgt", ".dem", ".nc", ".img", ".bil", ".flt", ".vrt")
@@ -146,6 +147,7 @@ class RasterSource:
                 reading(self.name, "a GDAL raster"),
                 warnings.catch_warnings(),
                 rasterio.Env(GDAL_CACHEMAX=self.cache_mb),
+                no_side_files(),
             ):
                 warnings.simplefilter("ignore", NotGeoreferencedWarning)
                 ds = rasterio.open(self.name)
@@ -234,7 +236,11 @@ def read_raster(
 
         # A raster without georeference is fine: it gets cell size 1 below. The band is read
         # once, so a small block cache: GDAL's default (5 % of RAM) would hold a second copy.
-        with warnings.catch_warnings(), rasterio.Env(GDAL_CACHEMAX=_READ_CACHE_MB):
+        with (
+            warnings.catch_warnings(),
+            rasterio.Env(GDAL_CACHEMAX=_READ_CACHE_MB),
+            no_side_files(),
+        ):
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
             with rasterio.open(source) as ds:
                 if band > ds.count:
@@ -342,7 +348,7 @@ def is_gdal_raster(path: Path) -> bool:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
-            with rasterio.open(rasterio_source(path)) as ds:
+            with no_side_files(), rasterio.open(rasterio_source(path)) as ds:
                 return ds.count > 0
     except Exception:
         return False

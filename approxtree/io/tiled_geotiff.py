@@ -2,7 +2,8 @@
 
 Blocks are computed by dask (threads: the height kernels release the GIL) and written by one
 writer under a lock, so memory holds a few blocks whatever the raster's size. The file is
-written beside the target and renamed into place.
+written beside the target and renamed into place once GDAL's write is checked (``io.gdal``:
+a full disk is a StoreError, never a truncated file in place of the old one).
 """
 
 from __future__ import annotations
@@ -103,6 +104,7 @@ def write_tiled_geotiff(
     workers: int | None = None,
     block: int = 2048,
     progress: bool | None = None,
+    tags: dict[str, str] | None = None,
 ) -> Path:
     """Write ``source`` (rows, cols) as band 1 of a GeoTIFF with 512 × 512 tiles.
 
@@ -111,14 +113,15 @@ def write_tiled_geotiff(
     compress: deflate, zstd, lzw or none (with the predictor of the data type); cog: a Cloud
     Optimized GeoTIFF with overviews (GDAL's COG driver copies the tiled file, tile by tile);
     workers: dask threads (default: the core count); block: cells per dask block edge, a
-    multiple of 512; progress: a tqdm bar of blocks written (None = when over 16 blocks).
-    Returns the path written.
+    multiple of 512; progress: a tqdm bar of blocks written (None = when over 16 blocks);
+    tags: dataset tags written in the file. Returns the path written.
     """
     import rasterio
     from rasterio.errors import RasterioError
     from tqdm.auto import tqdm
 
     from approxtree.io.atomic import atomic_path, scratch_path
+    from approxtree.io.gdal import checked_write
 
     options = _creation_options(compress, source.dtype)
     if isinstance(block, bool) or not isinstance(block, int) or block < TILE or block % TILE:
@@ -132,9 +135,12 @@ def write_tiled_geotiff(
         )
     crs = _check_crs(crs)
     rows, cols = source.shape
+    target = Path(path)
+    # Known before the first block: what the file will take, and whether the disk has it.
+    needed = estimated_bytes(source, options, cog)
+    check_room(target, needed, source.shape)
     blocks = _dask_blocks(source, block)
     nblocks = math.prod(len(c) for c in blocks.chunks)
-    target = Path(path)
     profile = dict(
         driver="GTiff",
         width=cols,
@@ -149,28 +155,107 @@ def write_tiled_geotiff(
     show = nblocks > 16 if progress is None else progress
     with (
         atomic_path(target) as tmp,
-        tqdm(total=nblocks, unit="block", desc="GeoTIFF blocks", disable=not show) as bar,
+        tqdm(
+            total=nblocks,
+            unit="block",
+            desc=f"GeoTIFF blocks (~{_human(needed)} on disk)",
+            disable=not show,
+        ) as bar,
         rasterio.Env(GDAL_CACHEMAX=_WRITE_CACHE_MB),
     ):
         try:
             if cog:
                 # The COG driver copies a finished raster: tiles first, then the COG beside.
                 with scratch_path(target) as tiled:
-                    _write_blocks(tiled, profile, blocks, bar, workers)
-                    _copy_as_cog(tiled, tmp, compress)
+                    with checked_write(tiled, target):
+                        _write_blocks(tiled, profile, blocks, bar, workers, tags)
+                    with checked_write(tmp, target):
+                        _copy_as_cog(tiled, tmp, compress)
             else:
-                _write_blocks(tmp, profile, blocks, bar, workers)
+                with checked_write(tmp, target):
+                    _write_blocks(tmp, profile, blocks, bar, workers, tags)
         except RasterioError as exc:
             raise StoreError(f"Cannot write {target}: {exc}") from exc
     return target
 
 
-def _write_blocks(path: Path, profile: dict, blocks: Any, bar: Any, workers: int | None) -> None:
+def estimated_bytes(source: HeightSource, options: dict[str, Any], cog: bool) -> int:
+    """Bytes the GeoTIFF of ``source`` will need on disk while it is written: one 512 × 512
+    tile from the middle of the raster, compressed as the file will be, scaled to the whole
+    (plus a tenth), times 7/3 for a COG (the tiled file and the COG with its overviews exist
+    together for a moment)."""
+    from rasterio.io import MemoryFile
+
+    rows, cols = source.shape
+    h, w = min(TILE, rows), min(TILE, cols)
+    r0, c0 = (rows - h) // 2, (cols - w) // 2
+    sample = np.asarray(source.read(r0, r0 + h, c0, c0 + w), dtype=source.dtype)
+    from affine import Affine
+
+    profile = dict(driver="GTiff", width=w, height=h, count=1, dtype=source.dtype, **options)
+    # Any georeference but the identity (GDAL warns of that one); compressed on one thread.
+    north_up = Affine.translation(0.0, float(h)) @ Affine.scale(1.0, -1.0)
+    profile.update(transform=north_up, NUM_THREADS=1)
+    with MemoryFile() as mem:
+        with mem.open(**profile) as ds:
+            ds.write(sample, 1)
+        ratio = len(mem.getbuffer()) / sample.nbytes
+    nbytes = int(1.1 * ratio * rows * cols * np.dtype(source.dtype).itemsize) + (1 << 16)
+    return nbytes * 7 // 3 if cog else nbytes
+
+
+#: Rows and columns a GeoTIFF can hold (GDAL's raster sizes are C ints).
+MAX_SIDE = 2**31 - 1
+
+
+def check_room(target: Path, needed: int, shape: tuple[int, int]) -> None:
+    """StoreError before any work when a raster of ``shape`` is beyond what a GeoTIFF holds,
+    or when its ``needed`` bytes do not fit in the free space of ``target``'s disk."""
+    import shutil
+
+    if max(shape) > MAX_SIDE:
+        raise InvalidParameterError(
+            f"A GeoTIFF holds at most {MAX_SIDE:,} rows and columns; {shape[0]:,} × "
+            f"{shape[1]:,} cells asked. Give a smaller size."
+        )
+    folder = target.absolute().parent
+    try:
+        free = shutil.disk_usage(folder).free
+    except OSError:
+        return
+    if needed > free:
+        raise StoreError(
+            f"Cannot write {target}: {shape[0]:,} × {shape[1]:,} cells need about "
+            f"{_human(needed)} on disk ({needed:,} bytes), and the disk at {folder} has "
+            f"{_human(free)} free. Give a smaller size, more compression, or another folder."
+        )
+
+
+def _human(nbytes: int) -> str:
+    """1234567 → '1.2 MB'."""
+    size = float(nbytes)
+    for unit in ("bytes", "kB", "MB", "GB", "TB"):
+        if size < 1000 or unit == "TB":
+            return f"{size:.0f} {unit}" if unit == "bytes" else f"{size:.1f} {unit}"
+        size /= 1000
+    return f"{size:.1f} PB"  # pragma: no cover
+
+
+def _write_blocks(
+    path: Path,
+    profile: dict,
+    blocks: Any,
+    bar: Any,
+    workers: int | None,
+    tags: dict[str, str] | None = None,
+) -> None:
     """Compute the dask blocks in threads and write them into a new GeoTIFF at ``path``."""
     import dask.array as da
     import rasterio
 
     with rasterio.open(path, "w", **profile) as ds:
+        if tags:
+            ds.update_tags(**tags)
         # One lock: blocks are computed in parallel, written one at a time.
         da.store(
             blocks,
@@ -202,12 +287,15 @@ def _check_crs(crs: str | None) -> Any:
     """A CRS rasterio understands, or an error saying how to name one."""
     if crs is None:
         return None
+    import pyproj
     from rasterio.crs import CRS
     from rasterio.errors import CRSError
 
+    # pyproj first: it refuses an unknown CRS without GDAL printing "ERROR 1: PROJ" lines.
     try:
+        pyproj.CRS.from_user_input(crs)
         return CRS.from_user_input(crs)
-    except (CRSError, ValueError) as exc:
+    except (pyproj.exceptions.CRSError, CRSError, ValueError, TypeError) as exc:
         raise InvalidParameterError(
             f"Unknown CRS {crs!r}; give it as EPSG:NNNN, a WKT string or a PROJ string."
         ) from exc

@@ -128,6 +128,7 @@ def plot_rd(result: dict[str, Any], path, title: str = "") -> None:
     import matplotlib.pyplot as plt
 
     from approxtree.io.atomic import atomic_write
+    from approxtree.io.own_output import MARK
 
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
     e_max = result["e_max"]
@@ -150,7 +151,7 @@ def plot_rd(result: dict[str, Any], path, title: str = "") -> None:
         ax.legend(fontsize=8)
     fig.tight_layout()
     with atomic_write(path) as f:
-        fig.savefig(f, format="png", dpi=110)
+        fig.savefig(f, format="png", dpi=110, metadata={"Software": MARK})
     plt.close(fig)
 
 

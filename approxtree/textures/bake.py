@@ -29,6 +29,7 @@ from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rasterize import rasterize
 from approxtree.io._common import reading
+from approxtree.io.gdal import no_side_files
 from approxtree.io.output_path import check_output_folder
 from approxtree.progress import ProgressCallback
 from approxtree.textures.bake_budget import check_bake_size
@@ -121,7 +122,7 @@ def _thematic_on_lattice(
         mapper = ColourRamp(palette)
     classes = isinstance(mapper, ClassTable)
     values = np.full(shape, np.nan, dtype=np.float64)
-    with reading(path, "a thematic raster"), rasterio.open(path) as ds:
+    with reading(path, "a thematic raster"), no_side_files(), rasterio.open(path) as ds:
         dst_crs = crs or (ds.crs.to_string() if ds.crs else None)
         reproject(
             source=np.where(src.valid, src.values, np.nan).astype(np.float64),
@@ -230,7 +231,11 @@ def bake(
     if texel_size is None and thematic_path is not None:
         import rasterio
 
-        with reading(thematic_path, "a thematic raster"), rasterio.open(thematic_path) as ds:
+        with (
+            reading(thematic_path, "a thematic raster"),
+            no_side_files(),
+            rasterio.open(thematic_path) as ds,
+        ):
             texel = min(texel, *ds.res)
     transform, shape = texture_lattice(terrain, texel)
     # Refuse at once what this machine cannot bake (a texel far below the DEM's cell).

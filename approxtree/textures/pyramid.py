@@ -47,6 +47,7 @@ from affine import Affine
 
 from approxtree.errors import InvalidParameterError, StoreError
 from approxtree.io.atomic import atomic_directory
+from approxtree.io.gdal import checked_write, no_side_files
 from approxtree.kernels.rgba import bands_into_rgba, halve_bands
 from approxtree.progress import ProgressCallback, no_progress
 from approxtree.textures.base import TextureData
@@ -83,11 +84,6 @@ _LEVEL_OPTIONS = {
 #: GeoTIFF tags naming a level's build and its number in the pyramid.
 _TAG_BUILD = "APPROXTREE_PYRAMID"
 _TAG_LEVEL = "APPROXTREE_LEVEL"
-#: The files a pyramid folder holds: GDAL may add .aux.xml side files when reading, and bakes
-#: of format 1 killed midway left .levelK.tif.tmp and .pyramid.json.*.tmp temp files inside.
-_PYRAMID_FILE = re.compile(
-    r"^(pyramid\.json|level\d+\.tif(\.aux\.xml)?|\.level\d+\.tif\.tmp|\.pyramid\.json\..+\.tmp)$"
-)
 _LEVEL_FILE = re.compile(r"^level\d+\.tif$")
 
 
@@ -143,7 +139,12 @@ def _write_level(
     pending: deque[Future] = deque()
     ring: list[np.ndarray | None] = [None] * (_WRITE_AHEAD + 1)
     sums = _TileChecksums(shape, bands)
-    with rasterio.open(path, "w", **profile) as ds, ThreadPoolExecutor(1) as writer:
+    # checked_write: GDAL's write errors (a full disk) become a StoreError once it closes.
+    with (
+        checked_write(path),
+        rasterio.open(path, "w", **profile) as ds,
+        ThreadPoolExecutor(1) as writer,
+    ):
         ds.update_tags(**{_TAG_BUILD: build, _TAG_LEVEL: str(level)})
         for index, strip in enumerate(strips):
             n = strip.shape[1] if strip.ndim == 3 else 0
@@ -333,7 +334,7 @@ def _check_level(path: Path, level: PyramidLevel, bands: int, build: str, k: int
     from rasterio.enums import ColorInterp
 
     try:
-        with rasterio.open(path) as ds:
+        with no_side_files(), rasterio.open(path) as ds:
             rows, cols, count, dtypes = ds.height, ds.width, ds.count, set(ds.dtypes)
             tags = ds.tags()
             last_band = ds.colorinterp[-1]
@@ -414,20 +415,15 @@ class _TileCache:
 
 
 def check_pyramid_target(folder: str | os.PathLike) -> None:
-    """Refuse, before any work, a folder that a new pyramid cannot replace whole: a file, or
-    a folder holding anything besides a texture pyramid (the swap would delete it)."""
+    """Refuse, before any work, a folder that a new pyramid cannot replace whole: a file, a
+    symbolic link, or a folder holding anything besides a texture pyramid approxtree baked
+    (the swap would delete it), unless ``own_output.overwriting`` allows it."""
+    from approxtree.io.own_output import check_replaceable
+
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise StoreError(f"Cannot bake into {folder}: it is a file, not a folder.")
-    if folder.is_dir():
-        foreign = sorted(n for n in os.listdir(folder) if not _PYRAMID_FILE.match(n))
-        if foreign:
-            shown = ", ".join(foreign[:5]) + (", ..." if len(foreign) > 5 else "")
-            raise StoreError(
-                f"Cannot bake into {folder}: it holds files that are not part of a texture "
-                f"pyramid ({shown}), and a bake replaces the whole folder. Bake into a new or "
-                "empty folder, or one that holds only a pyramid."
-            )
+    check_replaceable(folder, "texture pyramid")
 
 
 def _cause(exc: BaseException) -> str:
@@ -715,14 +711,14 @@ class TexturePyramid:
         lv = self.levels[k]
         failed = None
         try:
-            with rasterio.open(lv.path) as ds:
+            with no_side_files(), rasterio.open(lv.path) as ds:
                 return ds.read(window=Window(c0, r0, c1 - c0, r1 - r0))
         except rasterio.errors.RasterioError as exc:
             failed = _cause(exc)
         # Raised outside the handler: GDAL's chained errors, kept as the context, do not
         # survive pickling back from a dask worker. Tile by tile to name the damaged one.
         where = ""
-        with rasterio.open(lv.path) as ds:
+        with no_side_files(), rasterio.open(lv.path) as ds:
             for tr, tc in tiles:
                 a, b = tr * _TILE, tc * _TILE
                 window = Window(b, a, min(_TILE, lv.width - b), min(_TILE, lv.height - a))

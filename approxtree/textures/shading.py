@@ -7,6 +7,7 @@ included; slope and curvature weights and cast shadows refine it for cartographi
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -106,8 +107,7 @@ class TopographicShading(ShadingTexture):
             )
         if combined and multidirectional:
             raise InvalidParameterError("combined and multidirectional exclude each other.")
-        if not 0.0 <= altitude <= 90.0:
-            raise InvalidParameterError(f"altitude must lie in [0, 90] degrees, got {altitude}.")
+        _check_light(azimuth, altitude, z_factor)
         for name, w in (("slope_weight", slope_weight), ("curvature_weight", curvature_weight)):
             if not 0.0 <= w <= 1.0:
                 raise InvalidParameterError(f"{name} must lie in [0, 1], got {w}.")
@@ -268,6 +268,19 @@ def _strip(buffer: np.ndarray, n: int) -> np.ndarray:
     return np.empty((buffer.shape[0], n, buffer.shape[2]), dtype=buffer.dtype)
 
 
+def _check_light(azimuth: float, altitude: float, z_factor: float) -> None:
+    """InvalidParameterError for a light direction or z factor no shading can use (an infinite
+    z factor made NaN normals and a numpy warning, then a black texture)."""
+    if not math.isfinite(azimuth):
+        raise InvalidParameterError(f"azimuth must be a finite angle in degrees, got {azimuth}.")
+    if not 0.0 <= altitude <= 90.0:
+        raise InvalidParameterError(f"altitude must lie in [0, 90] degrees, got {altitude}.")
+    if not (math.isfinite(z_factor) and z_factor > 0.0):
+        raise InvalidParameterError(
+            f"z_factor (--z-factor) must be a finite number > 0, got {z_factor}."
+        )
+
+
 def _light_vector(azimuth: float, altitude: float) -> np.ndarray:
     """Unit vector towards the light: azimuth clockwise from north, altitude above horizon."""
     az, alt = np.radians(azimuth), np.radians(altitude)
@@ -298,6 +311,7 @@ class _LitShading(ShadingTexture):
         super().__init__(terrain)
         if not (isinstance(oversample, int) and oversample >= 1):
             raise InvalidParameterError(f"oversample must be an integer >= 1, got {oversample!r}.")
+        _check_light(azimuth, altitude, z_factor)
         self.light = _light_vector(azimuth, altitude)
         self.z_factor = float(z_factor)
         self.scale = (

@@ -26,6 +26,7 @@ from affine import Affine
 
 from approxtree.errors import InvalidParameterError, TerrainFormatError
 from approxtree.io._common import check_shapefile_length, reading
+from approxtree.io.gdal import no_side_files
 from approxtree.textures.base import TextureData
 
 Colour = tuple[int, int, int, int]
@@ -115,7 +116,7 @@ class ClassTable:
 
         with reading(path, "a thematic raster"):
             try:
-                with rasterio.open(path) as ds:
+                with no_side_files(), rasterio.open(path) as ds:
                     return cls(ds.colormap(band))
             except ValueError as exc:
                 raise TerrainFormatError(f"{path} has no embedded colour table: {exc}") from exc
@@ -281,7 +282,7 @@ class ThematicTexture(TextureData):
         if not path.is_file():
             raise TerrainFormatError(f"Thematic raster {path} does not exist.")
         # A file GDAL cannot open or decode is one TerrainFormatError, as a DEM's would be.
-        with reading(path, "a thematic raster"), rasterio.open(path) as ds:
+        with reading(path, "a thematic raster"), no_side_files(), rasterio.open(path) as ds:
             data = ds.read(band, masked=True)
             transform, crs = ds.transform, ds.crs.to_string() if ds.crs else None
             if mapper is None:

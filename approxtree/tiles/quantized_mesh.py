@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from approxtree.errors import EmptyTerrainError, InvalidParameterError, StoreError
+from approxtree.errors import EmptyTerrainError, InvalidParameterError
 from approxtree.geometry.grid import Grid
 from approxtree.kernels.greedy_tin import mesh_error
 from approxtree.patches.lattice import Window
@@ -279,16 +279,13 @@ def layer_json(
 
 
 def check_output(out: str | os.PathLike) -> None:
-    """StoreError unless ``out`` is new, empty, or an earlier terrain tileset (it is replaced)."""
+    """StoreError unless ``out`` is new, empty, or a terrain tileset approxtree wrote holding
+    nothing else (it is replaced whole), unless an ``overwriting`` block allows it."""
     from approxtree.io.output_path import check_output_folder
+    from approxtree.io.own_output import check_replaceable
 
-    out = Path(out)
     check_output_folder(out, "terrain tileset folder")
-    if out.is_dir() and any(out.iterdir()) and not (out / "layer.json").is_file():
-        raise StoreError(
-            f"{out} exists and is not a terrain tileset (no layer.json): it would be replaced. "
-            "Choose a new or empty folder."
-        )
+    check_replaceable(out, "terrain tileset")
 
 
 def write_quantized_mesh(

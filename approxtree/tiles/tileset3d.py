@@ -41,11 +41,12 @@ from typing import Any
 
 import numpy as np
 
-from approxtree.errors import InvalidParameterError, StoreError
+from approxtree.errors import InvalidParameterError
 from approxtree.geometry.rect import Rect
 from approxtree.io.atomic import atomic_directory
 from approxtree.io.gltf import glb_bytes, surface_normals, y_up
 from approxtree.io.output_path import check_output_folder
+from approxtree.io.own_output import check_replaceable
 from approxtree.patches.skirts import add_skirts, patches_reach_rect, skirt_base, skirt_depths
 from approxtree.textures.embed import IMAGE_FORMATS, embedded_texture
 from approxtree.tiles.earth import WGS84_A, WGS84_B, EarthFrame, geodetic_to_ecef
@@ -99,13 +100,10 @@ def _check_tree(tree: Any) -> None:
 
 
 def _check_target(out: Path) -> None:
-    """The output folder must be new, empty or a tileset written before (it is replaced)."""
+    """The output folder must be new, empty or a tileset approxtree wrote holding nothing
+    else (it is replaced whole), unless an ``overwriting`` block allows it."""
     check_output_folder(out, "tileset folder")
-    if out.is_dir() and any(out.iterdir()) and not (out / "tileset.json").is_file():
-        raise StoreError(
-            f"{out} is a folder that holds no tileset.json; refusing to replace it. Give a new "
-            "or empty folder (or one a previous `approxtree tiles` wrote)."
-        )
+    check_replaceable(out, "3D Tiles tileset")
 
 
 def _open_pyramid(textures: Any, terrain: Any) -> Any:

@@ -211,7 +211,13 @@ def writing(path: str | os.PathLike, meta: dict[str, Any]) -> Iterator[Any]:
     import zarr
     from zarr.storage import LocalStore
 
-    from approxtree.io.atomic import _registered, _temp_path, atomic_directory, atomic_write
+    from approxtree.io.atomic import (
+        _registered,
+        _temp_path,
+        atomic_directory,
+        atomic_write,
+        why_not_written,
+    )
 
     text = str(path)
     try:
@@ -221,7 +227,8 @@ def writing(path: str | os.PathLike, meta: dict[str, Any]) -> Iterator[Any]:
             yield root
             _commit(root, meta)
         elif is_zip(text):
-            target = Path(os.path.realpath(text))
+            # The path itself, never a link's target (atomic_write refuses a link).
+            target = Path(text)
             if not target.parent.is_dir():
                 raise StoreError(f"Cannot write {text}: the folder {target.parent} does not exist.")
             tmp = _temp_path(target)
@@ -229,8 +236,9 @@ def writing(path: str | os.PathLike, meta: dict[str, Any]) -> Iterator[Any]:
                 try:
                     os.mkdir(tmp)
                     root = zarr.open_group(LocalStore(str(tmp)), mode="w")
-                    yield root
-                    _commit(root, meta)
+                    with _settled():
+                        yield root
+                        _commit(root, meta)
                     with atomic_write(target) as f:
                         _zip_folder(tmp, f)
                 finally:
@@ -238,12 +246,42 @@ def writing(path: str | os.PathLike, meta: dict[str, Any]) -> Iterator[Any]:
         else:
             with atomic_directory(text) as tmp:
                 root = zarr.open_group(LocalStore(str(tmp)), mode="w")
-                yield root
-                _commit(root, meta)
+                with _settled():
+                    yield root
+                    _commit(root, meta)
     except StoreError:
         raise
     except OSError as exc:  # a full disk, a read-only folder, an unreachable URL...
-        raise StoreError(f"Cannot write the tree store {text}: {exc}.") from exc
+        raise StoreError(
+            f"Cannot write the tree store {text}: {why_not_written(text, exc)}."
+        ) from exc
+
+
+#: Seconds a failed write waits for zarr's writes still in flight (local writes end at once).
+_SETTLE_SECONDS = 60.0
+
+
+@contextlib.contextmanager
+def _settled() -> Iterator[None]:
+    """On failure, wait for the chunk writes zarr still has in flight before the temp store
+    is removed: when one write fails (a full disk) zarr raises at once while its other writes
+    go on, recreating the removed temp folder and, at exit, printing "Task was destroyed but
+    it is pending" for each."""
+    import asyncio
+
+    from zarr.core.sync import sync
+
+    async def rest() -> None:
+        others = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+        if others:
+            await asyncio.wait(others, timeout=_SETTLE_SECONDS)
+
+    try:
+        yield
+    except BaseException:
+        with contextlib.suppress(Exception):
+            sync(rest())
+        raise
 
 
 def _zip_folder(folder: Path, f: Any) -> None:
