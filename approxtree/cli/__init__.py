@@ -34,6 +34,7 @@ _COMMANDS = {
     "view": ("view", "view"),
     "convert": ("convert", "convert"),
     "rd": ("rd", "rd"),
+    "verify": ("verify", "verify"),
 }
 
 
