@@ -18,11 +18,13 @@ u, v units) of it; its height there is the plane through the three corners. A po
 several triangles (shared edges, overlaps) takes the largest |z − h| of them; the triangles
 that hold it only within ``tol`` (not within ``TIGHT``) count only where none holds it
 strictly (rounded border vertices), and a nodata point under a triangle counts only when the
-triangle holds it strictly. A nearly vertical
-triangle (a skirt: one edge shorter than ``FLAT`` times the longest, seen from above) holds no
-data point, nor does a triangle with a non-finite corner (not drawn). A row whose three corners
-are one point is a *vertex* alone (a patch vertex in no triangle): it holds the data point
-within ``tol`` of it, at its own height, as the writers count such points represented.
+triangle holds it strictly. A nearly vertical triangle holds no data point: seen from above,
+one edge shorter than ``FLAT`` times the longest or than ``tol`` (a skirt's wall), or narrower
+than ``tol`` (a near-vertical sliver of a point cloud's TIN, whose heights a tile's float32
+rounding scrambles); nor does a triangle with a non-finite corner (not drawn). A row whose
+three corners are one point is a *vertex* alone (a patch vertex in no triangle): it holds the
+data point within ``tol`` of it, at its own height, as the writers count such points
+represented.
 
 Per owner: the largest error and where, the sum of squares and count of the points measured,
 the valid points no triangle holds (``uncovered``), the nodata points a triangle holds
@@ -41,8 +43,10 @@ TIGHT = 1e-9
 
 
 @njit(cache=True, inline="always")
-def _flat(t: np.ndarray, k: int) -> bool:
-    """Whether triangle k is not drawn over the data (vertical, degenerate or non-finite)."""
+def _flat(t: np.ndarray, k: int, tol: float) -> bool:
+    """Whether triangle k is not drawn over the data (vertical, degenerate or non-finite):
+    seen from above, an edge shorter than FLAT × the longest or than ``tol``, or narrower
+    than ``tol``."""
     u0, v0, z0 = t[k, 0], t[k, 1], t[k, 2]
     u1, v1, z1 = t[k, 3], t[k, 4], t[k, 5]
     u2, v2, z2 = t[k, 6], t[k, 7], t[k, 8]
@@ -54,7 +58,10 @@ def _flat(t: np.ndarray, k: int) -> bool:
     lo = min(a, min(b, c))
     hi = max(a, max(b, c))
     area2 = (u1 - u0) * (v2 - v0) - (v1 - v0) * (u2 - u0)
-    return area2 == 0.0 or not hi > 0.0 or lo < FLAT * FLAT * hi
+    if area2 == 0.0 or not hi > 0.0 or lo < FLAT * FLAT * hi or lo < tol * tol:
+        return True
+    # A sliver narrower than tol (its height over the longest edge): a wall seen from above.
+    return area2 * area2 < tol * tol * hi
 
 
 @njit(cache=True, inline="always")
@@ -160,7 +167,7 @@ def grid_mesh_errors(
                 if near and r0 <= r <= r1 and c0 <= c <= c1:
                     _fold(buf, (r - r0) * w + (c - c0), z[r - wr0, c - wc0], tris[k, 2], True)
                 continue
-            if _flat(tris, k):
+            if _flat(tris, k, tol):
                 continue
             s = _orientation(tris, k)
             umin = min(tris[k, 0], min(tris[k, 3], tris[k, 6])) - tol
@@ -283,7 +290,7 @@ def point_mesh_errors(
         buf = np.full(2 * n, -1.0)
         for k in range(owner_tris[o, 0], owner_tris[o, 1]):
             vertex = _is_vertex(tris, k)
-            if not vertex and _flat(tris, k):
+            if not vertex and _flat(tris, k, tol):
                 continue
             s = _orientation(tris, k)
             umin = min(tris[k, 0], min(tris[k, 3], tris[k, 6])) - tol
