@@ -46,7 +46,9 @@ def _terrain(data_dir: Path, name: str):
 def _store(tmp_path: Path, data_dir: Path, name: str, suffix: str = ".zarr") -> tuple[Path, object]:
     terrain = _terrain(data_dir, name)
     _, _, epsilon, max_points, policy = STORES[name]
-    tree = at.ApproximationTree.build(terrain, epsilon=epsilon, max_points=max_points, policy=policy)
+    tree = at.ApproximationTree.build(
+        terrain, epsilon=epsilon, max_points=max_points, policy=policy
+    )
     path = tmp_path / f"{name}{suffix}"
     tree.save(path)
     return path, terrain
