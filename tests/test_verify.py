@@ -236,3 +236,17 @@ def test_bad_input_is_one_error_line(nc_store, tmp_path, data_dir):
         lines = [ln for ln in result.output.splitlines() if ln.strip()]
         assert len(lines) == 1 and lines[0].startswith("Error: "), (args, result.output)
     shutil.rmtree(other)
+
+
+def test_small_windows_measure_what_one_window_does(nc_store, monkeypatch):
+    """Nodes cut into many windows (64 lattice points a side here, 512 by default: a raster
+    past 512 cells) are measured exactly as in one window (the 1201² SRTM tile's nodes came
+    out uncovered when a node's triangles were kept for the next window)."""
+    import approxtree.verify.measure as measure
+
+    store, crop = nc_store
+    whole = at.verify(store, crop)
+    monkeypatch.setattr(measure, "TILE", 64)
+    cut = at.verify(store, crop)
+    assert whole.ok and cut.ok, _failed(cut)
+    assert cut.figures == whole.figures

@@ -184,8 +184,12 @@ class GridMeasure:
     def _window(self, pieces, owner, triangles_of, tol, spans, cache, result) -> None:
         """Measure one window's pieces (all inside one TILE × TILE window)."""
         owners = np.unique(owner)
-        soups = []
-        fresh = owners[[o not in cache for o in owners.tolist()]]
+        # Owners decoded for an earlier window first (decoding the others may evict them).
+        held = [o for o in owners.tolist() if o in cache]
+        soups = [(o, cache[o]) for o in held]
+        for o in held:
+            cache.move_to_end(o)
+        fresh = np.setdiff1d(owners, np.array(held, dtype=np.int64))
         if len(fresh):
             soup, which = triangles_of(fresh)
             soup = self.to_index(np.asarray(soup, dtype=np.float64).reshape(-1, 9))
@@ -199,10 +203,6 @@ class GridMeasure:
                 if spans[o] > 1:
                     _remember(cache, o, tri)
                 soups.append((o, tri))
-        for o in owners.tolist():
-            if o in cache:
-                cache.move_to_end(o)
-                soups.append((o, cache[o]))
         soups.sort(key=lambda item: item[0])
         counts = np.array([len(t) for _, t in soups], dtype=np.int64)
         tris = np.concatenate([t for _, t in soups]) if soups else np.zeros((0, 9))
