@@ -127,10 +127,22 @@ class PatchDecoder:
         if not soups:
             return np.zeros((0, 9)), np.zeros(0, dtype=np.int64)
         soup, owner = np.concatenate(soups), np.concatenate(owners)
-        for k in range(3):
-            np.minimum.at(self.vmin, owner, soup[:, 3 * k : 3 * k + 3])
-            np.maximum.at(self.vmax, owner, soup[:, 3 * k : 3 * k + 3])
+        self._extents(soup, owner)
         return soup, owner
+
+    def _extents(self, soup: np.ndarray, owner: np.ndarray) -> None:
+        """Fold the triangles' corners into their nodes' vertex extents (sorted reductions:
+        ``np.minimum.at`` took 4 s on a 1201² tile's 5461 nodes)."""
+        if not len(owner):
+            return
+        corners = soup.reshape(-1, 3, 3)
+        lo, hi = corners.min(axis=1), corners.max(axis=1)
+        order = np.argsort(owner, kind="stable")
+        sorted_owner = owner[order]
+        cuts = np.flatnonzero(np.r_[True, sorted_owner[1:] != sorted_owner[:-1]])
+        nodes = sorted_owner[cuts]
+        self.vmin[nodes] = np.minimum(self.vmin[nodes], np.minimum.reduceat(lo[order], cuts))
+        self.vmax[nodes] = np.maximum(self.vmax[nodes], np.maximum.reduceat(hi[order], cuts))
 
     def _strategy(self, name: str, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Soup and position in ``nodes`` of each triangle, for nodes of one strategy."""
