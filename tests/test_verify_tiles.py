@@ -63,7 +63,7 @@ def _copy(tiles: Path, tmp_path: Path) -> Path:
 def test_verify_passes_on_every_3dtiles_writer_output(tilesets, name):
     """Each tile's geometricError holds at the data points under it for projected, degree,
     NAD27 (a datum shift), local-frame and point-cloud terrain; full-resolution leaves claim
-    their float32 positions' rounding (they claimed 0 for 2e-5..5e-4 m before)."""
+    their float32 positions' rounding (they claimed 0 for 2e-5..9e-5 m before)."""
     source, tiles = tilesets(name)
     result = run("verify", tiles, "--source", source, "--json")
     doc = json.loads(result.output)
