@@ -66,6 +66,11 @@ def __getattr__(name: str):
         from approxtree.io import open_terrain
 
         return open_terrain
+    # verify reads every output format (zarr, pygltflib, pyproj): on first use only.
+    if name == "verify":
+        from approxtree.verify import verify
+
+        return verify
     # The renderer pulls in pyrr, and the Engine moderngl: import them on first use too.
     if name in ("Camera", "Engine", "Frame", "FrameState"):
         from approxtree import render
@@ -103,4 +108,5 @@ __all__ = [
     "__version__",
     "load_tree",
     "open_terrain",
+    "verify",
 ]

@@ -232,7 +232,8 @@ def test_volumes_hold_content_and_children(built, name):
 
 @pytest.mark.parametrize("name", list(TERRAINS))
 def test_geometric_errors_are_the_tree_errors(built, name):
-    """geometricError is ε_T(N) wherever no descendant has a larger error (never below it),
+    """geometricError is ε_T(N) (plus its float32 rounding's bound) wherever no descendant has a
+    larger error (never below it),
     no child's exceeds its parent's, and the tileset's is at least the terrain's horizontal
     extent (so a client draws the root whenever the terrain is on screen)."""
     tree, out, _ = built(name)
@@ -250,9 +251,11 @@ def test_geometric_errors_are_the_tree_errors(built, name):
     for i, g in claimed.items():
         if np.isfinite(errors[i]):
             assert g >= errors[i]
-            exact += g == errors[i]
+            # Exact up to what the tile's float32 positions add (a bound: 4 mm at the root of
+            # a 1° SRTM tile, micrometres on leaves).
+            exact += g <= errors[i] + 1e-2
             if all(errors[j] <= errors[i] for j in _descendants(tree, i)):
-                assert g == errors[i]
+                assert g == pytest.approx(errors[i], abs=1e-2)
     assert exact >= 0.5 * len(claimed)
     x0, y0, x1, y1 = np.asarray(tree.rects)[0]
     extent = np.hypot(x1 - x0, y1 - y0)

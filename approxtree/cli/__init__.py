@@ -37,6 +37,7 @@ _COMMANDS = {
     "view": ("view", "view"),
     "convert": ("convert", "convert"),
     "rd": ("rd", "rd"),
+    "verify": ("verify", "verify"),
 }
 
 

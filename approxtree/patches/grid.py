@@ -338,6 +338,9 @@ class GridPatch(GeometryPatch):
         k = len(ps)
         stats = ((p.error, *p.z_range, p.data_count) for p in ps)
         index = gather((p.index for p in ps), k, 6, "<i8")
+        # Records hold the full raster's indices (as to_record), whatever window a patch is on.
+        offsets = np.array([p.grid.index_offset for p in ps], dtype=np.int64).reshape(k, 2)
+        index[0].reshape(k, 6)[:, :4] += offsets.repeat(2, axis=1)
         # stores_lattice of every patch at once, from the steps just gathered.
         steps = index[0].reshape(k, 6)[:, 4:]
         coarse = np.flatnonzero(steps.max(axis=1, initial=0) >= LATTICE_STORED_STEP)
@@ -490,7 +493,10 @@ class GridPatchArrays:
         (``coarse``), in the same order (their heights are read through them)."""
         rows = np.asarray(rows, dtype=np.int64)
         k = len(rows)
-        index = np.ascontiguousarray(self.index[rows], dtype="<i8").reshape(-1)
+        index = np.array(self.index[rows], dtype="<i8")
+        # Records hold the full raster's indices (as GridPatch.to_record).
+        index[:, :4] += np.array(self.grid.index_offset, dtype=np.int64).repeat(2)
+        index = index.reshape(-1)
         stats = np.empty((k, 4), dtype="<f8")
         stats[:, 0] = self.error[rows]
         stats[:, 1] = self.zmin[rows]

@@ -231,7 +231,14 @@ class LatticePatch(GeometryPatch):
         k = len(ps)
         ns = np.fromiter((len(p.ij) for p in ps), dtype=np.int64, count=k)
         ms = np.fromiter((len(p.tris) for p in ps), dtype=np.int64, count=k)
-        ij = np.concatenate([p.ij.reshape(-1) for p in ps]) if k else np.zeros(0, np.int32)
+        # (row, col) in the full raster's indices, as to_record writes them.
+        ij = (
+            np.concatenate(
+                [(p.ij + np.array(p.grid.index_offset, np.int32)).reshape(-1) for p in ps]
+            )
+            if k
+            else np.zeros(0, np.int32)
+        )
         tris = np.concatenate([p.tris.reshape(-1) for p in ps]) if k else np.zeros(0, np.int32)
         head = (np.stack([ns, ms], axis=1).reshape(-1), np.full(k, 2))
         mesh = interleave([head, (ij, 2 * ns), (tris, 3 * ms)], "<i4")

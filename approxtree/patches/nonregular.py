@@ -207,8 +207,17 @@ class NonRegularGridPatch(GeometryPatch):
         k = len(ps)
         kr = np.fromiter((len(p.rows) for p in ps), dtype=np.int64, count=k)
         kc = np.fromiter((len(p.cols) for p in ps), dtype=np.int64, count=k)
-        rows = np.concatenate([p.rows for p in ps]) if k else np.zeros(0, np.int32)
-        cols = np.concatenate([p.cols for p in ps]) if k else np.zeros(0, np.int32)
+        # Lines in the full raster's indices, as to_record writes them.
+        rows = (
+            np.concatenate([p.rows + p.grid.index_offset[0] for p in ps])
+            if k
+            else np.zeros(0, np.int32)
+        )
+        cols = (
+            np.concatenate([p.cols + p.grid.index_offset[1] for p in ps])
+            if k
+            else np.zeros(0, np.int32)
+        )
         head = (np.stack([kr, kc], axis=1).reshape(-1), np.full(k, 2))
         lines = interleave([head, (rows, kr), (cols, kc)], "<i4")
         stats = ((p.error, p.rms_error, *p.z_range, p.data_count) for p in ps)
