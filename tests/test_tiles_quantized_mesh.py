@@ -2,8 +2,9 @@
 
 Tiles are decoded here by a parser written from the format's specification (independent of
 approxtree.tiles.encoding) and by the project's reader (io.quantized_mesh, through
-quantized-mesh-tile); errors are recomputed from the terrain with matplotlib's triangle
-interpolation, positions with pyproj.
+quantized-mesh-tile); errors are recomputed at every data point of the terrain (its valid
+cell centres, carried to lon/lat by pyproj) with matplotlib's triangle interpolation
+(``qm_points``).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 from conftest import data_file
+from qm_points import DataPoints, cell_degrees, tin_at
 
 from approxtree.cli import main
 from approxtree.errors import (
@@ -126,36 +128,59 @@ def expand(ranges_by_level: list) -> set[tuple[int, int, int]]:
     }
 
 
-def terrain_samples(terrain: Grid, bounds, samples: int) -> np.ndarray:
-    """h_T on the tile's sample grid (row 0 south) recomputed through pyproj; NaN where h_T has
-    none, 0 where the sample is clearly outside the terrain's domain."""
+def terrain_truth(terrain: Grid, lon: np.ndarray, lat: np.ndarray, spacing: float) -> np.ndarray:
+    """What the tiles promise at lon/lat points (any one shape) of a lattice of ``spacing``
+    degrees, recomputed through pyproj: h_T inside the terrain's domain; within 1.5 spacings
+    (at least 2 cells) outside it h_T at the domain's nearest edge point (the edge carried
+    outward); 0 beyond; NaN where h_T has no value and within 1 % of that band's edge."""
     from pyproj import CRS, Transformer
 
-    west, south, east, north = bounds
-    t = np.arange(samples) / (samples - 1)
-    lon, lat = np.meshgrid(west + (east - west) * t, south + (north - south) * t)
     crs = CRS.from_user_input(terrain.crs)
     if crs.equals(CRS.from_epsg(4326), ignore_axis_order=True):
         x, y = lon, lat
     else:
         x, y = Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform(lon, lat)
-    h = terrain.height_at(x, y)
     fr, fc = terrain.fractional_index(x, y)
     rows, cols = terrain.shape
-    far = (fr < -1e-3) | (fr > rows - 1 + 1e-3) | (fc < -1e-3) | (fc > cols - 1 + 1e-3)
-    h[far] = 0.0
-    return h
+    cr, cc = np.clip(fr, 0, rows - 1), np.clip(fc, 0, cols - 1)
+    dist = np.hypot(fr - cr, fc - cc)
+    band = max(2.0, 1.5 * spacing / cell_degrees(terrain))
+    t = terrain.transform
+    r_off, c_off = terrain.index_offset
+    # Back to world coordinates a hair inside, so round-off does not put the edge outside.
+    cr, cc = np.clip(cr, 1e-9, rows - 1 - 1e-9), np.clip(cc, 1e-9, cols - 1 - 1e-9)
+    h = terrain.height_at(t.c + (cc + c_off + 0.5) * t.a, t.f + (cr + r_off + 0.5) * t.e)
+    h = np.where(dist > band, 0.0, h)
+    return np.where(np.abs(dist - band) < 0.01 * band, np.nan, h)
+
+
+def terrain_samples(terrain: Grid, bounds, samples: int) -> tuple[np.ndarray, np.ndarray]:
+    """``terrain_truth`` on the tile's sample grid (row 0 south), and where the sample lies
+    inside the terrain's domain (there the tiles promise their error at the data points, not
+    at interpolated samples)."""
+    west, south, east, north = bounds
+    t = np.arange(samples) / (samples - 1)
+    lon, lat = np.meshgrid(west + (east - west) * t, south + (north - south) * t)
+    truth = terrain_truth(terrain, lon, lat, (east - west) / (samples - 1))
+    from pyproj import CRS, Transformer
+
+    crs = CRS.from_user_input(terrain.crs)
+    if crs.equals(CRS.from_epsg(4326), ignore_axis_order=True):
+        x, y = lon, lat
+    else:
+        x, y = Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform(lon, lat)
+    fr, fc = terrain.fractional_index(x, y)
+    rows, cols = terrain.shape
+    inside = (fr >= -1e-3) & (fr <= rows - 1 + 1e-3) & (fc >= -1e-3) & (fc <= cols - 1 + 1e-3)
+    return truth, inside
 
 
 def tin_at_samples(tile: dict, samples: int) -> np.ndarray:
     """The decoded TIN interpolated at the sample points (matplotlib), (s, s) row 0 south."""
-    import matplotlib.tri as mtri
-
-    tri = mtri.Triangulation(tile["u"].astype(float), tile["v"].astype(float), tile["tri"])
-    interp = mtri.LinearTriInterpolator(tri, tile["height"])
     q = np.arange(samples) * (QMAX / (samples - 1))
     qu, qv = np.meshgrid(q, q)
-    return np.asarray(interp(qu, qv).filled(np.nan))
+    h = tin_at(tile["u"], tile["v"], tile["height"], tile["tri"], qu.ravel(), qv.ravel())
+    return h.reshape(samples, samples)
 
 
 # -- checks of one tileset --------------------------------------------------------------------
@@ -163,7 +188,10 @@ def tin_at_samples(tile: dict, samples: int) -> np.ndarray:
 
 def check_tileset(folder: Path, terrain: Grid, samples: int, leaf_error: float = 1.0) -> dict:
     """Every check of the issue on every tile (those of the deepest level within leaf_error
-    too); returns figures for further asserts (worst measured error per level among them)."""
+    too); returns figures for further asserts (the worst true error at the terrain's data
+    points per level among them)."""
+    from scipy.spatial import cKDTree
+
     layer = json.loads((folder / "layer.json").read_text())
     assert layer["format"] == "quantized-mesh-1.0"
     assert layer["scheme"] == "tms" and layer["projection"] == "EPSG:4326"
@@ -173,6 +201,8 @@ def check_tileset(folder: Path, terrain: Grid, samples: int, leaf_error: float =
     tiles = written(folder)
     assert expand(layer["available"]) == tiles
     assert {t[0] for t in tiles} == set(range(layer["minzoom"], layer["maxzoom"] + 1))
+    points = DataPoints(terrain)
+    vertices_checked = vertices_total = 0
     decoded = {}
     worst_ratio = 0.0
     worst_of_level: dict[int, float] = {}
@@ -205,25 +235,48 @@ def check_tileset(folder: Path, terrain: Grid, samples: int, leaf_error: float =
         np.testing.assert_allclose(tin.vertices[:, 0], lon, atol=1e-9)
         np.testing.assert_allclose(tin.vertices[:, 1], lat, atol=1e-9)
         np.testing.assert_allclose(tin.vertices[:, 2], t["height"], atol=1e-3)
-        # Heights: the decoded TIN against h_T on the whole sample grid, vertices included.
-        truth = terrain_samples(terrain, bounds, samples)
-        approx = tin_at_samples(t, samples)
-        ok = np.isfinite(truth)
-        assert np.isfinite(approx).all()
-        err = float(np.abs(approx[ok] - truth[ok]).max()) if ok.any() else 0.0
         limit = level_error(level)
         if level == layer["maxzoom"]:
             limit = min(limit, leaf_error)
-        assert err <= limit * (1 + 1e-9) + 1e-6, (level, x, y, err, limit)
+        quantum = (t["max_h"] - t["min_h"]) / QMAX
+        # The true error: the decoded TIN at every data point of the terrain in the tile's
+        # closed square, at its own (unrounded) position; within the error, allowing only the
+        # height quantization's half step.
+        pu, pv, pz = points.in_tile(bounds)
+        approx = tin_at(t["u"], t["v"], t["height"], t["tri"], pu, pv)
+        assert np.isfinite(approx).all(), (level, x, y)
+        err = float(np.abs(approx - pz).max()) if len(pz) else 0.0
+        assert err <= limit + 0.5 * quantum + 1e-6, (level, x, y, err, limit)
         worst_of_level[level] = max(worst_of_level.get(level, 0.0), err)
         worst_ratio = max(worst_ratio, err / limit)
-        # Vertices sit on samples: their decoded heights are h_T within half a quantum.
-        k = QMAX // (samples - 1)
-        assert (t["u"] % k == 0).all() and (t["v"] % k == 0).all()
-        at = truth[t["v"] // k, t["u"] // k]
-        fin = np.isfinite(at)
-        quantum = (t["max_h"] - t["min_h"]) / QMAX
-        assert np.abs(t["height"][fin] - at[fin]).max(initial=0) <= 0.5 * quantum + 1e-4
+        # Outside the terrain the tile stays within the error of the edge carried outward,
+        # then of 0 (the ellipsoid); inside, the error is promised at the data points above.
+        truth, inside = terrain_samples(terrain, bounds, samples)
+        at_samples = tin_at_samples(t, samples)
+        ok = np.isfinite(truth) & ~inside
+        assert np.isfinite(at_samples).all()
+        off = float(np.abs(at_samples[ok] - truth[ok]).max()) if ok.any() else 0.0
+        assert off <= limit * (1 + 1e-9) + 0.5 * quantum + 1e-6, (level, x, y, off, limit)
+        # Each vertex is a data point (at its position rounded to the quantized grid) or a
+        # lattice or edge point of the tile holding the terrain's promise there: its decoded
+        # height is that within half a quantum.
+        near_data = np.zeros(len(t["u"]), dtype=bool)
+        if len(pz):
+            around = cKDTree(np.column_stack([pu, pv])).query_ball_point(
+                np.column_stack([t["u"], t["v"]]), r=1.5
+            )
+            near_data = np.array(
+                [
+                    bool(len(i)) and np.abs(pz[i] - h).min() <= 0.5 * quantum + 1e-4
+                    for i, h in zip(around, t["height"], strict=True)
+                ]
+            )
+        spacing = (bounds[2] - bounds[0]) / (samples - 1)
+        own = terrain_truth(terrain, lon, lat, spacing)
+        holds = np.abs(own - t["height"]) <= 0.5 * quantum + 1e-4
+        assert (near_data | holds | np.isnan(own)).all(), (level, x, y)
+        vertices_checked += int((near_data | holds).sum())
+        vertices_total += len(t["u"])
         # Header: heights, centre, bounding sphere, horizon occlusion point.
         assert t["min_h"] == pytest.approx(t["height"].min(), abs=1e-3)
         assert t["max_h"] == pytest.approx(t["height"].max(), abs=1e-3)
@@ -275,7 +328,11 @@ def check_tileset(folder: Path, terrain: Grid, samples: int, leaf_error: float =
             if level < z <= level + depth and tx >> (z - level) == x and ty >> (z - level) == y
         }
         assert below == expected
+        # The tile's declared error is the true one at its data points.
         assert meta["geometricError"] == pytest.approx(err, rel=1e-6, abs=1e-6)
+    # The vertex check above skips only vertices of unknown promise (filled nodata, the band's
+    # edge): most are checked.
+    assert vertices_checked > 0.75 * vertices_total
     # Neighbours: where both have a vertex at the same point of the shared edge, the heights
     # agree (the same sample) within the two tiles' quantization.
     shared = 0
@@ -316,6 +373,73 @@ def srtm_crop(data_dir: Path) -> Grid:
     g = open_terrain(data_file(data_dir, "srtm/N44W072.hgt"))
     # 0.2° × 0.2° around Mt Washington (no voids in this tile).
     return g.window(600, 840, 700, 940)
+
+
+def utm_mountain(data_dir: Path) -> Grid:
+    """Mt Washington (SRTM 3″, summit inside) warped to UTM 19N at 30 m: a steep DEM in a
+    projected CRS the other tests do not use (330 × 465 cells, relief about 1,400 m)."""
+    import rasterio
+    from rasterio.warp import Resampling, calculate_default_transform, reproject
+    from rasterio.windows import Window
+
+    path = data_file(data_dir, "srtm/N44W072.hgt")
+    with rasterio.open(path) as ds:
+        window = Window(760, 800, 150, 150)
+        src = ds.read(1, window=window).astype(np.float32)
+        src_transform = ds.window_transform(window)
+        transform, width, height = calculate_default_transform(
+            ds.crs,
+            "EPSG:32619",
+            150,
+            150,
+            *rasterio.windows.bounds(window, ds.transform),
+            resolution=30.0,
+        )
+        dst = np.full((height, width), np.nan, dtype=np.float32)
+        reproject(
+            src,
+            dst,
+            src_transform=src_transform,
+            src_crs=ds.crs,
+            dst_transform=transform,
+            dst_crs="EPSG:32619",
+            resampling=Resampling.bilinear,
+            dst_nodata=np.nan,
+        )
+    return Grid(dst, transform, crs="EPSG:32619")
+
+
+def test_steep_projected_dem_is_within_its_error_at_every_data_point(data_dir, tmp_path):
+    """A steep mountain DEM in UTM (nodata corners from the warp): every tile's decoded TIN is
+    within its level's error (the leaf level's 1 m) at every data point in it, recomputed
+    independently, and each tile declares that true error (figures and metadata)."""
+    terrain = utm_mountain(data_dir)
+    assert terrain.nodata_count > 0 and np.ptp(terrain.z_range) > 1000
+    figures = write_quantized_mesh(terrain, tmp_path / "m")
+    found = check_tileset(tmp_path / "m", terrain, 152)
+    deepest = max(found["worst_of_level"])
+    assert figures["leaf_max_error"] == pytest.approx(found["worst_of_level"][deepest], rel=1e-6)
+    assert 0.5 < figures["leaf_max_error"] <= 1.0
+    # Every data point is measured in some tile of the deepest level (on shared edges in two).
+    measured = sum(r["data_points"] for r in figures["results"] if r["level"] == deepest)
+    assert terrain.point_count <= measured < 1.1 * terrain.point_count
+
+
+def test_decimated_tiles_are_measured_at_every_point(data_dir, tmp_path, monkeypatch):
+    """A tile holding more points than the insertion starts from (here 4,096 of NC's 225,000)
+    takes a decimated subset, measures every point in chunks, adds the points over the error
+    and runs again: still within its error at every data point, as recomputed here."""
+    from approxtree.tiles import tile_tin
+
+    monkeypatch.setattr(tile_tin, "FIRST_CANDIDATES", 4096)
+    monkeypatch.setattr(tile_tin, "POINT_CAP", 16384)
+    monkeypatch.setattr(tile_tin, "MEASURE_CHUNK", 5000)
+    monkeypatch.setattr(tile_tin, "VIOLATOR_CAP", 256)
+    terrain = open_terrain(data_file(data_dir, "nc/elev_ned_30m.tif"))
+    figures = write_quantized_mesh(terrain, tmp_path / "d", maxzoom=11, leaf_error=5.0)
+    check_tileset(tmp_path / "d", terrain, 152, leaf_error=5.0)
+    big = [r for r in figures["results"] if r["data_points"] > 16384]
+    assert big and max(r["rounds"] for r in big) > 1
 
 
 def test_tile_bounds_follow_morecantile_world_crs84_quad():

@@ -3,8 +3,9 @@ lists and the extensions (oct-encoded vertex normals, water mask, metadata).
 
 Written here rather than with quantized-mesh-encoder because that package casts positions to
 float32 (a longitude of −72° then moves by up to 4 µ° ≈ 0.4 m) and truncates instead of
-rounding when it quantizes; here vertices arrive already quantized (u, v exact lattice
-positions, h rounded), so the tile's error is known exactly. Layout and algorithms follow the
+rounding when it quantizes; here vertices arrive already quantized (u, v any integer positions
+in 0..QMAX, heights rounded by ``quantize_heights``), so the tile's error is measured on
+exactly what is written. Layout and algorithms follow the
 format's specification (github.com/CesiumGS/quantized-mesh) and CesiumJS's decoder
 (CesiumTerrainProvider, EllipsoidalOccluder, AttributeCompression.octEncode).
 """
@@ -24,6 +25,28 @@ _E2 = 1.0 - (WGS84_B / WGS84_A) ** 2
 QMAX = 32767
 #: Extension ids of the format.
 EXT_NORMALS, EXT_WATER_MASK, EXT_METADATA = 1, 2, 4
+
+
+def float32_outward(lo: float, hi: float) -> tuple[float, float]:
+    """lo, hi rounded to float32 (the header's type) outward, so they still enclose the data."""
+    lo32, hi32 = np.float32(lo), np.float32(hi)
+    if lo32 > lo:
+        lo32 = np.nextafter(lo32, np.float32(-np.inf))
+    if hi32 < hi:
+        hi32 = np.nextafter(hi32, np.float32(np.inf))
+    return float(lo32), float(hi32)
+
+
+def quantize_heights(z: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """(hq, decoded, lo, hi) of (n,) float64 heights: hq (n,) int64 quantized to 0..QMAX
+    between the float32 header bounds lo, hi, and decoded (n,) float64 the heights CesiumJS
+    decodes from them (lerp(lo, hi, hq / QMAX))."""
+    lo, hi = float32_outward(float(z.min()), float(z.max()))
+    span = hi - lo
+    if span <= 0.0:
+        return np.zeros(len(z), dtype=np.int64), np.full(len(z), lo), lo, hi
+    hq = np.clip(np.rint((z - lo) / span * QMAX), 0, QMAX).astype(np.int64)
+    return hq, lo + span * (hq / QMAX), lo, hi
 
 
 def ecef(lon: np.ndarray, lat: np.ndarray, h: np.ndarray) -> np.ndarray:
@@ -51,7 +74,7 @@ def vertex_normals(xyz: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     for k in range(3):
         np.add.at(acc, triangles[:, k], face)
     norm = np.linalg.norm(acc, axis=1, keepdims=True)
-    # A vertex of zero-area triangles only (never on a lattice mesh): the ellipsoid's up.
+    # A vertex of zero-area triangles only (never in a greedy TIN): the ellipsoid's up.
     up = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
     return np.where(norm > 0.0, acc / np.where(norm > 0.0, norm, 1.0), up)
 

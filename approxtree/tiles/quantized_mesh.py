@@ -1,13 +1,12 @@
 """Cesium terrain (quantized-mesh-1.0) from a height grid: ``layer.json`` + ``z/x/y.terrain``.
 
-Each tile of Cesium's geographic tiling (``tiles.geographic``) is its own TIN: the terrain is
-sampled on the tile's regular lon/lat grid (``tiles.sampling``), and our greedy insertion
-(``patches.tin.grid_tin`` → ``kernels.greedy_tin``) inserts sample points until the mesh is
-within the level's geometric error (CesiumJS's levelMaximumGeometricError) of every sample.
-The guarantee holds for the tile as CesiumJS decodes it: ``samples − 1`` divides 32767, so
-every sample sits on an exact quantized (u, v); the greedy target leaves room for the height
-quantization; and the decoded mesh is measured against every sample before it is written
-(``TileResult.max_error``).
+Each tile of Cesium's geographic tiling (``tiles.geographic``) is its own TIN (``tile_tin``):
+a greedy insertion over the terrain's data points in the tile and the tile's regular lon/lat
+sample lattice (``sampling``; ``samples − 1`` divides 32767, so every sample sits on an exact
+quantized (u, v)), until the mesh is within the level's geometric error (CesiumJS's
+levelMaximumGeometricError) of every data point. The error is measured on the tile as
+CesiumJS decodes it, at every data point's true position, before it is written: it is
+``TileResult.max_error`` and the tile's metadata ``geometricError``.
 
 Tiles are gzip-compressed (serve them with ``Content-Encoding: gzip``), carry oct-encoded
 vertex normals, a metadata extension with the availability of their children, and an
@@ -28,9 +27,6 @@ import numpy as np
 
 from approxtree.errors import EmptyTerrainError, InvalidParameterError
 from approxtree.geometry.grid import Grid
-from approxtree.kernels.greedy_tin import mesh_error
-from approxtree.patches.lattice import Window
-from approxtree.patches.tin import grid_tin
 from approxtree.tiles.encoding import QMAX, encode_tile
 from approxtree.tiles.geographic import (
     MAX_LEVEL,
@@ -41,6 +37,7 @@ from approxtree.tiles.geographic import (
 )
 from approxtree.tiles.parallel import check_workers, run_batches
 from approxtree.tiles.sampling import NO_DATA, TileSampler, check_has_data
+from approxtree.tiles.tile_tin import EdgeHeights, tile_mesh
 from approxtree.tiles.water_mask import WaterMask
 
 #: Samples along a tile side: (samples − 1) divides 32767 = 7 · 31 · 151, so every sample has
@@ -56,8 +53,9 @@ DEFAULT_LEAF_ERROR = 1.0
 @dataclass
 class TileResult:
     """What was written for one tile: its address, mesh size, bytes on disk (gzip), the
-    decoded tile's exact max error over its samples, and the error it had to meet (the
-    level's, or the leaf error on the deepest level)."""
+    decoded tile's true max error over the terrain's data points in it, the error it had to
+    meet (the level's, or the leaf error on the deepest level), the lattice samples that had a
+    height, the data points measured, and the insertion rounds run."""
 
     level: int
     x: int
@@ -68,61 +66,8 @@ class TileResult:
     max_error: float
     level_error: float
     valid_samples: int
-
-
-def _float32_outward(lo: float, hi: float) -> tuple[float, float]:
-    """lo, hi rounded to float32 (the header's type) outward, so they still enclose the data."""
-    lo32, hi32 = np.float32(lo), np.float32(hi)
-    if lo32 > lo:
-        lo32 = np.nextafter(lo32, np.float32(-np.inf))
-    if hi32 < hi:
-        hi32 = np.nextafter(hi32, np.float32(np.inf))
-    return float(lo32), float(hi32)
-
-
-def _quantize_heights(z: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
-    """(hq, decoded, lo, hi): heights quantized to 0..QMAX between the float32 header bounds
-    and the heights CesiumJS decodes from them (lerp(lo, hi, hq / QMAX))."""
-    lo, hi = _float32_outward(float(z.min()), float(z.max()))
-    span = hi - lo
-    if span <= 0.0:
-        return np.zeros(len(z), dtype=np.int64), np.full(len(z), lo), lo, hi
-    hq = np.clip(np.rint((z - lo) / span * QMAX), 0, QMAX).astype(np.int64)
-    return hq, lo + span * (hq / QMAX), lo, hi
-
-
-def tin_of_samples(
-    h: np.ndarray, max_error: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
-    """Greedy TIN of one tile's samples within ``max_error`` as CesiumJS decodes it.
-
-    h: (s, s) float64 heights, row 0 south. Returns vx, vy (n,) lattice column/row of the
-    vertices, triangles (m, 3) counter-clockwise in lon/lat, hq (n,) quantized heights,
-    decoded (n,) their decoded heights, and the decoded mesh's exact max error over all
-    samples (vertices included).
-    """
-    s = h.shape[0]
-    grid = Grid(h)
-    win = Window(0, s - 1, 0, s - 1, s * s, (float(h.min()), float(h.max())), False)
-    lo, hi = _float32_outward(float(h.min()), float(h.max()))
-    # Room for the height quantization: a decoded vertex is off by at most half a step, and
-    # a triangle's plane by at most the largest of its corners' offsets.
-    target = max_error - (hi - lo) / (2 * QMAX) * (1.0 + 1e-9) - 1e-9 * max(abs(lo), abs(hi))
-    while True:
-        vx, vy, tv, he, _worst, _sse = grid_tin(grid, win, max(target, 0.0))
-        z = h[vy, vx]
-        hq, decoded, _, _ = _quantize_heights(z)
-        # Exact error of the decoded mesh: the planes through the decoded corners against
-        # every sample (vertices' own offsets taken separately).
-        hd = h.copy()
-        hd[vy, vx] = decoded
-        worst, _, _, _ = mesh_error(hd, 0, 0, s, s, vx, vy, tv, he)
-        worst = max(float(worst), float(np.abs(decoded - z).max()))
-        if worst <= max_error or target <= 0.0:
-            break
-        # Never seen (the target's margin covers quantization); tighten and insert more.
-        target = min(target - (worst - max_error), 0.5 * target)
-    return vx, vy, tv.reshape(-1, 3).astype(np.int64), hq, decoded, worst
+    data_points: int
+    rounds: int
 
 
 #: layer.json's metadataAvailability (CesiumJS World Terrain's convention): tiles of levels
@@ -186,6 +131,21 @@ class _Job:
     maxzoom: int
     leaf_error: float = math.inf
 
+    def edge_heights(self, bounds: tuple[float, float, float, float]) -> EdgeHeights:
+        """The lattice's heights at quantized positions (u, v) on the edges of the tile
+        ``bounds``: the edge's own longitude or latitude, exactly, so that neighbours agree."""
+        west, south, east, north = bounds
+        spacing = (east - west) / (self.samples - 1)
+
+        def heights(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+            lon = west + (east - west) * u / QMAX
+            lat = south + (north - south) * v / QMAX
+            lon = np.where(u == 0, west, np.where(u == QMAX, east, lon))
+            lat = np.where(v == 0, south, np.where(v == QMAX, north, lat))
+            return self.sampler.heights_at(lon, lat, spacing)[0]
+
+        return heights
+
     def tile_error(self, level: int) -> float:
         """The error a tile of ``level`` must meet: CesiumJS's level error, and on the
         deepest level (which CesiumJS keeps showing as the camera comes closer) at most the
@@ -197,27 +157,41 @@ class _Job:
 def make_tile(job: _Job, level: int, x: int, y: int) -> tuple[bytes, TileResult]:
     """The gzip-compressed bytes of tile (level, x, y) and its figures."""
     bounds = tile_bounds(level, x, y)
-    h, n_valid = job.sampler.sample(bounds, job.samples)
+    h, measured = job.sampler.lattice(bounds, job.samples)
     err = job.tile_error(level)
-    vx, vy, tri, hq, decoded, worst = tin_of_samples(h, err)
-    k = QMAX // (job.samples - 1)
+    # Data points within 1.5 cells of an edge get a point beside them on it.
+    reach = 1.5 * job.sampler.cell_degrees / (bounds[2] - bounds[0]) * QMAX
+    points = job.sampler.points(bounds)
+    mesh = tile_mesh(h, measured, points, job.edge_heights(bounds), reach, err)
     water = job.water.tile_mask(bounds) if job.water is not None else None
     meta = {
         "available": subtree_availability(level, x, y, job.plan, job.maxzoom),
-        "geometricError": worst,
+        "geometricError": mesh.error,
     }
     raw = encode_tile(
-        vx.astype(np.int64) * k,
-        vy.astype(np.int64) * k,
-        hq,
-        decoded,
-        tri,
+        mesh.u,
+        mesh.v,
+        mesh.hq,
+        mesh.decoded,
+        mesh.triangles,
         bounds,
         water_mask=water,
         metadata=meta,
     )
     data = gzip.compress(raw, compresslevel=6, mtime=0)
-    result = TileResult(level, x, y, len(vx), len(tri), len(data), worst, err, n_valid)
+    result = TileResult(
+        level,
+        x,
+        y,
+        len(mesh.u),
+        len(mesh.triangles),
+        len(data),
+        mesh.error,
+        err,
+        int(np.count_nonzero(measured)),
+        mesh.data_points,
+        mesh.rounds,
+    )
     return data, result
 
 
@@ -356,7 +330,7 @@ def write_quantized_mesh(
         job = _Job(sampler, water, samples, str(tmp), arrays, maxzoom, float(leaf_error))
         # In this process, or batches of tiles as dask tasks (the job sent once per worker).
         results = run_batches(_write_batch, job, addresses, workers, scheduler, "tiles")
-        if not any(r.valid_samples for r in results) and terrain.point_count == 0:
+        if not any(r.valid_samples or r.data_points for r in results) and terrain.point_count == 0:
             # A windowed terrain of nodata only: scanned only now that no tile sampled a
             # height (tiles too coarse to hit the data need not mean nodata); nothing is kept.
             raise EmptyTerrainError(NO_DATA)
