@@ -40,11 +40,6 @@ def terrain_tiles(data_dir, tmp_path_factory) -> tuple[Path, Path]:
     return source, out
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue 24 item 1: main measures its tiles at their own samples only (leaf tiles "
-    "4.7 m off for 1 m here); passes once the quantized-mesh fix is merged",
-)
 def test_verify_passes_on_quantized_mesh_tiles(terrain_tiles):
     """Every tile is within its level's error (the leaf error on the deepest level) at the
     DEM's data points, the height quantization's half step allowed."""
