@@ -32,9 +32,10 @@ def _numpy_error(z: np.ndarray, r0: int, r1: int, c0: int, c1: int, sr: int, sc:
     r, rb, re, dr = (a[:, None] for a in axis(r0, r1, sr))
     c, cb, ce, dc = (a[None, :] for a in axis(c0, c1, sc))
     hr, wc = re - rb, ce - cb
-    z00, z01, z10, z11 = z[rb, cb], z[rb, ce], z[re, cb], z[re, ce]
-    # Same operands and order as the kernel: corner differences in the raster's dtype,
-    # fractions and sums in float64.
+    z64 = z.astype(np.float64)
+    z00, z01, z10, z11 = z64[rb, cb], z64[rb, ce], z64[re, cb], z64[re, ce]
+    # Same operands and order as the kernel, all in float64 whatever the raster's dtype (a
+    # float32 corner difference is rounded: claimed errors fell short of the true ones).
     pa = z00 + (dc / wc) * (z01 - z00) + (dr / hr) * (z11 - z01)
     pb = z00 + (dr / hr) * (z10 - z00) + (dc / wc) * (z11 - z10)
     p = np.where(dc * hr >= dr * wc, pa, pb)

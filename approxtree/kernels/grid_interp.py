@@ -19,6 +19,11 @@ from numba import njit, prange
 @njit(cache=True, inline="always")
 def interpolate_cell(z00: float, z01: float, z10: float, z11: float, fr: float, fc: float):
     """Height at fractional position (fr, fc) in [0, 1]² of a cell with the given corners."""
+    # In float64 whatever the raster's dtype (a float32 difference of two corners is rounded).
+    z00 = np.float64(z00)
+    z01 = np.float64(z01)
+    z10 = np.float64(z10)
+    z11 = np.float64(z11)
     if fc >= fr:
         return z00 + fc * (z01 - z00) + fr * (z11 - z01)
     return z00 + fr * (z10 - z00) + fc * (z11 - z10)
