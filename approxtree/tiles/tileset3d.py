@@ -355,15 +355,17 @@ def _tileset_json(tree: Any, frame: EarthFrame, contents: list[TileContent | Non
         nodes = np.flatnonzero(levels == level)
         np.minimum.at(low, parents[nodes], low[nodes])
         np.maximum.at(high, parents[nodes], high[nodes])
-    # A tile without content (no triangle) is centred on its volume.
+    # A tile without content (no triangle) is centred on its volume; one with no triangle
+    # below it either gets an empty volume at its parent's centre (parents come first in node
+    # order, so theirs is settled): at the parent's corner, a box's least half size (1 mm)
+    # reached out of the parent's volume (hugo_site.asc's nodata corners, found by verify).
     for i in np.flatnonzero([c is None for c in contents]):
-        if not frame.georeferenced and np.isfinite(low[i]).all():
+        if not np.isfinite(low[i]).all():
+            low[i] = high[i] = (low[parents[i]] + high[parents[i]]) / 2 if i else np.zeros(3)
+        if not frame.georeferenced:
             centers[i] = (low[i] + high[i]) / 2
     tiles: list[dict[str, Any]] = []
     for i in range(n):
-        if not np.isfinite(low[i]).all():
-            # No triangle here nor below: a tiny volume at the parent's centre.
-            low[i] = high[i] = low[parents[i]] if i else np.zeros(3)
         tile: dict[str, Any] = {
             "boundingVolume": _volume(frame, low[i], high[i], centers[i]),
             "geometricError": float(errors[i]),
