@@ -54,6 +54,18 @@ def test_verify_passes_on_a_hillshade_bake(sources, tmp_path, name):
     assert doc["figures"]["levels"] >= 4
 
 
+@pytest.mark.parametrize("relative", ["lidar/autzen_trim.laz", "tin/9_533_383.terrain"])
+def test_hillshade_of_a_point_cloud_or_tin_bake_is_listed_not_checked(data_dir, tmp_path, relative):
+    """A bake of a point cloud or a TIN (rasterized by the bake) has no raster for gdaldem:
+    --hillshade lists it as not checked (an AttributeError traceback before)."""
+    source = data_file(data_dir, relative)
+    out = bake(source, tmp_path / "pyr")
+    result = run("verify", out, "--source", source, "--hillshade", "--json")
+    doc = json.loads(result.output)
+    assert result.exit_code == 0, doc
+    assert any(s.startswith("hillshade: the source is a") for s in doc["not_checked"])
+
+
 def test_verify_passes_on_a_thematic_bake(sources, data_dir, tmp_path):
     """An RGBA bake (land use under the shading) halves within 1 per channel; without
     --hillshade level 0's content is listed as not checked, with it it fails (its texels are

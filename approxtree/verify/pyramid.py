@@ -236,6 +236,12 @@ def _check_hillshade(path: Path, lv, terrain, source: str | None, report) -> Non
     if shutil.which("gdaldem") is None or source is None:
         report.not_checked.append("hillshade: gdaldem is not on PATH, or the source is no file")
         return
+    if not hasattr(terrain, "transform"):
+        # A point cloud or TIN is rasterized by the bake: gdaldem has no raster to shade.
+        report.not_checked.append(
+            f"hillshade: the source is a {type(terrain).__name__}, not a raster gdaldem can shade"
+        )
+        return
     check = report.check("hillshade", "level 0 is gdaldem's hillshade of the source within 1")
     check.items = 1
     if not np.allclose(list(terrain.transform)[:6], lv["transform"], rtol=1e-12) or tuple(
