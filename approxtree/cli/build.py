@@ -175,10 +175,11 @@ def build(
 
     if out is None:
         out = Path(dem).stem + ".zarr"
-    _check_block_size(block_size)
-    # A local cluster larger than the machine is refused before the terrain is read.
-    from approxtree.tree.distributed import check_cluster_options
+    # A block too small to pay for itself, or a local cluster larger than the machine, is
+    # refused before the terrain is read.
+    from approxtree.tree.distributed import check_block_size, check_cluster_options
 
+    check_block_size(block_size)
     check_cluster_options(workers, scheduler)
     _check_tree_output(out)
     terrain = common._open(dem, encoding, nodata_policy, ground_only, height_scale)
@@ -219,25 +220,6 @@ def build(
     seconds = time.perf_counter() - t0
     nbytes = tree.save(out)
     _emit(tree_figures(tree, seconds, nbytes), as_json)
-
-
-#: The least --block-size: every block is a task with its own window read and subtree, and
-#: smaller blocks cost more to schedule than they build (the 500 × 450 NC DEM: 1.6 s at 64,
-#: 5 s at 8 in this process and 49 s on 2 dask workers, 295 s at 1).
-MIN_BLOCK_SIZE = 64
-
-
-def _check_block_size(block_size: int | None) -> None:
-    """InvalidParameterError for a block size below MIN_BLOCK_SIZE, saying why."""
-    from approxtree.errors import InvalidParameterError
-
-    if block_size is not None and block_size < MIN_BLOCK_SIZE:
-        raise InvalidParameterError(
-            f"--block-size {block_size} is below the least block of {MIN_BLOCK_SIZE} cells a "
-            "side: each block is a task with its own window and subtree, and smaller blocks "
-            f"take longer to schedule than to build (minutes for a 500 × 450 DEM at 1). Use "
-            f"--block-size {MIN_BLOCK_SIZE} or more (default 2048)."
-        )
 
 
 def _build_point_quadtree(path: str, terrain, delta: int | None, out: str) -> dict[str, Any]:

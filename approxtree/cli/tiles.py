@@ -1,6 +1,4 @@
-"""``approxtree tiles``: Write TREE (a tree store from `approxtree build`, or any terrain file)
-as web tiles into the folder --out, replaced as a whole when done.
-"""
+"""``approxtree tiles``: write TREE (a tree store or any terrain file) as web tiles into --out."""
 
 from __future__ import annotations
 

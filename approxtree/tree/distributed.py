@@ -160,3 +160,20 @@ def dask_runner(
             return results
 
     return run
+
+
+#: The least --block-size: every block is a task with its own window read and subtree, and
+#: smaller blocks cost more to schedule than they build (the 500 × 450 NC DEM: 1.6 s at 64,
+#: 5 s at 8 in this process and 49 s on 2 dask workers, 295 s at 1).
+MIN_BLOCK_SIZE = 64
+
+
+def check_block_size(block_size: int | None) -> None:
+    """InvalidParameterError for a block size below MIN_BLOCK_SIZE, saying why."""
+    if block_size is not None and block_size < MIN_BLOCK_SIZE:
+        raise InvalidParameterError(
+            f"--block-size {block_size} is below the least block of {MIN_BLOCK_SIZE} cells a "
+            "side: each block is a task with its own window and subtree, and smaller blocks "
+            f"take longer to schedule than to build (minutes for a 500 × 450 DEM at 1). Use "
+            f"--block-size {MIN_BLOCK_SIZE} or more (default 2048)."
+        )
