@@ -213,3 +213,113 @@ def test_cli_output_under_a_file_is_one_error_line(tmp_path):
     result = CliRunner().invoke(main, ["fractal", str(blocker / "dem.tif"), "--size", "64"])
     assert result.exit_code == 2
     assert result.stderr.startswith("Error:") and "is a file, not a folder" in result.stderr
+
+
+def test_an_interrupt_leaves_no_write_into_the_closed_dataset(tmp_path, monkeypatch):
+    """Ctrl-C or SIGTERM raises in the main thread while dask's threads still compute blocks:
+    once the dataset closes, those blocks write nothing (their writes into the closed file
+    crashed the process with a segfault and left its temp file)."""
+    import _thread
+    import threading
+
+    import dask.array as da
+    from affine import Affine
+
+    from approxtree.io import tiled_geotiff
+
+    release, written = threading.Event(), threading.Event()
+    writes: list[bool] = []
+
+    class Recording:
+        """The open dataset, recording each write and whether the file was closed then."""
+
+        def __init__(self, ds):
+            self.ds, self.height, self.width, self.dtypes = ds, ds.height, ds.width, ds.dtypes
+
+        def write(self, *args, **kwargs):
+            writes.append(self.ds.closed)
+            if not self.ds.closed:
+                self.ds.write(*args, **kwargs)
+
+        def __getattr__(self, name):
+            return getattr(self.ds, name)
+
+    real_open = rasterio.open
+
+    class Opened:
+        """rasterio.open as _write_blocks uses it, giving the Recording dataset."""
+
+        def __init__(self, *args, **kwargs):
+            self.ds = real_open(*args, **kwargs)
+
+        def __enter__(self):
+            return Recording(self.ds)
+
+        def __exit__(self, *exc):
+            self.ds.close()
+
+    monkeypatch.setattr(rasterio, "open", Opened)
+    real_setitem = tiled_geotiff._BandWriter.__setitem__
+
+    def setitem(self, key, block):
+        real_setitem(self, key, block)
+        written.set()
+
+    monkeypatch.setattr(tiled_geotiff._BandWriter, "__setitem__", setitem)
+
+    def first(block_info=None):
+        # Block 0 interrupts the main thread (as Ctrl-C would) while block 1 still computes.
+        _thread.interrupt_main()
+        return np.zeros((8, 8), dtype=np.float32)
+
+    def second(block_info=None):
+        release.wait(30)
+        return np.ones((8, 8), dtype=np.float32)
+
+    blocks = da.concatenate(
+        [
+            da.map_blocks(first, chunks=((8,), (8,)), dtype=np.float32, meta=np.zeros((0, 0))),
+            da.map_blocks(second, chunks=((8,), (8,)), dtype=np.float32, meta=np.zeros((0, 0))),
+        ],
+        axis=1,
+    )
+    profile = {
+        "driver": "GTiff",
+        "width": 16,
+        "height": 8,
+        "count": 1,
+        "dtype": "float32",
+        "transform": Affine(1.0, 0.0, 0.0, 0.0, -1.0, 8.0),
+    }
+    with pytest.raises(KeyboardInterrupt):
+        tiled_geotiff._write_blocks(tmp_path / "f.tif", profile, blocks, None, 2)
+    # Block 1 finishes only now, after the dataset closed: its write must not reach it.
+    release.set()
+    assert written.wait(30)
+    assert True not in writes
+
+
+def test_sigterm_twice_mid_write_removes_the_temp_and_keeps_the_old_file(tmp_path):
+    """``timeout`` sends SIGTERM to the command and its process group: the first signal unwinds
+    the write, a second one is ignored, and blocks dask's threads still compute write nothing
+    into the closed dataset (it crashed with a segfault and left a 50 MB temp file)."""
+    import signal
+    import subprocess
+    import sys
+
+    out = tmp_path / "f.tif"
+    out.write_bytes(b"old")
+    cmd = [sys.executable, "-m", "approxtree", "fractal", str(out), "--size", "16385"]
+    cmd += ["--overwrite"]
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
+    assert proc.stderr is not None
+    # The progress bar (shown for more than 16 blocks) says when the first block is written.
+    line = ""
+    while "1/" not in line and proc.poll() is None:
+        line = proc.stderr.read(64)
+    proc.send_signal(signal.SIGTERM)
+    proc.send_signal(signal.SIGTERM)
+    proc.communicate(timeout=120)
+    assert proc.returncode == -signal.SIGTERM
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f.tif"]
+    assert out.read_bytes() == b"old"

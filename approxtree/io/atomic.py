@@ -121,6 +121,9 @@ def _sigterm_unwinds() -> Iterator[None]:
         return
 
     def handler(signum: int, frame: object) -> None:
+        # Once: a second SIGTERM (``timeout`` signals the process group too) raised again
+        # inside the cleanup, left the temp file and crashed the process (segfault).
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
         raise _Terminated
 
     signal.signal(signal.SIGTERM, handler)

@@ -57,6 +57,9 @@ class _BandWriter:
     """The target of ``dask.array.store``: writes each block into band 1 of an open dataset.
 
     dask calls ``__setitem__`` from its worker threads; the store's lock makes one writer.
+    Once ``closed`` (set under that lock), a block still being computed writes nothing: an
+    interrupt (Ctrl-C, SIGTERM) leaves dask's threads running while the dataset is closed, and
+    their writes into it crashed the process (segfault) before the temp file was removed.
     """
 
     def __init__(self, dataset: Any, bar: Any) -> None:
@@ -65,10 +68,13 @@ class _BandWriter:
         self.shape = (dataset.height, dataset.width)
         self.dtype = np.dtype(dataset.dtypes[0])
         self.ndim = 2
+        self.closed = False
 
     def __setitem__(self, key: tuple[slice, slice], block: np.ndarray) -> None:
         from rasterio.windows import Window
 
+        if self.closed:
+            return
         rows, cols = key
         window = Window(cols.start, rows.start, cols.stop - cols.start, rows.stop - rows.start)
         self.dataset.write(block, 1, window=window)
@@ -257,13 +263,20 @@ def _write_blocks(
         if tags:
             ds.update_tags(**tags)
         # One lock: blocks are computed in parallel, written one at a time.
-        da.store(
-            blocks,
-            _BandWriter(ds, bar),
-            lock=threading.Lock(),
-            scheduler="threads",
-            num_workers=workers or os.cpu_count() or 1,
-        )
+        lock = threading.Lock()
+        writer = _BandWriter(ds, bar)
+        try:
+            da.store(
+                blocks,
+                writer,
+                lock=lock,
+                scheduler="threads",
+                num_workers=workers or os.cpu_count() or 1,
+            )
+        finally:
+            # Before the dataset closes: no write from a thread dask left running.
+            with lock:
+                writer.closed = True
 
 
 def _copy_as_cog(src: Path, dst: Path, compress: str) -> None:
