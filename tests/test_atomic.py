@@ -252,3 +252,22 @@ def test_other_errors_of_the_callers_block_pass_as_they_are(tmp_path):
     with pytest.raises(FileNotFoundError), atomic_write(tmp_path / "out.bin"):
         open(tmp_path / "missing.txt", "rb")
     assert os.listdir(tmp_path) == []
+
+
+def test_terminated_zip_store_write_removes_its_temp_folder(tmp_path):
+    """A zip store is written as a temp folder first: SIGTERM (twice, as ``timeout`` sends it)
+    unwinds that write too, leaving the old zip and no temp folder (a killed convert left it)."""
+    target = tmp_path / "t.zarr.zip"
+    target.write_bytes(b"old")
+    code = f"""
+import os, signal
+from approxtree.tree.zarr_store import writing
+with writing({str(target)!r}, {{}}) as root:
+    os.kill(os.getpid(), signal.SIGTERM)
+    os.kill(os.getpid(), signal.SIGTERM)
+    root.create_group("never")
+"""
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, cwd=REPO)
+    assert done.returncode == -signal.SIGTERM, done.stderr
+    assert target.read_bytes() == b"old"
+    assert sorted(os.listdir(tmp_path)) == ["t.zarr.zip"]

@@ -213,6 +213,7 @@ def writing(path: str | os.PathLike, meta: dict[str, Any]) -> Iterator[Any]:
 
     from approxtree.io.atomic import (
         _registered,
+        _sigterm_unwinds,
         _temp_path,
         atomic_directory,
         atomic_write,
@@ -232,7 +233,8 @@ def writing(path: str | os.PathLike, meta: dict[str, Any]) -> Iterator[Any]:
             if not target.parent.is_dir():
                 raise StoreError(f"Cannot write {text}: the folder {target.parent} does not exist.")
             tmp = _temp_path(target)
-            with _registered(tmp):
+            # SIGTERM unwinds too (the temp folder was left behind by a killed convert).
+            with _sigterm_unwinds(), _registered(tmp):
                 try:
                     os.mkdir(tmp)
                     root = zarr.open_group(LocalStore(str(tmp)), mode="w")
