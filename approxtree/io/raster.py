@@ -2,6 +2,8 @@
 
 The grid keeps the dataset's affine transform and CRS. Cells that rasterio masks (the nodata
 value, NaN, an internal or alpha mask) become NaN and are never data points.
+A GeoTIFF whose own keys declare a CRS that GDAL returns empty is a TerrainFormatError
+(``check_crs_read``), never a grid silently without its CRS.
 
 A raster too large to hold (more than ``WINDOWED_BYTES`` of heights, or ``windowed=True``) is
 opened *windowed*: the Grid's heights are a WindowedHeights over a ``RasterSource`` that reads
@@ -15,6 +17,7 @@ import threading
 import warnings
 import zipfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -37,6 +40,7 @@ from approxtree.io._common import (
     resolve_transform,
 )
 from approxtree.io.gdal import no_side_files
+from approxtree.io.geokeys import declared_model
 
 #: Extensions of rasters GDAL reads that we look for inside a .zip.
 RASTER_EXTENSIONS = (".tif", ".tiff", ".asc", ".hgt", ".dem", ".nc", ".img", ".bil", ".flt", ".vrt")
@@ -127,7 +131,7 @@ class RasterSource:
         self.dtype = heights_dtype(self.band_dtype)
         self.block_shape = tuple(int(b) for b in ds.block_shapes[self.band - 1])
         self.nodata = ds.nodata
-        self.crs = ds.crs.to_string() if ds.crs else None
+        self.crs = crs_text(ds)
         self.own_transform = own_transform(ds)
 
     def __reduce__(self):
@@ -199,6 +203,38 @@ class RasterSource:
         return out
 
 
+def crs_text(ds: Any) -> str | None:
+    """The CRS of an open rasterio dataset as text (an authority code such as "EPSG:32119",
+    else its WKT), or None when GDAL reports none."""
+    crs = ds.crs
+    if not crs:
+        return None
+    # Truthy means the CRS has a WKT: the text is never empty.
+    return str(crs.to_string() or crs.wkt)
+
+
+def check_crs_read(crs: str | None, path: Path, source: str) -> None:
+    """TerrainFormatError when GDAL read no CRS (``crs`` None) from a GeoTIFF whose own GeoKeys
+    declare one (``geokeys.declared_model``).
+
+    GDAL reports a CRS it could not build from the keys as none at all, the very answer it
+    gives for a file without one: read so, the grid would silently lose its place on the
+    Earth (and a tree store built from it would keep it lost). ``source`` is the name rasterio
+    opened (``zip://…!member`` for a zipped raster).
+    """
+    if crs is not None:
+        return
+    member = source.split("!", 1)[1] if source.startswith("zip://") else None
+    model = declared_model(path, member)
+    if model is not None:
+        raise TerrainFormatError(
+            f"GDAL read no CRS from {path}, but its GeoTIFF keys declare a {model} one "
+            "(GTModelTypeGeoKey): GDAL could not build it from them. Check the file with "
+            "gdalinfo, or give its CRS (--crs EPSG:... on the command line, crs= to "
+            "open_terrain)."
+        )
+
+
 def read_raster(
     path: str | os.PathLike,
     *,
@@ -253,11 +289,14 @@ def read_raster(
                 if windowed is None and cells * itemsize > windowed_threshold():
                     windowed = True
                 else:
+                    # A CRS the file declares but GDAL did not build fails before the read.
+                    file_crs = crs_text(ds)
+                    if crs is None:
+                        check_crs_read(file_crs, p, source)
                     # The band, its mask and the float heights: about 3 × 8 bytes a cell.
                     check_claimed_bytes(p, cells * 24, None, f"{ds.width} × {ds.height} cells")
                     values = ds.read(int(band), masked=True)
                     own = own_transform(ds)
-                    file_crs = ds.crs.to_string() if ds.crs else None
                     nodata_value = ds.nodata
     if windowed:
         return _open_windowed(p, source, int(band), policy, crs, cell, corner)
@@ -313,6 +352,8 @@ def _open_windowed(
     what = "a GDAL raster (GeoTIFF, ASCII grid, SRTM, USGS DEM, netCDF, ...)"
     with reading(p, what):
         heights = RasterSource(source, band)
+    if crs is None:
+        check_crs_read(heights.crs, p, source)
     transform = resolve_transform(heights.own_transform, heights.shape, cell, corner, p)
     # The fill policy fills each window from a halo around it (as a whole-band fill would).
     source = FilledSource(heights) if policy == "fill" else heights
