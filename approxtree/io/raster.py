@@ -150,7 +150,7 @@ class RasterSource:
             with (
                 reading(self.name, "a GDAL raster"),
                 warnings.catch_warnings(),
-                rasterio.Env(GDAL_CACHEMAX=self.cache_mb),
+                rasterio.Env(GDAL_CACHEMAX=self.cache_mb << 20),
                 no_side_files(),
             ):
                 warnings.simplefilter("ignore", NotGeoreferencedWarning)
@@ -184,7 +184,7 @@ class RasterSource:
         # Without a mask band (every cell valid, or nodata alone) the window is read straight
         # into the heights' dtype and nodata found by comparison: no masked array, no copies.
         plain = all(f.name in ("all_valid", "nodata") for f in flags)
-        with reading(self.name, "a GDAL raster"), rasterio.Env(GDAL_CACHEMAX=self.cache_mb):
+        with reading(self.name, "a GDAL raster"), rasterio.Env(GDAL_CACHEMAX=self.cache_mb << 20):
             if plain:
                 ds.read(self.band, window=window, out=out)
             else:
@@ -274,7 +274,7 @@ def read_raster(
         # once, so a small block cache: GDAL's default (5 % of RAM) would hold a second copy.
         with (
             warnings.catch_warnings(),
-            rasterio.Env(GDAL_CACHEMAX=_READ_CACHE_MB),
+            rasterio.Env(GDAL_CACHEMAX=_READ_CACHE_MB << 20),
             no_side_files(),
         ):
             warnings.simplefilter("ignore", NotGeoreferencedWarning)

@@ -167,7 +167,7 @@ def write_tiled_geotiff(
             desc=f"GeoTIFF blocks (~{_human(needed)} on disk)",
             disable=not show,
         ) as bar,
-        rasterio.Env(GDAL_CACHEMAX=_WRITE_CACHE_MB),
+        rasterio.Env(GDAL_CACHEMAX=_WRITE_CACHE_MB << 20),
     ):
         try:
             if cog:
