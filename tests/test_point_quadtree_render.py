@@ -320,9 +320,7 @@ def test_cli_builds_renders_and_refuses_grids(tmp_path, data_dir):
 def test_viewer_engine_path_draws_into_a_host_framebuffer(gl_context, tmp_path):  # noqa: F811
     """What `approxtree view q.atree` does without a window: load_tree, the embedded Engine
     drawing into the framebuffer bound by the host, the upload call the viewer makes first,
-    and the feature detection of the viewer."""
-    from approxtree.viewer.features import EngineFeatures
-
+    and the lighting option the viewer passes."""
     q = PointQuadtree(scattered_cloud(), 100)
     q.save(tmp_path / "q.atree")
     tree = at.load_tree(tmp_path / "q.atree")
@@ -333,9 +331,8 @@ def test_viewer_engine_path_draws_into_a_host_framebuffer(gl_context, tmp_path):
     eng = Engine(tree, context=gl_context)
     try:
         assert eng.upload(0) is False
-        assert EngineFeatures(eng).lighting
         fbo.use()
-        frame = eng.render(all_terrain_views(tree)["top"], SIZE, alpha=1.0)
+        frame = eng.render(all_terrain_views(tree)["top"], SIZE, alpha=1.0, lighting="auto")
         assert frame.image is None and frame.stats["triangles"] > 0
         host = np.frombuffer(fbo.read(components=4), dtype=np.uint8).reshape(h, w, 4)
         assert (host[..., 3] > 0).mean() == 1.0

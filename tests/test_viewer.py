@@ -1,20 +1,21 @@
-"""Viewer parts without a window: camera controllers, picking, keys, scripts, upload queue."""
+"""Viewer parts without a window: camera controllers, picking, keys, scripts, the action
+tables, navigation, bookmarks and flights, replay and stats lines."""
 
 from __future__ import annotations
 
+import json
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from approxtree import ApproximationTree
-from approxtree.datasets import sample_terrain
 from approxtree.errors import InvalidParameterError
 from approxtree.geometry.grid import Grid
 from approxtree.render.camera import Camera
-from approxtree.render.frame_state import FrameState, display_scale, overview_camera
-from approxtree.render.selector import select
-from approxtree.render.visual_error import texel_sizes, visual_errors
+from approxtree.render.frame_state import FrameState
+from approxtree.render.traversal import drop_covered, nearest_resident, upload_order
+from approxtree.viewer.actions import ACTIONS
 from approxtree.viewer.controllers import (
     FlyController,
     OrbitController,
@@ -22,14 +23,14 @@ from approxtree.viewer.controllers import (
     pick_terrain,
     to_display,
 )
-from approxtree.viewer.keys import MOD_SHIFT, action_for, help_lines, parse_key_presses
+from approxtree.viewer.keys import BINDINGS, MOD_SHIFT, action_for, help_lines, parse_key_presses
+from approxtree.viewer.map_session import FLIGHT_FRAMES, MapSession
+from approxtree.viewer.map_tools import Bookmarks
+from approxtree.viewer.navigation import Navigation
+from approxtree.viewer.replay import SCRIPT_ACTIONS, SCRIPT_DT, Replay, stats_line
+from approxtree.viewer.script import ACTIONS as SCRIPT_ACTION_CHECKS
 from approxtree.viewer.script import parse_script, script_frames
-from approxtree.viewer.upload_queue import (
-    UploadQueue,
-    drop_covered,
-    nearest_resident,
-    upload_order,
-)
+from approxtree.viewer.settings import ViewSettings
 
 SIZE = (640, 360)
 FOV = 45.0
@@ -205,93 +206,7 @@ def test_script_frames_interpolate_and_mark_keyframes():
             parse_script(bad)
 
 
-# -- upload queue -----------------------------------------------------------------------------
-
-
-class FakeEngine:
-    """The part of the Engine the queue uses, with a set of resident node ids (no GL)."""
-
-    def __init__(self, tree) -> None:
-        self.tree = tree
-        self.texels = texel_sizes(tree)
-        self.cached: set[int] = set()
-        self.upload_calls = 0
-
-    def resident(self, nodes):
-        return np.array([int(i) in self.cached for i in np.asarray(nodes)], dtype=bool)
-
-    def upload(self, node: int) -> bool:
-        self.upload_calls += 1
-        if node in self.cached:
-            return False
-        self.cached.add(int(node))
-        return True
-
-
-@pytest.fixture(scope="module")
-def tree():
-    return ApproximationTree.build(sample_terrain(), epsilon=1.0, progress=False)
-
-
-def _ancestors_or_self(tree, node: int) -> set[int]:
-    out = set()
-    while node >= 0:
-        out.add(int(node))
-        node = int(tree.parents[node])
-    return out
-
-
-def test_queue_bounds_uploads_and_draws_a_partition(tree):
-    """Each frame uploads at most the budget, draws a cut covering every wanted node exactly
-    once (itself or one ancestor), and reaches the wanted cut once the queue drains."""
-    engine = FakeEngine(tree)
-    queue = UploadQueue(engine, max_uploads=8)
-    cam = overview_camera(tree.bboxes[0], display_scale(tree.terrain))
-    fs = FrameState.from_camera(cam, SIZE, tree.bboxes[0], tree.origin, display_scale(tree.terrain))
-    wanted = select(tree, fs, 1.0, 2.0, engine.texels)
-    assert len(wanted.nodes) > 30
-    for frame in range(100):  # noqa: B007 (the frame count is asserted below)
-        before = len(engine.cached)
-        drawn = queue(wanted, fs)
-        assert len(engine.cached) - before <= 8
-        covers = [
-            [d for d in drawn.nodes if int(d) in _ancestors_or_self(tree, int(w))]
-            for w in wanted.nodes
-        ]
-        assert all(len(c) == 1 for c in covers)
-        assert np.all(engine.resident(drawn.nodes))
-        if queue.pending == 0:
-            break
-    assert frame > 2
-    assert np.array_equal(drawn.nodes, wanted.nodes)
-
-
-def test_queue_reports_the_drawn_cuts_errors(tree):
-    """With stand-ins drawn, max_alpha and max_gamma are those of the drawn nodes."""
-    engine = FakeEngine(tree)
-    queue = UploadQueue(engine, max_uploads=3)
-    scale = display_scale(tree.terrain)
-    cam = overview_camera(tree.bboxes[0], scale)
-    fs = FrameState.from_camera(cam, SIZE, tree.bboxes[0], tree.origin, scale)
-    wanted = select(tree, fs, 1.0, 2.0, engine.texels)
-    drawn = queue(wanted, fs)
-    assert queue.fallbacks > 0 and not np.array_equal(drawn.nodes, wanted.nodes)
-    a, g = visual_errors(
-        tree.bboxes[drawn.nodes], tree.errors[drawn.nodes], engine.texels[drawn.nodes], fs
-    )
-    assert drawn.stats["max_alpha"] == a.max() and drawn.stats["max_gamma"] == g.max()
-    assert drawn.stats["max_gamma"] > wanted.stats["max_gamma"]
-
-
-def test_queue_refines_progressively(tree):
-    """While a large request drains, the drawn cut gets finer from frame to frame."""
-    engine = FakeEngine(tree)
-    queue = UploadQueue(engine, max_uploads=6)
-    cam = overview_camera(tree.bboxes[0], display_scale(tree.terrain))
-    fs = FrameState.from_camera(cam, SIZE, tree.bboxes[0], tree.origin, display_scale(tree.terrain))
-    wanted = select(tree, fs, 1.0, 2.0, engine.texels)
-    counts = [len(queue(wanted, fs).nodes) for _ in range(4)]
-    assert counts[0] > 1 and counts == sorted(counts) and counts[-1] > counts[0]
+# -- paging helpers (render/traversal.py) as the viewer relies on them -----------------------
 
 
 def test_queue_helpers_on_a_small_tree():
@@ -313,3 +228,127 @@ def test_queue_helpers_on_a_small_tree():
     assert drop_covered(np.array([1, 3, 5, 0, 5]), parents).tolist() == [0]
     assert drop_covered(np.array([3, 4, 2, 4]), parents).tolist() == [3, 4, 2]
     assert upload_order(np.array([3, 4, 5, 6]), parents, levels, res).tolist() == [2, 3, 4, 6]
+
+
+# -- the action tables ------------------------------------------------------------------------
+
+
+def test_action_tables_name_every_binding_and_script_action():
+    """Every action name of keys.BINDINGS has a function in ACTIONS and nothing else does;
+    every script action that script.py accepts has one in SCRIPT_ACTIONS."""
+    assert set(ACTIONS) == {action for action, _ in BINDINGS.values()}
+    assert set(SCRIPT_ACTIONS) == set(SCRIPT_ACTION_CHECKS)
+
+
+def test_actions_change_the_settings_as_their_keys_say():
+    """Threshold keys scale by 1.5 and back, the sun turns and stops at its limits, H cycles
+    the lighting (with a message), toggles flip."""
+    v = SimpleNamespace(settings=ViewSettings(), messages=[])
+    ACTIONS["alpha_up"](v)
+    ACTIONS["gamma_down"](v)
+    assert v.settings.alpha == pytest.approx(1.5) and v.settings.gamma == pytest.approx(2 / 1.5)
+    ACTIONS["alpha_down"](v)
+    assert v.settings.alpha == pytest.approx(1.0)
+    ACTIONS["sun_left"](v)
+    assert v.settings.sun_azimuth == 300.0
+    for _ in range(20):
+        ACTIONS["sun_up"](v)
+    assert v.settings.sun_altitude == 90.0
+    for _ in range(3):
+        ACTIONS["shading"](v)
+    assert v.settings.lighting == "auto"
+    assert v.messages == ["lighting on", "lighting off", "lighting auto"]
+    for name in ("wireframe", "ui", "help"):
+        before = getattr(v.settings, name)
+        ACTIONS[name](v)
+        assert getattr(v.settings, name) is not before
+
+
+# -- navigation, bookmarks and flights (no window) ---------------------------------------------
+
+
+def fake_tree(crs=None):
+    """The parts of a tree the cameras and map session read: a 1000 × 1000 m box."""
+    terrain = SimpleNamespace(crs=crs, domain=SimpleNamespace(center=(500.0, 500.0)))
+    box = np.array([[0.0, 0.0, 0.0, 1000.0, 1000.0, 100.0]])
+    return SimpleNamespace(terrain=terrain, origin=np.array([500.0, 500.0, 0.0]), bboxes=box)
+
+
+def test_navigation_keeps_the_world_pose():
+    """Switching to fly mode and changing the exaggeration keep the world pose; reset goes
+    home; W flies fly_speed × dt forward, shift four times that."""
+    settings = ViewSettings()
+    nav = Navigation(settings, fake_tree(), np.ones(3), FOV)
+    home = nav.pose_world()
+    pose = (np.array([100.0, -300.0, 400.0]), np.array([520.0, 480.0, 10.0]))
+    nav.set_pose_world(*pose)
+    nav.toggle_fly()
+    assert settings.fly and np.allclose(nav.pose_world(), pose)
+    nav.rescale(np.array([1.0, 1.0, 3.0]))
+    assert np.allclose(nav.pose_world(), pose)
+    eye = nav.fly.eye.copy()
+    nav.fly_step({"W"}, 0.5)
+    assert np.linalg.norm(nav.fly.eye - eye) == pytest.approx(0.5 * nav.fly_speed)
+    eye = nav.fly.eye.copy()
+    nav.fly_step({"W", "LEFT_SHIFT"}, 0.5)
+    assert np.linalg.norm(nav.fly.eye - eye) == pytest.approx(4 * 0.5 * nav.fly_speed)
+    nav.reset()
+    assert not settings.fly
+    assert np.allclose(nav.pose_world()[1], home[1])
+
+
+def test_bookmark_and_flight(tmp_path):
+    """B saves "view 1"; G flies there in FLIGHT_FRAMES eased poses, landing exactly on it."""
+    settings = ViewSettings()
+    tree = fake_tree()
+    nav = Navigation(settings, tree, np.ones(3), FOV)
+    messages: list[str] = []
+    marks = Bookmarks(tmp_path / "marks.json", "t")
+    session = MapSession(settings, tree, nav, None, marks, tmp_path, messages)
+    saved = (np.array([10.0, 20.0, 500.0]), np.array([600.0, 700.0, 0.0]))
+    nav.set_pose_world(*saved)
+    session.save_bookmark()
+    assert marks.names() == ["view 1"] and "view 1" in messages[-1]
+    nav.reset()
+    session.fly_to_next()
+    eyes = []
+    while session.flying:
+        session.fly_on()
+        eyes.append(nav.pose_world()[0])
+    assert len(eyes) == FLIGHT_FRAMES
+    assert np.allclose(nav.pose_world(), saved)
+    steps = np.linalg.norm(np.diff(eyes, axis=0), axis=1)
+    assert steps[len(steps) // 2] > steps[0] and steps[len(steps) // 2] > steps[-1]
+
+
+# -- replay and stats lines -------------------------------------------------------------------
+
+
+def test_replay_presses_steps_and_stats_lines(tmp_path):
+    """A replay presses --keys before the script's keys, steps 1/30 s, names keyframe shots,
+    and writes one JSON line per frame with inf as null and no interface boxes while hidden."""
+    frames = script_frames(
+        parse_script([{"eye": [0, 0, 10], "target": [0, 10, 0], "frames": 2, "keys": ["L"]}])
+    )
+    replay = Replay(
+        frames, parse_key_presses("0:F1"), tmp_path / "s.jsonl", tmp_path / "shots", tmp_path
+    )
+    assert replay.presses(0) == [("F1", 0), ("L", 0)] and replay.presses(1) == []
+    assert replay.dt(10.0, 0.0) == SCRIPT_DT
+    assert replay.keyframe_shot(frames[0]) is None
+    assert replay.keyframe_shot(frames[1]) == tmp_path / "shots" / "keyframe_000.png"
+    assert not replay.ended(1) and replay.ended(2)
+    settings = ViewSettings(ui=False)
+    tree = fake_tree()
+    nav = Navigation(settings, tree, np.ones(3), FOV)
+    session = MapSession(settings, tree, nav, None, Bookmarks(tmp_path / "b", "t"), tmp_path, [])
+    v = SimpleNamespace(settings=settings, nav=nav, map=session)
+    stats = {"triangles": 7, "max_alpha": math.inf}
+    line = stats_line(stats, 1, 2.5, (64, 32), frames[1], v, {"legend": [0, 0, 1, 1]})
+    assert list(line)[:6] == ["triangles", "max_alpha", "frame", "frame_ms", "size", "keyframe"]
+    assert line["ui"] is None and line["keyframe"] == 0 and line["mode"] == "orbit"
+    replay.record(line)
+    replay.write()
+    (written,) = [json.loads(s) for s in (tmp_path / "s.jsonl").read_text().splitlines()]
+    assert written["max_alpha"] is None and written["eye"] == nav.pose_world()[0].tolist()
+    assert Replay(None, (), None).dt(10.0, 9.99) == pytest.approx(0.01)

@@ -19,7 +19,7 @@ from approxtree import ApproximationTree
 from approxtree.datasets import sample_terrain
 from approxtree.render.camera import Camera
 from approxtree.render.frame_state import FrameState, display_scale
-from approxtree.viewer.app import FLIGHT_FRAMES
+from approxtree.viewer.map_session import FLIGHT_FRAMES
 from approxtree.viewer.map_tools import LonLat, nice_length
 from approxtree.viewer.xvfb import virtual_display
 

@@ -1,25 +1,25 @@
 """Interactive viewer (core paper, section 7): a glfw window over the public Engine API.
 
 Pure parts, usable and tested without a window: camera controllers (controllers.py), key
-bindings and scripted presses (keys.py), camera scripts (script.py), the upload queue that
-bounds uploads per frame (upload_queue.py) and feature detection of the Engine
-(features.py), the map tools (map_tools.py: scale bar, north arrow, readout, measure,
-profile, bookmarks). The window itself (app.py) and its imgui interface (imgui_renderer.py,
-map_ui.py) need glfw, GL and imgui-bundle, and are imported on first use.
+bindings and scripted presses (keys.py), camera scripts (script.py), the settings the keys
+change (settings.py), the map tools (map_tools.py: scale bar, north arrow, readout, measure,
+profile, bookmarks). The window (app.Viewer) is a composition of small parts, each with one
+role (parts.py lists them); they need glfw, GL and imgui-bundle, and are imported on first
+use.
 """
 
 from approxtree.viewer.controllers import FlyController, OrbitController, cursor_ray, pick_terrain
 from approxtree.viewer.keys import BINDINGS, KeyPress, parse_key_presses
 from approxtree.viewer.script import Keyframe, ScriptFrame, load_script, script_frames
-from approxtree.viewer.upload_queue import UploadQueue
+from approxtree.viewer.settings import ViewSettings
 
 
 def __getattr__(name: str):
     # The window needs glfw and moderngl: load it on first use.
-    if name in ("Viewer", "ViewSettings"):
+    if name == "Viewer":
         from approxtree.viewer import app
 
-        return getattr(app, name)
+        return app.Viewer
     raise AttributeError(f"module 'approxtree.viewer' has no attribute {name!r}")
 
 
@@ -30,7 +30,6 @@ __all__ = [
     "Keyframe",
     "OrbitController",
     "ScriptFrame",
-    "UploadQueue",
     "ViewSettings",
     "Viewer",
     "cursor_ray",

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -213,6 +214,11 @@ def save_profile(samples: np.ndarray, path: str | os.PathLike, unit: str = "m") 
     with atomic_write(csv) as f:
         np.savetxt(f, samples, delimiter=",", header="distance,x,y,elevation", fmt="%.17g")
     return path
+
+
+def timestamp() -> str:
+    """Local time to the millisecond for file names: "20250131-142500-042"."""
+    return time.strftime("%Y%m%d-%H%M%S") + f"-{int(time.time() * 1e3) % 1000:03d}"
 
 
 def default_bookmarks_path() -> Path:

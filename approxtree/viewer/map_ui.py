@@ -13,7 +13,11 @@ from typing import Any
 
 import numpy as np
 
+from approxtree.errors import InvalidParameterError
+from approxtree.textures.thematic import LEGENDS, ClassTable
 from approxtree.viewer.map_tools import format_length, north_angle, scale_bar
+from approxtree.viewer.parts import ViewerParts
+from approxtree.viewer.settings import LIGHTING_MODES
 
 #: Scale bar: longest length (pixels), margin to the window's corner, box height (pixels).
 BAR_PX, MARGIN, BAR_BOX_H = 160.0, 16.0, 34.0
@@ -29,10 +33,18 @@ def _col(r: float, g: float, b: float, a: float = 1.0) -> int:
     return imgui.get_color_u32(imgui.ImVec4(r, g, b, a))
 
 
-class MapUI:
-    """Draws the map interface of ``viewer`` (an app.Viewer) with its ImguiRenderer."""
+def check_legend(legend: str | None) -> None:
+    """A legend name is one of textures/thematic.py's LEGENDS (or None)."""
+    if legend is not None and legend not in LEGENDS:
+        raise InvalidParameterError(
+            f"Unknown legend {legend!r}; choose one of {', '.join(LEGENDS)}."
+        )
 
-    def __init__(self, viewer: Any) -> None:
+
+class MapUI:
+    """Draws the map interface of ``viewer`` with imgui (between its new_frame and render)."""
+
+    def __init__(self, viewer: ViewerParts) -> None:
         self.viewer = viewer
         self.unit = "m"
 
@@ -42,8 +54,8 @@ class MapUI:
         v = self.viewer
         boxes: dict[str, Any] = {}
         w, h = size
-        target = v.pose_world()[1]
-        unit_scale = v.unit_scale
+        target = v.nav.pose_world()[1]
+        unit_scale = v.map.unit_scale
         # 1. Scale bar, bottom-left: the nicest length that fits BAR_PX at the view's target.
         length, px = scale_bar(fs, target, unit_scale, BAR_PX)
         dl = imgui.get_background_draw_list()
@@ -84,7 +96,7 @@ class MapUI:
         boxes["north_arrow"] = [cx - ARROW_R, cy - ARROW_R, cx + ARROW_R, cy + ARROW_R]
         boxes["north_deg"] = angle
         # 3. The measured line, between the projected points.
-        m = v.measure_points
+        m = v.map.measure_points
         if m:
             pts, wv = fs.world_to_pixels(np.asarray(m))
             if np.all(wv > 0):
@@ -104,13 +116,12 @@ class MapUI:
     def _legend(self, w: float, h: float) -> list[float]:
         from imgui_bundle import imgui
 
-        v = self.viewer
         imgui.set_next_window_pos(
             imgui.ImVec2(w - MARGIN, h - MARGIN), imgui.Cond_.always, imgui.ImVec2(1, 1)
         )
         flags = imgui.WindowFlags_.always_auto_resize | imgui.WindowFlags_.no_focus_on_appearing
         imgui.begin("Legend", None, flags)
-        entries = v.legend_entries()
+        entries = self.legend_entries()
         if entries["kind"] == "classes":
             imgui.text(entries["title"])
             for name, rgb in entries["items"]:
@@ -126,6 +137,37 @@ class MapUI:
         p, s = imgui.get_window_pos(), imgui.get_window_size()
         imgui.end()
         return [p.x, p.y, p.x + s.x, p.y + s.y]
+
+    def legend_entries(self) -> dict[str, Any]:
+        """What the legend shows: the thematic layer's classes (its legend name) when it is
+        drawn, a note when a coloured layer has no legend named, else (untextured or baked
+        shading only) the hypsometric palette's colours at LEGEND_STOPS elevations."""
+        v = self.viewer
+        s = v.settings
+        if v.pyramids and s.thematic and v.legend is not None:
+            table = ClassTable.legend(v.legend)
+            items = [
+                (label, tuple(int(c) for c in table.colours[k][:3]))
+                for k, (label, _) in LEGENDS[v.legend].items()
+                if k in table.colours
+            ]
+            return {"kind": "classes", "title": v.legend, "items": items}
+        if v.pyramids and s.thematic and v.driver.colour_layer:
+            # A coloured layer whose legend was not named: the palette would mislead.
+            return {
+                "kind": "classes",
+                "title": "colours of the texture layer (name a legend: --legend)",
+                "items": [],
+            }
+        z0, z1 = v.map.terrain.z_range
+        zs = np.linspace(z1, z0, LEGEND_STOPS)
+        palette = v.driver.palette
+        rgb = palette.colours(zs, (z0, z1))
+        stops: list[tuple[float, tuple[int, ...]]] = [
+            (float(z), tuple(round(255 * c) for c in col[:3]))
+            for z, col in zip(zs, rgb, strict=True)
+        ]
+        return {"kind": "palette", "title": f"elevation ({palette.name})", "items": stops}
 
     @staticmethod
     def _swatch(rgb: tuple[int, int, int]) -> None:
@@ -149,13 +191,13 @@ class MapUI:
         # Sized to its content: the measure section and bookmarks come and go.
         imgui.begin("Map", None, imgui.WindowFlags_.always_auto_resize)
         imgui.push_item_width(120.0)
-        r = v.cursor_readout
-        crs = v.tree.terrain.crs or "no CRS"
+        r = v.map.cursor_readout
+        crs = v.map.terrain.crs or "no CRS"
         if r is None:
             imgui.text("cursor: off the terrain")
         else:
             # Degrees need more digits than metres for the same precision on the ground.
-            digits = 6 if v.unit_scale[0] != 1.0 else 2
+            digits = 6 if v.map.unit_scale[0] != 1.0 else 2
             imgui.text(f"x {r.x:,.{digits}f}  y {r.y:,.{digits}f}")
             imgui.text_disabled(crs[:40])
             if r.lon is not None:
@@ -166,8 +208,8 @@ class MapUI:
         imgui.separator()
         if imgui.checkbox("measure (M)", s.tool == "measure")[0]:
             v.do("measure")
-        if v.measurement is not None:
-            m = v.measurement
+        if v.map.measurement is not None:
+            m = v.map.measurement
             imgui.text(f"horizontal {format_length(round(m['horizontal'], 2), self.unit)}")
             imgui.text(f"3-D {format_length(round(m['distance_3d'], 2), self.unit)}")
             z = np.asarray(m["profile_z"], dtype=np.float32)
@@ -182,17 +224,17 @@ class MapUI:
             s.sun_altitude = alt
         changed, k = imgui.slider_float("exaggeration", s.exaggeration, 0.25, 20.0, "x%.2f")
         if changed:
-            v._set_exaggeration(k)
-        modes = ["auto", "on", "off"]
+            v.set_exaggeration(k)
+        modes = list(LIGHTING_MODES)
         changed, i = imgui.combo("lighting (H)", modes.index(s.lighting), modes)
         if changed:
             s.lighting = modes[i]
         imgui.separator()
         if imgui.button("save view (B)"):
             v.do("bookmark")
-        for name in v.bookmarks.names():
+        for name in v.map.bookmarks.names():
             if imgui.button(f"fly to##{name}"):
-                v.fly_to(name)
+                v.map.fly_to(name)
             imgui.same_line()
             imgui.text(name)
         if imgui.collapsing_header("statistics"):
@@ -203,7 +245,7 @@ class MapUI:
             imgui.text(f"max gamma {stats.get('max_gamma', 0):.2f} px2 (<= {s.gamma:.2f})")
             imgui.text(
                 f"uploads {stats.get('uploads', 0)}  pending {stats.get('pending', 0)}  "
-                f"stand-ins {stats.get('fallbacks', 0)}"
+                f"stand-ins {stats.get('stand_ins', 0)}"
             )
             imgui.text(f"{'fly' if s.fly else 'orbit'}  frozen {s.frozen}  wireframe {s.wireframe}")
         for line in v.messages[-3:]:

@@ -1,0 +1,137 @@
+"""FrameDriver: every call the viewer makes into the Engine, in one place.
+
+The Engine is embedded in the window (``Engine(tree, context=ctx)``) and draws into the
+framebuffer bound there. Its frames page (``wait=False``): the provider loads payloads in the
+background and the traversal draws their nearest resident ancestors meanwhile, uploading at
+most ``max_uploads`` meshes (``budget_ms``) per frame; only the root is uploaded up front.
+A frozen frustum replaces each frame's selection by the cut seen from the frozen view (the
+Engine's selection filter).
+
+The rest of the viewer reads and changes the Engine only through this class, so a change of
+the Engine's API is made here.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from approxtree.errors import InvalidParameterError
+from approxtree.render.camera import Camera
+from approxtree.render.engine import Engine, Frame
+from approxtree.render.frame_state import FrameState
+from approxtree.render.selector import Selection, select
+from approxtree.viewer.settings import ViewSettings
+
+
+class FrameDriver:
+    """The Engine over ``tree`` drawing into ``ctx``, with the viewer's frame options.
+
+    settings: the shared ViewSettings (cut, wireframe, light); exaggeration, palette: the
+    Engine's picture options; background: Engine.render's; max_uploads, budget_ms: the
+    per-frame upload budget (0 and None: no budget, every frame waits for its whole cut).
+    """
+
+    def __init__(
+        self,
+        tree: Any,
+        ctx: Any,
+        settings: ViewSettings,
+        exaggeration: float = 1.0,
+        palette: str = "relief",
+        background: str = "sky",
+        max_uploads: int = 32,
+        budget_ms: float | None = None,
+    ) -> None:
+        if max_uploads < 0:
+            raise InvalidParameterError(f"max_uploads must be >= 0, got {max_uploads}")
+        self.tree = tree
+        self.ctx = ctx
+        self.settings = settings
+        self.background = background
+        self.max_uploads = int(max_uploads)
+        self.budget_ms = budget_ms
+        self.engine = Engine(tree, context=ctx, exaggeration=float(exaggeration), palette=palette)
+        self._frozen: FrameState | None = None
+        self.engine.set_selection_filter(self._filter)
+        # The root's mesh now: it also loads the compiled skirt kernels before frame 0.
+        self.engine.upload(0)
+
+    # -- what the rest of the viewer reads ------------------------------------------------------
+
+    @property
+    def scale(self) -> np.ndarray:
+        """(3,) display scale: world units → display units, exaggeration included."""
+        return self.engine.scale
+
+    @property
+    def palette(self) -> Any:
+        """The hypsometric palette of untextured terrain (textures/palettes.py)."""
+        return self.engine.palette
+
+    @property
+    def colour_layer(self) -> bool:
+        """True when the drawn texture layer carries colours, not baked shading."""
+        return not self.engine.shade_texture
+
+    # -- settings the Engine keeps --------------------------------------------------------------
+
+    def set_textures(self, pyramid: Any) -> None:
+        """Drape ``pyramid`` (a TexturePyramid) over the terrain; None: untextured."""
+        self.engine.set_textures(pyramid)
+
+    def set_skirts(self, on: bool) -> None:
+        self.engine.set_skirts(on)
+
+    def set_exaggeration(self, factor: float) -> None:
+        """Draw z times ``factor``; ``scale`` follows."""
+        self.engine.set_vertical_exaggeration(factor)
+
+    def freeze(self, camera: Camera, size: tuple[int, int]) -> None:
+        """Keep drawing the cut seen by ``camera`` whatever the camera does next."""
+        self._frozen = self.engine.frame_state(camera, size)
+
+    def thaw(self) -> None:
+        self._frozen = None
+
+    def _filter(self, selection: Selection, frame: FrameState) -> Selection:
+        """The Engine's selection filter: the frozen frustum's cut while frozen."""
+        if self._frozen is not None:
+            s = self.settings
+            selection = select(self.tree, self._frozen, s.alpha, s.gamma, self.engine.texels)
+        return selection
+
+    # -- frames ---------------------------------------------------------------------------------
+
+    def draw(self, camera: Camera, size: tuple[int, int], positions: bool = False) -> Frame:
+        """Draw one interactive frame into the window's framebuffer; ``positions``: also
+        read the drawn world positions (Frame.positions, an extra pass)."""
+        s = self.settings
+        self.ctx.fbo.use()
+        frame = self.engine.render(
+            camera,
+            size,
+            s.alpha,
+            s.gamma,
+            wireframe=s.wireframe,
+            # Without an upload budget every wanted mesh loads in the frame that wants it.
+            wait=not self.max_uploads and self.budget_ms is None,
+            max_uploads=self.max_uploads or None,
+            upload_ms=self.budget_ms,
+            world_positions=positions,
+            sun=(s.sun_azimuth, s.sun_altitude),
+            background=self.background,
+            lighting=s.lighting,
+        )
+        # The positions pass binds its own framebuffer: the window's again for the interface.
+        self.ctx.fbo.use()
+        return frame
+
+    def settle(self) -> None:
+        """Wait until the payloads this frame requested are loaded (scripted replays)."""
+        if self.engine.provider is not None:
+            self.engine.provider.wait()
+
+    def release(self) -> None:
+        self.engine.release()
