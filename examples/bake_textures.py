@@ -18,6 +18,7 @@ from PIL import Image
 
 import approxtree as at
 from approxtree.render import Camera, Engine
+from approxtree.render.context import optional_context
 from approxtree.textures.bake import bake
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -34,17 +35,20 @@ def main() -> None:
             raise SystemExit(f"{data / name} is missing; see shared/data/README.md")
 
     # 1. Bake: land use · hillshade (multiply), streams over it, 10 m texels.
+    # The hillshade is baked with OpenGL on a context of our own (numpy without one).
     dem = at.open_terrain(data / "elev_ned_30m.tif")
-    result = bake(
-        dem,
-        out,
-        shading="topographic",
-        shading_options={"z_factor": 3.0},
-        thematic=data / "landuse_r.tif",
-        overlays=[data / "streams.shp"],
-        blend="multiply",
-        max_texture_size=1024,
-    )
+    with optional_context() as gl_context:
+        result = bake(
+            dem,
+            out,
+            shading="topographic",
+            shading_options={"z_factor": 3.0},
+            thematic=data / "landuse_r.tif",
+            overlays=[data / "streams.shp"],
+            blend="multiply",
+            max_texture_size=1024,
+            context=gl_context,
+        )
     print("baked", result.figures())
 
     # 2. Render one oblique view from the south-west, textured.

@@ -52,14 +52,10 @@ from typing import Any
 
 import numpy as np
 
-from approxtree.errors import (
-    ApproxTreeWarning,
-    ContextUnavailableError,
-    EmptyTerrainError,
-    InvalidParameterError,
-)
+from approxtree.errors import ApproxTreeWarning, EmptyTerrainError, InvalidParameterError
 from approxtree.geometry.grid import OVERVIEW_SIDE, Grid
 from approxtree.render.camera import Camera
+from approxtree.render.context import create_context
 from approxtree.render.frame_state import (
     FrameState,
     check_viewport,
@@ -108,31 +104,6 @@ STAT_KEYS = (
     "empty",
     "warning",
 )
-
-_INSTALL_HINT = (
-    "Install the EGL and Mesa OpenGL drivers (Debian/Ubuntu: apt-get install -y libegl1 "
-    "libgl1-mesa-dri; Fedora: dnf install mesa-libEGL mesa-dri-drivers), or pass a context "
-    "of your own with Engine(tree, context=ctx)."
-)
-
-
-def create_context() -> Any:
-    """A standalone headless OpenGL 3.3+ context through EGL, or ContextUnavailableError."""
-    try:
-        import moderngl
-
-        ctx = moderngl.create_standalone_context(backend="egl")
-    except Exception as exc:
-        raise ContextUnavailableError(
-            f"No OpenGL context could be created through EGL ({exc}). {_INSTALL_HINT}"
-        ) from exc
-    if ctx.version_code < 330:
-        version = ctx.version_code
-        ctx.release()
-        raise ContextUnavailableError(
-            f"OpenGL 3.3 or newer is needed, the EGL context offers {version}. {_INSTALL_HINT}"
-        )
-    return ctx
 
 
 def _check_drawable(tree) -> None:
