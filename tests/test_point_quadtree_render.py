@@ -19,9 +19,11 @@ import approxtree as at
 from approxtree.cli import main
 from approxtree.datasets import fractal_terrain
 from approxtree.render import Camera, Engine
+from approxtree.render import point_quadtree_engine as engine_module
 from approxtree.render.engine import STAT_KEYS
 from approxtree.render.frustum import boxes_in_frustum
-from approxtree.render.point_quadtree_engine import PointQuadtreeEngine, pixels_per_radian
+from approxtree.render.lod_cut import LodSelector, node_mesh, pixels_per_radian
+from approxtree.render.point_quadtree_engine import PointQuadtreeEngine
 from approxtree.render.selector import SelectionResult
 from approxtree.tree.point_quadtree import PointQuadtree
 from approxtree.tree.store import TreeFile
@@ -99,7 +101,7 @@ def test_an_unrestricted_cut_shows_cracks(gl_context, data_dir, monkeypatch):  #
     meet) the same views of all Autzen points show background pixels."""
     laz = data_file(data_dir, "lidar/autzen_trim.laz")
     q = PointQuadtree(at.open_terrain(laz), 50)
-    monkeypatch.setattr(PointQuadtree, "_restrict_rows", lambda self, *args: None)
+    monkeypatch.setattr(LodSelector, "_restrict_rows", lambda self, *args: None)
     eng = Engine(q, context=gl_context, offscreen=True)
     try:
         holes, _ = background_pixels(eng, q)
@@ -136,7 +138,7 @@ def test_every_data_point_is_drawn_within_alpha_pixels(gl_context, quadtree, alp
         assert set(frame.stats) == set(STAT_KEYS)
         assert 0 < frame.stats["max_alpha"] <= alpha
         fs = frame.frame_state
-        cut = quadtree.lod_cut(
+        cut = LodSelector(quadtree).cut(
             fs.eye,
             pixels_per_radian(fs),
             alpha,
@@ -150,8 +152,8 @@ def test_every_data_point_is_drawn_within_alpha_pixels(gl_context, quadtree, alp
             if hi == lo:
                 continue
             pts = quadtree.points[lo:hi]
-            v, t = quadtree.node_mesh(
-                node, tuple(cut.midpoints[k]), tuple(cut.keep[k]), int(cut.inserted[k])
+            v, t = node_mesh(
+                quadtree, node, tuple(cut.midpoints[k]), tuple(cut.keep[k]), int(cut.inserted[k])
             )
             h = mesh_heights(v, t, pts[:, :2])
             assert np.isfinite(h).all()
@@ -218,13 +220,13 @@ def test_a_frame_builds_its_new_meshes_in_one_kernel_call(
     per node), and the cache still holds one entry per drawn node: a second view builds
     only its new nodes' meshes, again in one call."""
     calls = []
-    batch = PointQuadtree.node_meshes
+    batch = engine_module.node_meshes
 
-    def counted(self, rows, *args):
+    def counted(tree, rows, *args):
         calls.append(len(rows))
-        return batch(self, rows, *args)
+        return batch(tree, rows, *args)
 
-    monkeypatch.setattr(PointQuadtree, "node_meshes", counted)
+    monkeypatch.setattr(engine_module, "node_meshes", counted)
     eng = Engine(quadtree, context=gl_context, offscreen=True)
     try:
         views = all_terrain_views(quadtree)

@@ -262,11 +262,13 @@ def test_cut_mesh_refuses_bad_node_ids(nc_tree):
 
 def test_point_quadtree_lod_mesh_to_trimesh():
     """A point quadtree's view mesh converts with its vertices, triangles and face nodes."""
+    from approxtree.render.lod_cut import lod_mesh
+
     rng = np.random.default_rng(3)
     xy = rng.uniform(0, 100, (400, 2))
     z = 10 + 0.2 * xy[:, 0] + 3 * np.sin(xy[:, 1] / 7)
     quadtree = at.PointQuadtree(at.TINPointSet(np.column_stack([xy, z])), max_points=20)
-    lod = quadtree.lod_mesh((50.0, -150.0, 120.0), 60.0, 640)
+    lod = lod_mesh(quadtree, (50.0, -150.0, 120.0), 60.0, 640)
     tm = lod.to_trimesh()
     check_mesh(tm.vertices, tm.faces, lod.vertices, lod.triangles)
     assert len(tm.face_attributes["node"]) == len(lod.triangles) > 0

@@ -124,6 +124,8 @@ def test_grid_refinement_round_trip(tmp_path):
 
 
 def test_point_quadtree_round_trip(tmp_path):
+    from approxtree.render.lod_cut import lod_mesh
+
     rng = np.random.default_rng(7)
     xy = np.concatenate([rng.uniform(0, 100, (400, 2)), rng.uniform(0, 20, (600, 2))])
     z = np.sin(xy[:, 0] / 9.0) * 5
@@ -141,7 +143,7 @@ def test_point_quadtree_round_trip(tmp_path):
         for leaf in q.leaves:
             np.testing.assert_array_equal(back.orders[leaf][0], q.orders[leaf][0])
         eye = (q.x0 - 10, q.y0 - 10, 30.0)
-        a, b = q.lod_mesh(eye, 60.0, 640, 2.0), back.lod_mesh(eye, 60.0, 640, 2.0)
+        a, b = lod_mesh(q, eye, 60.0, 640, 2.0), lod_mesh(back, eye, 60.0, 640, 2.0)
         np.testing.assert_array_equal(a.triangles, b.triangles)
 
 

@@ -22,7 +22,7 @@ selection differs. Each frame:
 4. Each drawn node's mesh is one GPU cache entry keyed by (node, midpoints, kept midpoints,
    points replayed), so a mesh is uploaded again only when its own refinement changes. The
    meshes a frame lacks are built together, in one kernel call over arrays
-   (``PointQuadtree.node_meshes``), and handed to the cache node by node.
+   (``node_meshes``, render/lod_cut.py), and handed to the cache node by node.
 
 The cut's mesh is continuous (shared lattice vertices, midpoints on straight edges covered by
 zero-area triangles), so no skirts are hung; ``skirts`` is accepted and changes nothing.
@@ -40,14 +40,8 @@ from approxtree.errors import InvalidParameterError
 from approxtree.render.engine import DEFAULT_CACHE_BYTES, Engine
 from approxtree.render.frame_state import FrameState
 from approxtree.render.frustum import boxes_in_frustum
+from approxtree.render.lod_cut import LodSelector, node_meshes, pixels_per_radian
 from approxtree.render.selector import Selection, eye_below_ground
-
-
-def pixels_per_radian(fs: FrameState) -> float:
-    """λ: the largest screen pixels per radian of view angle over the image (at its corner)."""
-    w, h = fs.viewport
-    t2 = ((0.5 * w) ** 2 + (0.5 * h) ** 2) / fs.focal_px**2
-    return float(fs.focal_px * (1.0 + t2))
 
 
 class PointQuadtreeEngine(Engine):
@@ -80,6 +74,8 @@ class PointQuadtreeEngine(Engine):
         if exaggeration != 1.0:
             self.set_vertical_exaggeration(exaggeration)
         self._data_texels = self.texels = np.zeros((len(tree), 2))
+        #: The cuts of the tree (render/lod_cut.py), with their measured errors.
+        self._selector = LodSelector(tree)
         #: The LODCut of the last frame (None before the first).
         self.last_cut = None
         self._frame_keys: list[tuple] = []
@@ -99,7 +95,7 @@ class PointQuadtreeEngine(Engine):
         lam = pixels_per_radian(fs)
         below = eye_below_ground(tree, fs)
         visible = boxes_in_frustum(tree.bboxes, fs.planes) & tree.in_domain
-        cut = tree.lod_cut(fs.eye, lam, alpha, fs.scale, visible)
+        cut = self._selector.cut(fs.eye, lam, alpha, fs.scale, visible)
         self.last_cut = cut
         drawn = np.flatnonzero(cut.visible) if not below else np.empty(0, dtype=np.int64)
         rho = cut.screen_errors(lam)[drawn]
@@ -150,7 +146,7 @@ class PointQuadtreeEngine(Engine):
 
     def _upload(self, groups) -> list[tuple[Any, list[Any]]] | None:
         """The Engine's upload, after building every mesh the cache lacks in one kernel call
-        (``PointQuadtree.node_meshes``); the cache then takes them node by node."""
+        (``node_meshes``); the cache then takes them node by node."""
         missing = [key for _, keys in groups for key in keys if key not in self.cache]
         self._batch = self._build_meshes(missing)
         try:
@@ -164,7 +160,7 @@ class PointQuadtreeEngine(Engine):
         if not keys:
             return {}
         _, rows, midpoints, keep, inserted = zip(*keys, strict=True)
-        verts, vstart, tris, tstart = self.tree.node_meshes(rows, midpoints, keep, inserted)
+        verts, vstart, tris, tstart = node_meshes(self.tree, rows, midpoints, keep, inserted)
         data = np.zeros((len(verts), 4), dtype=np.float32)
         data[:, :3] = verts - self.tree.origin
         tris = tris.astype(np.uint32)
