@@ -58,18 +58,18 @@ def _tree_bytes(tree) -> int:
 
 
 def _frames(tree) -> dict:
-    from approxtree.render import Engine, overview_camera
-    from approxtree.render.engine import create_context
+    from approxtree.render import Cut, Engine, overview_camera
+    from approxtree.render.context import create_context
 
     ctx = create_context()
     engine = Engine(tree, context=ctx, offscreen=True)
     try:
         camera = overview_camera(tree.bboxes[0], engine.scale, fov=45.0)
-        engine.render(camera, (640, 480), alpha=4.0, gamma=2.0)
+        engine.render(camera, (640, 480), Cut(alpha=4.0, gamma=2.0))
         times, stats = [], None
         for _ in range(5):
             t0 = time.perf_counter()
-            frame = engine.render(camera, (640, 480), alpha=4.0, gamma=2.0)
+            frame = engine.render(camera, (640, 480), Cut(alpha=4.0, gamma=2.0))
             times.append(time.perf_counter() - t0)
             stats = frame.stats
     finally:

@@ -32,7 +32,7 @@ def case(ground: bool, tmp: Path) -> dict:
     import numpy as np
 
     import approxtree as at
-    from approxtree.render import Camera, Engine
+    from approxtree.render import Camera, Cut, Engine
     from approxtree.render.frustum import boxes_in_frustum
     from approxtree.render.lod_cut import LodSelector, lod_mesh, node_meshes, pixels_per_radian
     from approxtree.tree.point_quadtree import PointQuadtree
@@ -62,10 +62,10 @@ def case(ground: bool, tmp: Path) -> dict:
     for label, camera in (("first_frame", cam), ("first_overview", top)):
         with Engine(q) as eng:
             t0 = time.perf_counter()
-            f = eng.render(camera, (1280, 720), alpha=1.0)
+            f = eng.render(camera, (1280, 720), Cut(alpha=1.0))
             firsts[label] = {k: f.stats[k] for k in KEYS}
             firsts[label]["frame_ms"] = round((time.perf_counter() - t0) * 1e3, 3)
-            cut = eng.last_cut
+            cut = eng.source.last_cut
     # The overview's meshes built alone (no GPU).
     mesh_ms = []
     for _ in range(3):
@@ -74,10 +74,10 @@ def case(ground: bool, tmp: Path) -> dict:
         mesh_ms.append((time.perf_counter() - t0) * 1e3)
     with Engine(q) as eng:
         for alpha in (1.0, 4.0):
-            eng.render(cam, (1280, 720), alpha=alpha)
-            f = eng.render(cam, (1280, 720), alpha=alpha)
+            eng.render(cam, (1280, 720), Cut(alpha=alpha))
+            f = eng.render(cam, (1280, 720), Cut(alpha=alpha))
             frames[f"alpha={alpha:g}"] = {k: f.stats[k] for k in KEYS}
-        f = eng.render(cam, (1280, 720), full_resolution=True)
+        f = eng.render(cam, (1280, 720), Cut(full_resolution=True))
         frames["full_resolution"] = {k: f.stats[k] for k in KEYS if k != "max_alpha"}
         fs = eng.frame_state(cam, (1280, 720))
     lam = pixels_per_radian(fs)

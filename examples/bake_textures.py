@@ -17,7 +17,7 @@ from pathlib import Path
 from PIL import Image
 
 import approxtree as at
-from approxtree.render import Camera, Engine
+from approxtree.render import Camera, Cut, Engine, Style
 from approxtree.render.context import optional_context
 from approxtree.textures.bake import bake
 
@@ -56,8 +56,8 @@ def main() -> None:
     c = dem.domain.center
     camera = Camera.look_at((c[0] - 4000, c[1] - 9000, 3500), (c[0], c[1], 80.0), fov=50)
     with Engine(tree, textures=result.pyramid) as engine:
-        frame = engine.render(camera, (1280, 720), alpha=1.0, gamma=2.0, lighting=False)
-        alone = engine.render(camera, (1280, 720), alpha=1.0, gamma=2.0, share_textures=False)
+        frame = engine.render(camera, (1280, 720), Cut(1.0, 2.0), style=Style(lighting=False))
+        alone = engine.render(camera, (1280, 720), Cut(1.0, 2.0, share_textures=False))
     for name, f in (("shared", frame), ("own patches", alone)):
         s = f.stats
         print(

@@ -234,11 +234,11 @@ def test_cut_mesh_of_the_leaves_partitions_the_domain(nc_tree):
 def test_cut_mesh_of_a_frame_is_what_it_drew(nc_tree):
     """tree.cut_mesh(frame.selection.nodes, skirts=True) has the triangles the frame drew,
     skirts included; without skirts, its nodes' patch triangles."""
-    from approxtree.render import Engine, framing_camera
+    from approxtree.render import Cut, Engine, framing_camera
 
     with Engine(nc_tree) as engine:
         camera = framing_camera(nc_tree.bboxes[0], engine.scale, (320, 240))
-        frame = engine.render(camera, (320, 240), alpha=1.0)
+        frame = engine.render(camera, (320, 240), Cut(alpha=1.0))
     nodes = frame.selection.nodes
     with_skirts = nc_tree.cut_mesh(nodes, skirts=True)
     assert len(with_skirts.triangles) == frame.stats["triangles"]

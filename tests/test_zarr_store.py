@@ -488,10 +488,11 @@ def test_stored_overview_feeds_the_normal_map(tmp_path, monkeypatch):
     from affine import Affine
 
     import approxtree.geometry.grid as grid_module
-    from approxtree.render import engine as engine_module
+    from approxtree.render import Engine
+    from approxtree.render import normal_map as normal_map_module
 
     monkeypatch.setattr(grid_module, "OVERVIEW_SIDE", 64)
-    monkeypatch.setattr(engine_module, "NORMAL_MAP_MAX", 64)
+    monkeypatch.setattr(normal_map_module, "NORMAL_MAP_MAX", 64)
     base = fractal_terrain(300, seed=2)
     z = np.array(base.heights)
     z[10:20, 5:50] = np.nan
@@ -504,14 +505,14 @@ def test_stored_overview_feeds_the_normal_map(tmp_path, monkeypatch):
         tree.save(path)
         back = load_tree(path)
         np.testing.assert_array_equal(back.terrain.strided_heights(rs, cs), z[::rs, ::cs])
-        with engine_module.Engine(tree) as e:
+        with Engine(tree) as e:
             want = np.array(e.normal_map.read())
         monkeypatch.setattr(ZarrHeightSource, "read", _no_terrain_reads)
-        with engine_module.Engine(back) as e:
+        with Engine(back) as e:
             np.testing.assert_array_equal(np.array(e.normal_map.read()), want)
         monkeypatch.undo()
         monkeypatch.setattr(grid_module, "OVERVIEW_SIDE", 64)
-        monkeypatch.setattr(engine_module, "NORMAL_MAP_MAX", 64)
+        monkeypatch.setattr(normal_map_module, "NORMAL_MAP_MAX", 64)
 
 
 def _no_terrain_reads(*args, **kwargs):

@@ -33,8 +33,10 @@ import numpy as np
 
 from approxtree.errors import ContextUnavailableError, InvalidParameterError
 from approxtree.io.atomic import atomic_write
+from approxtree.render.cut import Cut
 from approxtree.render.frame_state import overview_camera
-from approxtree.render.selector import select
+from approxtree.render.style import Style, Sun
+from approxtree.render.traversal import Paging
 from approxtree.viewer.controllers import (
     FlyController,
     OrbitController,
@@ -206,7 +208,6 @@ class Viewer:
             raise ValueError(f"max_uploads must be >= 0, got {max_uploads}")
         self.max_uploads = int(max_uploads)
         self.budget_ms = budget_ms
-        self.engine.set_selection_filter(self._filter)
         # The root's mesh now: it also loads the compiled skirt kernels before frame 0.
         self.engine.upload(0)
         self._frozen_frame: Any = None
@@ -607,13 +608,6 @@ class Viewer:
 
     # -- frames -----------------------------------------------------------------------------
 
-    def _filter(self, selection, frame):
-        """The Engine's selection filter: the frozen frustum's cut while frozen."""
-        if self._frozen_frame is not None:
-            s = self.settings
-            selection = select(self.tree, self._frozen_frame, s.alpha, s.gamma, self.engine.texels)
-        return selection
-
     def _camera(self):
         return self.controller.camera(self.tree.origin, self.engine.scale, self.fov)
 
@@ -647,18 +641,20 @@ class Viewer:
         frame = self.engine.render(
             self._camera(),
             size,
-            s.alpha,
-            s.gamma,
-            wireframe=s.wireframe,
+            # While frozen, the cut of the frozen frustum.
+            Cut(s.alpha, s.gamma, frozen=self._frozen_frame),
+            style=Style(
+                s.lighting, Sun(s.sun_azimuth, s.sun_altitude), self.background, s.wireframe
+            ),
             # Without an upload budget every wanted mesh loads in the frame that wants it.
-            wait=not self.max_uploads and self.budget_ms is None,
-            max_uploads=self.max_uploads or None,
-            upload_ms=self.budget_ms,
-            world_positions=want_positions,
-            sun=(s.sun_azimuth, s.sun_altitude),
-            background=self.background,
-            **self.features.render_options(s.lighting),
+            paging=Paging(
+                wait=not self.max_uploads and self.budget_ms is None,
+                max_uploads=self.max_uploads or None,
+                upload_ms=self.budget_ms,
+            ),
         )
+        if want_positions:
+            self.engine.world_positions(frame)
         self.ctx.fbo.use()
         self.frame_state = frame.frame_state
         if want_depth:

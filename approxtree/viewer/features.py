@@ -19,7 +19,8 @@ class EngineFeatures:
         self.engine = engine
         self.textures = callable(getattr(engine, "set_textures", None))
         params = inspect.signature(engine.render).parameters
-        self.lighting = "lighting" in params
+        # Lighting is a render option, or part of the frame's Style.
+        self.lighting = "lighting" in params or "style" in params
 
     def set_textures(self, pyramid: Any) -> bool:
         """Give the Engine ``pyramid`` (or None); False when the Engine cannot texture."""
