@@ -72,7 +72,7 @@ def __getattr__(name: str):
 
         return verify
     # The renderer pulls in pyrr, and the Engine moderngl: import them on first use too.
-    if name in ("Camera", "Engine", "Frame", "FrameState"):
+    if name in ("Camera", "Cut", "Engine", "Frame", "FrameState", "Paging", "Style"):
         from approxtree import render
 
         return getattr(render, name)
@@ -86,6 +86,7 @@ __all__ = [
     "ApproximationTree",
     "Camera",
     "ContextUnavailableError",
+    "Cut",
     "EmptyTerrainError",
     "Engine",
     "Frame",
@@ -96,10 +97,12 @@ __all__ = [
     "InvalidParameterError",
     "Node",
     "NonRegularGrid",
+    "Paging",
     "PointQuadtree",
     "Rect",
     "StoreError",
     "StrategyPolicy",
+    "Style",
     "TINPointSet",
     "TerrainDataWarning",
     "TerrainFormatError",

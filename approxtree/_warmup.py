@@ -74,6 +74,7 @@ def tree_step(work: Path) -> None:
 def bake_step(work: Path) -> None:
     """``demo`` / ``bake``: the hillshade pyramid of a small terrain; ``render``: reading its
     levels back as RGBA, as the engine does."""
+    from approxtree.render.context import optional_context
     from approxtree.textures.bake import bake
     from approxtree.textures.pyramid import TexturePyramid
 
@@ -81,8 +82,16 @@ def bake_step(work: Path) -> None:
     # With OpenGL when a context can be made (as the commands default to), and with numpy
     # (--no-gl, or no context: the shading kernel), each under a texture limit below the
     # terrain's size: the pyramid halves (as any DEM over 4096²).
-    for name, gl in (("textures", True), ("textures_numpy", False)):
-        bake(_terrain(), work / name, shading_options=options, max_texture_size=16, gl=gl)
+    with optional_context() as gl_context:
+        for name, gl in (("textures", True), ("textures_numpy", False)):
+            bake(
+                _terrain(),
+                work / name,
+                shading_options=options,
+                max_texture_size=16,
+                gl=gl,
+                context=gl_context,
+            )
     pyramid = TexturePyramid(work / "textures")
     for k in range(len(pyramid)):
         pyramid.read(k, 0, 0, 4, 4)

@@ -24,8 +24,11 @@ from typing import Any
 import numpy as np
 
 from approxtree.render.camera import Camera
-from approxtree.render.engine import Engine, Frame
+from approxtree.render.cut import Cut
+from approxtree.render.engine import Engine
+from approxtree.render.frame import Frame
 from approxtree.render.frame_state import framing_camera
+from approxtree.render.style import Style
 from approxtree.viewer.controllers import OrbitController, to_camera, to_display
 
 # The widget's base class comes with the ``notebook`` extra; without it the previews work and
@@ -43,6 +46,8 @@ PREVIEW_ALPHA = 2.0
 PREVIEW_EPSILON_SHARE = 0.005
 #: Field of view (degrees) of previews and the widget.
 FOV = 45.0
+#: The style of the widget's frames: the default lighting in front of a sky.
+SKY = Style(background="sky")
 
 
 def frame_png(frame: Frame) -> bytes | None:
@@ -70,16 +75,14 @@ def preview(
     """Render the fitted overview of a tree (``framing_camera``) with an offscreen Engine.
 
     Raises ContextUnavailableError without OpenGL (``repr_png`` turns that into None).
+    world_positions: also fill the frame's world positions (``Engine.world_positions``).
     """
     with Engine(tree, **engine_options) as engine:
         camera = framing_camera(tree.bboxes[0], engine.scale, size, fov=FOV)
-        return engine.render(
-            camera,
-            size,
-            PREVIEW_ALPHA,
-            background=background,
-            world_positions=world_positions,
-        )
+        frame = engine.render(camera, size, Cut(PREVIEW_ALPHA), style=Style(background=background))
+        if world_positions:
+            engine.world_positions(frame)
+        return frame
 
 
 def repr_png(obj: Any) -> bytes | None:
@@ -119,7 +122,7 @@ class _OrbitView:
 
     def render(self) -> np.ndarray:
         """(h, w, 4) uint8 RGBA of the current pose."""
-        frame = self.engine.render(self.camera(), self.size, PREVIEW_ALPHA, background="sky")
+        frame = self.engine.render(self.camera(), self.size, Cut(PREVIEW_ALPHA), style=SKY)
         self.last_frame = frame
         return frame.image  # type: ignore[return-value]
 

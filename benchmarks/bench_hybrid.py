@@ -58,18 +58,18 @@ def _tree_bytes(tree) -> int:
 
 
 def _frames(tree) -> dict:
-    from approxtree.render import Engine, overview_camera
-    from approxtree.render.engine import create_context
+    from approxtree.render import Cut, Engine, overview_camera
+    from approxtree.render.context import create_context
 
     ctx = create_context()
     engine = Engine(tree, context=ctx, offscreen=True)
     try:
         camera = overview_camera(tree.bboxes[0], engine.scale, fov=45.0)
-        engine.render(camera, (640, 480), alpha=4.0, gamma=2.0)
+        engine.render(camera, (640, 480), Cut(alpha=4.0, gamma=2.0))
         times, stats = [], None
         for _ in range(5):
             t0 = time.perf_counter()
-            frame = engine.render(camera, (640, 480), alpha=4.0, gamma=2.0)
+            frame = engine.render(camera, (640, 480), Cut(alpha=4.0, gamma=2.0))
             times.append(time.perf_counter() - t0)
             stats = frame.stats
     finally:
@@ -151,6 +151,7 @@ def refinement_case(name: str, quick: bool) -> dict:
 def autzen_case(quick: bool) -> dict:
     import approxtree as at
     from approxtree import ApproximationTree
+    from approxtree.render.lod_cut import lod_mesh
     from approxtree.tree.point_quadtree import PointQuadtree
 
     path = DATA / "lidar" / "autzen_trim.laz"
@@ -166,7 +167,7 @@ def autzen_case(quick: bool) -> dict:
         # Low oblique view from the south edge, 100 ft above the highest point.
         eye = (d.center[0], d.ymin - 0.1 * d.height, terrain.z_range[1] + 100.0)
         t0 = time.perf_counter()
-        mesh = q.lod_mesh(eye, 60.0, 640, 10.0)
+        mesh = lod_mesh(q, eye, 60.0, 640, 10.0)
         lod_seconds = time.perf_counter() - t0
         n_p, n_c = len(terrain.vertices), q.interpolation_point_count()
         n_t, n_lt = len(terrain.triangles), len(mesh.triangles)

@@ -4,10 +4,11 @@ A tree (``--tree PATH``, or one built from a seeded fractal of ``--dem-size``² 
 saved, so patches are read from the store on demand) is flown over along a loop of ``--frames``
 frames at ``--size``: the eye circles the domain centre at 0.35 of its width, 1/15 of the
 diagonal above the highest point, looking ahead and down. Each frame is one interactive
-``Engine.render(..., wait=False)`` on headless EGL (Mesa llvmpipe on a CPU-only machine) with
-CPU and GPU caches of ``--cache-mb`` each and at most ``--max-uploads`` uploads per frame: the
-provider loads in the background, stand-ins are drawn meanwhile. Per frame: wall time of the
-render call, whether it drew a stand-in, the process RSS (sampled after the frame). Each
+``Engine.render(..., paging=Paging(wait=False))`` on headless EGL (Mesa llvmpipe on a CPU-only
+machine) with CPU and GPU caches of ``--cache-mb`` each and at most ``--max-uploads`` uploads
+per frame: the provider loads in the background, stand-ins are drawn meanwhile. Per frame:
+wall time of the render call, whether it drew a stand-in, the process RSS (sampled after the
+frame). Each
 cache size given runs in its own process (peers side by side: RSS must follow the caches, not
 the terrain seen).
 
@@ -69,7 +70,7 @@ def rss_parts() -> tuple[int, int]:
 def run_one(args: argparse.Namespace) -> dict:
     """One fly-over in this process; returns its figures."""
     from approxtree import load_tree
-    from approxtree.render import Engine
+    from approxtree.render import Cut, Engine, Paging
 
     proc = psutil.Process()
     rss0 = proc.memory_info().rss
@@ -83,7 +84,7 @@ def run_one(args: argparse.Namespace) -> dict:
         for cam in cams:
             t0 = time.perf_counter()
             frame = eng.render(
-                cam, (w, h), args.alpha, math.inf, wait=False, max_uploads=args.max_uploads
+                cam, (w, h), Cut(args.alpha, math.inf), paging=Paging(False, args.max_uploads)
             )
             ms = (time.perf_counter() - t0) * 1e3
             rows.append(

@@ -7,8 +7,8 @@ full-resolution frame of the same view (every data point of every visible leaf) 
 the first frames (every mesh built and uploaded: ``first_frame``, and an overview from above
 the whole data set at α = 1, ``first_overview``, each in a fresh Engine), with the meshes
 built alone (``mesh_build_ms``: every drawn node's mesh of the overview cut, one
-``PointQuadtree.node_meshes`` call); and the cut alone (``lod_cut``: min and median of 10
-calls).
+``node_meshes`` call, render/lod_cut.py); and the cut alone (``LodSelector.cut``: min and
+median of 10 calls).
 
     python benchmarks/bench_point_quadtree_render.py
 
@@ -32,14 +32,14 @@ def case(ground: bool, tmp: Path) -> dict:
     import numpy as np
 
     import approxtree as at
-    from approxtree.render import Camera, Engine
+    from approxtree.render import Camera, Cut, Engine
     from approxtree.render.frustum import boxes_in_frustum
-    from approxtree.render.point_quadtree_engine import pixels_per_radian
+    from approxtree.render.lod_cut import LodSelector, lod_mesh, node_meshes, pixels_per_radian
     from approxtree.tree.point_quadtree import PointQuadtree
 
     # Warm-up: load the compiled kernels (build, cut, meshes) and the GL programs before timing.
     warm = PointQuadtree(at.TINPointSet(np.random.default_rng(0).uniform(0, 9, (200, 3))), 20)
-    warm.lod_mesh((-1.0, -1.0, 5.0), 60.0, 640, 0.5)
+    lod_mesh(warm, (-1.0, -1.0, 5.0), 60.0, 640, 0.5)
     with Engine(warm) as eng:
         eng.render(Camera.look_at((4.5, -5.0, 9.0), (4.5, 4.5, 0.0), fov=45), (64, 48))
     terrain = at.open_terrain(DATA / "lidar" / "autzen_trim.laz", ground_only=ground)
@@ -62,30 +62,31 @@ def case(ground: bool, tmp: Path) -> dict:
     for label, camera in (("first_frame", cam), ("first_overview", top)):
         with Engine(q) as eng:
             t0 = time.perf_counter()
-            f = eng.render(camera, (1280, 720), alpha=1.0)
+            f = eng.render(camera, (1280, 720), Cut(alpha=1.0))
             firsts[label] = {k: f.stats[k] for k in KEYS}
             firsts[label]["frame_ms"] = round((time.perf_counter() - t0) * 1e3, 3)
-            cut = eng.last_cut
+            cut = eng.source.last_cut
     # The overview's meshes built alone (no GPU).
     mesh_ms = []
     for _ in range(3):
         t0 = time.perf_counter()
-        q.node_meshes(cut.rows, cut.midpoints, cut.keep, cut.inserted)
+        node_meshes(q, cut.rows, cut.midpoints, cut.keep, cut.inserted)
         mesh_ms.append((time.perf_counter() - t0) * 1e3)
     with Engine(q) as eng:
         for alpha in (1.0, 4.0):
-            eng.render(cam, (1280, 720), alpha=alpha)
-            f = eng.render(cam, (1280, 720), alpha=alpha)
+            eng.render(cam, (1280, 720), Cut(alpha=alpha))
+            f = eng.render(cam, (1280, 720), Cut(alpha=alpha))
             frames[f"alpha={alpha:g}"] = {k: f.stats[k] for k in KEYS}
-        f = eng.render(cam, (1280, 720), full_resolution=True)
+        f = eng.render(cam, (1280, 720), Cut(full_resolution=True))
         frames["full_resolution"] = {k: f.stats[k] for k in KEYS if k != "max_alpha"}
         fs = eng.frame_state(cam, (1280, 720))
     lam = pixels_per_radian(fs)
     visible = boxes_in_frustum(q.bboxes, fs.planes)
     times = []
+    selector = LodSelector(q)
     for _ in range(10):
         t0 = time.perf_counter()
-        q.lod_cut(fs.eye, lam, 1.0, fs.scale, visible)
+        selector.cut(fs.eye, lam, 1.0, fs.scale, visible)
         times.append((time.perf_counter() - t0) * 1e3)
     return {
         "points": len(q.points),

@@ -7,7 +7,7 @@ llvmpipe on a CPU-only machine):
 
 - the LOD cut at alpha = 1 px with the texture error off (gamma = inf: there are no textures
   yet), and, for reference, with gamma = 2 px² (texel = data spacing);
-- the unsimplified terrain (``full_resolution=True``).
+- the unsimplified terrain (``Cut(full_resolution=True)``).
 
 Draw time: median over FRAMES frames of clear + draw calls + ctx.finish(), uploads done
 before (each frame is drawn from the GPU cache). The screen error of the cut is measured
@@ -33,16 +33,16 @@ import numpy as np
 
 from approxtree import ApproximationTree
 from approxtree.datasets import fractal_terrain
-from approxtree.render import Camera, Engine, overview_camera
+from approxtree.render import Camera, Cut, Engine, overview_camera
 
 RESULTS = Path(__file__).resolve().parent / "results"
 SIZE = (1280, 720)
 
 
-def measure(engine, camera, frames: int, **kwargs) -> dict:
+def measure(engine, camera, frames: int, cut: Cut) -> dict:
     """Render ``frames`` + 1 frames (the first uploads); median of the draw times."""
-    first = engine.render(camera, SIZE, **kwargs)
-    draws = [engine.render(camera, SIZE, **kwargs).stats["draw_ms"] for _ in range(frames)]
+    first = engine.render(camera, SIZE, cut)
+    draws = [engine.render(camera, SIZE, cut).stats["draw_ms"] for _ in range(frames)]
     stats = dict(first.stats)
     stats["draw_ms_median"] = statistics.median(draws)
     stats["draw_ms_all"] = draws
@@ -50,10 +50,10 @@ def measure(engine, camera, frames: int, **kwargs) -> dict:
     return stats
 
 
-def screen_error(engine, camera, **kwargs) -> tuple[float, int]:
-    """(largest distance in pixels, pixels checked) of the cut drawn with ``kwargs``."""
-    frame = engine.render(camera, SIZE, world_positions=True, **kwargs)
-    pos = frame.positions
+def screen_error(engine, camera, cut: Cut) -> tuple[float, int]:
+    """(largest distance in pixels, pixels checked) of ``cut`` drawn."""
+    frame = engine.render(camera, SIZE, cut)
+    pos = engine.world_positions(frame)
     surface = pos[..., 3] > 0.5
     p = pos[surface][:, :3]
     q = p.copy()
@@ -92,16 +92,15 @@ def main() -> None:
         }
         for name, camera in cameras.items():
             engine.cache.release()
-            lod = measure(engine, camera, args.frames, alpha=1.0, gamma=math.inf)
-            lod["max_screen_error_px"], lod["pixels_checked"] = screen_error(
-                engine, camera, alpha=1.0, gamma=math.inf
-            )
-            lod_g = measure(engine, camera, args.frames, alpha=1.0, gamma=2.0)
+            cut, cut_g = Cut(alpha=1.0, gamma=math.inf), Cut(alpha=1.0, gamma=2.0)
+            lod = measure(engine, camera, args.frames, cut)
+            lod["max_screen_error_px"], lod["pixels_checked"] = screen_error(engine, camera, cut)
+            lod_g = measure(engine, camera, args.frames, cut_g)
             lod_g["max_screen_error_px"], lod_g["pixels_checked"] = screen_error(
-                engine, camera, alpha=1.0, gamma=2.0
+                engine, camera, cut_g
             )
             engine.cache.release()  # the reference starts from an empty cache
-            full = measure(engine, camera, args.full_frames, full_resolution=True)
+            full = measure(engine, camera, args.full_frames, Cut(full_resolution=True))
             views[name] = {"lod_alpha1": lod, "lod_alpha1_gamma2": lod_g, "full_resolution": full}
             for cut in (lod, lod_g):
                 cut["triangle_ratio"] = full["triangles"] / cut["triangles"]

@@ -128,7 +128,7 @@ def bench_bake(size: int, repeats: int, ctx) -> dict:
 def bench_render(frames: int, ctx) -> dict:
     from approxtree import ApproximationTree
     from approxtree.datasets import fractal_terrain
-    from approxtree.render import Camera, Engine, overview_camera
+    from approxtree.render import Camera, Cut, Engine, overview_camera
     from approxtree.textures import TexturePyramid, TopographicShading
 
     terrain = fractal_terrain(2049, seed=7, relief=600.0)
@@ -147,11 +147,12 @@ def bench_render(frames: int, ctx) -> dict:
                 for alpha, gamma in ((4.0, 2.0), (1.0, 2.0), (0.5, 8.0)):
                     row = {"view": name, "alpha": alpha, "gamma": gamma}
                     for share in (True, False):
-                        eng.render(cam, (1280, 720), alpha, gamma, share_textures=share)
+                        cut = Cut(alpha, gamma, share_textures=share)
+                        eng.render(cam, (1280, 720), cut)
                         ms, draw = [], []
                         for _ in range(frames):
                             t0 = time.perf_counter()
-                            f = eng.render(cam, (1280, 720), alpha, gamma, share_textures=share)
+                            f = eng.render(cam, (1280, 720), cut)
                             ms.append((time.perf_counter() - t0) * 1e3)
                             draw.append(f.stats["draw_ms"])
                         key = "shared" if share else "own"
@@ -205,7 +206,7 @@ def main() -> None:
     args = parser.parse_args()
     if shutil.which("gdaldem") is None:
         raise SystemExit("gdaldem not found: install the Debian package gdal-bin")
-    from approxtree.render.engine import create_context
+    from approxtree.render.context import create_context
 
     RESULTS.mkdir(exist_ok=True)
     ctx = create_context()

@@ -17,7 +17,8 @@ from pathlib import Path
 from PIL import Image
 
 import approxtree as at
-from approxtree.render import Camera, Engine
+from approxtree.render import Camera, Cut, Engine, Style
+from approxtree.render.context import optional_context
 from approxtree.textures.bake import bake
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -34,17 +35,20 @@ def main() -> None:
             raise SystemExit(f"{data / name} is missing; see shared/data/README.md")
 
     # 1. Bake: land use · hillshade (multiply), streams over it, 10 m texels.
+    # The hillshade is baked with OpenGL on a context of our own (numpy without one).
     dem = at.open_terrain(data / "elev_ned_30m.tif")
-    result = bake(
-        dem,
-        out,
-        shading="topographic",
-        shading_options={"z_factor": 3.0},
-        thematic=data / "landuse_r.tif",
-        overlays=[data / "streams.shp"],
-        blend="multiply",
-        max_texture_size=1024,
-    )
+    with optional_context() as gl_context:
+        result = bake(
+            dem,
+            out,
+            shading="topographic",
+            shading_options={"z_factor": 3.0},
+            thematic=data / "landuse_r.tif",
+            overlays=[data / "streams.shp"],
+            blend="multiply",
+            max_texture_size=1024,
+            context=gl_context,
+        )
     print("baked", result.figures())
 
     # 2. Render one oblique view from the south-west, textured.
@@ -52,8 +56,8 @@ def main() -> None:
     c = dem.domain.center
     camera = Camera.look_at((c[0] - 4000, c[1] - 9000, 3500), (c[0], c[1], 80.0), fov=50)
     with Engine(tree, textures=result.pyramid) as engine:
-        frame = engine.render(camera, (1280, 720), alpha=1.0, gamma=2.0, lighting=False)
-        alone = engine.render(camera, (1280, 720), alpha=1.0, gamma=2.0, share_textures=False)
+        frame = engine.render(camera, (1280, 720), Cut(1.0, 2.0), style=Style(lighting=False))
+        alone = engine.render(camera, (1280, 720), Cut(1.0, 2.0, share_textures=False))
     for name, f in (("shared", frame), ("own patches", alone)):
         s = f.stats
         print(

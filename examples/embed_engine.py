@@ -19,7 +19,7 @@ from PIL import Image
 
 from approxtree import ApproximationTree
 from approxtree.datasets import sample_terrain
-from approxtree.render import Engine, overview_camera
+from approxtree.render import Cut, Engine, overview_camera
 
 WIDTH, HEIGHT = 800, 450
 
@@ -41,7 +41,7 @@ def main() -> None:
 
     # Host: bind its framebuffer; the engine draws into it.
     fbo.use()
-    frame = engine.render(camera, (WIDTH, HEIGHT), alpha=1.0, gamma=2.0)
+    frame = engine.render(camera, (WIDTH, HEIGHT), Cut(alpha=1.0, gamma=2.0))
     print({k: frame.stats[k] for k in ("patches", "triangles", "draw_ms")})
 
     # Host: its own drawing on top (a red square in the centre, scissored clear).

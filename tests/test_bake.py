@@ -120,7 +120,7 @@ GL_CASES = [
 @pytest.fixture(scope="module")
 def gl_context():
     """One headless EGL context for the GL bake tests."""
-    from approxtree.render.engine import create_context
+    from approxtree.render.context import create_context
 
     ctx = create_context()
     yield ctx
@@ -168,21 +168,13 @@ def test_gl_bake_equals_gdaldem(data_dir, tmp_path, gl_context):
     assert np.abs(mine.astype(np.int64) - ref).max() <= 1
 
 
-def test_bake_uses_gl_and_falls_back_to_numpy(tmp_path, gl_context, monkeypatch):
-    """bake() shades with GL (tiled here) when a context exists; without one it falls back to
-    numpy and the pyramids agree within ±1."""
-    import approxtree.render.engine as engine_module
-    from approxtree.errors import ContextUnavailableError
-
+def test_bake_uses_gl_and_falls_back_to_numpy(tmp_path, gl_context):
+    """bake() shades with GL (tiled here) on the context it is given; without one it falls
+    back to numpy and the pyramids agree within ±1."""
     g = fractal_terrain(130, 150, seed=8, relief=250.0)
     on_gpu = bake(g, tmp_path / "gl", context=gl_context, tile_size=50, max_texture_size=64)
     assert on_gpu.gl and on_gpu.figures()["gl"] is True
-
-    def no_context():
-        raise ContextUnavailableError("no EGL here")
-
-    monkeypatch.setattr(engine_module, "create_context", no_context)
-    fallback = bake(g, tmp_path / "np", max_texture_size=64)
+    fallback = bake(g, tmp_path / "np", max_texture_size=64, context=None)
     assert fallback.gl is False
     a = np.asarray(on_gpu.pyramid.level(0)).astype(np.int64)
     b = np.asarray(fallback.pyramid.level(0)).astype(np.int64)

@@ -11,9 +11,9 @@ from click.testing import CliRunner
 from approxtree import ApproximationTree, InvalidParameterError
 from approxtree.cli import main
 from approxtree.datasets import fractal_terrain
-from approxtree.render import Camera, Engine
+from approxtree.render import Camera, Cut, Engine
 from approxtree.render.budget import node_triangles, select_budget
-from approxtree.render.engine import create_context
+from approxtree.render.context import create_context
 from approxtree.render.selector import select
 
 SIZE = (160, 120)
@@ -49,7 +49,7 @@ def test_budget_is_met_and_alpha_never_grows(engine, tree):
     budgets = np.unique(np.linspace(lo, int(counts[tree.leaves].sum()) + 10, 9).astype(int))
     reached = []
     for n in budgets:
-        frame = engine.render(cam, SIZE, max_triangles=int(n))
+        frame = engine.render(cam, SIZE, Cut(max_triangles=int(n)))
         assert frame.stats["triangles"] <= n
         assert frame.stats["triangles"] == frame.selection.stats["budget_triangles"]
         reached.append(frame.stats["max_alpha"])
@@ -62,8 +62,8 @@ def test_budget_alpha_beats_threshold_at_equal_triangles(engine, tree):
     """With the triangles a threshold frame drew, budget mode reaches an α no larger."""
     cam = view(tree)
     for alpha in (0.5, 2.0, 8.0):
-        thr = engine.render(cam, SIZE, alpha=alpha, gamma=float("inf"))
-        bud = engine.render(cam, SIZE, max_triangles=thr.stats["triangles"])
+        thr = engine.render(cam, SIZE, Cut(alpha=alpha, gamma=float("inf")))
+        bud = engine.render(cam, SIZE, Cut(max_triangles=thr.stats["triangles"]))
         assert bud.stats["triangles"] <= thr.stats["triangles"]
         assert bud.stats["max_alpha"] <= thr.stats["max_alpha"] + 1e-12
 
@@ -85,9 +85,9 @@ def test_budget_errors(engine, tree):
     """A budget below the coarsest cut, or not a positive int, raises a clear error."""
     cam = view(tree)
     with pytest.raises(InvalidParameterError, match="coarsest cut"):
-        engine.render(cam, SIZE, max_triangles=3)
+        engine.render(cam, SIZE, Cut(max_triangles=3))
     with pytest.raises(InvalidParameterError, match="max_triangles"):
-        engine.render(cam, SIZE, max_triangles=0)
+        engine.render(cam, SIZE, Cut(max_triangles=0))
 
 
 def test_cli_render_max_triangles(tree, tmp_path):

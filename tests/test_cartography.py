@@ -25,8 +25,8 @@ import approxtree as at
 from approxtree import ApproximationTree
 from approxtree.cli import main as cli_main
 from approxtree.datasets import fractal_terrain, sample_terrain
-from approxtree.render import Camera, Engine, FrameState, select
-from approxtree.render.engine import create_context
+from approxtree.render import Camera, Engine, FrameState, Style, select
+from approxtree.render.context import create_context
 from approxtree.render.frame_state import framing_camera
 from approxtree.render.style import WALL_COLOUR, Sun
 from approxtree.textures.palettes import PALETTES
@@ -38,7 +38,8 @@ def surface_coverage(engine: Engine, tree) -> float:
     """Fraction of a SIZE image covered by the terrain surface (walls left out) in the
     default framing of the tree."""
     cam = framing_camera(tree.bboxes[0], engine.scale, SIZE)
-    frame = engine.render(cam, SIZE, world_positions=True, background="transparent")
+    frame = engine.render(cam, SIZE, style=Style(background="transparent"))
+    engine.world_positions(frame)
     return float((frame.positions[..., 3] == 1).mean())
 
 
@@ -130,7 +131,7 @@ def test_exaggeration_raises_the_silhouette(gl_context, hills_tree):
     for k in (1.0, 4.0):
         with Engine(tree, context=gl_context, offscreen=True, exaggeration=k) as eng:
             assert eng.exaggeration == pytest.approx(k)
-            images[k] = eng.render(cam, (480, 320), background="transparent").image
+            images[k] = eng.render(cam, (480, 320), style=Style(background="transparent")).image
     flat, tall = silhouette_rows(images[1.0]), silhouette_rows(images[4.0])
     both = (flat < 320) & (tall < 320)
     assert both.mean() > 0.5
@@ -190,7 +191,8 @@ def test_sun_azimuth_decides_which_slopes_are_lit(gl_context, hills_tree):
     inv = ~grid.transform
     with Engine(tree, context=gl_context, offscreen=True, palette="grey") as eng:
         for az in (315, 135):
-            frame = eng.render(cam, (400, 400), sun=Sun(az, 45.0), world_positions=True)
+            frame = eng.render(cam, (400, 400), style=Style(sun=Sun(az, 45.0)))
+            eng.world_positions(frame)
             surface = frame.positions[..., 3] == 1
             xy = frame.positions[surface][:, :2]
             cols = np.floor(inv.a * xy[:, 0] + inv.c).astype(int)
@@ -215,7 +217,8 @@ def test_border_walls_have_the_wall_colour(gl_context, nc_tree):
     tol = 1e-4 * d.width
     with Engine(tree, context=gl_context, offscreen=True) as eng:
         cam = framing_camera(tree.bboxes[0], eng.scale, SIZE)
-        frame = eng.render(cam, SIZE, world_positions=True)
+        frame = eng.render(cam, SIZE)
+        eng.world_positions(frame)
     pos = frame.positions
     skirt = pos[..., 3] == 0
     on_border = (
@@ -240,9 +243,9 @@ def test_background_modes(gl_context, hills_tree):
     tree = hills_tree
     with Engine(tree, context=gl_context, offscreen=True) as eng:
         cam = framing_camera(tree.bboxes[0], eng.scale, (320, 240))
-        clear = eng.render(cam, (320, 240), background="transparent").image
-        sky = eng.render(cam, (320, 240), background="sky").image
-        red = eng.render(cam, (320, 240), background="#ff0000").image
+        clear = eng.render(cam, (320, 240), style=Style(background="transparent")).image
+        sky = eng.render(cam, (320, 240), style=Style(background="sky")).image
+        red = eng.render(cam, (320, 240), style=Style(background="#ff0000")).image
     off = clear[..., 3] == 0
     assert off.any() and (~off).any()
     assert (sky[..., 3] == 255).all() and (red[..., 3] == 255).all()
@@ -262,7 +265,8 @@ def test_palette_follows_elevation_not_the_data_range(gl_context, hills_tree):
     c = tree.terrain.domain.center
     cam = Camera.look_at((c[0], c[1], 15000.0), (c[0], c[1] + 1.0, 0.0), fov=30)
     with Engine(tree, context=gl_context, offscreen=True) as eng:
-        frame = eng.render(cam, (300, 300), lighting=False, world_positions=True)
+        frame = eng.render(cam, (300, 300), style=Style(lighting=False))
+        eng.world_positions(frame)
     surface = frame.positions[..., 3] == 1
     z = frame.positions[surface][:, 2]
     rgb = frame.image[surface][:, :3].astype(float)

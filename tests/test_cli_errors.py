@@ -31,7 +31,7 @@ from approxtree.errors import (
 )
 from approxtree.geometry import Grid
 from approxtree.render import Camera, Engine, overview_camera
-from approxtree.render.engine import EmptyFrameWarning
+from approxtree.render.frame import EmptyFrameWarning
 
 
 def run(*args: object) -> tuple[int, str, str]:

@@ -20,7 +20,7 @@ from test_render import gl_context  # noqa: F401 (shared GL fixture)
 import approxtree as at
 from approxtree import ApproximationTree
 from approxtree.geometry.grid import Grid
-from approxtree.render import Camera, Engine
+from approxtree.render import Camera, Cut, Engine
 from approxtree.render.frame_state import display_scale
 
 #: (file, crop rows r0:r1 and columns c0:c1 or None, void window (r0, r1, c0, c1) to frame).
@@ -132,8 +132,10 @@ def test_voids_are_as_see_through_at_alpha_1_as_at_full_resolution(
     eng = Engine(tree, context=gl_context, offscreen=True)
     try:
         for view, (camera, window) in views(grid, void_window(grid, name)).items():
-            full = eng.render(camera, SIZE, full_resolution=True, world_positions=True)
-            lod = eng.render(camera, SIZE, alpha=1.0, gamma=math.inf, world_positions=True)
+            full = eng.render(camera, SIZE, Cut(full_resolution=True))
+            eng.world_positions(full)
+            lod = eng.render(camera, SIZE, Cut(alpha=1.0, gamma=math.inf))
+            eng.world_positions(lod)
             roi = around(full, grid, window)
             bg_full = int(np.count_nonzero(roi & (full.image[..., 3] == 0)))
             bg_lod = int(np.count_nonzero(roi & (lod.image[..., 3] == 0)))
@@ -182,7 +184,8 @@ def test_coarse_cuts_draw_nothing_over_voids(gl_context, data_dir, alpha):  # no
     eng = Engine(tree, context=gl_context, offscreen=True)
     try:
         for view, (camera, _) in views(grid, void_window(grid, "kauai")).items():
-            lod = eng.render(camera, SIZE, alpha=alpha, gamma=math.inf, world_positions=True)
+            lod = eng.render(camera, SIZE, Cut(alpha=alpha, gamma=math.inf))
+            eng.world_positions(lod)
             assert lod.stats["triangles"] > 0
             bad = over_void(lod, grid)
             assert bad == 0, (view, alpha, bad)

@@ -12,7 +12,7 @@ from test_render import gl_context, holes_in_footprint  # noqa: F401 (shared GL 
 
 from approxtree import ApproximationTree, GridRefinement
 from approxtree.datasets import case_study_terrain, fractal_terrain
-from approxtree.render import Camera, Engine
+from approxtree.render import Camera, Cut, Engine
 
 
 def strategies_drawn(tree: ApproximationTree, nodes: np.ndarray) -> set[str]:
@@ -31,7 +31,7 @@ def test_no_cracks_in_a_hybrid_grid_and_tin_tree(gl_context):  # noqa: F811
     try:
         c = terrain.domain.center
         cam = Camera.look_at((c[0] - 300, c[1] - 1400, 1600), (c[0], c[1], 0), fov=60)
-        lod = eng.render(cam, (400, 400), alpha=1.0, gamma=math.inf)
+        lod = eng.render(cam, (400, 400), Cut(alpha=1.0, gamma=math.inf))
     finally:
         eng.release()
     assert strategies_drawn(tree, lod.selection.nodes) == {"grid", "tin"}
@@ -59,8 +59,8 @@ def test_no_cracks_in_a_grid_refinement_tree(gl_context, alpha):  # noqa: F811
     for skirts in (True, False):
         eng = Engine(tree, context=gl_context, offscreen=True, skirts=skirts)
         try:
-            full = eng.render(cam, (480, 360), full_resolution=True)
-            lod = eng.render(cam, (480, 360), alpha=alpha, gamma=math.inf)
+            full = eng.render(cam, (480, 360), Cut(full_resolution=True))
+            lod = eng.render(cam, (480, 360), Cut(alpha=alpha, gamma=math.inf))
         finally:
             eng.release()
         assert strategies_drawn(tree, lod.selection.nodes) == {"grid", "tin"}

@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="module")
 def gl():
     """Skip without an EGL OpenGL context (the previews then return None, tested below)."""
-    from approxtree.render.engine import create_context
+    from approxtree.render.context import create_context
 
     try:
         ctx = create_context()

@@ -17,11 +17,11 @@ from conftest import data_file
 import approxtree as at
 from approxtree import ApproximationTree
 from approxtree.datasets import fractal_terrain
-from approxtree.render import Camera, Engine, overview_camera
-from approxtree.render.engine import create_context
+from approxtree.render import Camera, Cut, Engine, Paging, overview_camera
+from approxtree.render.cache_keys import NODE, MeshKey, TextureKey
+from approxtree.render.context import create_context
 from approxtree.render.provider import Payload, PayloadProvider
 from approxtree.render.selector import select
-from approxtree.render.traversal import Cut
 
 SIZE = (320, 240)
 
@@ -65,7 +65,8 @@ def views(tree, scale) -> list[Camera]:
 
 def payload_bytes(engine: Engine) -> np.ndarray:
     """(n,) bytes of every node's payload (mesh with skirts), as uploaded."""
-    return np.array([engine._load_payload(("node", i)).nbytes for i in range(len(engine.tree))])
+    build = engine.provider.loader  # builds a payload without caching it
+    return np.array([build(MeshKey(NODE, i)).nbytes for i in range(len(engine.tree))])
 
 
 def record_blocking_loads(engine: Engine):
@@ -169,7 +170,7 @@ def test_interactive_frames_settle_to_the_resident_image(gl_context, stored_tree
         stand_ins = 0
         for cam, want in zip(cams, refs, strict=True):
             for _ in range(200):
-                frame = render(cam, SIZE, wait=False, max_uploads=8)
+                frame = render(cam, SIZE, paging=Paging(wait=False, max_uploads=8))
                 assert_partition(tree, want.selection.nodes, frame.selection.nodes)
                 stand_ins += frame.stats["stand_ins"]
                 if frame.stats["pending"] == 0:
@@ -179,7 +180,7 @@ def test_interactive_frames_settle_to_the_resident_image(gl_context, stored_tree
             assert np.array_equal(frame.image, want.image)
         assert stand_ins > 0
         # Only the root was read on the frame's thread; everything else on loader threads.
-        assert blocking == [("node", 0)]
+        assert blocking == [MeshKey(NODE, 0)]
 
 
 def test_budgets_hold_and_frames_stay_partitions_over_a_fly_over(gl_context, stored_tree):
@@ -199,7 +200,7 @@ def test_budgets_hold_and_frames_stay_partitions_over_a_fly_over(gl_context, sto
             x = d.xmin + (0.1 + 0.8 * t) * w
             y = d.ymin + 0.1 * w + 0.6 * w * t
             cam = Camera.look_at((x, y, top + 0.15 * w), (x + 0.2 * w, y + 0.3 * w, top - 0.1 * w))
-            frame = eng.render(cam, SIZE, wait=False, max_uploads=4)
+            frame = eng.render(cam, SIZE, paging=Paging(wait=False, max_uploads=4))
             assert eng.cache.nbytes <= budget, f"GPU cache over budget at frame {k}"
             assert eng.provider.nbytes <= budget, f"CPU cache over budget at frame {k}"
             wanted = select(tree, frame.frame_state, 1.0, 2.0, eng.texels).nodes
@@ -216,13 +217,13 @@ def test_release_frees_everything(gl_context, stored_tree):
     tree = stored_tree
     eng = Engine(tree, context=gl_context, offscreen=True, cpu_cache_bytes=1 << 24)
     cam = overview_camera(tree.bboxes[0], eng.scale)
-    eng.render(cam, SIZE, wait=False)
+    eng.render(cam, SIZE, paging=Paging(wait=False))
     eng.render(cam, SIZE)
     assert len(eng.cache) > 0 and eng.provider.nbytes > 0
     eng.release()
     assert eng.released and len(eng.cache) == 0 and eng.cache.nbytes == 0
     assert eng.provider.closed and len(eng.provider) == 0 and eng.provider.nbytes == 0
-    assert eng.provider._pool is None and not eng._targets
+    assert eng.provider._pool is None and not eng.renderer.targets
 
 
 # -- the provider alone (no GL) ---------------------------------------------------------------
@@ -305,14 +306,14 @@ def test_textured_tiny_caches_settle_to_the_resident_image(gl_context, tmp_path)
             frame = tiny.render(cam, SIZE)
             assert np.array_equal(frame.image, want.image)
             assert tiny.cache.nbytes <= budget and tiny.provider.nbytes <= budget
-        assert any(k[0] == "tex" for k in loaded) and tiny.provider.evictions > 0
+        assert any(isinstance(k, TextureKey) for k in loaded) and tiny.provider.evictions > 0
     with Engine(tree, textures=pyramid, context=gl_context, offscreen=True) as eng:
         blocking, render = record_blocking_loads(eng)
-        root_tex = eng._group_by_texture([("node", 0)], [("node", 0)])[0][0]
+        root_tex = TextureKey.of(eng.texture_patch(0))
         texture_stand_ins = 0
         for cam, want in zip(cams, refs, strict=True):
             for _ in range(200):
-                frame = render(cam, SIZE, wait=False, max_uploads=8)
+                frame = render(cam, SIZE, paging=Paging(wait=False, max_uploads=8))
                 texture_stand_ins += frame.stats["texture_stand_ins"]
                 if frame.stats["pending"] == 0 and frame.stats["texture_stand_ins"] == 0:
                     break
@@ -320,7 +321,7 @@ def test_textured_tiny_caches_settle_to_the_resident_image(gl_context, tmp_path)
             assert np.array_equal(frame.image, want.image)
         # Interactive frames read the store on the frame's thread only for the root's mesh
         # and texture patch; texture patches not loaded yet were stood in for by the root's.
-        assert set(blocking) <= {("node", 0), root_tex} and texture_stand_ins > 0
+        assert set(blocking) <= {MeshKey(NODE, 0), root_tex} and texture_stand_ins > 0
 
 
 def test_a_failed_background_load_fails_the_next_frame():

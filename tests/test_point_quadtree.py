@@ -10,6 +10,7 @@ from matplotlib.tri import LinearTriInterpolator, Triangulation
 
 import approxtree as at
 from approxtree import InvalidParameterError
+from approxtree.render.lod_cut import LodSelector, leaf_mesh, lod_mesh, node_mesh, node_meshes
 from approxtree.tree.point_quadtree import MAX_DEPTH, PointQuadtree
 
 
@@ -111,12 +112,12 @@ def test_replay_reproduces_coarse_fan_and_full_resolution(quadtree):
         pts = quadtree.points[lo:hi]
         order, errors = quadtree.orders[leaf]
         assert sorted(order.tolist()) == list(range(hi - lo))
-        v0, t0 = quadtree.leaf_mesh(leaf, 0)
+        v0, t0 = leaf_mesh(quadtree, leaf, 0)
         base = len(v0) - len(pts)
         assert len(t0) == base - 1 and (t0 == 0).any(axis=1).all()
         assert errors[0] == pytest.approx(mesh_error(v0, t0, pts), abs=1e-9)
         for k in range(1, hi - lo + 1):
-            v, t = quadtree.leaf_mesh(leaf, k)
+            v, t = leaf_mesh(quadtree, leaf, k)
             assert errors[k] == pytest.approx(mesh_error(v, t, pts), abs=1e-9)
         assert errors[-1] == 0.0
         used = np.unique(t)
@@ -128,7 +129,7 @@ def test_lod_mesh_covers_the_square_and_follows_the_tolerance(quadtree):
     s = quadtree.size
     eye = (quadtree.x0 - 10, quadtree.y0 - 10, 30.0)
     for c in (1e9, 10.0, 1.0, 0.0):
-        m = quadtree.lod_mesh(eye, 60.0, 640, c)
+        m = lod_mesh(quadtree, eye, 60.0, 640, c)
         v, t = m.vertices, m.triangles
         area = areas(v, t)
         assert (area >= -1e-9).all() and area.sum() == pytest.approx(s * s, rel=1e-9)
@@ -157,7 +158,7 @@ def test_autzen_ground_figures(data_dir):
     assert 0 < n_c < 0.2 * n_p
     d = terrain.domain
     eye = (d.center[0], d.ymin - 0.1 * d.height, terrain.z_range[1] + 100.0)
-    m = q.lod_mesh(eye, 60.0, 640, 10.0)
+    m = lod_mesh(q, eye, 60.0, 640, 10.0)
     assert 0 < len(m.triangles) < 0.1 * len(terrain.triangles)
 
 
@@ -191,7 +192,7 @@ def test_save_load_round_trip(quadtree, tmp_path):
         np.testing.assert_array_equal(back.orders[leaf][0], quadtree.orders[leaf][0])
         np.testing.assert_array_equal(back.orders[leaf][1], quadtree.orders[leaf][1])
     eye = (quadtree.x0 - 10, quadtree.y0 - 10, 30.0)
-    a, b = quadtree.lod_mesh(eye, 60.0, 640, 2.0), back.lod_mesh(eye, 60.0, 640, 2.0)
+    a, b = lod_mesh(quadtree, eye, 60.0, 640, 2.0), lod_mesh(back, eye, 60.0, 640, 2.0)
     np.testing.assert_array_equal(a.triangles, b.triangles)
     np.testing.assert_array_equal(a.vertices, b.vertices)
     old = tmp_path / "old.npz"
@@ -210,6 +211,7 @@ def test_node_error_bounds_every_fan_the_node_is_drawn_as(quadtree):
     import itertools
 
     internal = [n for n, inner in quadtree.children.items() if inner]
+    selector = LodSelector(quadtree)
     for node in internal[:: max(1, len(internal) // 30)]:
         lo, hi = quadtree.point_range(node)
         pts = quadtree.points[lo:hi]
@@ -218,14 +220,14 @@ def test_node_error_bounds_every_fan_the_node_is_drawn_as(quadtree):
             v = quadtree.boundary(node, list(mids))
             t = np.array([[0, a, a + 1 if a + 1 < len(v) else 1] for a in range(1, len(v))])
             measured.append(mesh_error(v, t, pts))
-            assert quadtree.fan_error(node, mids) == pytest.approx(measured[-1], abs=1e-9)
+            assert selector.fan_error(node, mids) == pytest.approx(measured[-1], abs=1e-9)
         assert quadtree.errors[node] == pytest.approx(max(measured), abs=1e-9)
 
 
 def reference_node_mesh(q: PointQuadtree, node, midpoints, keep, inserted):
     """The per-node Python mesh of a drawn node (``node_mesh`` before the batch kernel)."""
     if inserted >= 0:
-        v, t = q.leaf_mesh(node, int(inserted), keep=list(keep))
+        v, t = leaf_mesh(q, node, int(inserted), keep=list(keep))
     else:
         v = q.boundary(node, list(midpoints))
         b = len(v)
@@ -252,9 +254,9 @@ def test_batch_meshes_equal_the_per_node_meshes(quadtree):
     for ex, ey, ez in ((-10, -10, 30), (0.15 * s, 0.15 * s, 5), (0.6 * s, 0.2 * s, 2)):
         eye = (quadtree.x0 + ex, quadtree.y0 + ey, ez)
         for c in (8.0, 1.0, 0.2):
-            cut = quadtree.lod_cut(eye, 640 / np.radians(60), c)
-            verts, vstart, tris, tstart = quadtree.node_meshes(
-                cut.rows, cut.midpoints, cut.keep, cut.inserted
+            cut = LodSelector(quadtree).cut(eye, 640 / np.radians(60), c)
+            verts, vstart, tris, tstart = node_meshes(
+                quadtree, cut.rows, cut.midpoints, cut.keep, cut.inserted
             )
             assert len(vstart) == len(tstart) == len(cut.rows) + 1
             assert vstart[-1] == len(verts) and tstart[-1] == len(tris)
@@ -265,7 +267,7 @@ def test_batch_meshes_equal_the_per_node_meshes(quadtree):
                 np.testing.assert_array_equal(verts[vstart[m] : vstart[m + 1]], v)
                 np.testing.assert_array_equal(tris[tstart[m] : tstart[m + 1]], t)
                 # The single-node form is the same batch of one.
-                v1, t1 = quadtree.node_mesh(node, *args)
+                v1, t1 = node_mesh(quadtree, node, *args)
                 np.testing.assert_array_equal(v1, v)
                 np.testing.assert_array_equal(t1, t)
                 leaf = cut.inserted[m] >= 0

@@ -18,10 +18,12 @@ from test_render import gl_context  # noqa: F401 (shared GL fixture)
 import approxtree as at
 from approxtree.cli import main
 from approxtree.datasets import fractal_terrain
-from approxtree.render import Camera, Engine
-from approxtree.render.engine import STAT_KEYS
+from approxtree.render import Camera, Cut, Engine
+from approxtree.render import point_quadtree_source as source_module
+from approxtree.render.frame import STAT_KEYS
 from approxtree.render.frustum import boxes_in_frustum
-from approxtree.render.point_quadtree_engine import PointQuadtreeEngine, pixels_per_radian
+from approxtree.render.lod_cut import LodSelector, node_mesh, pixels_per_radian
+from approxtree.render.point_quadtree_source import PointQuadtreeSource
 from approxtree.render.selector import SelectionResult
 from approxtree.tree.point_quadtree import PointQuadtree
 from approxtree.tree.store import TreeFile
@@ -71,10 +73,10 @@ def background_pixels(eng: Engine, q: PointQuadtree) -> tuple[dict[tuple[str, fl
     each view is checked to be all terrain at full resolution first."""
     out, levels = {}, 0
     for name, cam in all_terrain_views(q).items():
-        full = eng.render(cam, SIZE, full_resolution=True)
+        full = eng.render(cam, SIZE, Cut(full_resolution=True))
         assert (full.image[..., 3] == 0).sum() == 0, f"view {name} is not all terrain"
         for alpha in ALPHAS:
-            lod = eng.render(cam, SIZE, alpha=alpha)
+            lod = eng.render(cam, SIZE, Cut(alpha=alpha))
             assert lod.stats["triangles"] < full.stats["triangles"]
             out[name, alpha] = int((lod.image[..., 3] == 0).sum())
             levels = max(levels, len(set(q.levels[lod.selection.nodes].tolist())))
@@ -86,7 +88,7 @@ def test_engine_draws_the_lod_mesh_without_cracks(gl_context, quadtree):  # noqa
     all-terrain view, with nodes of several levels on screen."""
     eng = Engine(quadtree, context=gl_context, offscreen=True)
     try:
-        assert isinstance(eng, PointQuadtreeEngine)
+        assert isinstance(eng.source, PointQuadtreeSource)
         holes, levels = background_pixels(eng, quadtree)
     finally:
         eng.release()
@@ -99,7 +101,7 @@ def test_an_unrestricted_cut_shows_cracks(gl_context, data_dir, monkeypatch):  #
     meet) the same views of all Autzen points show background pixels."""
     laz = data_file(data_dir, "lidar/autzen_trim.laz")
     q = PointQuadtree(at.open_terrain(laz), 50)
-    monkeypatch.setattr(PointQuadtree, "_restrict_rows", lambda self, *args: None)
+    monkeypatch.setattr(LodSelector, "_restrict_rows", lambda self, *args: None)
     eng = Engine(q, context=gl_context, offscreen=True)
     try:
         holes, _ = background_pixels(eng, q)
@@ -126,7 +128,7 @@ def test_every_data_point_is_drawn_within_alpha_pixels(gl_context, quadtree, alp
     eng = Engine(quadtree, context=gl_context, offscreen=True)
     try:
         frames = [
-            eng.render(cam, SIZE, alpha=alpha) for cam in all_terrain_views(quadtree).values()
+            eng.render(cam, SIZE, Cut(alpha=alpha)) for cam in all_terrain_views(quadtree).values()
         ]
         cuts_rows = [f.selection.nodes for f in frames]
     finally:
@@ -136,7 +138,7 @@ def test_every_data_point_is_drawn_within_alpha_pixels(gl_context, quadtree, alp
         assert set(frame.stats) == set(STAT_KEYS)
         assert 0 < frame.stats["max_alpha"] <= alpha
         fs = frame.frame_state
-        cut = quadtree.lod_cut(
+        cut = LodSelector(quadtree).cut(
             fs.eye,
             pixels_per_radian(fs),
             alpha,
@@ -150,8 +152,8 @@ def test_every_data_point_is_drawn_within_alpha_pixels(gl_context, quadtree, alp
             if hi == lo:
                 continue
             pts = quadtree.points[lo:hi]
-            v, t = quadtree.node_mesh(
-                node, tuple(cut.midpoints[k]), tuple(cut.keep[k]), int(cut.inserted[k])
+            v, t = node_mesh(
+                quadtree, node, tuple(cut.midpoints[k]), tuple(cut.keep[k]), int(cut.inserted[k])
             )
             h = mesh_heights(v, t, pts[:, :2])
             assert np.isfinite(h).all()
@@ -176,9 +178,8 @@ def test_nothing_is_drawn_outside_the_data_domain(gl_context, data_dir):  # noqa
     assert not q.in_domain.all()
     eng = Engine(q, context=gl_context, offscreen=True)
     try:
-        frame = eng.render(
-            overview_camera(q.bboxes[0], eng.scale), SIZE, alpha=1.0, world_positions=True
-        )
+        frame = eng.render(overview_camera(q.bboxes[0], eng.scale), SIZE, Cut(alpha=1.0))
+        eng.world_positions(frame)
     finally:
         eng.release()
     nodes = frame.selection.nodes
@@ -194,16 +195,16 @@ def test_meshes_stay_in_the_gpu_cache_between_frames(gl_context, quadtree):  # n
     eng = Engine(quadtree, context=gl_context, offscreen=True)
     try:
         cam = all_terrain_views(quadtree)["oblique"]
-        first = eng.render(cam, SIZE, alpha=2.0)
+        first = eng.render(cam, SIZE, Cut(alpha=2.0))
         # The selection reports the cut like an approximation tree's traversal.
         sel = first.selection
         assert sel.result_of(0) == SelectionResult.REFINED
         assert {sel.result_of(int(n)) for n in sel.nodes} == {SelectionResult.SELECTED}
         before = set(eng.cache.keys())
-        again = eng.render(cam, SIZE, alpha=2.0)
+        again = eng.render(cam, SIZE, Cut(alpha=2.0))
         assert set(eng.cache.keys()) == before
         assert again.stats["triangles"] == first.stats["triangles"]
-        close = eng.render(all_terrain_views(quadtree)["close"], SIZE, alpha=2.0)
+        close = eng.render(all_terrain_views(quadtree)["close"], SIZE, Cut(alpha=2.0))
         assert set(close.selection.nodes.tolist()) != set(first.selection.nodes.tolist())
     finally:
         eng.release()
@@ -218,22 +219,22 @@ def test_a_frame_builds_its_new_meshes_in_one_kernel_call(
     per node), and the cache still holds one entry per drawn node: a second view builds
     only its new nodes' meshes, again in one call."""
     calls = []
-    batch = PointQuadtree.node_meshes
+    batch = source_module.node_meshes
 
-    def counted(self, rows, *args):
+    def counted(tree, rows, *args):
         calls.append(len(rows))
-        return batch(self, rows, *args)
+        return batch(tree, rows, *args)
 
-    monkeypatch.setattr(PointQuadtree, "node_meshes", counted)
+    monkeypatch.setattr(source_module, "node_meshes", counted)
     eng = Engine(quadtree, context=gl_context, offscreen=True)
     try:
         views = all_terrain_views(quadtree)
-        first = eng.render(views["oblique"], SIZE, alpha=2.0)
+        first = eng.render(views["oblique"], SIZE, Cut(alpha=2.0))
         assert calls == [first.stats["patches"]]
         assert len(eng.cache) == first.stats["patches"]
         before = set(eng.cache.keys())
         calls.clear()
-        close = eng.render(views["close"], SIZE, alpha=2.0)
+        close = eng.render(views["close"], SIZE, Cut(alpha=2.0))
         new = set(eng.cache.keys()) - before
         assert len(new) > 0 and calls == [len(new)]
         assert close.stats["patches"] <= len(eng.cache)
@@ -250,9 +251,9 @@ def test_engine_refuses_what_does_not_apply(gl_context):  # noqa: F811
     try:
         cam = all_terrain_views(q)["top"]
         with pytest.raises(at.InvalidParameterError, match="triangle budget"):
-            eng.render(cam, SIZE, max_triangles=1000)
+            eng.render(cam, SIZE, Cut(max_triangles=1000))
         with pytest.raises(at.InvalidParameterError, match="alpha"):
-            eng.render(cam, SIZE, alpha=0.0)
+            eng.render(cam, SIZE, Cut(alpha=0.0))
     finally:
         eng.release()
 
@@ -332,7 +333,7 @@ def test_viewer_engine_path_draws_into_a_host_framebuffer(gl_context, tmp_path):
     try:
         assert eng.upload(0) is False
         fbo.use()
-        frame = eng.render(all_terrain_views(tree)["top"], SIZE, alpha=1.0, lighting="auto")
+        frame = eng.render(all_terrain_views(tree)["top"], SIZE, Cut(alpha=1.0))
         assert frame.image is None and frame.stats["triangles"] > 0
         host = np.frombuffer(fbo.read(components=4), dtype=np.uint8).reshape(h, w, 4)
         assert (host[..., 3] > 0).mean() == 1.0

@@ -234,11 +234,11 @@ def test_cut_mesh_of_the_leaves_partitions_the_domain(nc_tree):
 def test_cut_mesh_of_a_frame_is_what_it_drew(nc_tree):
     """tree.cut_mesh(frame.selection.nodes, skirts=True) has the triangles the frame drew,
     skirts included; without skirts, its nodes' patch triangles."""
-    from approxtree.render import Engine, framing_camera
+    from approxtree.render import Cut, Engine, framing_camera
 
     with Engine(nc_tree) as engine:
         camera = framing_camera(nc_tree.bboxes[0], engine.scale, (320, 240))
-        frame = engine.render(camera, (320, 240), alpha=1.0)
+        frame = engine.render(camera, (320, 240), Cut(alpha=1.0))
     nodes = frame.selection.nodes
     with_skirts = nc_tree.cut_mesh(nodes, skirts=True)
     assert len(with_skirts.triangles) == frame.stats["triangles"]
@@ -262,11 +262,13 @@ def test_cut_mesh_refuses_bad_node_ids(nc_tree):
 
 def test_point_quadtree_lod_mesh_to_trimesh():
     """A point quadtree's view mesh converts with its vertices, triangles and face nodes."""
+    from approxtree.render.lod_cut import lod_mesh
+
     rng = np.random.default_rng(3)
     xy = rng.uniform(0, 100, (400, 2))
     z = 10 + 0.2 * xy[:, 0] + 3 * np.sin(xy[:, 1] / 7)
     quadtree = at.PointQuadtree(at.TINPointSet(np.column_stack([xy, z])), max_points=20)
-    lod = quadtree.lod_mesh((50.0, -150.0, 120.0), 60.0, 640)
+    lod = lod_mesh(quadtree, (50.0, -150.0, 120.0), 60.0, 640)
     tm = lod.to_trimesh()
     check_mesh(tm.vertices, tm.faces, lod.vertices, lod.triangles)
     assert len(tm.face_attributes["node"]) == len(lod.triangles) > 0

@@ -14,8 +14,9 @@ from scipy.ndimage import binary_erosion
 
 from approxtree import ApproximationTree, ContextUnavailableError, InvalidParameterError
 from approxtree.datasets import fractal_terrain, sample_terrain
-from approxtree.render import Camera, Engine, overview_camera
-from approxtree.render.engine import STAT_KEYS, create_context
+from approxtree.render import Camera, Cut, Engine, Style, overview_camera
+from approxtree.render.context import create_context
+from approxtree.render.frame import STAT_KEYS
 from approxtree.render.gpu_cache import GpuCache
 from approxtree.render.shaders import ShaderError, create_program, load_source, shader_dir
 
@@ -60,8 +61,8 @@ def holes_in_footprint(gl_context, tree, skirts: bool) -> tuple[int, int, int]:
     try:
         cam = oblique_view(tree)
         # The unsimplified terrain shares every border vertex: its coverage is the footprint.
-        full = eng.render(cam, (400, 400), full_resolution=True)
-        lod = eng.render(cam, (400, 400), alpha=1.0, gamma=math.inf)
+        full = eng.render(cam, (400, 400), Cut(full_resolution=True))
+        lod = eng.render(cam, (400, 400), Cut(alpha=1.0, gamma=math.inf))
         levels = len(set(tree.levels[lod.selection.nodes].tolist()))
     finally:
         eng.release()
@@ -97,7 +98,8 @@ def test_screen_error_within_alpha(engine, fractal_tree, view, alpha):
     else:
         top = fractal_tree.bboxes[0][5]
         cam = Camera.look_at((c[0], c[1] - 300, top + 2000), (c[0], c[1] + 600, 0.0), fov=60)
-    frame = engine.render(cam, (480, 320), alpha=alpha, gamma=math.inf, world_positions=True)
+    frame = engine.render(cam, (480, 320), Cut(alpha=alpha, gamma=math.inf))
+    engine.world_positions(frame)
     # The cut must hold simplified patches, or the test proves nothing.
     assert (fractal_tree.errors[frame.selection.nodes] > 0).sum() >= 5
     pos = frame.positions
@@ -122,7 +124,7 @@ def test_image_covers_terrain_with_varied_shading(gl_context, sample_tree):
     leaves alpha 0 (transparent black) wherever no terrain is drawn."""
     with Engine(sample_tree, context=gl_context, offscreen=True) as eng:
         cam = overview_camera(sample_tree.bboxes[0], eng.scale)
-        frame = eng.render(cam, (320, 240), alpha=1.0, gamma=2.0)
+        frame = eng.render(cam, (320, 240), Cut(alpha=1.0, gamma=2.0))
     img = frame.image
     assert img.shape == (240, 320, 4) and img.dtype == np.uint8
     covered = img[..., 3] > 0
@@ -141,8 +143,8 @@ def test_image_covers_terrain_with_varied_shading(gl_context, sample_tree):
 def test_wireframe_differs(engine, fractal_tree):
     """The wireframe picture differs from the filled one over a large part of the terrain."""
     cam = oblique_view(fractal_tree)
-    filled = engine.render(cam, (200, 200), alpha=2.0)
-    wire = engine.render(cam, (200, 200), alpha=2.0, wireframe=True)
+    filled = engine.render(cam, (200, 200), Cut(alpha=2.0))
+    wire = engine.render(cam, (200, 200), Cut(alpha=2.0), style=Style(wireframe=True))
     differ = np.any(filled.image != wire.image, axis=-1)
     assert differ.mean() > 0.2
     assert wire.stats["triangles"] == filled.stats["triangles"]
@@ -151,8 +153,8 @@ def test_wireframe_differs(engine, fractal_tree):
 def test_full_resolution_draws_more_triangles(engine, fractal_tree):
     """--full-resolution draws every data cell (2 triangles each); the cut draws fewer."""
     cam = overview_camera(fractal_tree.bboxes[0], engine.scale)
-    full = engine.render(cam, (200, 150), full_resolution=True)
-    lod = engine.render(cam, (200, 150), alpha=1.0, gamma=math.inf)
+    full = engine.render(cam, (200, 150), Cut(full_resolution=True))
+    lod = engine.render(cam, (200, 150), Cut(alpha=1.0, gamma=math.inf))
     assert full.stats["triangles"] == 2 * 256 * 256
     assert lod.stats["triangles"] < full.stats["triangles"] / 4
 
@@ -169,12 +171,13 @@ def test_embedded_engine_draws_into_host_framebuffer(gl_context, fractal_tree):
         with Engine(fractal_tree, context=gl_context) as eng:
             host_fbo.use()
             host_fbo.clear(0.0, 0.0, 1.0, 1.0)
-            frame = eng.render(cam, size, alpha=2.0)
+            frame = eng.render(cam, size, Cut(alpha=2.0))
             assert frame.image is None
             host = np.frombuffer(host_fbo.read(components=4), np.uint8).reshape(120, 160, 4)
-            reference = eng.render(cam, size, alpha=2.0, target=None, read_image=True).image
+            eng.render(cam, size, Cut(alpha=2.0))
+            reference = eng.renderer.read_image(gl_context.fbo, size)
         with Engine(fractal_tree, context=gl_context, offscreen=True) as off:
-            offscreen = off.render(cam, size, alpha=2.0).image
+            offscreen = off.render(cam, size, Cut(alpha=2.0)).image
         assert (host[..., 3] > 0).mean() > 0.3
         assert np.array_equal(host[::-1], offscreen)
         assert np.array_equal(reference, offscreen)
@@ -207,9 +210,9 @@ def test_small_cache_budget_still_draws_the_whole_frame(gl_context, fractal_tree
     """With a budget far below one frame's meshes the frame is complete and memory bounded."""
     cam = oblique_view(fractal_tree)
     with Engine(fractal_tree, context=gl_context, offscreen=True) as big:
-        expected = big.render(cam, (400, 400), alpha=1.0, gamma=math.inf)
+        expected = big.render(cam, (400, 400), Cut(alpha=1.0, gamma=math.inf))
     with Engine(fractal_tree, context=gl_context, offscreen=True, cache_bytes=200_000) as small:
-        frame = small.render(cam, (400, 400), alpha=1.0, gamma=math.inf)
+        frame = small.render(cam, (400, 400), Cut(alpha=1.0, gamma=math.inf))
         assert small.cache.evictions > 0
         assert frame.stats["gpu_bytes"] <= 200_000 + 100_000
     assert expected.stats["gpu_bytes"] > 1_000_000
@@ -220,7 +223,7 @@ def test_release_frees_everything(gl_context, fractal_tree):
     """release() empties the cache, frees programs and buffers, keeps the host's context
     usable, and a released engine refuses to render."""
     eng = Engine(fractal_tree, context=gl_context, offscreen=True)
-    eng.render(oblique_view(fractal_tree), (64, 64), alpha=2.0)
+    eng.render(oblique_view(fractal_tree), (64, 64), Cut(alpha=2.0))
     assert len(eng.cache) > 0
     eng.release()
     assert eng.released and len(eng.cache) == 0 and eng.cache.nbytes == 0
@@ -250,7 +253,7 @@ def test_bad_inputs_raise_clear_errors(engine, fractal_tree):
             engine.render(cam, size)
     for alpha in (0.0, -2.0, math.nan):
         with pytest.raises(InvalidParameterError, match="alpha"):
-            engine.render(cam, (32, 32), alpha=alpha)
+            engine.render(cam, (32, 32), Cut(alpha=alpha))
     with pytest.raises(InvalidParameterError, match="finite"):
         Camera.look_at((math.inf, 0, 0), (0, 0, 0))
     with pytest.raises(InvalidParameterError, match="TexturePyramid"):
@@ -345,7 +348,7 @@ def test_cli_render_writes_rgba_png_and_stats(tmp_path, fractal_tree):
 def test_normal_map_in_strips_equals_the_whole_map():
     """The normal map is computed in row strips (bounded memory); each strip's halo rows make
     every texel the one the whole map gives, at strip seams, borders and holes alike."""
-    from approxtree.render import engine as engine_module
+    from approxtree.render.normal_map import normal_texels, normals
 
     rng = np.random.default_rng(0)
     for ny, nx in [(1000, 70), (257, 3), (2, 5), (513, 40)]:
@@ -353,6 +356,6 @@ def test_normal_map_in_strips_equals_the_whole_map():
         z[255:258, 1:3] = np.nan
         xs = np.sort(rng.uniform(0, 1000, nx))
         ys = np.sort(rng.uniform(0, 1000, ny))
-        whole = engine_module._normals(z, xs, ys)[..., :2]
+        whole = normals(z, xs, ys)[..., :2]
         want = np.rint((whole * 0.5 + 0.5) * 255.0).astype(np.uint8)
-        np.testing.assert_array_equal(engine_module._normal_texels(z, xs, ys), want)
+        np.testing.assert_array_equal(normal_texels(z, xs, ys), want)

@@ -18,8 +18,9 @@ import approxtree as at
 from approxtree import ApproximationTree, InvalidParameterError
 from approxtree.cli import main as cli_main
 from approxtree.datasets import fractal_terrain
-from approxtree.render import Camera, Engine, overview_camera, select
-from approxtree.render.engine import STAT_KEYS, create_context
+from approxtree.render import Camera, Cut, Engine, Style, overview_camera, select
+from approxtree.render.context import create_context
+from approxtree.render.frame import STAT_KEYS
 from approxtree.render.selector import SelectionResult
 from approxtree.render.texture_sharing import texture_nodes
 from approxtree.textures import TexturePatch, TexturePyramid, TopographicShading
@@ -140,8 +141,8 @@ def test_textured_frames_report_patches_and_switches(gl_context, tree, pyramid):
     fewer textures; without a pyramid both are 0; set_textures switches at run time."""
     with Engine(tree, textures=pyramid, context=gl_context, offscreen=True) as eng:
         cam = views(tree)[1]
-        shared = eng.render(cam, (480, 360), alpha=0.1, gamma=4.0)
-        alone = eng.render(cam, (480, 360), alpha=0.1, gamma=4.0, share_textures=False)
+        shared = eng.render(cam, (480, 360), Cut(alpha=0.1, gamma=4.0))
+        alone = eng.render(cam, (480, 360), Cut(alpha=0.1, gamma=4.0, share_textures=False))
         assert set(shared.stats) == set(STAT_KEYS)
         assert np.array_equal(eng.texels, patch_texel_sizes(pyramid, tree.rects))
         for f in (shared, alone):
@@ -157,12 +158,12 @@ def test_textured_frames_report_patches_and_switches(gl_context, tree, pyramid):
         )
         textured = shared.image
         eng.set_textures(None)
-        plain = eng.render(cam, (480, 360), alpha=0.1, gamma=4.0)
+        plain = eng.render(cam, (480, 360), Cut(alpha=0.1, gamma=4.0))
         assert plain.stats["texture_patches"] == plain.stats["texture_switches"] == 0
         assert plain.texture_nodes is None
         assert (np.any(plain.image != textured, axis=-1)).mean() > 0.3
         eng.set_textures(pyramid.folder)
-        again = eng.render(cam, (480, 360), alpha=0.1, gamma=4.0)
+        again = eng.render(cam, (480, 360), Cut(alpha=0.1, gamma=4.0))
         assert np.array_equal(again.image, textured)
 
 
@@ -171,12 +172,12 @@ def test_textured_frames_under_a_small_cache_and_at_full_resolution(gl_context, 
     (textures stay pinned while their meshes are drawn); full resolution is textured too."""
     cam = views(tree)[1]
     with Engine(tree, textures=pyramid, context=gl_context, offscreen=True) as big:
-        expected = big.render(cam, (320, 240), alpha=0.5, gamma=2.0)
-        full = big.render(cam, (320, 240), full_resolution=True)
+        expected = big.render(cam, (320, 240), Cut(alpha=0.5, gamma=2.0))
+        full = big.render(cam, (320, 240), Cut(full_resolution=True))
     with Engine(
         tree, textures=pyramid, context=gl_context, offscreen=True, cache_bytes=300_000
     ) as small:
-        frame = small.render(cam, (320, 240), alpha=0.5, gamma=2.0)
+        frame = small.render(cam, (320, 240), Cut(alpha=0.5, gamma=2.0))
         assert small.cache.evictions > 0
     assert expected.stats["gpu_bytes"] > 1_000_000
     assert np.array_equal(frame.image, expected.image)
@@ -193,10 +194,9 @@ def test_decal_mode_draws_the_texture_unlit(gl_context, tree, pyramid):
     c = tree.terrain.domain.center
     cam = Camera.look_at((c[0], c[1], 9000), (c[0], c[1], 0), fov=40)
     with Engine(tree, textures=pyramid, context=gl_context, offscreen=True) as eng:
-        unlit = eng.render(
-            cam, (400, 400), alpha=1.0, gamma=1.0, lighting=False, world_positions=True
-        )
-        lit = eng.render(cam, (400, 400), alpha=1.0, gamma=1.0, lighting=True)
+        unlit = eng.render(cam, (400, 400), Cut(alpha=1.0, gamma=1.0), style=Style(lighting=False))
+        eng.world_positions(unlit)
+        lit = eng.render(cam, (400, 400), Cut(alpha=1.0, gamma=1.0), style=Style(lighting=True))
     img = unlit.image.astype(int)
     surface = unlit.positions[..., 3] == 1
     assert surface.mean() > 0.5
@@ -267,8 +267,9 @@ def test_nc_land_use_lands_at_its_map_positions(gl_context, nc_tree, data_dir, t
     with Engine(nc_tree, textures=result.pyramid, context=gl_context, offscreen=True) as eng:
         for cam in cams:
             frame = eng.render(
-                cam, (500, 400), alpha=1.0, gamma=1.0, lighting=False, world_positions=True
+                cam, (500, 400), Cut(alpha=1.0, gamma=1.0), style=Style(lighting=False)
             )
+            eng.world_positions(frame)
             # A pixel's footprint in texels: trilinear filtering mixes texels that far apart.
             pos = frame.positions[..., :2] / 10.0
             steps = [np.abs(np.gradient(pos[..., j], axis=a)) for j in (0, 1) for a in (0, 1)]

@@ -498,9 +498,9 @@ def test_render_of_a_windowed_tree_equals_in_memory(monkeypatch):
     """Full resolution, the LOD cut and a strided normal map draw the same pixels."""
     from approxtree import ApproximationTree
     from approxtree.datasets import fractal_terrain
-    from approxtree.render import Engine, overview_camera
-    from approxtree.render import engine as engine_module
-    from approxtree.render.engine import create_context
+    from approxtree.render import Cut, Engine, overview_camera
+    from approxtree.render import normal_map as normal_map_module
+    from approxtree.render.context import create_context
 
     base = fractal_terrain(129, seed=7, relief=200.0)
     z = np.array(base.heights, dtype=np.float32)
@@ -509,7 +509,7 @@ def test_render_of_a_windowed_tree_equals_in_memory(monkeypatch):
     g = Grid(z, t, base.crs)
     w = Grid(WindowedHeights(ArraySource(z), cache_bytes=64 * 1024, block_shape=(32, 32)), t)
     # A normal map smaller than the grid: rows and columns are read with a stride.
-    monkeypatch.setattr(engine_module, "NORMAL_MAP_MAX", 50)
+    monkeypatch.setattr(normal_map_module, "NORMAL_MAP_MAX", 50)
     ctx = create_context()
     images = []
     try:
@@ -518,8 +518,8 @@ def test_render_of_a_windowed_tree_equals_in_memory(monkeypatch):
             eng = Engine(tree, context=ctx, offscreen=True)
             try:
                 cam = overview_camera(tree.bboxes[0], eng.scale)
-                full = eng.render(cam, (160, 120), full_resolution=True).image
-                lod = eng.render(cam, (160, 120), alpha=1.0).image
+                full = eng.render(cam, (160, 120), Cut(full_resolution=True)).image
+                lod = eng.render(cam, (160, 120), Cut(alpha=1.0)).image
             finally:
                 eng.release()
             images.append((full, lod))

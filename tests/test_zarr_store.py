@@ -124,6 +124,8 @@ def test_grid_refinement_round_trip(tmp_path):
 
 
 def test_point_quadtree_round_trip(tmp_path):
+    from approxtree.render.lod_cut import lod_mesh
+
     rng = np.random.default_rng(7)
     xy = np.concatenate([rng.uniform(0, 100, (400, 2)), rng.uniform(0, 20, (600, 2))])
     z = np.sin(xy[:, 0] / 9.0) * 5
@@ -141,7 +143,7 @@ def test_point_quadtree_round_trip(tmp_path):
         for leaf in q.leaves:
             np.testing.assert_array_equal(back.orders[leaf][0], q.orders[leaf][0])
         eye = (q.x0 - 10, q.y0 - 10, 30.0)
-        a, b = q.lod_mesh(eye, 60.0, 640, 2.0), back.lod_mesh(eye, 60.0, 640, 2.0)
+        a, b = lod_mesh(q, eye, 60.0, 640, 2.0), lod_mesh(back, eye, 60.0, 640, 2.0)
         np.testing.assert_array_equal(a.triangles, b.triangles)
 
 
@@ -486,10 +488,11 @@ def test_stored_overview_feeds_the_normal_map(tmp_path, monkeypatch):
     from affine import Affine
 
     import approxtree.geometry.grid as grid_module
-    from approxtree.render import engine as engine_module
+    from approxtree.render import Engine
+    from approxtree.render import normal_map as normal_map_module
 
     monkeypatch.setattr(grid_module, "OVERVIEW_SIDE", 64)
-    monkeypatch.setattr(engine_module, "NORMAL_MAP_MAX", 64)
+    monkeypatch.setattr(normal_map_module, "NORMAL_MAP_MAX", 64)
     base = fractal_terrain(300, seed=2)
     z = np.array(base.heights)
     z[10:20, 5:50] = np.nan
@@ -502,14 +505,14 @@ def test_stored_overview_feeds_the_normal_map(tmp_path, monkeypatch):
         tree.save(path)
         back = load_tree(path)
         np.testing.assert_array_equal(back.terrain.strided_heights(rs, cs), z[::rs, ::cs])
-        with engine_module.Engine(tree) as e:
+        with Engine(tree) as e:
             want = np.array(e.normal_map.read())
         monkeypatch.setattr(ZarrHeightSource, "read", _no_terrain_reads)
-        with engine_module.Engine(back) as e:
+        with Engine(back) as e:
             np.testing.assert_array_equal(np.array(e.normal_map.read()), want)
         monkeypatch.undo()
         monkeypatch.setattr(grid_module, "OVERVIEW_SIDE", 64)
-        monkeypatch.setattr(engine_module, "NORMAL_MAP_MAX", 64)
+        monkeypatch.setattr(normal_map_module, "NORMAL_MAP_MAX", 64)
 
 
 def _no_terrain_reads(*args, **kwargs):

@@ -138,6 +138,7 @@ def bake_command(
     from approxtree.errors import InvalidParameterError
     from approxtree.io.output_path import check_output_folder
     from approxtree.progress import progress_bar
+    from approxtree.render.context import optional_context
     from approxtree.textures.bake import bake
 
     check_output_folder(out, "texture pyramid folder")
@@ -167,7 +168,12 @@ def bake_command(
         )
     if palette is not None and thematic is None:
         raise InvalidParameterError("--palette colours a --thematic raster; give one.")
-    with progress_bar("baking pyramid", unit="row", quiet=quiet) as on_progress:
+    # The hillshade is baked with OpenGL on a context made here (numpy without one).
+    gl = not no_gl and shading == "topographic"
+    with (
+        optional_context(gl) as gl_context,
+        progress_bar("baking pyramid", unit="row", quiet=quiet) as on_progress,
+    ):
         result = bake(
             terrain,
             out,
@@ -184,6 +190,7 @@ def bake_command(
             texel_size=texel,
             max_texture_size=max_texture_size,
             gl=not no_gl,
+            context=gl_context,
         )
     _emit(result.figures(), as_json)
     # The pyramid is complete and every file closed: the program may skip the teardown.

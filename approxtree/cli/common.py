@@ -355,16 +355,19 @@ def _render_to_png(
     pyramid; lighting: "auto", "on"/True or "off"/False (decal). style: exaggeration, sun,
     palette, background, lighting (``cartographic_options``; its lighting wins).
     """
-    from approxtree.render import Camera, Engine, framing_camera
-    from approxtree.render.engine import EmptyFrameWarning
-    from approxtree.render.style import Background, Sun
+    from approxtree.render import Camera, Cut, Engine, Style, Sun, framing_camera
+    from approxtree.render.frame import EmptyFrameWarning
 
     image_format(path)
     style = dict(style or {})
-    lighting = style.pop("lighting", lighting)
-    # Bad style values fail before any GL work.
-    sun = Sun(*style.pop("sun", (315.0, 45.0)))
-    background = Background.parse(style.pop("background", "transparent"))
+    # Bad cut and style values fail before any GL work.
+    cut = Cut(alpha, gamma, max_triangles, full_resolution)
+    look = Style(
+        lighting=style.pop("lighting", lighting),
+        sun=Sun(*style.pop("sun", (315.0, 45.0))),
+        background=style.pop("background", "transparent"),
+        wireframe=wireframe,
+    )
     # An empty frame is reported below as one Warning line, not as Python's warning text.
     with (
         warnings.catch_warnings(),
@@ -384,19 +387,8 @@ def _render_to_png(
         else:
             centre = tuple(0.5 * (box[:3] + box[3:]))
             camera = Camera.look_at(eye, target if target is not None else centre, fov=fov)
-        frame = engine.render(
-            camera,
-            size,
-            alpha,
-            gamma,
-            wireframe=wireframe,
-            full_resolution=full_resolution,
-            lighting=lighting,
-            max_triangles=max_triangles,
-            sun=sun,
-            background=background,
-        )
-    _save_image(path, frame.image, background)
+        frame = engine.render(camera, size, cut, style=look)
+    _save_image(path, frame.image, look.background)
     stats = {k: (_finite(v) if isinstance(v, float) else v) for k, v in frame.stats.items()}
     stats["image"] = str(path)
     if stats.get("warning"):

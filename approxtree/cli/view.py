@@ -113,11 +113,11 @@ def view(
 ) -> None:
     """Open an interactive window over a tree file or a DEM (F1 in the window: keys)."""
     from approxtree.io.output_path import check_output_file, check_output_folder
-    from approxtree.render.selector import check_thresholds
+    from approxtree.render.cut import Cut
     from approxtree.viewer import load_script, parse_key_presses, script_frames
     from approxtree.viewer.app import Viewer
 
-    check_thresholds(alpha, gamma)
+    Cut(alpha, gamma)  # bad thresholds fail before the window opens
     if stats_path is not None:
         check_output_file(stats_path, "stats file")
     if screenshots is not None:

@@ -107,6 +107,10 @@ class GpuCache:
         """Keys from least to most recently used."""
         return list(self._entries)
 
+    def is_resident(self, keys: list[Hashable]) -> np.ndarray:
+        """(k,) bool: whether each of ``keys`` has an entry (no entry is touched)."""
+        return np.array(list(map(self._entries.__contains__, keys)), dtype=bool)
+
     def get(self, key: Hashable, build: Callable[[], tuple[np.ndarray, np.ndarray]]) -> GpuMesh:
         """The mesh of ``key``; on a miss ``build()`` gives (vertex data (n, 4) float32 in
         VERTEX_LAYOUT, triangles (m, 3) uint32) to upload."""

@@ -1,10 +1,11 @@
 """PayloadProvider: node payloads loaded on background threads into a CPU cache bounded in bytes.
 
-The provider is the first of the renderer's three roles (DESIGN.md, "Renderer roles"): it turns
-a key — ``("node", i)`` for a patch mesh with its skirts, ``("tex", ...)`` for a texture patch —
-into the arrays the renderer uploads, reading the tree's store lazily, and keeps them in an LRU
-cache whose size in bytes never exceeds its budget (a payload larger than the whole budget is
-handed to the caller but not kept).
+The provider is the first of the renderer's three roles (DESIGN.md, "Renderer roles"): with the
+loader of a tile source (render/source.py) it turns a key — a ``MeshKey`` for a patch mesh with
+its skirts, a ``TextureKey`` for a texture patch (render/cache_keys.py) — into the arrays the
+renderer uploads, reading the tree's store lazily, and keeps them in an LRU cache whose size in
+bytes never exceeds its budget (a payload larger than the whole budget is handed to the caller
+but not kept).
 
 - ``request(keys)`` (coarsest first) replaces the wanted list: keys queued by an earlier frame
   and not asked for again are cancelled (a view already left is never loaded late); the
@@ -49,13 +50,24 @@ class Payload:
     def nbytes(self) -> int:
         return sum(a.nbytes for a in (self.vertices, self.triangles, self.texels) if a is not None)
 
+    @classmethod
+    def mesh(
+        cls, vertices: np.ndarray, triangles: np.ndarray, flags: np.ndarray, origin: np.ndarray
+    ) -> Payload:
+        """The payload of a mesh: world vertices (n, 3) relative to ``origin`` (3,) with their
+        skirt flags (n,) as VERTEX_LAYOUT float32, triangles (m, 3) as uint32."""
+        data = np.empty((len(vertices), 4), dtype=np.float32)
+        data[:, :3] = vertices - origin
+        data[:, 3] = flags
+        return cls(data, np.ascontiguousarray(triangles, dtype=np.uint32).reshape(-1, 3))
+
 
 class PayloadProvider:
     """Loads payloads with ``loader(key) -> Payload`` on ``threads`` background threads into an
     LRU cache of at most ``cache_bytes`` bytes (see the module docstring)."""
 
     def __init__(
-        self, loader: Callable[[Hashable], Payload], cache_bytes: int, threads: int = 2
+        self, loader: Callable[[Any], Payload], cache_bytes: int, threads: int = 2
     ) -> None:
         if not (isinstance(cache_bytes, int) and cache_bytes > 0):
             raise InvalidParameterError(f"cpu_cache_bytes must be an int > 0, got {cache_bytes!r}.")

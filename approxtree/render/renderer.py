@@ -4,8 +4,8 @@ The renderer is the third of the renderer's three roles (DESIGN.md, "Renderer ro
 every GL object the Engine draws with, uploads payloads into the GpuCache (bounded in bytes,
 least recently used out) within a per-frame budget, draws a frame's groups of meshes, reads
 images back, and frees everything in ``release()`` — nothing relies on the garbage collector.
-It neither selects nor loads: the traversal decides what to draw, the provider supplies the
-arrays (``build`` callbacks).
+It neither selects nor loads: the traversal decides what to draw, the tile source supplies the
+payloads (``load`` callbacks, through the provider's CPU cache).
 """
 
 from __future__ import annotations
@@ -18,14 +18,15 @@ import numpy as np
 
 from approxtree.render.frame_state import FrameState
 from approxtree.render.gpu_cache import GpuCache, GpuMesh, GpuTexture
+from approxtree.render.provider import Payload
 from approxtree.render.shaders import create_program
-from approxtree.render.style import WALL_COLOUR, Background
+from approxtree.render.style import WALL_COLOUR, Background, Style
 
 #: moderngl.TRIANGLES (moderngl is imported where GL is used).
 _TRIANGLES = 0x0004
 
-#: build() -> (vertex data (n, 4) float32, triangles (m, 3) uint32)
-MeshBuild = Callable[[], tuple[np.ndarray, np.ndarray]]
+#: load(key) -> the Payload of a mesh or texture key (a tile source's ``load``).
+Load = Callable[[Any], Payload]
 
 
 class Renderer:
@@ -73,6 +74,13 @@ class Renderer:
         tex.repeat_y = False
         self.normal_map, self.normal_uv = tex, np.asarray(uv, dtype=np.float64)
 
+    def set_walls(self, domain: Any, origin: np.ndarray) -> None:
+        """Draw the skirts on the border of ``domain`` (a Rect, world units) as side walls
+        (``domain`` in local coordinates, relative to ``origin`` (3,))."""
+        d, (ox, oy, _) = domain, origin
+        self.domain = (d.xmin - ox, d.ymin - oy, d.xmax - ox, d.ymax - oy)
+        self.domain_tol = 1e-5 * max(d.xmax - d.xmin, d.ymax - d.ymin, 1e-9)
+
     def set_palette(self, lut: np.ndarray, z_local: tuple[float, float]) -> None:
         """Replace the hypsometric palette by ``lut`` (n, 3) uint8, whose first and last
         texel centres sit at local heights ``z_local``."""
@@ -84,18 +92,30 @@ class Renderer:
         tex.repeat_y = False
         self.palette, self.palette_z = tex, (float(z_local[0]), float(z_local[1]))
 
-    def mesh(self, key: Hashable, build: MeshBuild) -> GpuMesh:
-        """The GPU mesh of ``key``, uploaded from ``build()`` on a miss."""
-        return self.cache.get(key, build)
+    def mesh(self, key: Hashable, load: Load) -> GpuMesh:
+        """The GPU mesh of ``key``, uploaded from ``load(key)`` (a mesh Payload) on a miss."""
+        return self.cache.get(key, lambda: _mesh_arrays(load(key)))
 
-    def texture(self, key: Hashable, build: Callable[[], np.ndarray]) -> GpuTexture:
-        """The GPU texture of ``key``, uploaded from ``build()`` ((h, w, 4) uint8) on a miss."""
-        return self.cache.get_texture(key, build)
+    def texture(self, key: Hashable, load: Load) -> GpuTexture:
+        """The GPU texture of ``key``, uploaded from ``load(key)`` (a texture Payload: (h, w,
+        4) uint8 texels) on a miss."""
+        return self.cache.get_texture(key, lambda: load(key).texels)  # type: ignore[arg-type,return-value]
+
+    def upload(self, groups: Sequence[tuple[Any, Sequence[Hashable]]], load: Load) -> Any:
+        """Upload what a frame draws, the groups [(texture key or None, mesh keys)], from
+        ``load``; returns the resident (texture, meshes) per group, or None when the frame
+        exceeded the cache budget (entries were evicted: the draw fetches them again)."""
+        evictions = self.cache.evictions
+        resident = [
+            (None if tex is None else self.texture(tex, load), [self.mesh(k, load) for k in keys])
+            for tex, keys in groups
+        ]
+        return resident if self.cache.evictions == evictions else None
 
     def upload_within(
         self,
         keys: Sequence[Hashable],
-        build: Callable[[Hashable], tuple[np.ndarray, np.ndarray]],
+        load: Load,
         max_uploads: int | None = None,
         budget_ms: float | None = None,
     ) -> int:
@@ -111,7 +131,7 @@ class Renderer:
                 break
             if key in self.cache:
                 continue
-            self.cache.get(key, lambda key=key: build(key))
+            self.mesh(key, load)
             uploads += 1
         return uploads
 
@@ -132,33 +152,47 @@ class Renderer:
             self.targets[key] = fbo
         return fbo
 
+    def read_image(self, target: Any, size: tuple[int, int]) -> np.ndarray:
+        """(h, w, 4) uint8 RGBA of ``target``'s first ``size`` (w, h) pixels, row 0 at the top."""
+        w, h = size
+        raw = target.read(viewport=(0, 0, w, h), components=4, alignment=1)
+        return np.frombuffer(raw, dtype=np.uint8).reshape(h, w, 4)[::-1].copy()
+
+    def read_positions(self, target: Any, size: tuple[int, int], origin: np.ndarray) -> np.ndarray:
+        """(h, w, 4) float64 world x, y, z and flag drawn by the "position" program into
+        ``target`` (local coordinates + ``origin``; x, y, z NaN where nothing was drawn)."""
+        w, h = size
+        raw = target.read(viewport=(0, 0, w, h), components=4, dtype="f4", alignment=1)
+        local = np.frombuffer(raw, dtype=np.float32).reshape(h, w, 4)[::-1].astype(np.float64)
+        out = local.copy()
+        out[..., :3] += origin
+        out[local[..., 3] < -0.5, :3] = np.nan
+        return out
+
     # -- drawing ------------------------------------------------------------------------------
 
     def draw(
         self,
         target: Any,
         fs: FrameState,
-        groups: list[tuple[Any, list[Hashable]]],
+        groups: Sequence[tuple[Any, Sequence[Hashable]]],
         resident: list[tuple[Any, list[Any]]] | None,
-        wireframe: bool,
         program: str,
-        lighting: bool,
-        z_range: tuple[float, float],
-        fetch_mesh: Callable[[Hashable], GpuMesh],
-        fetch_texture: Callable[[Hashable], GpuTexture],
-        texture_uv: Callable[[Hashable], tuple[float, float, float, float]],
-        light: Sequence[float] = (-0.5, 0.5, 0.70710678),
-        background: Background | None = None,
+        style: Style,
+        lit: bool,
+        load: Load,
+        texture_uv: Callable[[Any], tuple[float, float, float, float]] | None = None,
         shade_texture: bool = False,
     ) -> tuple[float, int, int]:
         """Clear ``target`` and draw the groups [(texture key or None, mesh keys)].
 
         resident: per group (texture, meshes) already uploaded, or None to fetch each entry
-        while drawing (a frame larger than the cache budget). z_range: local z range of the
-        terrain (unused by the palette, which carries its own). light: (3,) unit vector
-        towards the sun (display coordinates). background: drawn behind the terrain (its
-        colour channels only: alpha stays 0 there); None or transparent: nothing.
-        shade_texture: the textures are grey shading that shades the palette.
+        from ``load`` while drawing (a frame larger than the cache budget). program:
+        "terrain", "textured" or "position" (world positions into a float target). style:
+        wireframe, the sun (the light, a unit vector in display coordinates) and the
+        background (drawn behind the terrain, its colour channels only: alpha stays 0 there).
+        lit: the light modulates the colour. texture_uv(texture key): its uv transform
+        ("textured"). shade_texture: the textures are grey shading that shades the palette.
         Returns (ms incl. ctx.finish(), triangles, texture binds).
         """
         import moderngl
@@ -166,10 +200,11 @@ class Renderer:
         ctx = self.ctx
         prog = self.programs[program]
         w, h = fs.viewport
+        wireframe, background = style.wireframe, style.background
         prog["u_mvp"].write(fs.local_to_clip.T.astype("f4").tobytes())
         if program in ("terrain", "textured"):
             prog["u_palette_z"].value = self.palette_z
-            prog["u_light"].value = tuple(float(v) for v in light)
+            prog["u_light"].value = tuple(float(v) for v in style.sun.direction)
             prog["u_wall"].value = WALL_COLOUR
             prog["u_domain"].value = self.domain
             prog["u_domain_tol"].value = self.domain_tol
@@ -177,7 +212,7 @@ class Renderer:
             self.palette.use(location=2)
             prog["u_normal_uv"].value = tuple(self.normal_uv)
             prog["u_line"].value = 1.0 if wireframe else 0.0
-            prog["u_lighting"].value = 1.0 if lighting else 0.0
+            prog["u_lighting"].value = 1.0 if lit else 0.0
             prog["u_normals"].value = 0
             self.normal_map.use(location=0)
         if program == "textured":
@@ -197,11 +232,11 @@ class Renderer:
                     if tex_key is not None and program == "textured":
                         # Pinned while its meshes are fetched, so it outlives their uploads.
                         self.cache.pinned = {tex_key}
-                        tex = resident[g][0] if resident else fetch_texture(tex_key)
+                        tex = resident[g][0] if resident else self.texture(tex_key, load)
                         tex.texture.use(location=1)
-                        prog["u_tex_uv"].value = texture_uv(tex_key)
+                        prog["u_tex_uv"].value = texture_uv(tex_key)  # type: ignore[misc]
                         switches += 1
-                    meshes = resident[g][1] if resident else (fetch_mesh(k) for k in keys)
+                    meshes = resident[g][1] if resident else (self.mesh(k, load) for k in keys)
                     for mesh in meshes:
                         if mesh.triangles == 0:
                             continue
@@ -210,7 +245,7 @@ class Renderer:
             finally:
                 ctx.wireframe = False
                 self.cache.pinned = set()
-            if background is not None and background.opaque and program != "position":
+            if background.opaque and program != "position":
                 self._draw_background(target, background)
             ctx.finish()
         return (time.perf_counter() - t0) * 1e3, triangles, switches
@@ -260,3 +295,8 @@ def _release_fbo(fbo: Any) -> None:
         if att is not None:
             att.release()
     fbo.release()
+
+
+def _mesh_arrays(payload: Payload) -> tuple[np.ndarray, np.ndarray]:
+    """(vertex data (n, 4) float32, triangles (m, 3) uint32) of a mesh payload."""
+    return payload.vertices, payload.triangles  # type: ignore[return-value]

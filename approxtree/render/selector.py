@@ -28,8 +28,8 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from approxtree.errors import InvalidParameterError
 from approxtree.kernels._jit import readonly
+from approxtree.render.cut import Cut
 from approxtree.render.frame_state import FrameState
 from approxtree.render.frustum import box_in_frustum
 from approxtree.render.visual_error import (
@@ -77,18 +77,6 @@ class Selection:
         return SelectionResult(int(self.results[hit[0]])) if len(hit) else None
 
 
-def check_thresholds(alpha: float, gamma: float) -> tuple[float, float]:
-    """alpha, gamma as floats > 0 (gamma may be +inf: texture error ignored)."""
-    for name, v, inf_ok in (("alpha", alpha, False), ("gamma", gamma, True)):
-        ok = isinstance(v, int | float | np.floating | np.integer) and not math.isnan(v)
-        if not ok or v <= 0 or (math.isinf(v) and not inf_ok):
-            raise InvalidParameterError(
-                f"{name} must be a {'number' if inf_ok else 'finite number'} of pixels > 0, "
-                f"got {v!r}."
-            )
-    return float(alpha), float(gamma)
-
-
 def eye_below_ground(tree, frame: FrameState) -> bool:
     """True when the eye is above the domain and below h_T there."""
     x, y, z = frame.eye
@@ -114,7 +102,8 @@ def select(
     texels: (n, 2) texel sizes; ``texel_sizes(tree)`` when None (callers that draw many
     frames compute it once).
     """
-    alpha, gamma = check_thresholds(alpha, gamma)
+    cut = Cut(alpha, gamma)  # the thresholds are checked where a Cut is made
+    alpha, gamma = cut.alpha, cut.gamma
     if texels is None:
         texels = texel_sizes(tree)
     empty_i = np.empty(0, dtype=np.int64)

@@ -1,7 +1,10 @@
 """Cartographic style of a frame: the sun, the background, the side-wall colour, lighting.
 
 These are render-time settings: none of them changes the selection (the exaggeration, which
-does, is the Engine's display scale). The shaders get them as uniforms.
+does, is the Engine's display scale; the palette is the Engine's too, uploaded once). The
+shaders get them as uniforms. ``Style`` carries a frame's settings into ``Engine.render``.
+
+- ``Style``: lighting, sun, background and wireframe of one frame, validated when made.
 
 - ``Sun``: azimuth (degrees clockwise from north) and altitude (degrees above the horizon) of
   the light, in display coordinates (x east, y north, z up, z already exaggerated), the
@@ -153,3 +156,38 @@ def resolve_lighting(lighting: bool | str | None, textured: bool) -> bool:
     raise InvalidParameterError(
         f"lighting must be True, False, 'on', 'off' or 'auto', got {lighting!r}."
     )
+
+
+@dataclass(frozen=True, init=False)
+class Style:
+    """What a frame looks like (none of it changes the cut), validated when made.
+
+    lighting: True/"on" modulates the colour by the light, False/"off" draws it unlit (decal),
+    "auto" lights untextured terrain only (``resolve_lighting``). sun: the light of
+    ``lighting`` and of the side walls (a Sun, or (azimuth, altitude) in degrees; None: the
+    default Sun). background: a Background, or what ``Background.parse`` reads
+    ("transparent", "sky", a colour name, "#rrggbb", (r, g, b)); an opaque one makes the
+    read-back image opaque. wireframe: draw triangle edges instead of filled triangles.
+    """
+
+    lighting: bool | str | None
+    sun: Sun
+    background: Background
+    wireframe: bool
+
+    def __init__(
+        self,
+        lighting: bool | str | None = "auto",
+        sun: Sun | tuple[float, float] | None = None,
+        background: Background | str | tuple | None = None,
+        wireframe: bool = False,
+    ) -> None:
+        resolve_lighting(lighting, textured=False)  # a bad mode fails here
+        object.__setattr__(self, "lighting", lighting)
+        object.__setattr__(self, "sun", as_sun(sun))
+        object.__setattr__(self, "background", Background.parse(background))
+        object.__setattr__(self, "wireframe", bool(wireframe))
+
+    def lit(self, textured: bool) -> bool:
+        """Whether the light modulates the colour of terrain that is ``textured`` or not."""
+        return resolve_lighting(self.lighting, textured)

@@ -4,12 +4,12 @@ The traversal is the second of the renderer's three roles (DESIGN.md, "Renderer 
 pure: from a FrameState, a Cut and the tree's flat arrays it decides, and the caller (the
 Engine) carries the decisions out with the provider and the renderer.
 
-1. The wanted cut: the selector's traversal by alpha and gamma, or by a triangle budget, or
-   the full-resolution chunks (``Cut``).
+1. The wanted cut: the tile source's selection for the frame's ``Cut`` (render/source.py): the
+   selector's traversal by alpha and gamma, a triangle budget, or the full-resolution chunks.
 2. Wanted nodes missing from the GPU, and their missing ancestors, coarsest level first
    (``upload_order``): those whose payload is in the CPU cache are uploaded this frame (up to
-   ``max_uploads``), the others are requested from the provider in that order — a request
-   replaces the previous frame's, so views already left are never loaded late.
+   ``max_uploads`` of ``Paging``), the others are requested from the provider in that order —
+   a request replaces the previous frame's, so views already left are never loaded late.
 3. Every wanted node not yet drawable is replaced by its nearest drawable ancestor and nodes
    under a drawn ancestor are dropped (``nearest_resident``, ``drop_covered``): the drawn cut
    is a crack-free partition of the wanted cut's area — coarser, never with holes or overlaps.
@@ -19,6 +19,7 @@ Engine) carries the decisions out with the provider and the renderer.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
@@ -26,7 +27,7 @@ import numpy as np
 
 from approxtree.errors import InvalidParameterError
 from approxtree.render.frame_state import FrameState
-from approxtree.render.selector import Selection, check_thresholds
+from approxtree.render.selector import Selection
 from approxtree.render.visual_error import visual_errors
 
 #: is_resident(ids (k,) int64) -> (k,) bool
@@ -34,29 +35,29 @@ Residency = Callable[[np.ndarray], np.ndarray]
 
 
 @dataclass(frozen=True)
-class Cut:
-    """How a frame's cut is chosen.
+class Paging:
+    """How a frame waits for the store (step 2 above).
 
-    alpha: α threshold (px, > 0); gamma: γ threshold (px², > 0, inf ignores it);
-    max_triangles: triangle budget instead of alpha (the cut of smallest largest α with at
-    most this many triangles, skirts included); full_resolution: the unsimplified terrain.
+    wait: draw the settled cut, loading every payload it needs (a single image). False: an
+    interactive frame that never waits for the store except for the root: the nodes not
+    loaded yet are requested in the background and their nearest resident ancestors drawn
+    meanwhile (stats "stand_ins", "pending"). max_uploads: meshes such a frame uploads at
+    most (None: every one in the CPU cache); upload_ms: its upload budget in milliseconds,
+    counted after the first upload (None: no limit).
     """
 
-    alpha: float = 1.0
-    gamma: float = 2.0
-    max_triangles: int | None = None
-    full_resolution: bool = False
+    wait: bool = True
+    max_uploads: int | None = None
+    upload_ms: float | None = None
 
     def __post_init__(self) -> None:
-        alpha, gamma = check_thresholds(self.alpha, self.gamma)
-        object.__setattr__(self, "alpha", alpha)
-        object.__setattr__(self, "gamma", gamma)
-        if self.max_triangles is not None and not (
-            isinstance(self.max_triangles, int | np.integer) and self.max_triangles > 0
-        ):
-            raise InvalidParameterError(
-                f"max_triangles must be an int > 0 or None, got {self.max_triangles!r}."
-            )
+        n = self.max_uploads
+        if n is not None and (isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 0):
+            raise InvalidParameterError(f"max_uploads must be an int >= 0 or None, got {n!r}.")
+        ms = self.upload_ms
+        if ms is not None and not (isinstance(ms, int | float) and not math.isnan(ms)):
+            raise InvalidParameterError(f"upload_ms must be a number or None, got {ms!r}.")
+        object.__setattr__(self, "wait", bool(self.wait))
 
 
 def nearest_resident(nodes: np.ndarray, parents: np.ndarray, is_resident: Residency) -> np.ndarray:

@@ -7,9 +7,10 @@ resolution the texture needs (core paper, 5.3). Thematic rasters are resampled o
 lattice (nearest for class tables, bilinear for continuous fields), vector layers rasterized,
 and the layers blended in the order thematic · shading, then overlays on top.
 
-Topographic shading is baked offscreen with OpenGL (``gl_bake``, tiled, section 5.3) when a
-context can be made, and with the numpy kernel otherwise (ContextUnavailableError): both give
-gdaldem's values within ±1 grey level. Phong and Gouraud shading use numpy.
+Topographic shading is baked offscreen with OpenGL (``gl_bake``, tiled, section 5.3) on the
+context the caller passes (``approxtree.render.context.create_context``; the CLI makes one),
+and with the numpy kernel without one: both give gdaldem's values within ±1 grey level. Phong
+and Gouraud shading use numpy.
 """
 
 from __future__ import annotations
@@ -196,11 +197,11 @@ def bake(
     overview; the water classes of the thematic layer and the ``water`` polygon layers are
     drawn over them (a stream does not cross a lake). blend: how shading combines with the
     thematic layer ("shade" keeps the legend colour on flat ground).
-    gl: bake topographic shading with OpenGL when possible (context: a moderngl Context, or
-    None for a standalone EGL one; tile_size: forced tile side, see ``gl_hillshade``);
-    False always uses numpy. progress(done, total): texel rows of the pyramid written, all
-    levels together, after each strip (``approxtree.progress``; the numpy shading is computed
-    strip by strip, an OpenGL one before the first strip).
+    gl: bake topographic shading with OpenGL on ``context`` (a moderngl Context, e.g.
+    ``approxtree.render.context.create_context()``; None: numpy; tile_size: forced tile
+    side, see ``gl_hillshade``); False always uses numpy. progress(done, total): texel rows
+    of the pyramid written, all levels together, after each strip (``approxtree.progress``;
+    the numpy shading is computed strip by strip, an OpenGL one before the first strip).
     """
     t0 = time.perf_counter()
     # The pyramid's folder must be writable before any work (its parents are never created).
@@ -338,6 +339,8 @@ def _gl_shading(
     from approxtree.errors import ContextUnavailableError
     from approxtree.textures.gl_bake import GLTopographicShading
 
+    if context is None:
+        return False, shading
     on_gpu = GLTopographicShading(shading.terrain, context=context, tile_size=tile_size, **options)
     try:
         # Computed now, so a missing context falls back before the pyramid is written.

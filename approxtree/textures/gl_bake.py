@@ -7,6 +7,9 @@ each tile's height texture carries a one-texel halo of its neighbours' heights (
 outside the grid, which reproduces gdaldem's nodata border), so every texel reads the same
 nine heights as in one pass and tiled output equals untiled output exactly.
 
+The context is the caller's (a moderngl Context; ``approxtree.render.context.create_context``
+makes a standalone one): the textures room never creates one (DESIGN.md, "Package layout").
+
 Heights go to the GPU as float32 relative to the grid's lowest height (one offset for all
 tiles), so float32 keeps the differences the gradients need; the result equals the float64
 numpy kernel within ±1 grey level after rounding.
@@ -22,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from approxtree.errors import InvalidParameterError
+from approxtree.errors import ContextUnavailableError, InvalidParameterError
 from approxtree.kernels import hillshade as hs
 from approxtree.textures.shading import ALGORITHMS, TopographicShading
 
@@ -45,9 +48,9 @@ def gl_hillshade(
 ) -> np.ndarray:
     """``shading.hillshade()`` computed on the GPU: (rows, cols) float32 in [1, 255], 0 = nodata.
 
-    context: a moderngl Context; None creates a standalone EGL one for the call (raises
-    ContextUnavailableError when none can be made). tile_size: side of the tiles drawn
-    (default: DEFAULT_TILE, at most what the context allows).
+    context: the moderngl Context to draw on (None: ContextUnavailableError, which ``bake``
+    answers with the numpy kernel). tile_size: side of the tiles drawn (default:
+    DEFAULT_TILE, at most what the context allows).
     """
     return _on_context(shading, context, tile_size, np.float32)
 
@@ -55,21 +58,20 @@ def gl_hillshade(
 def _on_context(
     shading: TopographicShading, context: Any, tile_size: int | None, dtype: type
 ) -> np.ndarray:
-    """The tiles drawn on ``context`` (None: a standalone one for the call) into a (rows, cols)
-    array of ``dtype``: float32 values, or uint8 grey levels rounded tile by tile."""
-    from approxtree.render.engine import create_context
+    """The tiles drawn on ``context`` into a (rows, cols) array of ``dtype``: float32 values,
+    or uint8 grey levels rounded tile by tile."""
     from approxtree.render.shaders import create_program
 
     if tile_size is not None and not (isinstance(tile_size, int) and tile_size >= 1):
         raise InvalidParameterError(f"tile_size must be an int >= 1, got {tile_size!r}.")
-    ctx = create_context() if context is None else context
-    try:
-        tile = min(tile_size or DEFAULT_TILE, max_tile_size(ctx))
-        out = np.zeros(shading.terrain.shape, dtype=dtype)
-        return _draw_tiles(ctx, create_program, shading, tile, out)
-    finally:
-        if context is None:
-            ctx.release()
+    if context is None:
+        raise ContextUnavailableError(
+            "Baking with OpenGL needs a context: pass one made by "
+            "approxtree.render.context.create_context() (context=)."
+        )
+    tile = min(tile_size or DEFAULT_TILE, max_tile_size(context))
+    out = np.zeros(shading.terrain.shape, dtype=dtype)
+    return _draw_tiles(context, create_program, shading, tile, out)
 
 
 def _uniforms(shading: TopographicShading) -> dict[str, Any]:
@@ -158,8 +160,8 @@ def _draw_tiles(
 class GLTopographicShading(TopographicShading):
     """TopographicShading whose hillshade is baked on the GPU (same options and results ±1).
 
-    context: moderngl Context or None (a standalone EGL one per call); tile_size: see
-    ``gl_hillshade``.
+    context: the moderngl Context to draw on (the caller's; None: ``hillshade()`` raises
+    ContextUnavailableError); tile_size: see ``gl_hillshade``.
     """
 
     def __init__(

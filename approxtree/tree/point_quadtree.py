@@ -13,19 +13,13 @@ Build (pre-processing):
    centre and the corners); each leaf records, at build time, the order in which its points are
    inserted (largest error first) and the error after every insertion.
 
-Render time (``lod_cut``, ``lod_mesh``): a node is refined while the screen projection error
-ρ = λ·δ/d > C, λ the pixels per radian of the view, d the distance from the eye to the
-node's 3-D box (so δ/d bounds the angle any vertical error segment in the node subtends);
-the cut is restricted again (nodes split by the restriction are checked in turn); a drawn
-leaf replays its insertion order up to the first prefix whose measured error is within
-C·d/λ. Edge midpoints are kept where the drawn neighbour is finer and laid on the straight
-edge otherwise (with a zero-area triangle over the edge, so rasterization leaves no pinhole
-at the T-junction), so the mesh is continuous. The Engine maps its α to C and draws the
-cut (render/point_quadtree_engine.py).
-
-δ(node) of an internal node is the largest error over every fan the node can be drawn as
-(with or without each side's midpoint); a drawn leaf's error is measured for its actual
-boundary (``leaf_errors``), so every drawn node's ρ is a measured bound, never an estimate.
+The quadtree holds structure and build only. Render time — the view-dependent cut (a node
+refined while its screen projection error ρ = λ·δ/d exceeds the tolerance C, the cut
+restricted again, leaves replaying a prefix of their insertion order) and the meshes of its
+drawn nodes — lives in render/lod_cut.py; the Engine draws it through its tile source
+(render/point_quadtree_source.py). δ(node) of an internal node is the largest error over every
+fan the node can be drawn as (with or without each side's midpoint), so the cut's screen
+errors are measured bounds, never estimates.
 
 Storage: ``save`` writes a tree store (``tree.tree_store``: terrain plus the "quadtree"
 arrays) or, for a ``.atree`` path, the project's legacy tree file (tree kind "point_quadtree",
@@ -35,9 +29,7 @@ refuses the ``.npz`` files of earlier versions with a StoreError saying to rebui
 
 from __future__ import annotations
 
-import math
 import os
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -46,14 +38,10 @@ from approxtree.errors import InvalidParameterError, StoreError
 from approxtree.geometry.tin import TIN
 from approxtree.kernels.point_quadtree import (
     fan_errors,
-    first_within,
-    insert_points,
     insertion_orders,
     morton_codes,
-    node_meshes,
     range_z_bounds,
 )
-from approxtree.patches.mesh_objects import MeshConversions
 
 #: ``meta["tree_kind"]`` of a point quadtree inside a .atree tree file.
 TREE_KIND = "point_quadtree"
@@ -73,52 +61,6 @@ _SIDES = ((-1, 0), (1, 0), (0, -1), (0, 1))
 def _encode(level: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
     """(k,) int64 keys of nodes (level, i, j), increasing with (level, i, j)."""
     return (np.asarray(level, np.int64) << 42) | (np.asarray(i, np.int64) << 21) | j
-
-
-@dataclass
-class LODCut:
-    """The drawn nodes of one view (k of them), each with the figures of its mesh.
-
-    rows: (k,) node rows; midpoints, keep: (k, 4) bool per side W, E, S, N (a midpoint
-    vertex; it keeps its lattice height, else lies on the straight edge); inserted: (k,)
-    points replayed (leaves) or −1 (a coarse node's fan); errors: (k,) measured max
-    |z − mesh| over each visible node's points (δ for culled ones); distances: (k,) d
-    (display units); visible: (k,) inside the frustum; nodes_visited: nodes the traversal
-    reached; refined: rows of the nodes replaced by their children (ancestors of the cut).
-    """
-
-    rows: np.ndarray
-    midpoints: np.ndarray
-    keep: np.ndarray
-    inserted: np.ndarray
-    errors: np.ndarray
-    distances: np.ndarray
-    visible: np.ndarray
-    nodes_visited: int
-    refined: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
-
-    def screen_errors(self, lam: float) -> np.ndarray:
-        """(k,) ρ = λ·error/d of each drawn node (pixels; inf at d = 0 with an error)."""
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rho = np.where(self.distances > 0, lam * self.errors / self.distances, np.inf)
-        return np.where(self.errors == 0, 0.0, rho)
-
-
-@dataclass
-class LODMesh(MeshConversions):
-    """A view-dependent mesh: vertices (n, 3) world, triangles (m, 3), figures of the cut;
-    face_nodes: (m,) int64 node row of each face. ``to_trimesh()``/``to_pyvista()`` carry z
-    and "node" (the face's node row)."""
-
-    vertices: np.ndarray
-    triangles: np.ndarray
-    nodes: int
-    leaves_refined: int
-    points_inserted: int
-    face_nodes: np.ndarray | None = None
-
-    def _face_data(self) -> dict[str, np.ndarray]:
-        return {} if self.face_nodes is None else {"node": self.face_nodes}
 
 
 class PointQuadtree:
@@ -350,8 +292,6 @@ class PointQuadtree:
         b = self.bboxes
         self.in_domain = (b[:, 0] < d.xmax) & (b[:, 3] > d.xmin) & (b[:, 1] < d.ymax)
         self.in_domain &= b[:, 4] > d.ymin
-        self._leaf_error_cache: dict[tuple, np.ndarray] = {}
-        self._fan_error_cache: dict[tuple, float] = {}
 
     def _lookup(self, level: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
         """(k,) rows of nodes (level, i, j), −1 where there is no such node."""
@@ -452,219 +392,6 @@ class PointQuadtree:
         self.order_flat = np.concatenate(
             [np.zeros(0, dtype=np.int64)] + [self.orders[self.node_keys[r]][0] for r in leaves]
         ).astype(np.int64)
-
-    # -- render time ---------------------------------------------------------------------------
-
-    def leaf_mesh(
-        self, leaf: tuple[int, int, int], k: int, keep: list[bool] | None = None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """(vertices, triangles) of ``leaf`` after replaying its first k insertions."""
-        lo, hi = self.point_range(leaf)
-        order, _ = self.orders[leaf]
-        base = self.boundary(leaf, self.tree_finer[self.index[leaf]].tolist(), keep)
-        pts = self.points[lo:hi]
-        replay = order if len(order) else np.array([-1])
-        _, _, tris = insert_points(base, pts, replay if k else np.array([0]), k)
-        return np.concatenate([base, pts]), tris
-
-    def leaf_errors(self, leaf: tuple[int, int, int], keep: tuple[bool, ...]) -> np.ndarray:
-        """(n + 1,) measured max |z − mesh| over the leaf's points after 0..n insertions of its
-        recorded order, for the boundary whose midpoints keep their heights per ``keep``."""
-        tree_keep = tuple(self.tree_finer[self.index[leaf]].tolist())
-        keep = tuple(bool(k) and t for k, t in zip(keep, tree_keep, strict=True))
-        if keep == tree_keep:
-            return self.orders[leaf][1]
-        key = (leaf, keep)
-        errors = self._leaf_error_cache.get(key)
-        if errors is None:
-            lo, hi = self.point_range(leaf)
-            order = self.orders[leaf][0]
-            base = self.boundary(leaf, list(tree_keep), list(keep))
-            replay = order if len(order) else np.array([-1])
-            _, errors, _ = insert_points(base, self.points[lo:hi], replay, hi - lo)
-            self._leaf_error_cache[key] = errors
-        return errors
-
-    def fan_error(self, node: tuple[int, int, int], midpoints: tuple[bool, ...]) -> float:
-        """Measured max |z − fan| over the node's points for the fan with ``midpoints``."""
-        key = (node, tuple(bool(m) for m in midpoints))
-        err = self._fan_error_cache.get(key)
-        if err is None:
-            lo, hi = self.point_range(node)
-            base = self.boundary(node, list(key[1]))
-            err = float(insert_points(base, self.points[lo:hi], np.array([-1]), 0)[1][0])
-            self._fan_error_cache[key] = err
-        return err
-
-    def lod_cut(
-        self,
-        eye: tuple[float, float, float] | np.ndarray,
-        lam: float,
-        tolerance: float,
-        scale: np.ndarray | None = None,
-        visible: np.ndarray | None = None,
-    ) -> LODCut:
-        """The restricted cut for an eye (world), λ (pixels per radian), tolerance C (pixels).
-
-        scale: (3,) display scale applied to eye-to-box offsets (d in display units);
-        visible: (n,) bool per node row, False for nodes outside the frustum (never refined).
-        """
-        e = np.asarray(eye, dtype=np.float64)
-        sc = np.ones(3) if scale is None else np.asarray(scale, dtype=np.float64)
-        box = self.bboxes
-        d = np.linalg.norm((e - np.clip(e, box[:, :3], box[:, 3:])) * sc, axis=1)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rho = np.where(d > 0, lam * self.node_errors / d, np.inf)
-        rho[self.node_errors == 0] = 0.0
-        want = self.internal & (rho > tolerance)
-        if visible is not None:
-            want &= np.asarray(visible, dtype=bool)
-        # Traversal from the root, level by level (rows are sorted by level).
-        reached = np.zeros(len(self), dtype=bool)
-        reached[0] = True
-        bounds = np.searchsorted(self.levels, np.arange(self.levels[-1] + 2))
-        for level in range(1, int(self.levels[-1]) + 1):
-            rows = np.arange(bounds[level], bounds[level + 1])
-            p = self.parents[rows]
-            reached[rows] = reached[p] & want[p]
-        refined = reached & want
-        drawn = reached & ~want
-        self._restrict_rows(drawn, refined, want)
-        rows = np.flatnonzero(drawn)
-        cut_finer = np.stack(
-            [refined[np.maximum(nb, 0)] & (nb >= 0) for nb in self._side_rows(rows)], axis=1
-        )
-        midpoints = np.where(self.internal[rows, None], cut_finer, self.tree_finer[rows])
-        inserted = np.where(self.internal[rows], -1, 0)
-        errors = self.node_errors[rows].copy()
-        vis = np.ones(len(rows), dtype=bool) if visible is None else np.asarray(visible)[rows]
-        budgets = tolerance * d[rows] / lam
-        # A visible leaf with the boundary it was recorded with replays up to its first prefix
-        # within C·d/λ (one kernel call for all of them).
-        recorded = vis & ~self.internal[rows] & (cut_finer == self.tree_finer[rows]).all(axis=1)
-        r = rows[recorded]
-        inserted[recorded], errors[recorded] = first_within(
-            self.order_errors,
-            self.error_start[r],
-            self.ranges[r, 1] - self.ranges[r, 0] + 1,
-            budgets[recorded],
-        )
-        # The others, beside a drawn neighbour of another level: a leaf whose midpoint lies on
-        # the coarser neighbour's straight edge, or a coarse node's fan; their errors are
-        # measured for that boundary on first use.
-        for k in np.flatnonzero(vis & ~recorded).tolist():
-            node = self.node_keys[rows[k]]
-            if self.internal[rows[k]]:
-                errors[k] = self.fan_error(node, tuple(midpoints[k]))
-                continue
-            errs = self.leaf_errors(node, tuple(cut_finer[k]))
-            within = errs <= budgets[k]
-            inserted[k] = int(np.argmax(within)) if within.any() else len(errs) - 1
-            errors[k] = errs[inserted[k]]
-        return LODCut(
-            rows,
-            midpoints,
-            cut_finer & midpoints,
-            inserted,
-            errors,
-            d[rows],
-            vis,
-            int(reached.sum()),
-            np.flatnonzero(refined),
-        )
-
-    def _side_rows(self, rows: np.ndarray) -> list[np.ndarray]:
-        return [self._neighbour(di, dj, rows) for di, dj in _SIDES]
-
-    def _restrict_rows(self, drawn: np.ndarray, refined: np.ndarray, want: np.ndarray) -> None:
-        """Restrict the cut in place: split drawn nodes next to neighbours refined twice along
-        the shared edge (leaves two levels apart would meet), and nodes the splits put in the
-        cut that ask for refinement themselves; repeat until stable."""
-        # Children of the west, east, south, north neighbour that touch the shared edge.
-        adjacent = ((1, 0, 1, 1), (0, 0, 0, 1), (0, 1, 1, 1), (0, 0, 1, 0))
-        while True:
-            cand = np.flatnonzero(drawn & self.internal)
-            if len(cand) == 0:
-                return
-            lv, i, j = self.levels[cand], self.cells[cand, 0], self.cells[cand, 1]
-            split = want[cand].copy()
-            for (di, dj), (a0, b0, a1, b1) in zip(_SIDES, adjacent, strict=True):
-                ni, nj = i + di, j + dj
-                for a, b in ((a0, b0), (a1, b1)):
-                    kid = self._lookup(lv + 1, 2 * ni + a, 2 * nj + b)
-                    split |= (kid >= 0) & refined[np.maximum(kid, 0)]
-            if not split.any():
-                return
-            s = cand[split]
-            drawn[s] = False
-            refined[s] = True
-            drawn[self.child_rows[s].ravel()] = True
-
-    def node_mesh(
-        self,
-        node: tuple[int, int, int],
-        midpoints: tuple[bool, ...],
-        keep: tuple[bool, ...],
-        inserted: int,
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """(vertices (n, 3) world, triangles (m, 3)) of one drawn node of a cut.
-
-        inserted: points replayed (a leaf), or −1 for a coarse node's fan. A midpoint laid on
-        the straight edge (not kept) gets a zero-area triangle over its edge: the coarser
-        neighbour's edge then meets this mesh edge for edge on screen (no T-junction pinhole).
-        """
-        v, _, t, _ = self.node_meshes(
-            np.array([self.index[node]]), np.array([midpoints]), np.array([keep]), [inserted]
-        )
-        return v, t
-
-    def node_meshes(
-        self,
-        rows: np.ndarray,
-        midpoints: np.ndarray,
-        keep: np.ndarray,
-        inserted: np.ndarray,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The meshes of k drawn nodes (``node_mesh`` of each, in one kernel call).
-
-        rows: (k,) node rows; midpoints, keep: (k, 4) bool; inserted: (k,) as in ``LODCut``.
-        Returns (vertices (V, 3) world, vertex_start (k + 1,), triangles (T, 3) int64,
-        triangle_start (k + 1,)): node m's vertices are vertices[vertex_start[m]:
-        vertex_start[m + 1]] and its triangles, indexing them from 0,
-        triangles[triangle_start[m]:triangle_start[m + 1]].
-        """
-        k = len(rows)
-        return node_meshes(
-            self._ring_xyz,
-            self.points,
-            self.ranges,
-            self.order_flat,
-            self.order_start,
-            np.asarray(rows, dtype=np.int64).reshape(k),
-            np.ascontiguousarray(np.asarray(midpoints, dtype=np.bool_).reshape(k, 4)),
-            np.ascontiguousarray(np.asarray(keep, dtype=np.bool_).reshape(k, 4)),
-            np.asarray(inserted, dtype=np.int64).reshape(k),
-        )
-
-    def lod_mesh(
-        self, eye: tuple[float, float, float], fov: float, width: int, tolerance: float = 10.0
-    ) -> LODMesh:
-        """The view-dependent mesh for an eye position, horizontal field of view (degrees),
-        viewport width (pixels) and screen tolerance C (pixels): λ = width / fov."""
-        cut = self.lod_cut(eye, width / math.radians(fov), tolerance)
-        verts, vstart, tris, tstart = self.node_meshes(
-            cut.rows, cut.midpoints, cut.keep, cut.inserted
-        )
-        # Node-local triangle indices → indices into all the vertices.
-        tris = tris + np.repeat(vstart[:-1], np.diff(tstart))[:, None]
-        return LODMesh(
-            verts,
-            tris,
-            len(cut.rows),
-            int((cut.inserted > 0).sum()),
-            int(cut.inserted[cut.inserted > 0].sum()),
-            face_nodes=np.repeat(np.asarray(cut.rows, dtype=np.int64), np.diff(tstart)),
-        )
 
     # -- storage -------------------------------------------------------------------------------
 

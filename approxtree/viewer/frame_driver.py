@@ -4,8 +4,7 @@ The Engine is embedded in the window (``Engine(tree, context=ctx)``) and draws i
 framebuffer bound there. Its frames page (``wait=False``): the provider loads payloads in the
 background and the traversal draws their nearest resident ancestors meanwhile, uploading at
 most ``max_uploads`` meshes (``budget_ms``) per frame; only the root is uploaded up front.
-A frozen frustum replaces each frame's selection by the cut seen from the frozen view (the
-Engine's selection filter).
+A frozen frustum draws the cut seen from the frozen view (``Cut(frozen=...)``).
 
 The rest of the viewer reads and changes the Engine only through this class, so a change of
 the Engine's API is made here.
@@ -19,9 +18,11 @@ import numpy as np
 
 from approxtree.errors import InvalidParameterError
 from approxtree.render.camera import Camera
+from approxtree.render.cut import Cut
 from approxtree.render.engine import Engine, Frame
 from approxtree.render.frame_state import FrameState
-from approxtree.render.selector import Selection, select
+from approxtree.render.style import Style, Sun
+from approxtree.render.traversal import Paging
 from approxtree.viewer.settings import ViewSettings
 
 
@@ -54,7 +55,6 @@ class FrameDriver:
         self.budget_ms = budget_ms
         self.engine = Engine(tree, context=ctx, exaggeration=float(exaggeration), palette=palette)
         self._frozen: FrameState | None = None
-        self.engine.set_selection_filter(self._filter)
         # The root's mesh now: it also loads the compiled skirt kernels before frame 0.
         self.engine.upload(0)
 
@@ -95,13 +95,6 @@ class FrameDriver:
     def thaw(self) -> None:
         self._frozen = None
 
-    def _filter(self, selection: Selection, frame: FrameState) -> Selection:
-        """The Engine's selection filter: the frozen frustum's cut while frozen."""
-        if self._frozen is not None:
-            s = self.settings
-            selection = select(self.tree, self._frozen, s.alpha, s.gamma, self.engine.texels)
-        return selection
-
     # -- frames ---------------------------------------------------------------------------------
 
     def draw(self, camera: Camera, size: tuple[int, int], positions: bool = False) -> Frame:
@@ -112,18 +105,20 @@ class FrameDriver:
         frame = self.engine.render(
             camera,
             size,
-            s.alpha,
-            s.gamma,
-            wireframe=s.wireframe,
+            # While frozen, the cut of the frozen frustum.
+            Cut(s.alpha, s.gamma, frozen=self._frozen),
+            style=Style(
+                s.lighting, Sun(s.sun_azimuth, s.sun_altitude), self.background, s.wireframe
+            ),
             # Without an upload budget every wanted mesh loads in the frame that wants it.
-            wait=not self.max_uploads and self.budget_ms is None,
-            max_uploads=self.max_uploads or None,
-            upload_ms=self.budget_ms,
-            world_positions=positions,
-            sun=(s.sun_azimuth, s.sun_altitude),
-            background=self.background,
-            lighting=s.lighting,
+            paging=Paging(
+                wait=not self.max_uploads and self.budget_ms is None,
+                max_uploads=self.max_uploads or None,
+                upload_ms=self.budget_ms,
+            ),
         )
+        if positions:
+            self.engine.world_positions(frame)
         # The positions pass binds its own framebuffer: the window's again for the interface.
         self.ctx.fbo.use()
         return frame

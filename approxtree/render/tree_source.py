@@ -1,0 +1,263 @@
+"""ApproximationTreeSource: the tile source of an approximation tree (render/source.py).
+
+What the Engine draws of an ApproximationTree, and from where:
+
+1. Select (``select``, no GL): the cut by α and γ (selector.py), by a triangle budget
+   (budget.py, per-node triangle counts with skirts made on first use), or the full-resolution
+   chunks (full_resolution.py) — for the camera's FrameState or a frozen one (``Cut.frozen``).
+2. Plan (``plan``): a single image draws the cut itself; an interactive frame
+   (``Paging(wait=False)``) plans with the traversal (traversal.py): payloads in the CPU cache
+   are uploaded within the frame's budget, the others requested from the provider coarsest
+   first, and the nearest resident ancestors drawn meanwhile. With a texture pyramid each
+   drawn node is textured by the patch of itself or of the ancestor closest to the root whose
+   γ is within the threshold (core paper, 4.2; texture_sharing.py), meshes grouped by texture
+   patch (texture_binding.py); a patch not loaded yet is stood in for by the root's.
+3. Load (``load``): a node's payload — its patch T_N read from the store without being kept
+   by the tree, with skirts hung below its border (their depth from the node's error or z
+   extent; walls on node borders only when patches reach their rectangle), float32 relative
+   to the tree's origin — or a texture patch's texels, through the provider's CPU cache.
+
+Texel sizes (γ): the texture patch's with a pyramid (``set_textures``), else the data spacing.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from approxtree.errors import EmptyTerrainError, InvalidParameterError
+from approxtree.geometry.rect import Rect
+from approxtree.render.budget import node_triangles, select_budget
+from approxtree.render.cache_keys import CHUNK, MeshKey, TextureKey, node_keys
+from approxtree.render.cut import Cut
+from approxtree.render.frame import PAGING_KEYS, FramePlan
+from approxtree.render.frame_state import FrameState
+from approxtree.render.full_resolution import FullResolutionSource
+from approxtree.render.provider import DEFAULT_CPU_CACHE_BYTES, Payload, PayloadProvider
+from approxtree.render.renderer import Renderer
+from approxtree.render.selector import Selection, select
+from approxtree.render.skirts import add_skirts, patches_reach_rect, skirt_base, skirt_depths
+from approxtree.render.texture_binding import TextureBinding, as_pyramid
+from approxtree.render.texture_sharing import texture_nodes
+from approxtree.render.traversal import Paging, plan_frame
+from approxtree.render.visual_error import texel_sizes
+from approxtree.textures.patch import patch_texel_sizes
+
+
+class ApproximationTreeSource:
+    """The tile source of an ApproximationTree (see the module docstring).
+
+    skirts: hang skirts below patch borders; cpu_cache_bytes, loader_threads: the provider's
+    CPU cache budget and background threads. Raises EmptyTerrainError for a tree with
+    nothing to draw, before anything is made.
+    """
+
+    #: A node's mesh is its patch (with skirts), whatever the view.
+    view_dependent = False
+
+    def __init__(
+        self,
+        tree: Any,
+        skirts: bool = True,
+        cpu_cache_bytes: int = DEFAULT_CPU_CACHE_BYTES,
+        loader_threads: int = 2,
+    ) -> None:
+        _check_drawable(tree)
+        self.tree = tree
+        self.provider = PayloadProvider(self._build, cpu_cache_bytes, loader_threads)
+        self.full = FullResolutionSource(tree)
+        self.skirts = bool(skirts)
+        self.binding: TextureBinding | None = None
+        # Per-node figures used every frame, computed once.
+        self.data_texels = texel_sizes(tree)
+        self.texels = self.data_texels
+        # Skirts: infinite errors stand in by the node's z extent; walls on node borders only.
+        extents = tree.bboxes[:, 5] - tree.bboxes[:, 2]
+        self._node_borders = patches_reach_rect(tree.terrain)
+        rects = np.asarray(tree.rects, dtype=np.float64) if self._node_borders else None
+        self.skirt_depths = skirt_depths(tree.errors, tree.terrain.z_range, extents, rects)
+        self.skirt_base = skirt_base(tree.errors, tree.terrain.z_range, extents)
+        d = tree.terrain.domain
+        self._domain = (d.xmin, d.ymin, d.xmax, d.ymax)
+        #: Triangles drawn per node (the budget's counts), made on first use.
+        self._node_triangles: np.ndarray | None = None
+
+    # -- the protocol ---------------------------------------------------------------------------
+
+    def select(self, fs: FrameState, cut: Cut) -> Selection:
+        """The wanted cut of the frame (step 1)."""
+        view = cut.frozen or fs
+        if cut.full_resolution:
+            return self.full.select(view)
+        if cut.max_triangles is not None:
+            if self._node_triangles is None:
+                self._node_triangles = node_triangles(self.tree, self.skirts)
+            return select_budget(
+                self.tree, view, cut.max_triangles, self._node_triangles, self.texels
+            )
+        return select(self.tree, view, cut.alpha, cut.gamma, self.texels)
+
+    def plan(
+        self, wanted: Selection, fs: FrameState, cut: Cut, paging: Paging, renderer: Renderer
+    ) -> FramePlan:
+        """What the frame draws (step 2); an interactive frame uploads and requests here."""
+        if cut.full_resolution:
+            plan = self.full.plan(wanted)
+            self._texture(plan, plan.meshes, wanted.nodes.copy(), np.zeros(len(wanted.nodes)))
+            return plan
+        interactive = not paging.wait
+        figures, requests = dict.fromkeys(PAGING_KEYS, 0), list[Any]()
+        drawn = wanted
+        if interactive:
+            drawn, figures, requests = self._page(wanted, fs, paging, renderer)
+        meshes = node_keys(drawn.nodes)
+        plan = FramePlan(drawn, meshes, [(None, meshes)], figures)
+        if self.binding is not None:
+            tex_nodes, tex_gammas = texture_nodes(
+                self.tree.parents, drawn, cut.gamma, cut.share_textures
+            )
+            self._texture(plan, node_keys(tex_nodes), tex_nodes, tex_gammas)
+            if interactive:
+                # Texture patches not loaded yet: the root's stands in, the rest is requested.
+                cache, provider = renderer.cache, self.provider
+                plan.groups, tex_requests = self.binding.page(
+                    plan.groups, lambda key: key in cache or key in provider
+                )
+                figures["texture_stand_ins"] = len(tex_requests)
+                requests = tex_requests + requests
+        if interactive:
+            # One request per frame (it replaces the previous frame's): textures, then meshes.
+            self.provider.request(requests)
+        return plan
+
+    def load(self, key: MeshKey | TextureKey) -> Payload:
+        """The payload of ``key`` (step 3): nodes and texture patches through the CPU cache
+        (loaded now when missing), a full-resolution chunk built (never kept on the CPU)."""
+        if isinstance(key, MeshKey) and key.kind == CHUNK:
+            return self.full.load(key)
+        return self.provider.load(key)
+
+    def set_textures(self, textures: Any) -> None:
+        """Texture with a TexturePyramid (or its folder), or None; texel sizes follow."""
+        pyramid = as_pyramid(textures, self.tree.terrain)
+        self.provider.drop(lambda key: isinstance(key, TextureKey))
+        if pyramid is None:
+            self.binding, self.texels = None, self.data_texels
+            return
+        self.binding = TextureBinding(pyramid, self.tree.origin, self._rect_of)
+        self.texels = patch_texel_sizes(pyramid, np.asarray(self.tree.rects, dtype=np.float64))
+
+    def set_skirts(self, skirts: bool) -> bool:
+        """Hang skirts or not; True when that changes the meshes (the cached ones dropped)."""
+        skirts = bool(skirts)
+        if skirts == self.skirts:
+            return False
+        self.skirts = skirts
+        self._node_triangles = None
+        self.provider.drop(lambda key: isinstance(key, MeshKey))
+        return True
+
+    def release(self) -> None:
+        """Stop the provider's threads and empty its CPU cache."""
+        self.provider.close()
+
+    # -- paging ---------------------------------------------------------------------------------
+
+    def _page(
+        self, wanted: Selection, fs: FrameState, paging: Paging, renderer: Renderer
+    ) -> tuple[Selection, dict[str, int], list]:
+        """The drawn cut of an interactive frame, its paging figures and the mesh keys to
+        request, coarsest first (traversal.py).
+
+        Uploads the wanted nodes whose payload is in the CPU cache (coarsest first, within
+        the budget), and returns the nearest resident ancestors of what is still missing. The
+        root counts as resident: the draw loads it when it is not (the one blocking read).
+        """
+        self.provider.raise_error()
+        cache = renderer.cache
+
+        def on_gpu(nodes: np.ndarray) -> np.ndarray:
+            nodes = np.asarray(nodes)
+            return cache.is_resident(node_keys(nodes)) | (nodes == 0)
+
+        t0 = time.perf_counter()
+        plan = plan_frame(
+            wanted, fs, self.tree, self.texels, on_gpu, self._on_cpu, paging.max_uploads
+        )
+        budget_ms = (
+            None
+            if paging.upload_ms is None
+            else paging.upload_ms - (time.perf_counter() - t0) * 1e3
+        )
+        uploads = renderer.upload_within(node_keys(plan.upload), self.load, None, budget_ms)
+        # What is drawable now (uploads may have evicted older meshes from a small cache).
+        drawn = plan_frame(wanted, fs, self.tree, self.texels, on_gpu, self._on_cpu, 0)
+        figures = {
+            "stand_ins": drawn.stand_ins,
+            "pending": drawn.pending,
+            "uploads": uploads,
+            "texture_stand_ins": 0,
+        }
+        return drawn.drawn, figures, node_keys(plan.request)
+
+    def _on_cpu(self, nodes: np.ndarray) -> np.ndarray:
+        """(k,) bool: node payloads in the provider's CPU cache."""
+        return self.provider.is_resident(node_keys(np.asarray(nodes)))
+
+    # -- payloads -------------------------------------------------------------------------------
+
+    def _build(self, key: MeshKey | TextureKey) -> Payload:
+        """The payload of ``key``, built now: the provider's loader (it runs on the provider's
+        threads and reads the tree's store without keeping the patch, ``read_patch``)."""
+        if isinstance(key, TextureKey):
+            if self.binding is None:  # the pyramid was dropped while this load waited
+                raise InvalidParameterError("No texture pyramid: set_textures(None) was called.")
+            return Payload(texels=self.binding.texels(key))
+        i = key.item
+        patch = _read_patch(self.tree, i)
+        if not self.skirts:
+            verts, tris = patch.vertices, patch.triangles
+            flags = np.zeros(len(verts), dtype=np.float32)
+        else:
+            verts, tris, flags = add_skirts(
+                patch.vertices,
+                patch.triangles,
+                float(self.skirt_depths[i]),
+                self._domain,
+                self.skirt_base,
+                patch.rect.as_tuple() if self._node_borders else None,
+            )
+        return Payload.mesh(verts, tris, flags, self.tree.origin)
+
+    def _texture(
+        self, plan: FramePlan, owners: list[MeshKey], nodes: np.ndarray, gammas: np.ndarray
+    ) -> None:
+        """Group ``plan``'s meshes by the texture patch of their ``owners`` (with a pyramid)."""
+        if self.binding is not None:
+            plan.groups = self.binding.groups(plan.meshes, owners)
+            plan.texture_nodes, plan.texture_gammas = nodes, gammas
+
+    def _rect_of(self, owner: MeshKey) -> Rect:
+        """The rectangle the texture patch of ``owner`` covers: a node's domain, a chunk's."""
+        if owner.kind == CHUNK:
+            return self.full.rect(owner.item)
+        return self.tree.node(owner.item).rect
+
+
+def _check_drawable(tree: Any) -> None:
+    """EmptyTerrainError for a tree whose only node has no triangle (too few valid points)."""
+    if tree.child_count[0] == 0 and len(tree.patch(0).triangles) == 0:
+        raise EmptyTerrainError(
+            f"This tree has nothing to draw: its terrain's {tree.terrain.point_count} valid "
+            "data point(s) form no triangle (a surface needs at least three points not on one "
+            "line, e.g. one grid cell of valid corners). Check the file's nodata value or use "
+            "a larger area."
+        )
+
+
+def _read_patch(tree: Any, i: int) -> Any:
+    """T_N of node i, read without being kept by the tree when it can be (bounded memory)."""
+    reader = getattr(tree, "read_patch", None)
+    return reader(i) if reader is not None else tree.patch(i)
