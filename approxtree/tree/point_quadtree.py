@@ -82,7 +82,7 @@ class LODCut:
     rows: (k,) node rows; midpoints, keep: (k, 4) bool per side W, E, S, N (a midpoint
     vertex; it keeps its lattice height, else lies on the straight edge); inserted: (k,)
     points replayed (leaves) or −1 (a coarse node's fan); errors: (k,) measured max
-    |z − mesh| over each visible node's points (δ for culled ones); distances: (k,) d
+    ``|z − mesh|`` over each visible node's points (δ for culled ones); distances: (k,) d
     (display units); visible: (k,) inside the frustum; nodes_visited: nodes the traversal
     reached; refined: rows of the nodes replaced by their children (ancestors of the cut).
     """
@@ -468,7 +468,7 @@ class PointQuadtree:
         return np.concatenate([base, pts]), tris
 
     def leaf_errors(self, leaf: tuple[int, int, int], keep: tuple[bool, ...]) -> np.ndarray:
-        """(n + 1,) measured max |z − mesh| over the leaf's points after 0..n insertions of its
+        """(n + 1,) measured max ``|z − mesh|`` over the leaf's points after 0..n insertions of its
         recorded order, for the boundary whose midpoints keep their heights per ``keep``."""
         tree_keep = tuple(self.tree_finer[self.index[leaf]].tolist())
         keep = tuple(bool(k) and t for k, t in zip(keep, tree_keep, strict=True))
@@ -486,7 +486,7 @@ class PointQuadtree:
         return errors
 
     def fan_error(self, node: tuple[int, int, int], midpoints: tuple[bool, ...]) -> float:
-        """Measured max |z − fan| over the node's points for the fan with ``midpoints``."""
+        """Measured max ``|z − fan|`` over the node's points for the fan with ``midpoints``."""
         key = (node, tuple(bool(m) for m in midpoints))
         err = self._fan_error_cache.get(key)
         if err is None:
