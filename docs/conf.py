@@ -57,6 +57,8 @@ extensions = [
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
 root_doc = "index"
+# Command lines keep their "--" (no typographic dashes or quotes).
+smartquotes = False
 exclude_patterns = ["_build", "Thumbs.db", ".DS_Store", "gallery/*.ipynb", "gallery/*.zip"]
 templates_path = ["_templates"]
 
@@ -107,6 +109,7 @@ python_use_unqualified_type_names = True
 html_theme = "pydata_sphinx_theme"
 html_title = f"approxtree {release}"
 html_static_path = ["_static"]
+html_css_files = ["custom.css"]
 html_logo = None
 html_theme_options = {
     "navbar_align": "left",
@@ -117,7 +120,11 @@ html_theme_options = {
     "footer_start": ["copyright"],
     "footer_end": ["sphinx-version"],
 }
-html_sidebars = {"index": [], "changelog": []}
+# Pages without sub-pages have no section navigation: no left sidebar.
+html_sidebars = {
+    name: []
+    for name in ("index", "getting-started", "cli", "benchmarks", "development", "changelog")
+}
 html_show_sourcelink = False
 
 copybutton_prompt_text = r"\$ |>>> "

@@ -78,7 +78,9 @@ else:
             sys.executable, "-m", "approxtree", "view", "sample.zarr", "--script", "path.json",
             "--screenshots", "shots", "--size", f"{w}x{h}", "--max-uploads", "0",
         ]  # fmt: skip
-        subprocess.run(command, cwd=WORK, env=env, check=True, timeout=600)
+        run = subprocess.run(command, cwd=WORK, env=env, capture_output=True, text=True)
+    print(run.stdout, run.stderr)
+    run.check_returncode()
     shots = [
         np.asarray(Image.open(WORK / "shots" / name))
         for name in ("south.png", "east.png", "measure.png")
