@@ -49,7 +49,7 @@ class GeometryData(ABC):
     @property
     @abstractmethod
     def point_count(self) -> int:
-        """|P|: the number of valid data points."""
+        """``|P|``: the number of valid data points."""
 
     @abstractmethod
     def split_position(self, rect: Rect, axis: int) -> float | None:

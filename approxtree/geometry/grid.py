@@ -103,8 +103,10 @@ class Grid(GeometryData):
         at construction (point count and z range are computed blockwise when first asked); or
         an xarray DataArray, placed by its own georeference (``geometry.dataarray``: rioxarray's
         transform and CRS, or regular x/y coordinates; dask-backed ones read by windows).
+
     transform: affine map from (col, row) pixel-corner coordinates to world (x, y); rotation and
         shear are not supported. Defaults to cell size 1 with row 0 at the top (y = rows).
+
     crs: EPSG code or WKT of x and y, or None.
     nodata: the original nodata value of the source (kept for reporting; cells are NaN already).
     """

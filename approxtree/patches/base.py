@@ -131,7 +131,7 @@ class GeometryPatch(MeshConversions, ABC):
     @property
     @abstractmethod
     def point_count(self) -> int:
-        """|P_N| <= s: the number of data points the patch selects."""
+        """``|P_N| <= s``: the number of data points the patch selects."""
 
     @property
     @abstractmethod

@@ -260,7 +260,8 @@ class GridPatch(GeometryPatch):
 
     @property
     def rms_error(self) -> float:
-        """Exact RMS of |h_T − h_TN| over the rectangle's valid data points (measured on demand)."""
+        """Exact RMS of ``|h_T − h_TN|`` over the rectangle's valid data points (measured on
+        demand)."""
         rows, cols = self.lines
         g = self.grid
         if g.is_windowed:

@@ -50,7 +50,7 @@ class LODCut:
     rows: (k,) node rows; midpoints, keep: (k, 4) bool per side W, E, S, N (a midpoint
     vertex; it keeps its lattice height, else lies on the straight edge); inserted: (k,)
     points replayed (leaves) or −1 (a coarse node's fan); errors: (k,) measured max
-    |z − mesh| over each visible node's points (δ for culled ones); distances: (k,) d
+    ``|z − mesh|`` over each visible node's points (δ for culled ones); distances: (k,) d
     (display units); visible: (k,) inside the frustum; nodes_visited: nodes the traversal
     reached; refined: rows of the nodes replaced by their children (ancestors of the cut).
     """
@@ -191,7 +191,7 @@ class LodSelector:
     # -- measured errors of other boundaries ---------------------------------------------------
 
     def leaf_errors(self, leaf: Node, keep: tuple[bool, ...]) -> np.ndarray:
-        """(n + 1,) measured max |z − mesh| over the leaf's points after 0..n insertions of its
+        """(n + 1,) measured max ``|z − mesh|`` over the leaf's points after 0..n insertions of its
         recorded order, for the boundary whose midpoints keep their heights per ``keep``."""
         q = self.tree
         tree_keep = tuple(q.tree_finer[q.index[leaf]].tolist())
@@ -210,7 +210,7 @@ class LodSelector:
         return errors
 
     def fan_error(self, node: Node, midpoints: tuple[bool, ...]) -> float:
-        """Measured max |z − fan| over the node's points for the fan with ``midpoints``."""
+        """Measured max ``|z − fan|`` over the node's points for the fan with ``midpoints``."""
         key = (node, tuple(bool(m) for m in midpoints))
         err = self._fan_error_cache.get(key)
         if err is None:

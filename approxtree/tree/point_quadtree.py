@@ -9,7 +9,7 @@ Build (pre-processing):
    one level (no T-shaped cracks between leaf triangulations);
 3. interpolation points — the lattice points used as corners, centres and edge midpoints of the
    nodes — get heights averaged from their 4 nearest data points;
-4. each node's error δ(node) is the max |z − fan| over its points (fan: 4 triangles between the
+4. each node's error δ(node) is the max ``|z − fan|`` over its points (fan: 4 triangles between the
    centre and the corners); each leaf records, at build time, the order in which its points are
    inserted (largest error first) and the error after every insertion.
 

@@ -5,7 +5,7 @@ none of the writers' code (no tiles, patches, pyramid halving nor their kernels:
 pygltflib, quantized-mesh-tile, pyproj and rasterio read the files, ``kernels.verify_mesh``
 measures), whether every claim it makes holds:
 
-- tree store (``verify.tree_store``): every node's error against the true max |h_TN − h_T|
+- tree store (``verify.tree_store``): every node's error against the true max ``|h_TN − h_T|``
   over the source's data points, leaves within ε, bounding boxes, children partitioning their
   parent, every chunk present and decoding, the metadata checksums, every node's patch;
 - mesh file (``verify.mesh``): its max error (GLB extras, PLY comment, OBJ header, or
