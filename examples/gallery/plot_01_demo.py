@@ -32,6 +32,8 @@ print(baked.figures())
 size = (960, 540)
 with at.Engine(tree, textures=baked.pyramid) as engine:
     camera = framing_camera(tree.bboxes[0], engine.scale, size)
-    frame = engine.render(camera, size, alpha=1.0, gamma=2.0, background="sky")
+    frame = engine.render(
+        camera, size, at.Cut(alpha=1.0, gamma=2.0), style=at.Style(background="sky")
+    )
 print({k: frame.stats[k] for k in ("patches", "triangles", "max_alpha", "texture_patches")})
 show([frame.image], ["approxtree demo: Jacksboro fault, ε = 1 m, α = 1 px"])

@@ -43,10 +43,14 @@ if dem is not None:
     size = (800, 450)
     with at.Engine(tree, textures=baked.pyramid) as engine:
         overview = framing_camera(tree.bboxes[0], engine.scale, size)
-        frame = engine.render(overview, size, alpha=1.0, gamma=2.0, background="sky")
+        frame = engine.render(
+            overview, size, at.Cut(alpha=1.0, gamma=2.0), style=at.Style(background="sky")
+        )
     with at.Engine(tree, textures=baked.pyramid, exaggeration=5.0) as engine:
         low = Camera.look_at((634000, 211500, 1800), (639000, 221000, 0), fov=45.0)
-        oblique = engine.render(low, size, alpha=1.0, gamma=2.0, background="sky")
+        oblique = engine.render(
+            low, size, at.Cut(alpha=1.0, gamma=2.0), style=at.Style(background="sky")
+        )
     show(
         [frame.image, oblique.image],
         ["fitted overview", "from the south-west, exaggeration × 5"],

@@ -45,9 +45,11 @@ if dem is not None:
     cx, cy = (d.xmin + d.xmax) / 2, (d.ymin + d.ymax) / 2
     camera = Camera.look_at((cx - 300, cy - 2000, 900), (cx, cy - 300, 80), fov=45.0)
     with at.Engine(tree, exaggeration=3.0) as engine:
-        shaded = engine.render(camera, size, alpha=2.0, background="sky")
+        shaded = engine.render(camera, size, at.Cut(alpha=2.0), style=at.Style(background="sky"))
     with at.Engine(tree, exaggeration=3.0, skirts=False) as engine:
-        wire = engine.render(camera, size, alpha=2.0, wireframe=True, background="white")
+        wire = engine.render(
+            camera, size, at.Cut(alpha=2.0), style=at.Style(wireframe=True, background="white")
+        )
     print(shaded.stats["patches"], "patches,", shaded.stats["triangles"], "triangles")
     show(
         [shaded.image, wire.image],

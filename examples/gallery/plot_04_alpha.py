@@ -25,9 +25,14 @@ frames = {}
 with at.Engine(tree, skirts=False) as engine:
     camera = framing_camera(tree.bboxes[0], engine.scale, size, elevation=35.0)
     for alpha in (1.0, 4.0):
-        shaded = engine.render(camera, size, alpha=alpha, gamma=math.inf, background="sky")
+        shaded = engine.render(
+            camera, size, at.Cut(alpha=alpha, gamma=math.inf), style=at.Style(background="sky")
+        )
         wire = engine.render(
-            camera, size, alpha=alpha, gamma=math.inf, wireframe=True, background="white"
+            camera,
+            size,
+            at.Cut(alpha=alpha, gamma=math.inf),
+            style=at.Style(wireframe=True, background="white"),
         )
         frames[alpha] = (shaded, wire)
 

@@ -35,7 +35,7 @@ else:
         quadtree = at.PointQuadtree(points, max_points=50)
         with at.Engine(quadtree) as engine:
             camera = framing_camera(quadtree.bboxes[0], engine.scale, size)
-            frame = engine.render(camera, size, alpha=1.0, background="sky")
+            frame = engine.render(camera, size, at.Cut(alpha=1.0), style=at.Style(background="sky"))
         print(name, quadtree.stats(), frame.stats["triangles"], "triangles drawn")
         images.append(frame.image)
         titles.append(f"{name}: {len(points.vertices):,} points")

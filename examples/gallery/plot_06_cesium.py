@@ -68,7 +68,10 @@ if dem is not None and not missing:
     print({k: shot[k] for k in ("ready", "error")}, len(shot["tile_requests"]), "tiles requested")
     with at.Engine(tree, textures=baked.pyramid) as engine:
         ours = engine.render(
-            Camera.look_at(eye, target, fov=fov), size, alpha=1.0, background=background
+            Camera.look_at(eye, target, fov=fov),
+            size,
+            at.Cut(alpha=1.0),
+            style=at.Style(background=background),
         )
     show(
         [np.asarray(Image.open(shot["screenshot"]).convert("RGBA")), ours.image],
