@@ -76,9 +76,12 @@ EXTRAS = {
     ),
     "approxtree.tree": (
         "approxtree.tree.cut_mesh.CutMesh",
-        "approxtree.tree.point_quadtree.LODCut",
-        "approxtree.tree.point_quadtree.LODMesh",
         "approxtree.tree.policy.LevelPolicy",
+    ),
+    "approxtree.render": (
+        "approxtree.render.lod_cut.LODCut",
+        "approxtree.render.lod_cut.LODMesh",
+        "approxtree.render.provider.PayloadProvider",
     ),
 }
 
