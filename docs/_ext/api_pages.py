@@ -81,6 +81,7 @@ EXTRAS = {
     "approxtree.render": (
         "approxtree.render.lod_cut.LODCut",
         "approxtree.render.lod_cut.LODMesh",
+        "approxtree.render.provider.Payload",
         "approxtree.render.provider.PayloadProvider",
     ),
 }
