@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from approxtree.errors import ApproxTreeError
 from approxtree.render.camera import Camera
 from approxtree.render.engine import Engine, Frame
 from approxtree.render.frame_state import framing_camera
@@ -121,7 +122,10 @@ class _OrbitView:
         """(h, w, 4) uint8 RGBA of the current pose."""
         frame = self.engine.render(self.camera(), self.size, PREVIEW_ALPHA, background="sky")
         self.last_frame = frame
-        return frame.image  # type: ignore[return-value]
+        # Rendered without a target, a frame is always read back.
+        if frame.image is None:
+            raise ApproxTreeError("The engine read back no image of the preview.")
+        return frame.image
 
     def handle(self, event: dict[str, Any]) -> bool:
         """Apply one event; True when the picture changes."""
@@ -158,7 +162,7 @@ class _OrbitView:
         self.engine.release()
 
 
-class TerrainWidget(_Base):  # type: ignore[misc, valid-type]
+class TerrainWidget(_Base):
     """An interactive view of ``tree`` (a tree, or a terrain previewed by a quick tree) in a
     notebook: drag to orbit, right-drag or Shift-drag to pan, wheel to zoom.
 

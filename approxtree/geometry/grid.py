@@ -155,8 +155,8 @@ class Grid(GeometryData):
         self.transform = transform
         #: How the reader treated nodata: "mask" (holes stay NaN) or "fill" (interpolated).
         self.nodata_policy = "mask"
-        #: Cells the fill policy gave an interpolated height.
-        self.filled_count = 0
+        #: Cells the fill policy gave an interpolated height (None: not known, a windowed fill).
+        self.filled_count: int | None = 0
         self.crs = crs
         self.nodata = nodata
         #: (row, col) in the full raster of this grid's row 0, column 0: a window of a larger

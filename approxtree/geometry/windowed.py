@@ -48,8 +48,11 @@ class HeightSource(Protocol):
     Sources pickle by their arguments (a path, a band), never by their data.
     """
 
-    shape: tuple[int, int]
-    dtype: np.dtype
+    @property
+    def shape(self) -> tuple[int, int]: ...
+
+    @property
+    def dtype(self) -> np.dtype: ...
 
     def read(self, r0: int, r1: int, c0: int, c1: int) -> np.ndarray: ...
 

@@ -379,12 +379,12 @@ def fill_holes(heights: np.ndarray) -> tuple[np.ndarray, int]:
 
 def make_grid(
     heights: np.ndarray,
-    transform: Affine,
+    transform: Affine | None,
     crs: str | None,
     nodata_value: float | None,
     policy: str,
 ) -> Grid:
-    """A Grid with the nodata policy applied and reported.
+    """A Grid with the nodata policy applied and reported (transform None: Grid's default).
 
     The grid carries ``nodata_policy`` ("mask" or "fill") and ``filled_count`` (cells filled).
     """

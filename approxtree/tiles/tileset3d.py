@@ -209,7 +209,7 @@ class _TileWriter:
         path = self.folder / tile_uri(level, i)
         path.parent.mkdir(exist_ok=True)
         path.write_bytes(data)
-        if self.frame.georeferenced:
+        if geo is not None:
             low, high = self._region(geo, points, tris)
         else:
             low, high = lo, hi
@@ -356,7 +356,7 @@ def _tileset_json(tree: Any, frame: EarthFrame, contents: list[TileContent | Non
         np.minimum.at(low, parents[nodes], low[nodes])
         np.maximum.at(high, parents[nodes], high[nodes])
     # A tile without content (no triangle) is centred on its volume.
-    for i in np.flatnonzero([c is None for c in contents]):
+    for i in np.flatnonzero([c is None for c in contents]).tolist():
         if not frame.georeferenced and np.isfinite(low[i]).all():
             centers[i] = (low[i] + high[i]) / 2
     tiles: list[dict[str, Any]] = []
