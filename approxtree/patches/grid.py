@@ -340,9 +340,9 @@ class GridPatch(GeometryPatch):
         }
 
     @classmethod
-    def records_many(cls, patches: Sequence[GeometryPatch]) -> Batch:
+    def records_many(cls, patches: Sequence[GridPatch]) -> Batch:
         # Fixed-width records: one (k, 6) and one (k, 4) table gathered from the attributes.
-        ps: list[GridPatch] = list(patches)  # type: ignore[arg-type]
+        ps = list(patches)
         k = len(ps)
         stats = ((p.error, *p.z_range, p.data_count) for p in ps)
         index = gather((p.index for p in ps), k, 6, "<i8")
@@ -355,7 +355,7 @@ class GridPatch(GeometryPatch):
         return {
             "index": index,
             "stats": gather(stats, k, 4, "<f8"),
-            "z": _lattices_many(ps, coarse.tolist()),
+            "z": _lattices_many(k, {i: ps[i] for i in coarse.tolist()}),
         }
 
     @classmethod
@@ -382,35 +382,31 @@ class GridPatch(GeometryPatch):
 LATTICE_STORED_STEP = 16
 
 
-def _lattices_many(
-    patches: Sequence[GridPatch], coarse: list[int] | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """(flat, offsets) of the lattice heights of the patches that store them (none for others).
+def _lattices_many(k: int, coarse: dict[int, GridPatch]) -> tuple[np.ndarray, np.ndarray]:
+    """(flat, offsets) of the lattice heights of k records: those of the patches that store
+    them, none for the others.
 
+    coarse: the patches that store their lattice by their position among the k, ascending.
     All lattices over one grid are read with one index gather, so a windowed grid reads each of
-    its blocks once, however many coarse patches cover it. ``coarse``: the positions of the
-    patches that store their lattice, when already known (ascending).
+    its blocks once, however many coarse patches cover it.
     """
-    k = len(patches)
     sizes = np.zeros(k, dtype=np.int64)
-    if coarse is None:
-        coarse = [i for i, p in enumerate(patches) if p.stores_lattice]
     flat = np.empty(0, dtype="<f8")
     if coarse:
         pieces: dict[int, np.ndarray] = {
-            i: np.asarray(patches[i]._lattice_z, dtype="<f8").reshape(-1)
-            for i in coarse
-            if patches[i]._lattice_z is not None
+            i: np.asarray(p._lattice_z, dtype="<f8").reshape(-1)
+            for i, p in coarse.items()
+            if p._lattice_z is not None
         }
         parts: dict[int, list[int]] = {}
-        for i in coarse:
+        for i, p in coarse.items():
             if i not in pieces:
-                parts.setdefault(id(patches[i].grid), []).append(i)
+                parts.setdefault(id(p.grid), []).append(i)
         for members in parts.values():
-            lines = [patches[i].lines for i in members]
+            lines = [coarse[i].lines for i in members]
             rr = np.concatenate([np.repeat(r, len(c)) for r, c in lines])
             cc = np.concatenate([np.tile(c, len(r)) for r, c in lines])
-            z = np.asarray(patches[members[0]].grid.heights[rr, cc], dtype="<f8")
+            z = np.asarray(coarse[members[0]].grid.heights[rr, cc], dtype="<f8")
             ends = np.cumsum([len(r) * len(c) for r, c in lines])
             for i, part in zip(members, np.split(z, ends[:-1]), strict=True):
                 pieces[i] = part
@@ -511,14 +507,12 @@ class GridPatchArrays:
         stats[:, 2] = self.zmax[rows]
         stats[:, 3] = self.count[rows]
         at = self.coarse(rows)
-        held: list[GridPatch | None] = [None] * k
-        for j, p in zip(at.tolist(), lattices, strict=True):
-            held[j] = p
+        held = dict(zip(at.tolist(), lattices, strict=True))
         width = np.arange(k + 1, dtype=np.int64)
         return {
             "index": (index, width * 6),
             "stats": (stats.reshape(-1), width * 4),
-            "z": _lattices_many(held, at.tolist()),  # type: ignore[arg-type]
+            "z": _lattices_many(k, held),
         }
 
 
