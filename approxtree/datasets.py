@@ -108,6 +108,10 @@ def fractal_terrain(
     return Grid(z, transform=transform)
 
 
+#: (wavelengths, amplitudes, offsets (k, 2), salts) of the k octaves of one noise field.
+Octaves = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
 @dataclass(frozen=True)
 class FractalHeights:
     """Seeded multi-octave gradient noise, read window by window: a ``HeightSource``.
@@ -160,7 +164,7 @@ class FractalHeights:
         """NaN when the terrain has holes, else None."""
         return math.nan if self.holes > 0 else None
 
-    def _octaves(self, salt: int, wavelength: float, count: int | None = None):
+    def _octaves(self, salt: int, wavelength: float, count: int | None = None) -> Octaves:
         """(wavelengths, amplitudes, offsets, salts) of the octaves of one noise field."""
         from approxtree.kernels.noise import mix64
 
@@ -176,10 +180,13 @@ class FractalHeights:
         offsets = frac / 65536.0 * lengths[:, None]
         return lengths, amplitudes, offsets, salts
 
-    def _noise(self, r0: int, c0: int, out: np.ndarray, octaves, base: float) -> np.ndarray:
+    def _noise(
+        self, r0: int, c0: int, out: np.ndarray, octaves: Octaves, base: float
+    ) -> np.ndarray:
         from approxtree.kernels.noise import gradient_noise_block
 
-        gradient_noise_block(r0, c0, out, *octaves, base)
+        wavelengths, amplitudes, offsets, salts = octaves
+        gradient_noise_block(r0, c0, out, wavelengths, amplitudes, offsets, salts, base)
         return out
 
     @functools.cached_property

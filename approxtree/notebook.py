@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from approxtree.errors import ApproxTreeError
 from approxtree.render.camera import Camera
 from approxtree.render.cut import Cut
 from approxtree.render.engine import Engine
@@ -124,7 +125,10 @@ class _OrbitView:
         """(h, w, 4) uint8 RGBA of the current pose."""
         frame = self.engine.render(self.camera(), self.size, Cut(PREVIEW_ALPHA), style=SKY)
         self.last_frame = frame
-        return frame.image  # type: ignore[return-value]
+        # Rendered without a target, a frame is always read back.
+        if frame.image is None:
+            raise ApproxTreeError("The engine read back no image of the preview.")
+        return frame.image
 
     def handle(self, event: dict[str, Any]) -> bool:
         """Apply one event; True when the picture changes."""
@@ -161,7 +165,7 @@ class _OrbitView:
         self.engine.release()
 
 
-class TerrainWidget(_Base):  # type: ignore[misc, valid-type]
+class TerrainWidget(_Base):
     """An interactive view of ``tree`` (a tree, or a terrain previewed by a quick tree) in a
     notebook: drag to orbit, right-drag or Shift-drag to pan, wheel to zoom.
 

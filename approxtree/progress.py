@@ -105,7 +105,11 @@ def as_callback(
     if not progress:
         return no_progress, lambda: None
     ctx = progress_bar(desc, unit)
-    return ctx.__enter__(), lambda: ctx.__exit__(None, None, None)
+
+    def close() -> None:
+        ctx.__exit__(None, None, None)
+
+    return ctx.__enter__(), close
 
 
 class Stages:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import importlib
 import os
 import sys
+from collections.abc import MutableMapping
 
 import click
 
@@ -69,13 +70,13 @@ class _LazyGroup(click.Group):
         super().__init__(*args, **kwargs)
 
     @property
-    def commands(self) -> dict[str, click.Command]:
+    def commands(self) -> MutableMapping[str, click.Command]:
         for name in _COMMANDS:
             self._command(name)
         return self._loaded
 
     @commands.setter
-    def commands(self, value: dict[str, click.Command]) -> None:
+    def commands(self, value: MutableMapping[str, click.Command]) -> None:
         self._loaded = dict(value)
 
     def _command(self, name: str) -> click.Command | None:

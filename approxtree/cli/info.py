@@ -32,7 +32,7 @@ def _tree_info(path: str) -> dict[str, Any]:
     from approxtree.tree.store import FORMAT_VERSION
 
     tree = load_tree(path)
-    figures = {"tree_file": path, "format": f"atree {FORMAT_VERSION}"}
+    figures: dict[str, Any] = {"tree_file": path, "format": f"atree {FORMAT_VERSION}"}
     figures.update(tree.stats())
     figures["bytes"] = Path(path).stat().st_size
     return figures

@@ -137,7 +137,9 @@ def mesh(
             # One curtain to a common base: the lowest vertex minus the mesh's max error.
             z = np.asarray(verts)[:, 2]
             relief = float(z.max() - z.min())
-            base = float(z.min()) - max(float(figures["max_error"] or 0.0), 1e-3 * relief, 1e-3)
+            claimed = figures["max_error"]
+            error = float(claimed) if isinstance(claimed, int | float) else 0.0
+            base = float(z.min()) - max(error, 1e-3 * relief, 1e-3)
             verts, tris, _ = add_skirts(verts, tris, np.inf, None, base)
         texture = None
         if textures is not None:
@@ -165,12 +167,9 @@ def _as_stored(terrain, result, kind: str, figures: dict) -> None:
         return
     pts = terrain.points()
     tris = np.ascontiguousarray(result.triangles, dtype=np.int64)
-    tri, err = mesh_point_errors(
-        *(np.ascontiguousarray(stored[:, k]) for k in range(3)),
-        tris,
-        *(np.ascontiguousarray(pts[:, k]) for k in range(3)),
-        1e-9,
-    )
+    vx, vy, vz = (np.ascontiguousarray(stored[:, k]) for k in range(3))
+    qx, qy, qz = (np.ascontiguousarray(pts[:, k]) for k in range(3))
+    tri, err = mesh_point_errors(vx, vy, vz, tris, qx, qy, qz, 1e-9)
     # Points the rounding left outside the border keep the unrounded mesh's value.
     inside = err[tri >= 0]
     if len(inside):

@@ -24,9 +24,11 @@ def _store_epsilon(path: str) -> float | None:
     if not _is_tree(path):
         return None
     if Path(path).suffix.lower() == ".atree":
-        from approxtree.tree import load_tree
+        from approxtree.tree import ApproximationTree, load_tree
 
-        return float(load_tree(path).epsilon)
+        # A point quadtree has no ε: it keeps every point.
+        tree = load_tree(path)
+        return float(tree.epsilon) if isinstance(tree, ApproximationTree) else None
     from approxtree.tree.tree_store import StoreReader
 
     eps = (StoreReader(path).meta.get("params") or {}).get("epsilon")
@@ -240,7 +242,7 @@ def _tiles_3dtiles(
         out,
         textures=textures,
         workers=workers,
-        origin=tuple(origin),
+        origin=(origin[0], origin[1]),
         skirts=not no_skirts,
         image_format=texture_format,
         scheduler=scheduler,

@@ -9,11 +9,17 @@ contract: a new data type implements ``domain``, ``points``, ``height_at``, ``z_
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import Any
+from collections.abc import Mapping
+from typing import Any, TypeAlias
 
 import numpy as np
 
 from approxtree.geometry.rect import Rect
+from approxtree.geometry.windowed import WindowedHeights
+
+#: One named array of a terrain record: a numpy array, or the heights of a windowed grid as
+#: their WindowedHeights (read by windows; ``np.asarray`` reads the band whole).
+RecordArray: TypeAlias = np.ndarray | WindowedHeights
 
 
 class GeometryData(ABC):
@@ -69,12 +75,12 @@ class GeometryData(ABC):
         return out
 
     @abstractmethod
-    def to_record(self) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    def to_record(self) -> tuple[dict[str, Any], dict[str, RecordArray]]:
         """(JSON-able attributes, named arrays) that ``from_record`` turns back into the terrain."""
 
     @classmethod
     @abstractmethod
-    def from_record(cls, attrs: dict[str, Any], arrays: dict[str, np.ndarray]) -> GeometryData:
+    def from_record(cls, attrs: dict[str, Any], arrays: Mapping[str, RecordArray]) -> GeometryData:
         """Rebuild the terrain from ``to_record``'s output (arrays may be read-only views)."""
 
     @property

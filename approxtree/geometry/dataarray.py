@@ -187,7 +187,8 @@ def _two_dimensional(da: Any, ydim: str | None, xdim: str | None) -> Any:
 
 def _transform(da: Any, ydim: str | None, xdim: str | None, rio: Any) -> Affine | None:
     """The affine transform placing the (y, x) array, from rioxarray or the coordinates."""
-    if ydim is None:
+    # _spatial_dims gives both dims or neither.
+    if ydim is None or xdim is None:
         _no_curvilinear(da)
         return None
     has = [d in da.coords for d in (ydim, xdim)]

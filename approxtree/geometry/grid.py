@@ -12,21 +12,23 @@ only when it is small (``WHOLE_BAND_LIMIT_BYTES``), else raises WholeBandError.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from functools import cached_property
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 from affine import Affine
 
 from approxtree.errors import EmptyTerrainError, InvalidParameterError, TerrainFormatError
-from approxtree.geometry.base import GeometryData
+from approxtree.geometry.base import GeometryData, RecordArray
 from approxtree.geometry.dataarray import is_dataarray
 from approxtree.geometry.rect import Rect
 from approxtree.geometry.windowed import WindowedHeights, band_statistics, check_whole_band
 from approxtree.kernels.grid_interp import cell_height_at, grid_height_at
 
 
-def _as_heights(heights: np.ndarray) -> np.ndarray:
+def _as_heights(heights: npt.ArrayLike) -> np.ndarray:
     """Heights as float32 (exact for integer DEMs up to 2^24) unless they are float64 already."""
     a = np.asarray(heights)
     if a.dtype == np.float64:
@@ -113,7 +115,7 @@ class Grid(GeometryData):
 
     def __init__(
         self,
-        heights: np.ndarray,
+        heights: npt.ArrayLike | WindowedHeights,
         transform: Affine | None = None,
         crs: str | None = None,
         nodata: float | None = None,
@@ -123,7 +125,7 @@ class Grid(GeometryData):
         if is_dataarray(heights):
             heights, transform, crs, nodata = _from_dataarray(heights, transform, crs, nodata)
         windowed = isinstance(heights, WindowedHeights)
-        h = heights if windowed else _as_heights(heights)
+        h = heights if isinstance(heights, WindowedHeights) else _as_heights(heights)
         if windowed and h.dtype not in (np.float32, np.float64):
             raise TerrainFormatError(f"Windowed heights must be float32 or float64, got {h.dtype}.")
         if h.ndim != 2:
@@ -151,12 +153,12 @@ class Grid(GeometryData):
         if transform.a == 0.0 or transform.e == 0.0:
             raise TerrainFormatError(f"The grid's cell size is zero: transform {tuple(transform)}.")
         _check_resolution(transform, rows, cols)
-        self.heights = h
+        self.heights: np.ndarray | WindowedHeights = h
         self.transform = transform
         #: How the reader treated nodata: "mask" (holes stay NaN) or "fill" (interpolated).
         self.nodata_policy = "mask"
-        #: Cells the fill policy gave an interpolated height.
-        self.filled_count = 0
+        #: Cells the fill policy gave an interpolated height (None: not known, a windowed fill).
+        self.filled_count: int | None = 0
         self.crs = crs
         self.nodata = nodata
         #: (row, col) in the full raster of this grid's row 0, column 0: a window of a larger
@@ -166,9 +168,10 @@ class Grid(GeometryData):
 
     def __getattr__(self, name: str) -> Any:
         # The valid count of a windowed grid: one blockwise scan, the first time it is needed.
-        if name == "_n_valid" and isinstance(self.__dict__.get("heights"), WindowedHeights):
-            n_valid, zmin, zmax = band_statistics(self.heights)
-            _check_not_empty(n_valid, self.heights.shape, self.__dict__.get("_allow_empty"))
+        heights = self.__dict__.get("heights")
+        if name == "_n_valid" and isinstance(heights, WindowedHeights):
+            n_valid, zmin, zmax = band_statistics(heights)
+            _check_not_empty(n_valid, heights.shape, self.__dict__.get("_allow_empty"))
             self.__dict__["_n_valid"] = n_valid
             self.__dict__["_z_range_blockwise"] = (zmin, zmax)
             return n_valid
@@ -223,7 +226,7 @@ class Grid(GeometryData):
         In memory: ``heights`` itself. Windowed: read whole (and kept) when the band is at most
         WHOLE_BAND_LIMIT_BYTES; else WholeBandError naming the operation and what to do.
         """
-        if not self.is_windowed:
+        if not isinstance(self.heights, WindowedHeights):
             return self.heights
         whole = self.__dict__.get("_whole_heights")
         if whole is None:
@@ -238,7 +241,8 @@ class Grid(GeometryData):
     @property
     def shape(self) -> tuple[int, int]:
         """(rows, cols)."""
-        return self.heights.shape  # type: ignore[return-value]
+        rows, cols = self.heights.shape
+        return (rows, cols)
 
     @property
     def width(self) -> int:
@@ -372,7 +376,7 @@ class Grid(GeometryData):
         shape = np.broadcast_shapes(x.shape, y.shape)
         fr, fc = self.fractional_index(np.broadcast_to(x, shape), np.broadcast_to(y, shape))
         fr, fc = fr.ravel().copy(), fc.ravel().copy()
-        if self.is_windowed:
+        if isinstance(self.heights, WindowedHeights):
             return self._windowed_height_at(fr, fc).reshape(shape)
         return grid_height_at(self.heights, fr, fc).reshape(shape)
 
@@ -394,10 +398,10 @@ class Grid(GeometryData):
         fr_in, fc_in = fr[inside], fc[inside]
         cr = np.minimum(fr_in.astype(np.int64), rows - 2)
         cc = np.minimum(fc_in.astype(np.int64), cols - 2)
-        corners = self.heights[
+        z00, z01, z10, z11 = self.heights[
             np.concatenate([cr, cr, cr + 1, cr + 1]), np.concatenate([cc, cc + 1, cc, cc + 1])
         ].reshape(4, -1)
-        out[inside] = cell_height_at(*corners, fr_in - cr, fc_in - cc)
+        out[inside] = cell_height_at(z00, z01, z10, z11, fr_in - cr, fc_in - cc)
         return out
 
     @property
@@ -421,7 +425,7 @@ class Grid(GeometryData):
     def point_count(self) -> int:
         return self._n_valid
 
-    def to_record(self) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    def to_record(self) -> tuple[dict[str, Any], dict[str, RecordArray]]:
         """(attrs, {"heights": heights}).
 
         On a windowed grid ``heights`` is the WindowedHeights itself, never the band read
@@ -431,7 +435,11 @@ class Grid(GeometryData):
         copies. ``np.asarray`` of it reads the band only under WHOLE_BAND_LIMIT_BYTES, else
         raises WholeBandError. ``attrs["windowed"]`` is True then.
         """
-        attrs = {"transform": list(self.transform)[:6], "crs": self.crs, "nodata": self.nodata}
+        attrs: dict[str, Any] = {
+            "transform": list(self.transform)[:6],
+            "crs": self.crs,
+            "nodata": self.nodata,
+        }
         if self.index_offset != (0, 0):
             attrs["index_offset"] = list(self.index_offset)
         if self.is_windowed:
@@ -441,14 +449,14 @@ class Grid(GeometryData):
         return attrs, {"heights": self.heights}
 
     @classmethod
-    def from_record(cls, attrs: dict[str, Any], arrays: dict[str, np.ndarray]) -> Grid:
-        offset = tuple(attrs.get("index_offset", (0, 0)))
+    def from_record(cls, attrs: dict[str, Any], arrays: Mapping[str, RecordArray]) -> Grid:
+        r_off, c_off = attrs.get("index_offset", (0, 0))
         grid = cls(
             arrays["heights"],
             Affine(*attrs["transform"]),
             attrs["crs"],
             attrs["nodata"],
-            index_offset=offset,  # type: ignore[arg-type]
+            index_offset=(r_off, c_off),
         )
         stats = attrs.get("stats")
         if stats and grid.is_windowed:

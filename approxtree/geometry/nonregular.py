@@ -6,18 +6,20 @@ Heights are given on the lattice xs × ys; cells are triangulated exactly like a
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from functools import cached_property
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from approxtree.errors import EmptyTerrainError, TerrainFormatError
-from approxtree.geometry.base import GeometryData
+from approxtree.geometry.base import GeometryData, RecordArray
 from approxtree.geometry.rect import Rect
 from approxtree.kernels.grid_interp import grid_height_at
 
 
-def _strictly_monotonic(a: np.ndarray, name: str) -> np.ndarray:
+def _strictly_monotonic(a: npt.ArrayLike, name: str) -> np.ndarray:
     a = np.asarray(a, dtype=np.float64)
     d = np.diff(a)
     if a.ndim != 1 or not (np.all(d > 0) or np.all(d < 0)):
@@ -32,7 +34,9 @@ class NonRegularGrid(GeometryData):
     monotonic; heights: (rows, cols) float, NaN = nodata.
     """
 
-    def __init__(self, xs: np.ndarray, ys: np.ndarray, heights: np.ndarray, crs: str | None = None):
+    def __init__(
+        self, xs: npt.ArrayLike, ys: npt.ArrayLike, heights: npt.ArrayLike, crs: str | None = None
+    ):
         h = np.ascontiguousarray(heights, dtype=np.float64)
         self.xs = _strictly_monotonic(xs, "xs")
         self.ys = _strictly_monotonic(ys, "ys")
@@ -95,11 +99,13 @@ class NonRegularGrid(GeometryData):
     def point_count(self) -> int:
         return self._n_valid
 
-    def to_record(self) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    def to_record(self) -> tuple[dict[str, Any], dict[str, RecordArray]]:
         return {"crs": self.crs}, {"xs": self.xs, "ys": self.ys, "heights": self.heights}
 
     @classmethod
-    def from_record(cls, attrs: dict[str, Any], arrays: dict[str, np.ndarray]) -> NonRegularGrid:
+    def from_record(
+        cls, attrs: dict[str, Any], arrays: Mapping[str, RecordArray]
+    ) -> NonRegularGrid:
         return cls(arrays["xs"], arrays["ys"], arrays["heights"], attrs["crs"])
 
     def split_position(self, rect: Rect, axis: int) -> float | None:

@@ -8,14 +8,14 @@ bucket-grid query however many there are.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from functools import cached_property
 from typing import Any
 
 import numpy as np
 
 from approxtree.errors import TerrainFormatError
-from approxtree.geometry.base import GeometryData
+from approxtree.geometry.base import GeometryData, RecordArray
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
 from approxtree.geometry.tin import TIN
@@ -117,7 +117,7 @@ class GridRefinement(GeometryData):
     def point_count(self) -> int:
         return int(np.count_nonzero(self.grid_outside)) + self.combined.point_count
 
-    def to_record(self) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    def to_record(self) -> tuple[dict[str, Any], dict[str, RecordArray]]:
         attrs, arrays = self.grid.to_record()
         arrays = dict(arrays)
         arrays["vertices"] = self.combined.vertices
@@ -127,21 +127,18 @@ class GridRefinement(GeometryData):
         return attrs, arrays
 
     @classmethod
-    def from_record(cls, attrs: dict[str, Any], arrays: dict[str, np.ndarray]) -> GridRefinement:
+    def from_record(
+        cls, attrs: dict[str, Any], arrays: Mapping[str, RecordArray]
+    ) -> GridRefinement:
         grid = Grid.from_record(attrs, arrays)
         v_end = np.cumsum(arrays["vertex_counts"])
         t_end = np.cumsum(arrays["triangle_counts"])
+        vertices, triangles = np.asarray(arrays["vertices"]), np.asarray(arrays["triangles"])
         tins = []
         for i in range(len(v_end)):
             v0 = v_end[i - 1] if i else 0
             t0 = t_end[i - 1] if i else 0
-            tins.append(
-                TIN(
-                    arrays["vertices"][v0 : v_end[i]],
-                    arrays["triangles"][t0 : t_end[i]] - v0,
-                    grid.crs,
-                )
-            )
+            tins.append(TIN(vertices[v0 : v_end[i]], triangles[t0 : t_end[i]] - v0, grid.crs))
         return cls(grid, tins)
 
     def split_position(self, rect: Rect, axis: int) -> float | None:

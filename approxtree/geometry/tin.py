@@ -6,13 +6,15 @@ uniform bucket grid (``kernels.tin_locate``), built once on first use.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from functools import cached_property
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from approxtree.errors import EmptyTerrainError, TerrainFormatError
-from approxtree.geometry.base import GeometryData
+from approxtree.geometry.base import GeometryData, RecordArray
 from approxtree.geometry.rect import Rect
 from approxtree.kernels.greedy_points import greedy_point_tin
 from approxtree.kernels.point_index import bin_points, points_in_rects
@@ -26,7 +28,7 @@ class TIN(GeometryData):
     crs: EPSG code or WKT of x and y, or None.
     """
 
-    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, crs: str | None = None):
+    def __init__(self, vertices: npt.ArrayLike, triangles: npt.ArrayLike, crs: str | None = None):
         v = np.ascontiguousarray(vertices, dtype=np.float64)
         t = np.ascontiguousarray(triangles, dtype=np.int64)
         if v.ndim != 2 or v.shape[1] != 3:
@@ -145,11 +147,11 @@ class TIN(GeometryData):
     def point_count(self) -> int:
         return len(self.vertices)
 
-    def to_record(self) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    def to_record(self) -> tuple[dict[str, Any], dict[str, RecordArray]]:
         return {"crs": self.crs}, {"vertices": self.vertices, "triangles": self.triangles}
 
     @classmethod
-    def from_record(cls, attrs: dict[str, Any], arrays: dict[str, np.ndarray]) -> TIN:
+    def from_record(cls, attrs: dict[str, Any], arrays: Mapping[str, RecordArray]) -> TIN:
         # Bypass subclass constructors (TINPointSet would re-triangulate): the stored triangles
         # are the terrain.
         tin = cls.__new__(cls)

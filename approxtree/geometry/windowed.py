@@ -48,8 +48,11 @@ class HeightSource(Protocol):
     Sources pickle by their arguments (a path, a band), never by their data.
     """
 
-    shape: tuple[int, int]
-    dtype: np.dtype
+    @property
+    def shape(self) -> tuple[int, int]: ...
+
+    @property
+    def dtype(self) -> np.dtype: ...
 
     def read(self, r0: int, r1: int, c0: int, c1: int) -> np.ndarray: ...
 
@@ -80,23 +83,23 @@ class ArraySource:
         return np.array(self.array[r0:r1, c0:c1], copy=True)
 
 
-def _axis_selection(key: Any, n: int) -> tuple[np.ndarray | None, slice | None, bool]:
-    """One axis of a key → (index array or None, normalised slice or None, axis dropped)."""
+def _axis_selection(key: Any, n: int) -> tuple[np.ndarray | slice, bool]:
+    """One axis of a key → (non-negative index array or normalised slice, axis dropped)."""
     if isinstance(key, slice):
-        return None, slice(*key.indices(n)), False
+        return slice(*key.indices(n)), False
     if isinstance(key, int | np.integer):
         i = int(key)
         if not -n <= i < n:
             raise IndexError(f"index {i} is out of bounds for axis of size {n}")
         i %= n
-        return None, slice(i, i + 1, 1), True
+        return slice(i, i + 1, 1), True
     a = np.asarray(key)
     if a.dtype.kind not in "iu":
         raise IndexError(f"WindowedHeights takes slices and integer indices, got {a.dtype}")
     a = a.astype(np.int64)
     if a.size and (a.min() < -n or a.max() >= n):
         raise IndexError(f"index out of bounds for axis of size {n}")
-    return np.where(a < 0, a + n, a), None, False
+    return np.where(a < 0, a + n, a), False
 
 
 class WindowedHeights:
@@ -249,23 +252,25 @@ class WindowedHeights:
             key = (key, slice(None))
         if len(key) != 2 or any(k is Ellipsis or k is None for k in key):
             raise IndexError("WindowedHeights takes exactly two indices (rows, cols)")
-        ar, sr, dr = _axis_selection(key[0], self.shape[0])
-        ac, sc, dc = _axis_selection(key[1], self.shape[1])
-        if ar is None and ac is None:
-            out = self._read_slices(sr, sc)  # type: ignore[arg-type]
-            if dr and dc:
-                return out[0, 0]
-            return out[0] if dr else (out[:, 0] if dc else out)
+        sel_r, dr = _axis_selection(key[0], self.shape[0])
+        sel_c, dc = _axis_selection(key[1], self.shape[1])
         # Integer arrays: numpy's rule (a slice next to an array becomes a trailing/leading axis).
-        if ar is None:
-            rows = np.arange(sr.start, sr.stop, sr.step)  # type: ignore[union-attr]
-            rr = rows.reshape((-1,) + (1,) * ac.ndim) if not dr else rows[0]  # type: ignore[union-attr]
-            return self._read_points(*np.broadcast_arrays(rr, ac))
-        if ac is None:
-            cols = np.arange(sc.start, sc.stop, sc.step)  # type: ignore[union-attr]
+        if isinstance(sel_r, slice):
+            if isinstance(sel_c, slice):
+                out = self._read_slices(sel_r, sel_c)
+                if dr and dc:
+                    return out[0, 0]
+                return out[0] if dr else (out[:, 0] if dc else out)
+            rows = np.arange(sel_r.start, sel_r.stop, sel_r.step)
+            rr = rows.reshape((-1,) + (1,) * sel_c.ndim) if not dr else rows[0]
+            return self._read_points(*np.broadcast_arrays(rr, sel_c))
+        if isinstance(sel_c, slice):
+            cols = np.arange(sel_c.start, sel_c.stop, sel_c.step)
             cc = cols if not dc else cols[0]
-            return self._read_points(*np.broadcast_arrays(ar[..., None] if not dc else ar, cc))
-        return self._read_points(*np.broadcast_arrays(ar, ac))
+            return self._read_points(
+                *np.broadcast_arrays(sel_r[..., None] if not dc else sel_r, cc)
+            )
+        return self._read_points(*np.broadcast_arrays(sel_r, sel_c))
 
     def _read_slices(self, sr: slice, sc: slice) -> np.ndarray:
         """The (len(rows), len(cols)) selection of two normalised slices."""

@@ -144,7 +144,7 @@ def _check_options(fmt: Format, options: dict[str, object]) -> None:
             )
 
 
-def open_terrain(path: str | os.PathLike | Any, **options: object) -> GeometryData:
+def open_terrain(path: str | os.PathLike | Any, **options: Any) -> GeometryData:
     """Read a terrain file with the reader its extension (or content) calls for; or place an
     xarray / rioxarray DataArray given in place of the path (``io.dataarray``: its transform
     or regular x/y coordinates, CRS and nodata; options nodata, crs, windowed).
@@ -154,14 +154,14 @@ def open_terrain(path: str | os.PathLike | Any, **options: object) -> GeometryDa
     windowed (GDAL rasters: True reads by windows on demand, False into memory, None/absent
     windowed above ``approxtree.io.raster.windowed_threshold()`` bytes of heights).
     Returns a Grid for rasters, images and arrays, a TINPointSet for point clouds and a TIN for
-    quantized-mesh tiles.
+    quantized-mesh tiles. Every option is checked by the reader that takes it.
     """
     given = {name: value for name, value in options.items() if value is not None}
     if is_dataarray(path):
         check_dataarray_options(given)
-        terrain: GeometryData = read_dataarray(path, **given)  # type: ignore[arg-type]
-        warn_degrees_without_crs(terrain, "the DataArray")  # type: ignore[arg-type]
-        return terrain
+        grid = read_dataarray(path, **given)
+        warn_degrees_without_crs(grid, "the DataArray")
+        return grid
     if not isinstance(path, str | os.PathLike):
         raise InvalidParameterError(
             f"open_terrain takes the path of a terrain file or an xarray DataArray, got "
@@ -169,7 +169,7 @@ def open_terrain(path: str | os.PathLike | Any, **options: object) -> GeometryDa
             "Grid(heights, transform)."
         )
     p = existing_file(path)
-    fmt = detect_format(p, encoding=given.get("encoding"))  # type: ignore[arg-type]
+    fmt = detect_format(p, encoding=given.get("encoding"))
     _check_options(fmt, given)
     terrain = fmt.reader(p, **given)
     # A grid in degrees read without its CRS would be drawn as a needle: say how to fix it.

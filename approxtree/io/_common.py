@@ -9,7 +9,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -163,7 +163,7 @@ def _finite_number(value: object, name: str) -> float:
 def _number_pair(value: object, name: str) -> tuple[float, float]:
     """Two finite numbers from a 2-sequence, or InvalidParameterError."""
     try:
-        items = list(value)  # type: ignore[call-overload]
+        items = list(value) if isinstance(value, Iterable) else []
     except TypeError:
         items = []
     if len(items) != 2:
@@ -196,7 +196,7 @@ def check_bounds(bounds: object) -> tuple[float, float, float, float] | None:
     if bounds is None:
         return None
     try:
-        items = list(bounds)  # type: ignore[call-overload]
+        items = list(bounds) if isinstance(bounds, Iterable) else []
     except TypeError:
         items = []
     if len(items) != 4:
@@ -379,12 +379,12 @@ def fill_holes(heights: np.ndarray) -> tuple[np.ndarray, int]:
 
 def make_grid(
     heights: np.ndarray,
-    transform: Affine,
+    transform: Affine | None,
     crs: str | None,
     nodata_value: float | None,
     policy: str,
 ) -> Grid:
-    """A Grid with the nodata policy applied and reported.
+    """A Grid with the nodata policy applied and reported (transform None: Grid's default).
 
     The grid carries ``nodata_policy`` ("mask" or "fill") and ``filled_count`` (cells filled).
     """

@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 import zipfile
 from pathlib import Path
-from typing import BinaryIO
+from typing import IO
 
 import numpy as np
 from affine import Affine
@@ -75,7 +75,7 @@ def read_array(
     return make_grid(heights, transform, crs, None, policy)
 
 
-def _npy_claim(f: BinaryIO) -> tuple[int, str]:
+def _npy_claim(f: IO[bytes]) -> tuple[int, str]:
     """(bytes of data, shape and dtype in words) from an .npy header; f is left at the data."""
     version = np.lib.format.read_magic(f)
     if version == (1, 0):

@@ -84,7 +84,7 @@ def remove_stale_temps(target: str | os.PathLike) -> list[Path]:
     target = Path(target)
     folder = target.parent
     pattern = temp_pattern(target.name)
-    removed = []
+    removed: list[Path] = []
     try:
         names = os.listdir(folder)
     except OSError:

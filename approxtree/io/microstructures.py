@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -46,6 +47,8 @@ def read_lines(path: str | os.PathLike, crs: str | None = None) -> np.ndarray:
         _, _, wkb, _ = pyogrio.raw.read(path, columns=[])
     except Exception as exc:
         raise TerrainFormatError(f"Cannot read {path} as a vector layer: {exc}") from exc
+    if wkb is None:
+        raise TerrainFormatError(f"{path} has no geometry column: it holds no lines.")
     geoms = shapely.from_wkb(wkb)
     keep = ~shapely.is_missing(geoms) & ~shapely.is_empty(geoms)
     coords_ok = np.array(
@@ -86,7 +89,7 @@ def _bicubic_heights(grid: Grid, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def corridor_microstructures(
     grid: Grid,
-    lines: Sequence,
+    lines: Sequence[Any] | np.ndarray,
     width: float,
     spacing: float | None = None,
     profile: str = "incised",

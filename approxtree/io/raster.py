@@ -23,7 +23,7 @@ import numpy as np
 
 from approxtree.errors import InvalidParameterError, TerrainFormatError
 from approxtree.geometry import Grid
-from approxtree.geometry.windowed import DEFAULT_CACHE_BYTES, WindowedHeights
+from approxtree.geometry.windowed import DEFAULT_CACHE_BYTES, HeightSource, WindowedHeights
 from approxtree.io._common import (
     FILL_SEARCH_DISTANCE,
     as_heights,
@@ -318,11 +318,11 @@ class FilledSource:
     #: Cells read around each window (the fill's reach, with a margin for its diagonals).
     HALO = 2 * int(FILL_SEARCH_DISTANCE) + 2
 
-    def __init__(self, source: RasterSource) -> None:
+    def __init__(self, source: HeightSource) -> None:
         self.source = source
         self.shape = source.shape
         self.dtype = source.dtype
-        self.block_shape = source.block_shape
+        self.block_shape: tuple[int, ...] | None = getattr(source, "block_shape", None)
 
     def __reduce__(self):
         return (FilledSource, (self.source,))
@@ -356,8 +356,8 @@ def _open_windowed(
         check_crs_read(heights.crs, p, source)
     transform = resolve_transform(heights.own_transform, heights.shape, cell, corner, p)
     # The fill policy fills each window from a halo around it (as a whole-band fill would).
-    source = FilledSource(heights) if policy == "fill" else heights
-    windowed = WindowedHeights(source, cache_bytes=DEFAULT_CACHE_BYTES)
+    read_from: HeightSource = FilledSource(heights) if policy == "fill" else heights
+    windowed = WindowedHeights(read_from, cache_bytes=DEFAULT_CACHE_BYTES)
     # One block read now (kept in the cache): a header claiming more cells than the file
     # holds fails here, as it fails an in-memory read, not in the middle of a computation.
     last = windowed.block_count()

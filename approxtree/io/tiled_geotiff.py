@@ -88,7 +88,10 @@ def _dask_blocks(source: HeightSource, block: int) -> Any:
 
     rows, cols = source.shape
 
-    def chunk(block_info: dict | None = None) -> np.ndarray:
+    def chunk(block_info: dict[Any, Any] | None = None) -> np.ndarray:
+        # dask passes the chunk's place to a function that takes block_info.
+        if block_info is None:
+            raise TypeError("map_blocks gave no block_info")
         (r0, r1), (c0, c1) = block_info[None]["array-location"]
         return np.asarray(source.read(r0, r1, c0, c1), dtype=source.dtype)
 
@@ -266,9 +269,10 @@ def _write_blocks(
         lock = threading.Lock()
         writer = _BandWriter(ds, bar)
         try:
+            # dask annotates targets as arrays, though it documents (and needs) only __setitem__.
             da.store(
                 blocks,
-                writer,
+                writer,  # type: ignore[arg-type]
                 lock=lock,
                 scheduler="threads",
                 num_workers=workers or os.cpu_count() or 1,

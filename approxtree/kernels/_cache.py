@@ -125,8 +125,9 @@ def _make_locator_class() -> type:
 
         @classmethod
         def from_function(cls, py_func, py_file: str):
-            # An explicit NUMBA_CACHE_DIR is the user's choice: step aside.
-            if config.CACHE_DIR:
+            # An explicit NUMBA_CACHE_DIR is the user's choice: step aside. (numba's config sets
+            # its attributes from the environment at run time: mypy cannot see them.)
+            if getattr(config, "CACHE_DIR", ""):
                 return None
             try:
                 relative = Path(py_file).resolve().relative_to(PACKAGE_ROOT)
@@ -149,7 +150,9 @@ def install() -> bool:
         from numba.core import caching
 
         # numba 0.68 names the class CacheImpl, older releases _CacheImpl.
-        impl = getattr(caching, "CacheImpl", None) or caching._CacheImpl
+        impl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl", None)
+        if impl is None:
+            return False
         classes = impl._locator_classes
         if any(getattr(c, "__name__", "") == "PackageCacheLocator" for c in classes):
             return True
@@ -175,6 +178,8 @@ _REFRESH_ONLY_SYMBOLS = (b"_numba_hashsecret_",)
 def _needs_full_refresh(data: object) -> bool:
     """Whether a cached entry (numba's reduced compile result) may name a symbol that only a
     full refresh registers; True for anything not shaped as an object-code library."""
+    if not isinstance(data, tuple):
+        return True
     try:
         _name, kind, (object_code, _bitcode) = data[0]
         if kind != "object" or not isinstance(object_code, bytes):
@@ -233,7 +238,8 @@ def install_light_load() -> bool:
 
         if not hasattr(rtsys, "initialize"):
             return False
-        cache.load_overload = _light_load_overload(cache.load_overload)
+        # Replacing numba's method on purpose (a monkeypatch): mypy forbids it by default.
+        cache.load_overload = _light_load_overload(cache.load_overload)  # type: ignore[method-assign]
         return True
     except Exception:
         return False

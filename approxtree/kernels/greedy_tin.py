@@ -27,6 +27,7 @@ import math
 import numpy as np
 from numba import njit
 
+from approxtree.kernels._jit import njit_no_nrt
 from approxtree.kernels.tin_mesh import (
     flip,
     grow,
@@ -61,7 +62,7 @@ def _shape(ax, ay, bx, by, cx, cy) -> float:
     return area / math.sqrt(d)
 
 
-@njit(cache=True, _nrt=False)
+@njit_no_nrt()
 def _flip_improves(heights, r0, c0, vxy, a, b, p, q, has_nan) -> bool:
     """Algorithm IV's test: is diagonal p–q better than a–b for the quadrilateral a, q, b, p?"""
     ax, ay, bx, by = vxy[2 * a], vxy[2 * a + 1], vxy[2 * b], vxy[2 * b + 1]
@@ -103,7 +104,7 @@ def _store_state(state, nv, nt, size, sp, n_pending):
 
 # Without the reference-counting runtime (it allocates nothing): every call of a scan or mesh
 # operation from the loop would otherwise pay atomic reference-count updates on its arrays.
-@njit(cache=True, _nrt=False)
+@njit_no_nrt()
 def _insert_until(
     heights,
     r0,
@@ -279,7 +280,7 @@ def _insert_until(
                 sp += 1
 
 
-@njit(cache=True, _nrt=False)
+@njit_no_nrt()
 def _mesh_figures(heights, r0, c0, vx, vy, tv, he, key, nt, has_nan):
     """(max error, sum of squared errors) of the final mesh's nt triangles.
 

@@ -14,6 +14,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from approxtree.kernels._jit import njit_no_nrt
+
 
 @njit(cache=True, inline="always")
 def next_edge(e: int) -> int:
@@ -74,7 +76,7 @@ def set_triangle(tv, he, t, a, b, c, hab, hbc, hca) -> None:
         he[np.uint64(hca)] = e + 2
 
 
-@njit(cache=True, _nrt=False)
+@njit_no_nrt()
 def split_interior(tv, he, t, n1, n2, p) -> None:
     """Split triangle t = (a, b, c) at interior vertex p into (a,b,p), (b,c,p) = n1, (c,a,p) = n2.
 
@@ -90,7 +92,7 @@ def split_interior(tv, he, t, n1, n2, p) -> None:
     set_triangle(tv, he, n2, c, a, p, hca, 3 * t + 2, 3 * n1 + 1)
 
 
-@njit(cache=True, _nrt=False)
+@njit_no_nrt()
 def split_edge(tv, he, e, n1, n2, p) -> int:
     """Split half-edge e = a→b (and its twin b→a, if any) at vertex p lying on it.
 
@@ -121,7 +123,7 @@ def split_edge(tv, he, e, n1, n2, p) -> int:
     return 2
 
 
-@njit(cache=True, _nrt=False)
+@njit_no_nrt()
 def flip(tv, he, e) -> None:
     """Swap the diagonal of the quadrilateral around half-edge e (p is opposite e in t).
 

@@ -13,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from approxtree.kernels._jit import njit_no_nrt
+
 
 # Slots and triangle ids are indexed as unsigned (np.uint64) in the sifts: numba then emits
 # no negative-index wraparound per load and store.
@@ -23,7 +25,7 @@ def _place(heap, hkey, pos, i, t, k) -> None:
     pos[np.uint64(t)] = i
 
 
-@njit(cache=True, _nrt=False)
+@njit_no_nrt()
 def _sift_up(heap, hkey, pos, i, t, k) -> None:
     """Move entry (t, k) up from slot i to where it belongs."""
     while i > 0:
@@ -36,7 +38,7 @@ def _sift_up(heap, hkey, pos, i, t, k) -> None:
     _place(heap, hkey, pos, i, t, k)
 
 
-@njit(cache=True, _nrt=False)
+@njit_no_nrt()
 def _sift_down(heap, hkey, pos, i, t, k, size) -> None:
     """Move entry (t, k) down from slot i to where it belongs."""
     while True:
@@ -54,14 +56,14 @@ def _sift_down(heap, hkey, pos, i, t, k, size) -> None:
     _place(heap, hkey, pos, i, t, k)
 
 
-@njit(cache=True, _nrt=False)
+@njit_no_nrt()
 def heap_push(heap: np.ndarray, hkey: np.ndarray, pos: np.ndarray, size: int, t: int, k: float):
     """Add triangle t (not yet in the heap) with key k."""
     _sift_up(heap, hkey, pos, size, t, k)
     return size + 1
 
 
-@njit(cache=True, _nrt=False)
+@njit_no_nrt()
 def heap_remove(heap: np.ndarray, hkey: np.ndarray, pos: np.ndarray, size: int, t: int):
     """Take triangle t out of the heap if it is there."""
     # int64 like ``size``, so ``_sift_up`` compiles once (pos holds int32).
@@ -81,7 +83,7 @@ def heap_remove(heap: np.ndarray, hkey: np.ndarray, pos: np.ndarray, size: int, 
     return last
 
 
-@njit(cache=True, _nrt=False)
+@njit_no_nrt()
 def heap_update(heap: np.ndarray, hkey: np.ndarray, pos: np.ndarray, size: int, t: int, k: float):
     """Give triangle t key k: pushed when absent, else moved up or down in place (one sift)."""
     i = np.int64(pos[np.uint64(t)])

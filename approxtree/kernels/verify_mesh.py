@@ -136,7 +136,7 @@ def grid_mesh_errors(
     piece_tris: np.ndarray,
     tris: np.ndarray,
     tol: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Errors of owners' triangles at the lattice points of a raster window.
 
     z: (h, w) float64 heights of the window, NaN = nodata; wr0, wc0: raster index of z[0, 0].
@@ -250,8 +250,8 @@ def point_mesh_errors(
         for j in range(ja, jb + 1):
             for i in range(ia, ib + 1):
                 b = j * nbx + i
-                for s in range(bucket_start[b], bucket_start[b + 1]):
-                    t = bucket_items[s]
+                for slot in range(bucket_start[b], bucket_start[b + 1]):
+                    t = bucket_items[slot]
                     if xa <= px[t] <= xb and ya <= py[t] <= yb:
                         n += 1
         if n == 0:
@@ -261,8 +261,8 @@ def point_mesh_errors(
         for j in range(ja, jb + 1):
             for i in range(ia, ib + 1):
                 b = j * nbx + i
-                for s in range(bucket_start[b], bucket_start[b + 1]):
-                    t = bucket_items[s]
+                for slot in range(bucket_start[b], bucket_start[b + 1]):
+                    t = bucket_items[slot]
                     if xa <= px[t] <= xb and ya <= py[t] <= yb:
                         ids[n] = t
                         n += 1

@@ -4,11 +4,11 @@ from approxtree.patches.base import GeometryPatch
 from approxtree.patches.grid import GridPatch
 from approxtree.patches.nonregular import NonRegularGridPatch
 from approxtree.patches.rtin import RTINPatch
-from approxtree.patches.table import TINPatch, patch_class
+from approxtree.patches.table import Strategy, TINPatch, patch_class
 
 #: Strategy name → patch class by name; the class that builds a strategy on a given data type
 #: is ``patch_class``'s, from the strategy table (``patches.table``).
-STRATEGIES: dict[str, type[GeometryPatch]] = {
+STRATEGIES: dict[str, Strategy] = {
     GridPatch.kind: GridPatch,
     TINPatch.kind: TINPatch,
     RTINPatch.kind: RTINPatch,
@@ -21,6 +21,7 @@ __all__ = [
     "GridPatch",
     "NonRegularGridPatch",
     "RTINPatch",
+    "Strategy",
     "TINPatch",
     "patch_class",
 ]

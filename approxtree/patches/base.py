@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
-from typing import ClassVar
+from typing import ClassVar, TypeVar
 
 import numpy as np
 
@@ -18,6 +18,8 @@ from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
 from approxtree.patches.mesh_objects import MeshConversions
 from approxtree.patches.records import Batch, concat_records
+
+_Patch = TypeVar("_Patch", bound="GeometryPatch")
 
 
 def ccw_triangles(vertices: np.ndarray, tris: np.ndarray) -> np.ndarray:
@@ -62,7 +64,7 @@ class GeometryPatch(MeshConversions, ABC):
         rects: Sequence[Rect],
         max_points: int,
         epsilon: float = 0.0,
-    ) -> list[GeometryPatch]:
+    ) -> Sequence[GeometryPatch]:
         """Build one patch of at most ``max_points`` points per rectangle.
 
         Adaptive strategies may stop early, with fewer points, once the patch's error is at
@@ -76,7 +78,7 @@ class GeometryPatch(MeshConversions, ABC):
         rects: np.ndarray,
         max_points: int,
         epsilon: float = 0.0,
-    ) -> list[GeometryPatch]:
+    ) -> Sequence[GeometryPatch]:
         """``build_many`` of a level's (k, 4) float64 rectangles (xmin, ymin, xmax, ymax);
         strategies whose kernels take arrays override it and make no Rect per node."""
         boxes = np.asarray(rects, dtype=np.float64).reshape(-1, 4).tolist()
@@ -148,8 +150,8 @@ class GeometryPatch(MeshConversions, ABC):
         """The patch as named little-endian arrays, for the tree file."""
 
     @classmethod
-    def records_many(cls, patches: Sequence[GeometryPatch]) -> Batch:
-        """The records of many patches as flat arrays plus (k + 1,) offsets (see
+    def records_many(cls: type[_Patch], patches: Sequence[_Patch]) -> Batch:
+        """The records of many patches of this class as flat arrays plus (k + 1,) offsets (see
         ``patches.records``); record i equals ``patches[i].to_record()`` raveled. Strategies
         override it with a gather of their attributes (no per-patch ``to_record``)."""
         return concat_records([p.to_record() for p in patches])

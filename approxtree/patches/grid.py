@@ -19,7 +19,7 @@ from approxtree.errors import UnsupportedStrategyError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
-from approxtree.geometry.windowed import check_whole_band
+from approxtree.geometry.windowed import WindowedHeights, check_whole_band
 from approxtree.kernels._jit import readonly
 from approxtree.kernels.grid_patch import grid_patch_errors, grid_patch_mesh
 from approxtree.kernels.row_column import coarsest_uniform_step, lattice_error
@@ -69,6 +69,12 @@ class GridPatch(GeometryPatch):
 
     kind = "grid"
 
+    #: D_N, or None until made from ``_box`` on first access (patches made from a level's
+    #: arrays: ``from_arrays``, ``GridPatchArrays.patch``).
+    _rect: Rect | None
+    #: (xmin, ymin, xmax, ymax) of D_N, set with ``_rect = None``.
+    _box: list[float]
+
     def __init__(
         self,
         grid: Grid,
@@ -106,7 +112,7 @@ class GridPatch(GeometryPatch):
         rects: Sequence[Rect],
         max_points: int,
         epsilon: float = 0.0,
-    ) -> list[GeometryPatch]:
+    ) -> list[GridPatch]:
         boxes = np.array([r.as_tuple() for r in rects], dtype=np.float64).reshape(-1, 4)
         patches = cls.build_level(terrain, boxes, max_points, epsilon)
         for p, rect in zip(patches, rects, strict=True):
@@ -120,23 +126,25 @@ class GridPatch(GeometryPatch):
         rects: np.ndarray,
         max_points: int,
         epsilon: float = 0.0,
-    ) -> list[GeometryPatch]:
+    ) -> list[GridPatch]:
         grid = cls._require_grid(terrain)
         patches = cls.build_level_arrays(grid, rects, max_points).patches()
         if terrain is not grid:
             from approxtree.patches.refined import refine_grid_patches
 
-            refine_grid_patches(terrain, patches)  # type: ignore[arg-type]
-        return patches  # type: ignore[return-value]
+            refine_grid_patches(terrain, patches)
+        return patches
 
+    # The base class cannot name GridPatchArrays (it would import this module): the table
+    # widens its return type, and the tree's builder tells the two apart with isinstance.
     @classmethod
-    def build_level_table(
+    def build_level_table(  # type: ignore[override]
         cls,
         terrain: GeometryData,
         rects: np.ndarray,
         max_points: int,
         epsilon: float = 0.0,
-    ) -> Sequence[GeometryPatch] | GridPatchArrays:  # type: ignore[override]
+    ) -> Sequence[GeometryPatch] | GridPatchArrays:
         # A refined grid re-measures its patches: objects; a plain grid keeps arrays.
         grid = cls._require_grid(terrain)
         if terrain is not grid:
@@ -219,7 +227,7 @@ class GridPatch(GeometryPatch):
         return out
 
     @property
-    def rect(self) -> Rect:  # type: ignore[override]
+    def rect(self) -> Rect:
         """D_N (made from the level's array row on first access)."""
         r = self._rect
         if r is None:
@@ -263,15 +271,15 @@ class GridPatch(GeometryPatch):
         """Exact RMS of ``|h_T − h_TN|`` over the rectangle's valid data points (measured on
         demand)."""
         rows, cols = self.lines
-        g = self.grid
-        if g.is_windowed:
+        heights = self.grid.heights
+        if isinstance(heights, WindowedHeights):
             # Only the patch's own window is read (the error needs every data point in it).
             r0, r1, c0, c1 = self.index[:4]
-            check_whole_band((r1 - r0 + 1, c1 - c0 + 1), g.heights.dtype, "GridPatch.rms_error")
-            z = g.heights[r0 : r1 + 1, c0 : c1 + 1]
+            check_whole_band((r1 - r0 + 1, c1 - c0 + 1), heights.dtype, "GridPatch.rms_error")
+            z = heights[r0 : r1 + 1, c0 : c1 + 1]
             _, sumsq, count, _, _ = lattice_error(readonly(z), rows - r0, cols - c0)
         else:
-            _, sumsq, count, _, _ = lattice_error(readonly(g.heights), rows, cols)
+            _, sumsq, count, _, _ = lattice_error(readonly(heights), rows, cols)
         return float(np.sqrt(sumsq / max(count, 1)))
 
     @property
@@ -289,7 +297,7 @@ class GridPatch(GeometryPatch):
     def _build_mesh(self) -> tuple[np.ndarray, np.ndarray]:
         g = self.grid
         r0, r1, c0, c1, sr, sc = self.index
-        if g.is_windowed or self._lattice_z is not None:
+        if isinstance(g.heights, WindowedHeights) or self._lattice_z is not None:
             # Only the sampled lattice is read (or it came with the record); the kernel sees
             # it with steps 1.
             rows, cols = self.lines
@@ -333,9 +341,9 @@ class GridPatch(GeometryPatch):
         }
 
     @classmethod
-    def records_many(cls, patches: Sequence[GeometryPatch]) -> Batch:
+    def records_many(cls, patches: Sequence[GridPatch]) -> Batch:
         # Fixed-width records: one (k, 6) and one (k, 4) table gathered from the attributes.
-        ps: list[GridPatch] = list(patches)  # type: ignore[arg-type]
+        ps = list(patches)
         k = len(ps)
         stats = ((p.error, *p.z_range, p.data_count) for p in ps)
         index = gather((p.index for p in ps), k, 6, "<i8")
@@ -348,7 +356,7 @@ class GridPatch(GeometryPatch):
         return {
             "index": index,
             "stats": gather(stats, k, 4, "<f8"),
-            "z": _lattices_many(ps, coarse.tolist()),
+            "z": _lattices_many(k, {i: ps[i] for i in coarse.tolist()}),
         }
 
     @classmethod
@@ -375,35 +383,31 @@ class GridPatch(GeometryPatch):
 LATTICE_STORED_STEP = 16
 
 
-def _lattices_many(
-    patches: Sequence[GridPatch], coarse: list[int] | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """(flat, offsets) of the lattice heights of the patches that store them (none for others).
+def _lattices_many(k: int, coarse: dict[int, GridPatch]) -> tuple[np.ndarray, np.ndarray]:
+    """(flat, offsets) of the lattice heights of k records: those of the patches that store
+    them, none for the others.
 
+    coarse: the patches that store their lattice by their position among the k, ascending.
     All lattices over one grid are read with one index gather, so a windowed grid reads each of
-    its blocks once, however many coarse patches cover it. ``coarse``: the positions of the
-    patches that store their lattice, when already known (ascending).
+    its blocks once, however many coarse patches cover it.
     """
-    k = len(patches)
     sizes = np.zeros(k, dtype=np.int64)
-    if coarse is None:
-        coarse = [i for i, p in enumerate(patches) if p.stores_lattice]
     flat = np.empty(0, dtype="<f8")
     if coarse:
         pieces: dict[int, np.ndarray] = {
-            i: np.asarray(patches[i]._lattice_z, dtype="<f8").reshape(-1)
-            for i in coarse
-            if patches[i]._lattice_z is not None
+            i: np.asarray(p._lattice_z, dtype="<f8").reshape(-1)
+            for i, p in coarse.items()
+            if p._lattice_z is not None
         }
         parts: dict[int, list[int]] = {}
-        for i in coarse:
+        for i, p in coarse.items():
             if i not in pieces:
-                parts.setdefault(id(patches[i].grid), []).append(i)
+                parts.setdefault(id(p.grid), []).append(i)
         for members in parts.values():
-            lines = [patches[i].lines for i in members]
+            lines = [coarse[i].lines for i in members]
             rr = np.concatenate([np.repeat(r, len(c)) for r, c in lines])
             cc = np.concatenate([np.tile(c, len(r)) for r, c in lines])
-            z = np.asarray(patches[members[0]].grid.heights[rr, cc], dtype="<f8")
+            z = np.asarray(coarse[members[0]].grid.heights[rr, cc], dtype="<f8")
             ends = np.cumsum([len(r) * len(c) for r, c in lines])
             for i, part in zip(members, np.split(z, ends[:-1]), strict=True):
                 pieces[i] = part
@@ -504,14 +508,12 @@ class GridPatchArrays:
         stats[:, 2] = self.zmax[rows]
         stats[:, 3] = self.count[rows]
         at = self.coarse(rows)
-        held: list[GridPatch | None] = [None] * k
-        for j, p in zip(at.tolist(), lattices, strict=True):
-            held[j] = p
+        held = dict(zip(at.tolist(), lattices, strict=True))
         width = np.arange(k + 1, dtype=np.int64)
         return {
             "index": (index, width * 6),
             "stats": (stats.reshape(-1), width * 4),
-            "z": _lattices_many(held, at.tolist()),  # type: ignore[arg-type]
+            "z": _lattices_many(k, held),
         }
 
 

@@ -225,9 +225,9 @@ class LatticePatch(GeometryPatch):
         return {"mesh": mesh, "stats": np.array(stats, dtype="<f8")}
 
     @classmethod
-    def records_many(cls, patches: Sequence[GeometryPatch]) -> Batch:
+    def records_many(cls, patches: Sequence[LatticePatch]) -> Batch:
         # The to_record layout [n, m, ij..., tris...] assembled for all patches at once.
-        ps: list[LatticePatch] = list(patches)  # type: ignore[arg-type]
+        ps = list(patches)
         k = len(ps)
         ns = np.fromiter((len(p.ij) for p in ps), dtype=np.int64, count=k)
         ms = np.fromiter((len(p.tris) for p in ps), dtype=np.int64, count=k)

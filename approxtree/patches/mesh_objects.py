@@ -14,7 +14,7 @@ trimesh is a dependency; pyvista is optional and imported only when ``to_pyvista
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -53,7 +53,9 @@ def as_pyvista(
             "(or use to_trimesh, which needs nothing more)."
         ) from None
     v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
-    t = np.ascontiguousarray(triangles, dtype=np.int64).reshape(-1, 3)
+    # Typed as a plain array: pyvista annotates faces as an array of Python ints (dtype[int]),
+    # which no int64 array matches, though int64 is what it stores.
+    t: np.ndarray = np.ascontiguousarray(triangles, dtype=np.int64).reshape(-1, 3)
     mesh = pyvista.PolyData.from_regular_faces(v, t)
     mesh.point_data["z"] = v[:, 2].copy()
     for name, values in (face_data or {}).items():
@@ -61,24 +63,33 @@ def as_pyvista(
     return mesh
 
 
+class _Mesh(Protocol):
+    """What the conversions read: attributes or properties alike."""
+
+    @property
+    def vertices(self) -> np.ndarray: ...
+
+    @property
+    def triangles(self) -> np.ndarray: ...
+
+    def _face_data(self) -> dict[str, np.ndarray]: ...
+
+
 class MeshConversions:
     """``to_trimesh()`` and ``to_pyvista()`` for a class with ``vertices`` (n, 3) float64 world
-    coordinates and ``triangles`` (m, 3) counter-clockwise seen from above; a class with face
-    data overrides ``_face_data``."""
-
-    vertices: np.ndarray
-    triangles: np.ndarray
+    coordinates and ``triangles`` (m, 3) counter-clockwise seen from above (attributes or
+    properties: ``_Mesh``); a class with face data overrides ``_face_data``."""
 
     def _face_data(self) -> dict[str, np.ndarray]:
         """(m,) arrays kept as face data by name (none by default)."""
         return {}
 
-    def to_trimesh(self) -> Any:
+    def to_trimesh(self: _Mesh) -> Any:
         """The mesh as a ``trimesh.Trimesh``: the same vertices (float64 world) and triangles,
         vertex attribute "z" (and face attributes, e.g. "node" for a cut)."""
         return as_trimesh(self.vertices, self.triangles, self._face_data())
 
-    def to_pyvista(self) -> Any:
+    def to_pyvista(self: _Mesh) -> Any:
         """The mesh as a ``pyvista.PolyData``: the same vertices (float64 world) and
         triangles, point data "z" (and cell data, e.g. "node" for a cut). Needs pyvista
         (``pip install pyvista``)."""

@@ -201,9 +201,9 @@ class NonRegularGridPatch(GeometryPatch):
         return {"lines": lines.astype("<i4"), "stats": np.array(stats, dtype="<f8")}
 
     @classmethod
-    def records_many(cls, patches: Sequence[GeometryPatch]) -> Batch:
+    def records_many(cls, patches: Sequence[NonRegularGridPatch]) -> Batch:
         # The to_record layout [kr, kc, rows..., cols...] assembled for all patches at once.
-        ps: list[NonRegularGridPatch] = list(patches)  # type: ignore[arg-type]
+        ps = list(patches)
         k = len(ps)
         kr = np.fromiter((len(p.rows) for p in ps), dtype=np.int64, count=k)
         kc = np.fromiter((len(p.cols) for p in ps), dtype=np.int64, count=k)

@@ -22,6 +22,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
 from approxtree.geometry.refinement import GridRefinement
 from approxtree.kernels.mesh_errors import mesh_point_errors
@@ -214,8 +215,9 @@ class RefinedTINPatch(GeometryPatch):
         )
 
 
-def refine_grid_patches(terrain: GridRefinement, patches: list[GeometryPatch]) -> None:
-    """Re-measure grid patches of the base grid against the combined data points, in place."""
+def refine_grid_patches(terrain: GeometryData, patches: Sequence[GeometryPatch]) -> None:
+    """Re-measure grid patches of a base grid against the terrain's data points (a
+    GridRefinement's combined ones), in place."""
     for p in patches:
         pts = terrain.points(p.rect)
         p.data_count = len(pts)

@@ -10,6 +10,7 @@ strategy or data type is one more row here.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Protocol
 
 import numpy as np
 
@@ -79,6 +80,26 @@ def type_strategy(terrain: GeometryData) -> str | None:
     return None
 
 
+class Strategy(Protocol):
+    """A strategy by name (``patches.STRATEGIES``): a patch class, or a class such as
+    ``TINPatch`` that hands each call to the table's class for the terrain."""
+
+    @property
+    def kind(self) -> str: ...
+
+    def build_many(
+        self, terrain: GeometryData, rects: Sequence[Rect], max_points: int, epsilon: float = 0.0
+    ) -> Sequence[GeometryPatch]: ...
+
+    def build_level(
+        self, terrain: GeometryData, rects: np.ndarray, max_points: int, epsilon: float = 0.0
+    ) -> Sequence[GeometryPatch]: ...
+
+    def from_record(
+        self, terrain: GeometryData, rect: Rect, record: dict[str, np.ndarray]
+    ) -> GeometryPatch: ...
+
+
 class TINPatch(GeometryPatch):
     """The ``tin`` strategy by name: greedy insertion TIN, ``GridTINPatch`` on grids,
     ``PointTINPatch`` on point sets, ``RefinedTINPatch`` on refined grids (see the table)."""
@@ -92,7 +113,7 @@ class TINPatch(GeometryPatch):
         rects: Sequence[Rect],
         max_points: int,
         epsilon: float = 0.0,
-    ) -> list[GeometryPatch]:
+    ) -> Sequence[GeometryPatch]:
         return patch_class(terrain, cls.kind).build_many(terrain, rects, max_points, epsilon)
 
     @classmethod
@@ -102,7 +123,7 @@ class TINPatch(GeometryPatch):
         rects: np.ndarray,
         max_points: int,
         epsilon: float = 0.0,
-    ) -> list[GeometryPatch]:
+    ) -> Sequence[GeometryPatch]:
         return patch_class(terrain, cls.kind).build_level(terrain, rects, max_points, epsilon)
 
     @classmethod

@@ -14,6 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from approxtree.errors import UnsupportedStrategyError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
 from approxtree.geometry.tin import TIN
@@ -63,6 +64,15 @@ class PointTINPatch(GeometryPatch):
         self.rms_error = float(rms_error)
         self.z_range = (float(z_range[0]), float(z_range[1]))
         self.data_count = int(data_count)
+
+    @staticmethod
+    def _require_tin(terrain: GeometryData) -> TIN:
+        if not isinstance(terrain, TIN):
+            raise UnsupportedStrategyError(
+                f"This tin strategy needs a TIN or TINPointSet, got a {type(terrain).__name__}; "
+                "choose a strategy made for this data type."
+            )
+        return terrain
 
     @classmethod
     def build_rect(
@@ -117,9 +127,9 @@ class PointTINPatch(GeometryPatch):
     @classmethod
     def build_many(
         cls, terrain: GeometryData, rects: Sequence[Rect], max_points: int, epsilon: float = 0.0
-    ) -> list[GeometryPatch]:
+    ) -> list[PointTINPatch]:
         # Scattered points: every rectangle of the level in one kernel call.
-        return list(cls.build_points(terrain, rects, max_points, epsilon))  # type: ignore[arg-type]
+        return cls.build_points(cls._require_tin(terrain), rects, max_points, epsilon)
 
     @classmethod
     def approximate(
@@ -135,7 +145,8 @@ class PointTINPatch(GeometryPatch):
             # A triangulation of v points has fewer than 2v triangles.
             max_points = max(3, max_triangles // 2)
         err = -1.0 if max_error is None else max_error
-        return cls.build_rect(terrain, terrain.domain, max_points or 0, err)  # type: ignore[arg-type]
+        tin = cls._require_tin(terrain)
+        return cls.build_rect(tin, tin.domain, max_points or 0, err)
 
     @property
     def vertices(self) -> np.ndarray:
@@ -166,9 +177,9 @@ class PointTINPatch(GeometryPatch):
         return {"mesh": mesh, "stats": np.array(stats, dtype="<f8")}
 
     @classmethod
-    def records_many(cls, patches: Sequence[GeometryPatch]) -> Batch:
+    def records_many(cls, patches: Sequence[PointTINPatch]) -> Batch:
         # The to_record layout [n, m, index..., tris...] assembled for all patches at once.
-        ps: list[PointTINPatch] = list(patches)  # type: ignore[arg-type]
+        ps = list(patches)
         k = len(ps)
         ns = np.fromiter((len(p.index) for p in ps), dtype=np.int64, count=k)
         ms = np.fromiter((len(p.tris) for p in ps), dtype=np.int64, count=k)
@@ -188,4 +199,5 @@ class PointTINPatch(GeometryPatch):
         n, m = int(mesh[0]), int(mesh[1])
         index = mesh[2 : 2 + n]
         tris = mesh[2 + n : 2 + n + 3 * m]
-        return cls(terrain, rect, index, tris, error, rms, (zmin, zmax), int(count))  # type: ignore[arg-type]
+        tin = cls._require_tin(terrain)
+        return cls(tin, rect, index, tris, error, rms, (zmin, zmax), int(count))

@@ -17,9 +17,10 @@ from typing import Any
 
 import numpy as np
 
-from approxtree.errors import InvalidParameterError
+from approxtree.errors import InvalidParameterError, UnsupportedStrategyError
 from approxtree.geometry.grid import Grid
 from approxtree.kernels import bintree_rd as kr
+from approxtree.patches.lattice import LatticePatch
 from approxtree.progress import ProgressCallback, Stages
 from approxtree.rd.bintree import BinTree
 from approxtree.rd.sequence import EmbeddedSequence, decimate, refine, uniform
@@ -66,6 +67,11 @@ def _strategy_rows(tree: BinTree, strategy: str, rates: Sequence[int]):
         mesh = approximate(grid, strategy, max_triangles=int(r))
         seconds += mesh.seconds
         patch = mesh.patch
+        # The curves measure lattice vertices: the tin and rtin strategies on a grid.
+        if not isinstance(patch, LatticePatch):
+            raise UnsupportedStrategyError(
+                f"The {strategy} strategy gives no lattice patch to measure on the bintree."
+            )
         vx = patch.ij[:, 1].astype(np.int64)
         vy = patch.ij[:, 0].astype(np.int64)
         rows.append(_figures(tree, r, vx, vy, patch.tris.astype(np.int64)))

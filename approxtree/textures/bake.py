@@ -145,7 +145,7 @@ def _coarsen(mask: np.ndarray, level: int, shape: tuple[int, int]) -> np.ndarray
     rows, cols = mask.shape
     padded = np.zeros((shape[0] * k, shape[1] * k), dtype=bool)
     padded[:rows, :cols] = mask
-    return padded.reshape(shape[0], k, shape[1], k).any(axis=(1, 3))
+    return np.asarray(padded.reshape(shape[0], k, shape[1], k).any(axis=(1, 3)))
 
 
 def _water_mask(thematic: ThematicTexture, palette: str | None) -> np.ndarray | None:
@@ -254,8 +254,10 @@ def bake(
     used_gl = False
     layers: list[TextureData] = []
     names: list[str] = []
+    thematic_layer = None
     if thematic_path is not None:
-        layers.append(_thematic_on_lattice(thematic_path, palette, transform, shape, terrain.crs))
+        thematic_layer = _thematic_on_lattice(thematic_path, palette, transform, shape, terrain.crs)
+        layers.append(thematic_layer)
         names.append(f"thematic:{thematic_path.name}")
     if shading is not None:
         on_lattice = (
@@ -273,8 +275,8 @@ def bake(
     texel_w = max(abs(transform.a), abs(transform.e))
     width = max(overlay_width or 0.0, min_overlay_texels * texel_w)
     water_mask = None
-    if thematic_path is not None and overlays:
-        water_mask = _water_mask(layers[0], palette)
+    if thematic_layer is not None and overlays:
+        water_mask = _water_mask(thematic_layer, palette)
     for path in overlays or []:
         line = rasterize_lines(path, transform, shape, terrain.crs, overlay_colour, width)
         if water_mask is not None:

@@ -163,10 +163,11 @@ def _write_level(
             # a ring of _WRITE_AHEAD + 1 buffers (reused rather than faulted in afresh; the
             # slot's last strip was written when the oldest pending write was waited for).
             slot = index % len(ring)
-            if ring[slot] is None or ring[slot].shape != strip.shape:
-                ring[slot] = np.empty(strip.shape, dtype=np.uint8)
-            np.copyto(ring[slot], strip)
-            pending.append(writer.submit(_write_and_halve, ds, ring[slot], r0, halved, sums))
+            buffer = ring[slot]
+            if buffer is None or buffer.shape != strip.shape:
+                buffer = ring[slot] = np.empty(strip.shape, dtype=np.uint8)
+            np.copyto(buffer, strip)
+            pending.append(writer.submit(_write_and_halve, ds, buffer, r0, halved, sums))
             if on_rows is not None:
                 on_rows(n)
             r0 += n
@@ -220,7 +221,7 @@ def tile_row_checksums(block: np.ndarray) -> list[int]:
 
     cols = block.shape[2]
     return [
-        crc32c.crc32c(np.ascontiguousarray(block[:, :, c0 : c0 + _TILE]))
+        crc32c.crc32c(np.ascontiguousarray(block[:, :, c0 : c0 + _TILE]).data)
         for c0 in range(0, cols, _TILE)
     ]
 
@@ -682,17 +683,18 @@ class TexturePyramid:
         r1_ = min(lv.height, (tiles[-1][0] + 1) * _TILE)
         c1_ = min(lv.width, (tiles[-1][1] + 1) * _TILE)
         held = {t: self._tiles.get((k, *t)) for t in tiles}
-        if all(v is not None for v in held.values()):
+        cached = {t: tile for t, tile in held.items() if tile is not None}
+        if len(cached) == len(held):
             block = np.empty((self.bands, r1_ - r0_, c1_ - c0_), dtype=np.uint8)
-            for (tr, tc), tile in held.items():
+            for (tr, tc), tile in cached.items():
                 a, b = tr * _TILE - r0_, tc * _TILE - c0_
                 block[:, a : a + tile.shape[1], b : b + tile.shape[2]] = tile
         else:
             # One read of the whole tiles (GDAL decodes whole tiles anyway), then each tile
             # not checked yet is checked (a contiguous copy, kept in the cache).
             block = self._decode(k, r0_, c0_, r1_, c1_, tiles)
-            for (tr, tc), tile in held.items():
-                if tile is None:
+            for (tr, tc), kept in held.items():
+                if kept is None:
                     a, b = tr * _TILE - r0_, tc * _TILE - c0_
                     self._check_tile(k, tr, tc, block[:, a : a + _TILE, b : b + _TILE])
         planes = np.ascontiguousarray(block[:, row0 - r0_ : r1 - r0_, col0 - c0_ : c1 - c0_])
@@ -738,7 +740,7 @@ class TexturePyramid:
         import crc32c
 
         tile = np.ascontiguousarray(texels)
-        if crc32c.crc32c(tile) != self.tile_crc32c[k][tr][tc]:
+        if crc32c.crc32c(tile.data) != self.tile_crc32c[k][tr][tc]:
             raise StoreError(
                 f"{self.levels[k].path} is damaged: tile ({tr}, {tc}) of level {k} does not "
                 "match its checksum in pyramid.json; rebake the pyramid (approxtree bake)."

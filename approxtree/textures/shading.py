@@ -17,6 +17,7 @@ from affine import Affine
 
 from approxtree.errors import InvalidParameterError
 from approxtree.geometry.grid import Grid
+from approxtree.geometry.windowed import WindowedHeights
 from approxtree.kernels import hillshade as hs
 from approxtree.kernels.shadows import cast_shadows
 from approxtree.textures.base import TextureData, grey_alpha_strips, grey_strips, grey_to_rgba
@@ -190,7 +191,8 @@ class TopographicShading(ShadingTexture):
         # One strip buffer, reused: a strip is valid until the next is asked for (the
         # pyramid copies it), and fresh memory for each would be faulted in and zeroed.
         buffer = np.empty((2, min(rows, height), width), dtype=np.uint8)
-        if not self.terrain.is_windowed:
+        heights = self.terrain.heights
+        if not isinstance(heights, WindowedHeights):
             z = self._heights()
             for r0 in range(0, height, rows):
                 strip = _strip(buffer, min(rows, height - r0))
@@ -203,7 +205,6 @@ class TopographicShading(ShadingTexture):
         # ending at its last, has that border row as its own: the kernel leaves it nodata.
         # Straight from the height source (as a block of the windowed heights reads): the
         # strips pass once, the block cache would only hold them.
-        heights = self.terrain.heights
         source = heights.source
         read_into = getattr(source, "read_into", None)
         starts = range(0, height, rows)
@@ -222,7 +223,7 @@ class TopographicShading(ShadingTexture):
         def window(i: int) -> tuple[int, np.ndarray]:
             r0 = starts[i]
             a, b = max(r0 - 1, 0), min(r0 + rows + 1, height)
-            if ring is not None:
+            if ring is not None and read_into is not None:
                 return a, read_into(a, b, 0, width, ring[i % len(ring)][: b - a])
             z = np.asarray(source.read(a, b, 0, width), dtype=heights.dtype)
             return a, np.ascontiguousarray(z)
@@ -362,8 +363,8 @@ class _LitShading(ShadingTexture):
         if k == 1:
             return values
         rows, cols = self.shape
-        fr, fc = np.meshgrid(np.arange(rows) / k, np.arange(cols) / k, indexing="ij")
-        fr, fc = fr.ravel(), fc.ravel()
+        lattice_r, lattice_c = np.meshgrid(np.arange(rows) / k, np.arange(cols) / k, indexing="ij")
+        fr, fc = lattice_r.ravel(), lattice_c.ravel()
         out = np.stack(
             [
                 grid_height_at(np.ascontiguousarray(values[..., j]), fr, fc)

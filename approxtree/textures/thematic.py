@@ -18,8 +18,9 @@ from __future__ import annotations
 
 import os
 import re
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from affine import Affine
@@ -84,7 +85,7 @@ LEGENDS: dict[str, dict[int, tuple[str, tuple[int, int, int]]]] = {
     },
 }
 #: The water class of each legend (drawn over streams).
-WATER_CLASSES = {"nlcd": (11,), "landclass96": (6,)}
+WATER_CLASSES: dict[str, tuple[int, ...]] = {"nlcd": (11,), "landclass96": (6,)}
 #: How much ``soften`` moves a legend colour towards a light grey by default.
 SOFTEN = 0.35
 
@@ -96,7 +97,8 @@ def soften(rgb: tuple[int, ...], amount: float = SOFTEN) -> tuple[int, int, int]
     grey = c.mean()
     c = grey + (1.0 - 0.5 * amount) * (c - grey)
     c = c + amount * (np.array([235.0, 235.0, 230.0]) - c)
-    return tuple(int(v) for v in np.clip(np.rint(c), 0, 255))  # type: ignore[return-value]
+    r, g, b = (int(v) for v in np.clip(np.rint(c), 0, 255))
+    return (r, g, b)
 
 
 class ClassTable:
@@ -107,7 +109,8 @@ class ClassTable:
         for k, c in colours.items():
             if len(c) not in (3, 4):
                 raise InvalidParameterError(f"Colour of class {k} must be RGB or RGBA, got {c}.")
-            self.colours[int(k)] = (*(int(v) for v in c[:3]), int(c[3]) if len(c) == 4 else 255)
+            r, g, b = (int(v) for v in c[:3])
+            self.colours[int(k)] = (r, g, b, int(c[3]) if len(c) == 4 else 255)
 
     @classmethod
     def from_raster(cls, path: str | os.PathLike, band: int = 1) -> ClassTable:
@@ -269,7 +272,7 @@ class ThematicTexture(TextureData):
         self.values = values
         self.valid = np.isfinite(values) if valid is None else np.asarray(valid, dtype=bool)
         self.transform = transform
-        self.shape = values.shape  # type: ignore[assignment]
+        self.shape = (int(values.shape[0]), int(values.shape[1]))
         self.crs = crs
         self.mapper = mapper
 
@@ -328,8 +331,10 @@ def rasterize_lines(
         _, _, wkb, _ = pyogrio.raw.read(path, read_geometry=True, columns=[])
     except Exception as exc:
         raise TerrainFormatError(f"Cannot read {path} as a vector layer: {exc}") from exc
-    geoms = shapely.from_wkb(wkb)
-    geoms = geoms[~shapely.is_missing(geoms)]
+    if wkb is None:
+        raise TerrainFormatError(f"{path} has no geometry column: it holds no shapes.")
+    found = shapely.from_wkb(wkb)
+    geoms: Iterable[Any] = found[~shapely.is_missing(found)]
     src_crs = info.get("crs")
     # Reproject only when both CRSs are known and differ.
     if crs and src_crs:

@@ -219,7 +219,8 @@ class TilePoints:
 
     def __init__(self, blocks: PointBlocks, bounds: tuple[float, float, float, float]) -> None:
         self.blocks = blocks
-        self.bounds = tuple(float(b) for b in bounds)
+        west, south, east, north = bounds
+        self.bounds = (float(west), float(south), float(east), float(north))
         self.keys = blocks.meeting(self.bounds)
 
     def estimate(self) -> int:

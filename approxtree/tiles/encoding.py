@@ -138,7 +138,7 @@ def horizon_occlusion_point(xyz: np.ndarray, centre: np.ndarray) -> np.ndarray:
 
 def _zigzag_deltas(q: np.ndarray) -> np.ndarray:
     """(n,) uint16 zig-zag encoded differences of (n,) quantized values (first from 0)."""
-    d = np.diff(q.astype(np.int32), prepend=0)
+    d: np.ndarray = np.diff(q.astype(np.int32), prepend=0)
     return ((d << 1) ^ (d >> 31)).astype(np.uint16)
 
 

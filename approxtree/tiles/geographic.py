@@ -54,8 +54,8 @@ def tiles_touching(footprint, level: int) -> list[tuple[int, int]]:
     from shapely import box, intersects
 
     x0, x1, y0, y1 = tile_range(footprint.bounds, level)
-    xs, ys = np.meshgrid(np.arange(x0, x1 + 1), np.arange(y0, y1 + 1), indexing="ij")
-    xs, ys = xs.ravel(), ys.ravel()
+    gx, gy = np.meshgrid(np.arange(x0, x1 + 1), np.arange(y0, y1 + 1), indexing="ij")
+    xs, ys = gx.ravel(), gy.ravel()
     size = tile_size(level)
     squares = box(
         -180.0 + xs * size, -90.0 + ys * size, -180.0 + (xs + 1) * size, -90.0 + (ys + 1) * size

@@ -16,6 +16,7 @@ optional water mask. The whole folder is written beside the target and renamed o
 from __future__ import annotations
 
 import gzip
+import itertools
 import json
 import math
 import os
@@ -98,13 +99,15 @@ def availability(tiles: Iterable[tuple[int, int]]) -> list[dict[str, int]]:
     for x, y in tiles:
         rows.setdefault(y, []).append(x)
     runs_of: dict[int, tuple[tuple[int, int], ...]] = {}
-    for y, xs in rows.items():
-        xs = sorted(xs)
-        runs, start = [], xs[0]
-        for a, b in zip(xs, [*xs[1:], None], strict=True):
+    for y, row in rows.items():
+        xs = sorted(row)
+        runs: list[tuple[int, int]] = []
+        start = xs[0]
+        for a, b in itertools.pairwise(xs):
             if b != a + 1:
                 runs.append((start, a))
                 start = b
+        runs.append((start, xs[-1]))
         runs_of[y] = tuple(runs)
     out = []
     ys = sorted(runs_of)

@@ -24,6 +24,7 @@ import numpy as np
 
 from approxtree.errors import EmptyTerrainError, TerrainFormatError, UnsupportedStrategyError
 from approxtree.geometry.grid import Grid
+from approxtree.geometry.windowed import WindowedHeights
 from approxtree.kernels.grid_interp import grid_height_at
 from approxtree.tiles.data_points import PointBlocks, TilePoints
 
@@ -259,7 +260,7 @@ class TileSampler:
             threads = numba.get_num_threads()
             numba.set_num_threads(1)
             try:
-                if g.is_windowed:
+                if isinstance(g.heights, WindowedHeights):
                     h[near] = g._windowed_height_at(cr[near], cc[near])
                 else:
                     h[near] = grid_height_at(g.heights, cr[near], cc[near])

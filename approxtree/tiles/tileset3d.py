@@ -209,7 +209,7 @@ class _TileWriter:
         path = self.folder / tile_uri(level, i)
         path.parent.mkdir(exist_ok=True)
         path.write_bytes(data)
-        if self.frame.georeferenced:
+        if geo is not None:
             low, high = self._region(geo, points, tris)
         else:
             low, high = lo, hi
@@ -359,7 +359,7 @@ def _tileset_json(tree: Any, frame: EarthFrame, contents: list[TileContent | Non
     # below it either gets an empty volume at its parent's centre (parents come first in node
     # order, so theirs is settled): at the parent's corner, a box's least half size (1 mm)
     # reached out of the parent's volume (hugo_site.asc's nodata corners, found by verify).
-    for i in np.flatnonzero([c is None for c in contents]):
+    for i in np.flatnonzero([c is None for c in contents]).tolist():
         if not np.isfinite(low[i]).all():
             low[i] = high[i] = (low[parents[i]] + high[parents[i]]) / 2 if i else np.zeros(3)
         if not frame.georeferenced:

@@ -8,11 +8,16 @@ pixel centre), or a single byte when the tile is all land (0) or all water (255)
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
 from approxtree.errors import TerrainFormatError
 from approxtree.geometry.grid import Grid
+
+if TYPE_CHECKING:
+    # pyproj is imported when a mask is first resampled; here for the annotations only.
+    from pyproj import Transformer
 
 #: Side of a water mask in pixels (fixed by the format).
 MASK_SIZE = 256
@@ -28,7 +33,8 @@ class WaterMask:
                 "one (gdal_edit.py -a_srs EPSG:...)."
             )
         self.grid = grid
-        self._transformer = None
+        #: lon/lat → the grid's CRS: None until first needed, False when it is lon/lat already.
+        self._transformer: Transformer | Literal[False] | None = None
 
     @classmethod
     def open(cls, path: str | os.PathLike) -> WaterMask:
@@ -53,15 +59,17 @@ class WaterMask:
     def _xy(self, lon: np.ndarray, lat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         from pyproj import CRS, Transformer
 
-        if self._transformer is None:
+        transformer = self._transformer
+        if transformer is None:
             crs = CRS.from_user_input(self.grid.crs)
             if crs.equals(CRS.from_user_input("EPSG:4326"), ignore_axis_order=True):
-                self._transformer = False
+                transformer = False
             else:
-                self._transformer = Transformer.from_crs("EPSG:4326", crs, always_xy=True)
-        if self._transformer is False:
+                transformer = Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+            self._transformer = transformer
+        if transformer is False:
             return lon, lat
-        return self._transformer.transform(lon, lat)
+        return transformer.transform(lon, lat)
 
     def tile_mask(self, bounds: tuple[float, float, float, float]) -> np.ndarray | int:
         """(256, 256) uint8 mask of the tile (row 0 north), or 0 / 255 when uniform."""

@@ -151,5 +151,8 @@ def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, dict[str
         mesh = trimesh.load(str(path), file_type=kind, process=False, force="mesh")
     except Exception as exc:
         raise StoreError(f"{path} does not parse as {kind.upper()}: {exc}") from exc
+    # force="mesh" concatenates whatever the file holds into one Trimesh.
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise StoreError(f"{path} does not hold a triangle mesh.")
     verts = np.asarray(mesh.vertices, dtype=np.float64)
     return verts, np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3), claims, kind

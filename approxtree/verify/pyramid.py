@@ -156,7 +156,7 @@ def _check_tiles(output: Path, entries, good: list[bool], report) -> None:
                 except (IndexError, TypeError, ValueError):
                     sums.fail(where, "a listed checksum", "none")
                     continue
-                got = crc32c.crc32c(np.ascontiguousarray(texels))
+                got = crc32c.crc32c(np.ascontiguousarray(texels).data)
                 if got != want:
                     sums.fail(where, want, got)
 

@@ -29,7 +29,12 @@ import numpy as np
 from approxtree.verify.measure import measure_for
 from approxtree.verify.report import VerifyReport, claims_hold
 from approxtree.verify.tree_patches import PatchDecoder, UnsupportedTree
-from approxtree.verify.zarr_read import StoreFiles, chunk_selection, expected_chunk_keys
+from approxtree.verify.zarr_read import (
+    StoreFiles,
+    chunk_selection,
+    expected_chunk_keys,
+    read_whole,
+)
 
 FORMAT = "approxtree-tree-store"
 NODE_ARRAYS = (
@@ -80,7 +85,7 @@ def verify_tree_store(files: StoreFiles, terrain: Any, report: VerifyReport) -> 
         )
         return
     root = files.root
-    nodes = {name: np.asarray(root[f"nodes/{name}"][...]) for name in NODE_ARRAYS}
+    nodes = {name: read_whole(root, f"nodes/{name}") for name in NODE_ARRAYS}
     if not _check_nodes(nodes, report):
         return
     _check_partition(nodes, report)

@@ -29,9 +29,11 @@ class StoreFiles:
 
     def __init__(self, path: str | os.PathLike) -> None:
         import zarr
+        from zarr.abc.store import Store
         from zarr.storage import LocalStore, ZipStore
 
         self.path = Path(path)
+        self.store: Store
         try:
             if self.path.is_dir():
                 self.store = LocalStore(str(self.path), read_only=True)
@@ -45,7 +47,8 @@ class StoreFiles:
                     self.keys = {n for n in z.namelist() if not n.endswith("/")}
                 self.store = ZipStore(str(self.path), mode="r")
             self.root = zarr.open_group(self.store, mode="r")
-            self.attrs = dict(self.root.attrs)
+            #: The root's attributes as stored (JSON: checked, never trusted).
+            self.attrs: dict[str, Any] = dict(self.root.attrs)
         except Exception as exc:  # zarr and zipfile raise many kinds
             raise StoreError(f"Cannot read {self.path} as a zarr store: {exc}.") from exc
 
@@ -72,6 +75,16 @@ class StoreFiles:
             self.store.close()
         except Exception:
             pass
+
+
+def read_whole(root: Any, path: str) -> np.ndarray:
+    """The whole array at ``path`` below the zarr group ``root``; StoreError for a group."""
+    import zarr
+
+    node = root[path]
+    if not isinstance(node, zarr.Array):
+        raise StoreError(f"{path} is a group, not an array.")
+    return np.asarray(node[...])
 
 
 def expected_chunk_keys(path: str, array: Any) -> list[tuple[str, tuple[int, ...]]]:
