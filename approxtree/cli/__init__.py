@@ -38,6 +38,7 @@ _COMMANDS = {
     "convert": ("convert", "convert"),
     "rd": ("rd", "rd"),
     "verify": ("verify", "verify"),
+    "serve": ("serve", "serve"),
 }
 
 
