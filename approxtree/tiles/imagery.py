@@ -45,8 +45,8 @@ def texture_footprint(pyramid: Any):
 
     lv = pyramid.levels[0]
     t = lv.transform
-    x0, y0 = t * (0, 0)
-    x1, y1 = t * (lv.width, lv.height)
+    x0, y0 = t @ (0, 0)
+    x1, y1 = t @ (lv.width, lv.height)
     s = np.linspace(0.0, 1.0, 65)
     xs = np.concatenate([x0 + (x1 - x0) * s, np.full(65, x1), x1 - (x1 - x0) * s, np.full(65, x0)])
     ys = np.concatenate([np.full(65, y0), y0 + (y1 - y0) * s, np.full(65, y1), y1 - (y1 - y0) * s])
@@ -92,7 +92,7 @@ class ImageryTiles:
         self.tile_size = tile_size
         self.image_format = image_format
         lv = pyramid.levels[0]
-        cx, cy = lv.transform * (lv.width / 2, lv.height / 2)
+        cx, cy = lv.transform @ (lv.width / 2, lv.height / 2)
         a, e = lv.transform.a, lv.transform.e
         #: Ground size (m) of a level-0 texel and the latitude where it was measured.
         self.texel_metres, self.latitude = ground_metres(pyramid.crs, cx, cy, a, e)

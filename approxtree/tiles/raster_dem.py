@@ -49,6 +49,11 @@ class DemEncoding:
     scale: float
 
     @property
+    def range(self) -> tuple[float, float]:
+        """Lowest and highest heights the 24 bits hold (m)."""
+        return -self.offset, ((1 << 24) - 1) / self.scale - self.offset
+
+    @property
     def step(self) -> float:
         """Height between two consecutive codes (m)."""
         return 1.0 / self.scale
@@ -97,6 +102,14 @@ class DemTiles:
             raise InvalidParameterError(f"tile_size must be 256 or 512, got {tile_size!r}.")
         self.sampler = TileSampler(terrain)
         self.encoding = ENCODINGS[encoding]
+        low, high = self.encoding.range
+        z_min, z_max = (float(v) for v in terrain.z_range)
+        if z_min < low or z_max > high:
+            raise InvalidParameterError(
+                f"The terrain's heights {z_min:g}..{z_max:g} m leave {encoding}'s range "
+                f"{low:g}..{high:g} m; choose the other encoding, or rescale the heights "
+                "(--height-scale)."
+            )
         self.scheme = SCHEMES["webmercator"]
         self.tile_size = tile_size
         self.image_format = image_format
