@@ -59,6 +59,12 @@ def nc(data_dir: Path, tmp_path_factory) -> dict:
     return {"tmp": tmp, "tiles": tiles, "dem": dem}
 
 
+def green(png: Path | str) -> float:
+    """Fraction of the picture in the land use's greens (forest), which no bare globe has."""
+    rgb = np.asarray(Image.open(png).convert("RGB")).astype(int)
+    return float(((rgb[..., 1] > rgb[..., 0] + 8) & (rgb[..., 1] > rgb[..., 2] + 8)).mean())
+
+
 def _clean(shot: dict) -> None:
     """Loaded without error, from 127.0.0.1 only."""
     assert shot["error"] is None and shot["ready"], shot
@@ -81,8 +87,7 @@ def test_cesium_drapes_the_imagery_over_the_terrain_from_an_oblique_view(nc: dic
     rgb = np.asarray(Image.open(shot["screenshot"]).convert("RGB")).astype(int)
     terrain = browser.terrain_mask(shot["screenshot"])
     assert terrain.mean() > 0.2
-    green = (rgb[..., 1] > rgb[..., 0] + 8) & (rgb[..., 1] > rgb[..., 2] + 8) & terrain
-    assert green.sum() > 0.05 * terrain.sum(), "no land-use green in the picture"
+    assert green(shot["screenshot"]) > 0.05, "no land-use green in the picture"
     assert rgb[terrain].std() > 10
     cam = shot["stats"]["camera"]
     up = np.asarray(cam["position"]) / np.linalg.norm(cam["position"])
@@ -119,3 +124,56 @@ def test_maplibre_draws_the_pmtiles_dem_as_terrain_with_hillshade(nc: dict) -> N
     assert np.nanmin(around) - 0.5 <= drawn <= np.nanmax(around) + 0.5, (drawn, around)
     rgb = np.asarray(Image.open(shot["screenshot"]).convert("RGB")).astype(int)
     assert rgb.std() > 10
+
+
+def test_cesium_opens_the_live_server_page(nc: dict) -> None:
+    """approxtree serve's page at / (CesiumJS from the server, terrain and imagery made on
+    request) loads in chromium without error, asking the server for terrain and imagery."""
+    import subprocess
+    import threading
+
+    import uvicorn
+
+    from approxtree.tiles.serve import create_app
+    from approxtree.tiles.serve.runner import bind
+
+    layers = nc["tmp"] / "layers"
+    layers.mkdir(exist_ok=True)
+    if not (layers / "thematic").exists():
+        (layers / "thematic").symlink_to(nc["tmp"] / "thematic")
+    app = create_app(str(nc["tmp"] / "nc.zarr"), str(layers))
+    sock = bind("127.0.0.1", 0)
+    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="on"))
+    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]})
+    thread.start()
+    out = nc["tmp"] / "shots_live"
+    out.mkdir(exist_ok=True)
+    job = {
+        "node_modules": str(browser.NODE_MODULES),
+        "chromium": browser.chromium_path(),
+        "width": SIZE[0],
+        "height": SIZE[1],
+        "timeout_ms": 240_000,
+        "views": [
+            {
+                "url": f"http://127.0.0.1:{sock.getsockname()[1]}/",
+                "screenshot": str(out / "live.png"),
+            }
+        ],
+    }
+    (out / "job.json").write_text(json.dumps(job))
+    try:
+        proc = subprocess.run(
+            ["node", str(browser.SHOT_SCRIPT), str(out / "job.json")],
+            capture_output=True, text=True, timeout=400,
+        )  # fmt: skip
+    finally:
+        server.should_exit = True
+        thread.join(timeout=60)
+        sock.close()
+    [shot] = json.loads(proc.stdout)["views"]
+    _clean(shot)
+    paths = [r.split("/", 3)[-1] for r in shot["requests"]]
+    assert any(p.startswith("terrain/") and p.endswith(".terrain") for p in paths), paths
+    assert any(p.startswith("imagery/thematic/") and p.endswith(".png") for p in paths), paths
+    assert green(out / "live.png") > 0.05

@@ -172,8 +172,8 @@ def tiles(
 
         replaceable(out, map_target(out))
         size = int(tile_size) if tile_size else None
-        args = (tile_format, _terrain_of(tree, **reader), out, textures, scheme, size)
-        _emit(write_web_map(*args, texture_format, minzoom, maxzoom, workers, scheduler), as_json)
+        given = (tile_format, _terrain_of(tree, **reader), out, textures, scheme, size)
+        _emit(write_web_map(*given, texture_format, minzoom, maxzoom, workers, scheduler), as_json)
         return
     from approxtree.tiles import write_quantized_mesh
     from approxtree.tiles.quantized_mesh import DEFAULT_LEAF_ERROR, check_output

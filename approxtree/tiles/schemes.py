@@ -131,8 +131,8 @@ class TileScheme:
         r1 = min(max(math.ceil(t1) - 1, r0), ny - 1)
         rows = np.arange(r0, r1 + 1)
         ys = rows if self.north_first else ny - 1 - rows
-        xs, ys = np.meshgrid(np.arange(x0, x1 + 1), ys, indexing="xy")
-        xs, ys = xs.ravel(), ys.ravel()
+        grid_x, grid_y = np.meshgrid(np.arange(x0, x1 + 1), ys, indexing="xy")
+        xs, ys = grid_x.ravel(), grid_y.ravel()
         edges = [self.bounds(z, int(a), int(b)) for a, b in zip(xs, ys, strict=True)]
         if not edges:
             return []

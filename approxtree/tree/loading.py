@@ -30,7 +30,8 @@ def tree_epsilon(path: str | os.PathLike) -> float | None:
     """The threshold ε a saved tree (store or legacy .atree) was built with; None when it
     records none (the CLI's ``tiles`` and ``serve`` take it as the quantized-mesh leaf error)."""
     if is_legacy_file(path):
-        return float(load_tree(path).epsilon)
+        tree = load_tree(path)
+        return float(tree.epsilon) if isinstance(tree, ApproximationTree) else None
     from approxtree.tree.zarr_store import StoreReader
 
     eps = (StoreReader(path).meta.get("params") or {}).get("epsilon")

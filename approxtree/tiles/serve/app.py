@@ -37,7 +37,7 @@ from starlette.applications import Starlette
 from starlette.exceptions import HTTPException
 from starlette.requests import Request
 from starlette.responses import RedirectResponse, Response
-from starlette.routing import Mount, Route
+from starlette.routing import BaseRoute, Mount, Route
 from starlette.staticfiles import StaticFiles
 
 from approxtree.errors import ApproxTreeError, InvalidParameterError
@@ -196,9 +196,9 @@ class TileApp:
             params["cesium"] = "/cesium/"
         return RedirectResponse("/viewer/index.html?" + urlencode(params, safe="/"), 307)
 
-    def routes(self) -> list:
+    def routes(self) -> list[BaseRoute]:
         int_zxy = "{z:int}/{x:int}/{y:int}"
-        out = [
+        out: list[BaseRoute] = [
             Route("/", self.viewer),
             Route("/health", self.health),
             Route("/3dtiles/tileset.json", self.tileset),
