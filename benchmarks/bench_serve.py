@@ -358,7 +358,11 @@ def main() -> None:
             "cache_mb": args.cache_mb,
             "store": store,
             "textures": textures,
-            "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
+            "machine": {
+                "cpus": os.cpu_count(),
+                "platform": platform.platform(),
+                "load_average_before": os.getloadavg(),
+            },
             "server_cpus": args.server_cpus,
             "targets": TARGETS,
             "runs": {},
@@ -378,7 +382,12 @@ def main() -> None:
             t0 = time.perf_counter()
             sessions = pattern(server.url, layer, args.requests)
             results["discovery_seconds"] = time.perf_counter() - t0
-            results["distinct_urls"] = len({u for s in sessions for u in s})
+            distinct_urls = {u for s in sessions for u in s}
+            results["distinct_urls"] = len(distinct_urls)
+            results["distinct_by_kind"] = {
+                kind: sum(1 for u in distinct_urls if u.split("/")[1] == kind)
+                for kind in ("terrain", "imagery", "terrarium", "3dtiles")
+            }
             results["runs"]["cold"] = run(server.url, sessions, args.requests, args.clients)
             results["rss_mb"]["after_cold"] = server.rss_mb()
             results["runs"]["warm"] = run(server.url, sessions, args.requests, args.clients)
@@ -400,6 +409,7 @@ def main() -> None:
         finally:
             server.stop()
         results["rss_mb"]["bound"] = args.cache_mb + TARGETS["rss_mb"]
+        results["machine"]["load_average_after"] = os.getloadavg()
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(results, indent=1))
         plot(results, args.out.with_suffix(".png"))
