@@ -21,14 +21,12 @@ import json
 import re
 import threading
 from concurrent.futures import Executor
-from functools import cached_property
 from pathlib import Path
 from typing import Any
 
 from approxtree.errors import ApproxTreeError, StoreError
 from approxtree.tiles.map_tiles import EXTENSIONS, MIME_TYPES, tile_plan, tilejson
 from approxtree.tiles.quantized_mesh import layer_json, make_tile, terrain_job
-from approxtree.tiles.schemes import SCHEMES
 from approxtree.tiles.serve.cache import Entry, TileCache
 from approxtree.tiles.tileset3d import tile_maker, tile_uri, tileset_document
 from approxtree.tiles.web_maps import open_map_tiles, open_pyramid
@@ -215,10 +213,7 @@ class TileService:
         doc["tiles"] = [base + doc["tiles"][0]]
         return json.dumps(doc, indent=1).encode()
 
-    @cached_property
+    @property
     def layers(self) -> list[str]:
+        """The imagery layers' names, in URL order (the first is 3D Tiles' texture)."""
         return list(self.layer_folders)
-
-    @staticmethod
-    def schemes() -> list[str]:
-        return list(SCHEMES)
