@@ -58,8 +58,10 @@ def run_views(
     out_dir: Path,
     size: tuple[int, int] = (480, 320),
     timeout_s: float = 240.0,
+    page: str = "index.html",
 ) -> list[dict]:
     """Open the viewer once per view; returns one dict per view (see tests/web/shot.cjs).
+    page: index.html (CesiumJS) or maplibre.html (MapLibre GL JS, its npm= set to /npm/).
 
     views: [{"name": str, "params": {url parameter: value}}]; the tiles folder is served at
     /tiles/, so params name it as "/tiles/tileset.json" or "/tiles/". Adds "screenshot" (the
@@ -70,14 +72,14 @@ def run_views(
     with serve.TileServer(serve.default_roots(tiles_dir)) as server:
         job_views = []
         for view in views:
-            params = {
-                "cesium": "/cesium/",
-                "bg": "#{:02x}{:02x}{:02x}".format(*BACKGROUND),
-                **view["params"],
-            }
+            if page == "index.html":
+                defaults = {"cesium": "/cesium/", "bg": "#{:02x}{:02x}{:02x}".format(*BACKGROUND)}
+            else:
+                defaults = {"npm": "/npm/"}
+            params = {**defaults, **view["params"]}
             job_views.append(
                 {
-                    "url": f"{server.url}/viewer/index.html?{urlencode(params, safe='/,')}",
+                    "url": f"{server.url}/viewer/{page}?{urlencode(params, safe='/,')}",
                     "screenshot": str(out_dir / f"{view['name']}.png"),
                 }
             )

@@ -39,6 +39,7 @@ _COMMANDS = {
     "convert": ("convert", "convert"),
     "rd": ("rd", "rd"),
     "verify": ("verify", "verify"),
+    "serve": ("serve", "serve"),
 }
 
 

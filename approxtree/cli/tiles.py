@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import time
-from pathlib import Path
 from typing import Any
 
 import click
@@ -19,33 +18,25 @@ from approxtree.cli.options import (
 )
 
 
-def _store_epsilon(path: str) -> float | None:
-    """The ε a tree store (or legacy tree) was built with; None for a raster."""
-    if not _is_tree(path):
-        return None
-    if Path(path).suffix.lower() == ".atree":
-        from approxtree.tree import ApproximationTree, load_tree
-
-        # A point quadtree has no ε: it keeps every point.
-        tree = load_tree(path)
-        return float(tree.epsilon) if isinstance(tree, ApproximationTree) else None
-    from approxtree.tree.tree_store import StoreReader
-
-    eps = (StoreReader(path).meta.get("params") or {}).get("epsilon")
-    return float(eps) if eps else None
-
-
 @click.command()
 @click.argument("tree", type=click.Path())
-@click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder to write.")
+@click.option("--out", required=True, type=click.Path(), help="Folder (or .pmtiles) to write.")
 @click.option(
     "--format",
     "tile_format",
-    type=click.Choice(["3dtiles", "quantized-mesh"]),
+    type=click.Choice(["3dtiles", "quantized-mesh", "imagery", "terrarium", "terrain-rgb"]),
     required=True,
     help="3dtiles: tileset.json + one GLB per node; quantized-mesh: Cesium terrain "
-    "(layer.json + z/x/y.terrain, gzip).",
+    "(layer.json + z/x/y.terrain, gzip); imagery (--textures), terrarium, terrain-rgb: map "
+    "tiles in a folder (tilejson.json + z/x/y) or a PMTiles archive (--out X.pmtiles).",
 )
+@click.option(
+    "--scheme",
+    type=click.Choice(["geographic", "webmercator"]),
+    default="geographic",
+    help="imagery: geographic TMS (CesiumJS, the default) or Web Mercator XYZ (MapLibre).",
+)
+@click.option("--tile-size", type=click.Choice(["256", "512"]), help="Map tiles: pixels a side.")
 @click.option(
     "--samples",
     type=click.Choice(["32", "152", "218"]),
@@ -59,13 +50,13 @@ def _store_epsilon(path: str) -> float | None:
     type=int,
     default=0,
     show_default=True,
-    help="quantized-mesh: shallowest level written (CesiumJS asks for level 0).",
+    help="quantized-mesh, map tiles: shallowest level written (CesiumJS asks for level 0).",
 )
 @click.option(
     "--maxzoom",
     type=int,
-    help="quantized-mesh: deepest level [default: where the sample spacing reaches the DEM's "
-    "cell].",
+    help="quantized-mesh, map tiles: deepest level [default: where the sample spacing "
+    "(pixel) reaches the DEM's cell (texel)].",
 )
 @click.option(
     "--max-error",
@@ -82,15 +73,15 @@ def _store_epsilon(path: str) -> float | None:
     "--textures",
     type=click.Path(file_okay=False),
     default=None,
-    help="3dtiles: texture pyramid folder (approxtree bake); each node's texture patch is "
-    "embedded in its GLB.",
+    help="3dtiles, imagery: texture pyramid folder (approxtree bake); 3dtiles embed each "
+    "node's texture patch in its GLB.",
 )
 @click.option(
     "--texture-format",
-    type=click.Choice(["png", "jpeg"]),
+    type=click.Choice(["png", "jpeg", "webp"]),
     default="png",
     show_default=True,
-    help="3dtiles: encoding of the embedded textures.",
+    help="3dtiles (png, jpeg), imagery, raster-dem (png, webp: lossless): image encoding.",
 )
 @click.option(
     "--origin",
@@ -133,6 +124,8 @@ def tiles(
     tree: str,
     out: str,
     tile_format: str,
+    scheme: str,
+    tile_size: str | None,
     samples: str,
     minzoom: int,
     maxzoom: int | None,
@@ -163,30 +156,28 @@ def tiles(
         "height_scale": height_scale,
     }
     if tile_format == "3dtiles":
-        _tiles_3dtiles(
-            tree,
-            out,
-            textures,
-            texture_format,
-            origin,
-            no_skirts,
-            workers,
-            scheduler,
-            as_json,
-            reader,
-            build,
-        )
+        args = (tree, out, textures, texture_format, origin, no_skirts, workers, scheduler)
+        _tiles_3dtiles(*args, as_json, reader, build)
         return
     if build.given:
         from approxtree.errors import InvalidParameterError
 
-        # Quantized-mesh tiles sample the terrain itself, not a tree: no tree is built.
+        # The other formats sample the terrain itself, not a tree: no tree is built.
         raise InvalidParameterError(
-            f"{', '.join(build.given)} build the tree of --format 3dtiles; quantized-mesh "
-            "tiles the terrain itself (its deepest level within --leaf-error). Leave them out."
+            f"{', '.join(build.given)} build the tree of --format 3dtiles; {tile_format} "
+            "tiles the terrain itself. Leave them out."
         )
+    if tile_format != "quantized-mesh":
+        from approxtree.tiles.web_maps import map_target, write_web_map
+
+        replaceable(out, map_target(out))
+        size = int(tile_size) if tile_size else None
+        given = (tile_format, _terrain_of(tree, **reader), out, textures, scheme, size)
+        _emit(write_web_map(*given, texture_format, minzoom, maxzoom, workers, scheduler), as_json)
+        return
     from approxtree.tiles import write_quantized_mesh
     from approxtree.tiles.quantized_mesh import DEFAULT_LEAF_ERROR, check_output
+    from approxtree.tree.loading import tree_epsilon
 
     # The output folder is checked before the terrain is read.
     replaceable(out, "terrain tileset")
@@ -194,7 +185,7 @@ def tiles(
     t0 = time.perf_counter()
     terrain = _terrain_of(tree, **reader)
     if leaf_error is None:
-        leaf_error = _store_epsilon(tree) or DEFAULT_LEAF_ERROR
+        leaf_error = (_is_tree(tree) and tree_epsilon(tree)) or DEFAULT_LEAF_ERROR
     figures = write_quantized_mesh(
         terrain,
         out,

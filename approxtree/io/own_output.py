@@ -9,10 +9,11 @@ not replace a user's DEM, photos or notes. The test reads the thing itself, neve
   tag ``APPROXTREE_OUTPUT``; a PNG the text chunk ``Software: approxtree``; a JPEG the comment
   ``approxtree``; a GLB ``asset.generator`` "approxtree"; a PLY the header line
   ``comment approxtree``; an OBJ the first line ``# approxtree``; a legacy tree file its magic
-  bytes; a zipped tree store its root attributes' format name.
+  bytes; a zipped tree store its root attributes' format name; a PMTiles archive its
+  metadata's ``generator``.
 - folders (``FOLDERS``) have a marker file that names approxtree (a tree store's root
-  zarr.json, pyramid.json, tileset.json, layer.json) and hold nothing but the names their
-  writer makes: one foreign file (notes.txt) makes the folder the user's.
+  zarr.json, pyramid.json, tileset.json, layer.json, tilejson.json) and hold nothing but the
+  names their writer makes: one foreign file (notes.txt) makes the folder the user's.
 
 A symbolic link is never replaced nor written through (either would delete what it points to
 or move the output off where the link leads): the user gives the real path. ``--overwrite``
@@ -76,6 +77,11 @@ FOLDERS: dict[str, FolderKind] = {
         FolderKind(
             "terrain tileset", "layer.json", re.compile(r"layer\.json|\d+/\d+/\d+\.terrain")
         ),
+        FolderKind(
+            "map tile folder",
+            "tilejson.json",
+            re.compile(r"tilejson\.json|\d+/\d+/\d+\.(png|webp|jpg)"),
+        ),
     )
 }
 
@@ -85,6 +91,7 @@ FILES = {
     "image": ("png", "jpeg"),
     "mesh file": ("glb", "ply", "obj"),
     "tree file": ("atree", "tree zip"),
+    "tile archive": ("pmtiles",),
 }
 
 #: Paths the user allowed to be replaced whatever they hold (``overwriting``).
@@ -159,6 +166,8 @@ def _names_approxtree(doc: object, marker: str) -> bool:
     if marker == "tileset.json":
         asset = doc.get("asset")
         return isinstance(asset, dict) and asset.get("generator") == MARK
+    if marker == "tilejson.json":
+        return doc.get("generator") == MARK
     return doc.get("format") == "quantized-mesh-1.0" and MARK in str(doc.get("description"))
 
 
@@ -211,6 +220,8 @@ def _file_format(path: Path) -> str | None:
         return "tiff" if _geotiff_tag(path) else None
     if head.startswith(b"PK"):
         return "tree zip" if _zipped_store(path) else None
+    if head.startswith(b"PMTiles"):
+        return "pmtiles" if _pmtiles_mark(path) else None
     return None
 
 
@@ -238,6 +249,18 @@ def _geotiff_tag(path: Path) -> bool:
             return GEOTIFF_TAG in ds.tags()
     except RasterioError:
         return False
+
+
+def _pmtiles_mark(path: Path) -> bool:
+    """Whether a PMTiles archive's metadata (its TileJSON) names approxtree as generator."""
+    try:
+        from pmtiles.reader import MmapSource, Reader
+
+        with open(path, "rb") as f:
+            doc = Reader(MmapSource(f)).metadata()
+    except Exception:  # any damage: not recognisably ours
+        return False
+    return isinstance(doc, dict) and doc.get("generator") == MARK
 
 
 def _zipped_store(path: Path) -> bool:

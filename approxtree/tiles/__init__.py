@@ -4,6 +4,10 @@
   tile of Cesium's geographic tiling, each within its level's geometric error.
 - ``tileset3d``: OGC 3D Tiles 1.1 (``tileset.json`` + one GLB per node of an approximation
   tree, geometricError = the node's exact error); ``earth``: terrain coordinates → ECEF.
+- ``imagery`` (a texture pyramid) and ``raster_dem`` (Terrarium, Terrain-RGB) map tiles in
+  the tilings of ``schemes`` (geographic TMS, Web Mercator XYZ), written by ``map_tiles`` to a
+  folder or a PMTiles archive; ``web_maps`` opens them by format name.
+- ``serve``: the ASGI app making every one of them on request from a tree store.
 """
 
 from approxtree.tiles.earth import EarthFrame

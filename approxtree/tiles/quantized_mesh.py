@@ -123,7 +123,7 @@ def availability(tiles: Iterable[tuple[int, int]]) -> list[dict[str, int]]:
 
 
 @dataclass
-class _Job:
+class TileJob:
     """Everything a worker needs for a batch of tiles (pickled once per batch)."""
 
     sampler: TileSampler
@@ -157,7 +157,7 @@ class _Job:
         return min(err, self.leaf_error) if level == self.maxzoom else err
 
 
-def make_tile(job: _Job, level: int, x: int, y: int) -> tuple[bytes, TileResult]:
+def make_tile(job: TileJob, level: int, x: int, y: int) -> tuple[bytes, TileResult]:
     """The gzip-compressed bytes of tile (level, x, y) and its figures."""
     bounds = tile_bounds(level, x, y)
     h, measured = job.sampler.lattice(bounds, job.samples)
@@ -198,7 +198,7 @@ def make_tile(job: _Job, level: int, x: int, y: int) -> tuple[bytes, TileResult]
     return data, result
 
 
-def _write_batch(job: _Job, addresses: Sequence[tuple[int, int, int]]) -> list[TileResult]:
+def _write_batch(job: TileJob, addresses: Sequence[tuple[int, int, int]]) -> list[TileResult]:
     """Make and write a batch of tiles into ``job.folder``; their figures."""
     out = []
     for level, x, y in addresses:
@@ -265,38 +265,23 @@ def check_output(out: str | os.PathLike) -> None:
     check_replaceable(out, "terrain tileset")
 
 
-def write_quantized_mesh(
+def terrain_job(
     terrain: Grid,
-    out: str | os.PathLike,
-    *,
     samples: int = DEFAULT_SAMPLES,
     minzoom: int = 0,
     maxzoom: int | None = None,
     max_error: float | None = None,
-    workers: int = 1,
     water_mask: str | os.PathLike | None = None,
     leaf_error: float = DEFAULT_LEAF_ERROR,
-    scheduler: str | None = None,
-) -> dict:
-    """Write the Cesium terrain tileset of ``terrain`` into the folder ``out`` (atomically).
-
-    samples: samples along a tile side (one of SAMPLE_CHOICES); maxzoom: deepest level, by
-    default the first whose sample spacing reaches the terrain's cell, or deeper until the
-    level's error is <= ``max_error`` metres when that is given; leaf_error: the deepest
-    level's tiles are within min(its level error, leaf_error) metres (``math.inf``: the level
-    error only); workers > 1: tiles are made as dask tasks on a LocalCluster of that many
-    processes, or on the dask cluster at ``scheduler`` (which must see ``out``). Returns the
-    figures (tiles, bytes, levels, worst error ratio, leaf error and the deepest level's
-    measured worst, per-level counts).
-    """
-    from approxtree.io.atomic import atomic_directory
-
+) -> tuple[TileJob, dict[int, list[tuple[int, int]]]]:
+    """The job that makes each tile (``make_tile``) of ``write_quantized_mesh``'s tileset with
+    these arguments (checked, its levels chosen), and the tiles of each level (``plan_tiles``).
+    The server (tiles/serve) makes its tiles with it, byte for byte as written."""
     if samples not in SAMPLE_CHOICES:
         raise InvalidParameterError(
             f"samples must be one of {SAMPLE_CHOICES} (samples − 1 must divide 32767), "
             f"got {samples}."
         )
-    check_workers(workers, scheduler)
     if not (isinstance(leaf_error, (int, float)) and leaf_error > 0 and not math.isnan(leaf_error)):
         raise InvalidParameterError(
             f"leaf_error must be a positive number of metres (or inf), got {leaf_error!r}."
@@ -323,21 +308,53 @@ def write_quantized_mesh(
             f"Levels must satisfy 0 <= minzoom <= maxzoom <= 22, got {minzoom}..{maxzoom}."
         )
     water = WaterMask.open(water_mask) if water_mask is not None else None
+    plan = plan_tiles(sampler, minzoom, maxzoom)
+    arrays = {level: np.array(t, dtype=np.int64).reshape(-1, 2) for level, t in plan.items()}
+    return TileJob(sampler, water, samples, "", arrays, maxzoom, float(leaf_error)), plan
+
+
+def write_quantized_mesh(
+    terrain: Grid,
+    out: str | os.PathLike,
+    *,
+    samples: int = DEFAULT_SAMPLES,
+    minzoom: int = 0,
+    maxzoom: int | None = None,
+    max_error: float | None = None,
+    workers: int = 1,
+    water_mask: str | os.PathLike | None = None,
+    leaf_error: float = DEFAULT_LEAF_ERROR,
+    scheduler: str | None = None,
+) -> dict:
+    """Write the Cesium terrain tileset of ``terrain`` into the folder ``out`` (atomically).
+
+    samples: samples along a tile side (one of SAMPLE_CHOICES); maxzoom: deepest level, by
+    default the first whose sample spacing reaches the terrain's cell, or deeper until the
+    level's error is <= ``max_error`` metres when that is given; leaf_error: the deepest
+    level's tiles are within min(its level error, leaf_error) metres (``math.inf``: the level
+    error only); workers > 1: tiles are made as dask tasks on a LocalCluster of that many
+    processes, or on the dask cluster at ``scheduler`` (which must see ``out``). Returns the
+    figures (tiles, bytes, levels, worst error ratio, leaf error and the deepest level's
+    measured worst, per-level counts).
+    """
+    from approxtree.io.atomic import atomic_directory
+
+    check_workers(workers, scheduler)
+    job, plan = terrain_job(terrain, samples, minzoom, maxzoom, max_error, water_mask, leaf_error)
+    minzoom, maxzoom = min(plan), max(plan)
     out = Path(out)
     check_output(out)
-    plan = plan_tiles(sampler, minzoom, maxzoom)
     addresses = [(level, x, y) for level, tiles in plan.items() for x, y in tiles]
-    arrays = {level: np.array(t, dtype=np.int64).reshape(-1, 2) for level, t in plan.items()}
     results: list[TileResult] = []
     with atomic_directory(out) as tmp:
-        job = _Job(sampler, water, samples, str(tmp), arrays, maxzoom, float(leaf_error))
+        job.folder = str(tmp)
         # In this process, or batches of tiles as dask tasks (the job sent once per worker).
         results = run_batches(_write_batch, job, addresses, workers, scheduler, "tiles")
         if not any(r.valid_samples or r.data_points for r in results) and terrain.point_count == 0:
             # A windowed terrain of nodata only: scanned only now that no tile sampled a
             # height (tiles too coarse to hit the data need not mean nodata); nothing is kept.
             raise EmptyTerrainError(NO_DATA)
-        layer = layer_json(sampler, plan, water is not None, out.name)
+        layer = layer_json(job.sampler, plan, job.water is not None, out.name)
         (tmp / "layer.json").write_text(json.dumps(layer, indent=1))
     return {
         "tiles": len(results),

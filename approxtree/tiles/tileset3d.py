@@ -174,8 +174,9 @@ class _TileWriter:
             )
         return verts, tris, surface
 
-    def write(self, i: int) -> TileContent | None:
-        """Write node i's GLB; None for a node whose patch has no triangle (no content)."""
+    def encode(self, i: int) -> tuple[bytes, TileContent] | None:
+        """Node i's GLB and what tileset.json needs of it; None for a node whose patch has no
+        triangle (no content). The server (tiles/serve) makes its tiles with this too."""
         verts, tris, surface = self.mesh(i)
         if surface == 0:
             return None
@@ -205,15 +206,22 @@ class _TileWriter:
             mime,
             extras={"node": int(i), "error": _json_float(self.tree.errors[i])},
         )
-        level = int(self.tree.levels[i])
-        path = self.folder / tile_uri(level, i)
-        path.parent.mkdir(exist_ok=True)
-        path.write_bytes(data)
         if geo is not None:
             low, high = self._region(geo, points, tris)
         else:
             low, high = lo, hi
-        return TileContent(i, center, low, high, len(data), len(verts), len(tris), rounding)
+        return data, TileContent(i, center, low, high, len(data), len(verts), len(tris), rounding)
+
+    def write(self, i: int) -> TileContent | None:
+        """Write node i's GLB into the folder; None for a node without content."""
+        made = self.encode(i)
+        if made is None:
+            return None
+        data, content = made
+        path = self.folder / tile_uri(int(self.tree.levels[i]), i)
+        path.parent.mkdir(exist_ok=True)
+        path.write_bytes(data)
+        return content
 
     def _region(self, geo: np.ndarray, points: np.ndarray, tris: np.ndarray):
         """(west, south, min height), (east, north, max height) in radians and metres holding
@@ -313,7 +321,7 @@ def write_3dtiles(
             _write_nodes, writer, range(n), workers, scheduler, "tiles", processes=False
         )
         tileset = _tileset_json(tree, frame, contents)
-        (tmp / "tileset.json").write_text(json.dumps(tileset, separators=(",", ":")))
+        (tmp / "tileset.json").write_bytes(tileset_bytes(tileset))
     seconds = time.perf_counter() - start
     written = [c for c in contents if c is not None]
     nbytes = sum(c.nbytes for c in written)
@@ -330,6 +338,35 @@ def write_3dtiles(
         "frame": "ecef" if frame.georeferenced else f"enu at lon/lat {frame.origin}",
         "geometric_error": tileset["geometricError"],
     }
+
+
+def tile_maker(
+    tree: Any,
+    textures: Any = None,
+    origin: tuple[float, float] = (0.0, 0.0),
+    skirts: bool = True,
+    image_format: str = "png",
+) -> tuple[_TileWriter, EarthFrame]:
+    """What ``write_3dtiles`` makes tiles with, for a caller that wants the bytes (the
+    server): the tile writer (its ``encode(node)``) and the frame, same arguments."""
+    _check_tree(tree)
+    if image_format not in IMAGE_FORMATS:
+        raise InvalidParameterError(
+            f"Unknown texture format {image_format!r}; use one of {', '.join(IMAGE_FORMATS)}."
+        )
+    terrain = tree.terrain
+    frame = EarthFrame(terrain.crs, terrain.domain.center, origin)
+    pyramid = _open_pyramid(textures, terrain)
+    return _TileWriter(tree, frame, Path(), pyramid, image_format, skirts), frame
+
+
+def tileset_document(tree: Any, frame: EarthFrame, contents: list[TileContent | None]) -> bytes:
+    """tileset.json's bytes, as ``write_3dtiles`` writes them, from every node's content."""
+    return tileset_bytes(_tileset_json(tree, frame, contents))
+
+
+def tileset_bytes(tileset: dict) -> bytes:
+    return json.dumps(tileset, separators=(",", ":")).encode()
 
 
 def _tileset_json(tree: Any, frame: EarthFrame, contents: list[TileContent | None]) -> dict:

@@ -15,7 +15,10 @@ measures), whether every claim it makes holds:
 - quantized-mesh (``verify.quantized_mesh``): every tile layer.json lists exists and decodes,
   each within its level's error at the DEM's data points (the height quantization allowed);
 - texture pyramid (``verify.pyramid``): every level decodes, halves the one before, covers the
-  source, matches its tile checksums.
+  source, matches its tile checksums;
+- raster-dem and imagery tiles, folder or PMTiles (``verify.map_tiles``): every tile listed
+  exists and decodes, each raster-dem height within its encoding's step of h_T at the pixel's
+  centre.
 
 The result is a ``VerifyReport`` (``ok``, checks, worst offenders, figures, what was not
 checked). Bad input (a missing or unrecognised output, an unreadable source) raises an
@@ -72,6 +75,12 @@ def _pyramid(output: Path, terrain: Any, report: VerifyReport, options: dict) ->
     )
 
 
+def _map_tiles(output: Path, terrain: Any, report: VerifyReport, options: dict) -> None:
+    from approxtree.verify.map_tiles import verify_map_tiles
+
+    verify_map_tiles(output, terrain, report)
+
+
 #: Kind of output → the verification of that kind.
 VERIFIERS: dict[str, Callable[[Path, Any, VerifyReport, dict], None]] = {
     "tree-store": _tree_store,
@@ -79,6 +88,8 @@ VERIFIERS: dict[str, Callable[[Path, Any, VerifyReport, dict], None]] = {
     "3dtiles": _tiles3d,
     "quantized-mesh": _quantized_mesh,
     "texture-pyramid": _pyramid,
+    "raster-dem": _map_tiles,
+    "imagery": _map_tiles,
 }
 
 

@@ -4,6 +4,8 @@
 - a folder with tileset.json (or a tileset.json itself): ``3dtiles``;
 - a folder with layer.json: ``quantized-mesh``; a folder with pyramid.json:
   ``texture-pyramid``;
+- a folder with tilejson.json, or a PMTiles archive, whose TileJSON names approxtree's kind:
+  ``raster-dem`` or ``imagery``;
 - a file starting with glTF's, PLY's magic, or OBJ text (``v`` / ``f`` lines): ``mesh``.
 
 A legacy ``.atree`` file is refused (convert it to a store first), so is anything else.
@@ -19,7 +21,17 @@ from pathlib import Path
 from approxtree.errors import StoreError
 
 #: Detected kinds, in the order they are tried.
-KINDS = ("tree-store", "3dtiles", "quantized-mesh", "texture-pyramid", "mesh")
+KINDS = (
+    "tree-store",
+    "3dtiles",
+    "quantized-mesh",
+    "texture-pyramid",
+    "raster-dem",
+    "imagery",
+    "mesh",
+)
+#: Map tile kinds named by a TileJSON's ``approxtree.kind``.
+MAP_KINDS = ("raster-dem", "imagery")
 LEGACY_MAGIC = b"ATREE\x00\r\n"
 
 
@@ -74,14 +86,18 @@ def detect_kind(output: str | os.PathLike) -> str:
         ):
             if (path / name).is_file():
                 return kind
+        if (path / "tilejson.json").is_file():
+            return _map_kind(path)
         raise StoreError(
-            f"{path} is a folder holding none of zarr.json, tileset.json, layer.json or "
-            "pyramid.json: not an output of approxtree."
+            f"{path} is a folder holding none of zarr.json, tileset.json, layer.json, "
+            "pyramid.json or tilejson.json: not an output of approxtree."
         )
     if path.name == "tileset.json":
         return "3dtiles"
     with open(path, "rb") as f:
         head = f.read(4096)
+    if head.startswith(b"PMTiles"):
+        return _map_kind(path)
     if head.startswith(LEGACY_MAGIC):
         raise StoreError(
             f"{path} is a legacy .atree tree file; verify reads tree stores: convert it with "
@@ -93,5 +109,18 @@ def detect_kind(output: str | os.PathLike) -> str:
         return "mesh"
     raise StoreError(
         f"{path} is not an output of approxtree that verify knows (a tree store, mesh file, "
-        "3D Tiles, quantized-mesh or texture pyramid folder)."
+        "3D Tiles, quantized-mesh, texture pyramid, raster-dem or imagery folder, PMTiles)."
     )
+
+
+def _map_kind(path: Path) -> str:
+    """The kind of a map tile folder or PMTiles archive, by its TileJSON."""
+    from approxtree.verify.map_tiles import read_tilejson
+
+    kind = (read_tilejson(path).get("approxtree") or {}).get("kind")
+    if kind not in MAP_KINDS:
+        raise StoreError(
+            f"{path} holds map tiles approxtree did not write (its TileJSON names no "
+            "approxtree kind): verify checks raster-dem and imagery tiles of approxtree tiles."
+        )
+    return kind

@@ -115,7 +115,8 @@ class Check:
 class VerifyReport:
     """The outcome of ``approxtree.verify``: kind of output, checks run, figures.
 
-    kind: "tree-store", "mesh", "3dtiles", "quantized-mesh" or "texture-pyramid";
+    kind: "tree-store", "mesh", "3dtiles", "quantized-mesh", "texture-pyramid", "raster-dem" or
+    "imagery";
     not_checked: claims of the output that this verification could not recompute, and why.
     """
 

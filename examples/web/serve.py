@@ -3,23 +3,28 @@
     python examples/web/serve.py OUT_DIR [--port 8000]
 
 URL layout: /viewer/ is this folder, /tiles/ is OUT_DIR, /cesium/ is CesiumJS's Build/Cesium
-from web/node_modules (npm install --prefix web). It prints the URL to open. Unlike plain
-`python -m http.server`, it sends .terrain files stored gzip-compressed with
-`Content-Encoding: gzip`, which CesiumTerrainProvider needs, and the MIME types of glTF.
-The browser test (tests/browser.py) uses the same server.
+and /npm/ the whole of web/node_modules (npm install --prefix web: MapLibre GL JS, pmtiles
+for maplibre.html). It prints the URL to open. Unlike plain `python -m http.server`, it sends
+.terrain files stored gzip-compressed with `Content-Encoding: gzip`, which
+CesiumTerrainProvider needs, the MIME types of glTF, and answers byte ranges (206), which
+PMTiles archives are read by. The browser tests (tests/browser.py) use the same server.
 """
 
 from __future__ import annotations
 
 import argparse
 import http.server
+import io
+import os
+import re
 import threading
 from pathlib import Path
 from typing import ClassVar
 from urllib.parse import unquote, urlsplit
 
 HERE = Path(__file__).resolve().parent
-CESIUM_BUILD = HERE.parent.parent / "web" / "node_modules" / "cesium" / "Build" / "Cesium"
+NODE_MODULES = HERE.parent.parent / "web" / "node_modules"
+CESIUM_BUILD = NODE_MODULES / "cesium" / "Build" / "Cesium"
 
 # MIME types the defaults lack or get wrong for tiles.
 TYPES = {
@@ -75,7 +80,31 @@ def make_handler(roots: dict[str, Path], log: list[str] | None = None):
             self._served = self.translate_path(self.path)
             if log is not None:
                 log.append(self.path)
+            ranged = re.fullmatch(r"bytes=(\d*)-(\d*)", self.headers.get("Range", ""))
+            if ranged and os.path.isfile(self._served) and any(ranged.groups()):
+                return self._send_range(self._served, *ranged.groups())
             return super().send_head()
+
+        def _send_range(self, path: str, first: str, last: str):
+            """206 with the bytes asked for (``bytes=a-b``, ``a-``, ``-n``); 416 past the end."""
+            size = os.path.getsize(path)
+            start = int(first) if first else max(size - int(last), 0)
+            end = min(int(last), size - 1) if first and last else size - 1
+            if start >= size or end < start:
+                self.send_response(416)
+                self.send_header("Content-Range", f"bytes */{size}")
+                self.end_headers()
+                return None
+            with open(path, "rb") as f:
+                f.seek(start)
+                data = f.read(end - start + 1)
+            self.send_response(206)
+            self.send_header("Content-Type", self.guess_type(path))
+            self.send_header("Content-Range", f"bytes {start}-{end}/{size}")
+            self.send_header("Content-Length", str(len(data)))
+            self.send_header("Accept-Ranges", "bytes")
+            self.end_headers()
+            return io.BytesIO(data)
 
         def log_message(self, format: str, *args) -> None:
             pass
@@ -106,8 +135,13 @@ class TileServer:
 
 
 def default_roots(tiles_dir: Path | str) -> dict[str, Path]:
-    """The URL layout of the viewer: /viewer/, /tiles/ and /cesium/."""
-    return {"/viewer/": HERE, "/tiles/": Path(tiles_dir), "/cesium/": CESIUM_BUILD}
+    """The URL layout of the viewer: /viewer/, /tiles/, /cesium/ and /npm/."""
+    return {
+        "/viewer/": HERE,
+        "/tiles/": Path(tiles_dir),
+        "/cesium/": CESIUM_BUILD,
+        "/npm/": NODE_MODULES,
+    }
 
 
 def main() -> None:

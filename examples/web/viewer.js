@@ -1,6 +1,7 @@
-// approxtree web viewer: loads CesiumJS, then a 3D Tiles tileset or a quantized-mesh terrain,
-// both chosen by URL parameters (see index.html). It reaches no server but the ones named in
-// the URL: no Cesium ion token, no imagery, no geocoder. Tests read window.approxtree.
+// approxtree web viewer: loads CesiumJS, then a 3D Tiles tileset or a quantized-mesh terrain
+// with imagery draped over it, chosen by URL parameters (see index.html). It reaches no server
+// but the ones named in the URL: no Cesium ion token, no geocoder. Tests read
+// window.approxtree.
 "use strict";
 
 // Where CesiumJS comes from: the `cesium` parameter, else the repository's npm copy, else this
@@ -107,6 +108,43 @@ function statistics(viewer, tileset) {
   return out;
 }
 
+// The imagery of `approxtree tiles --format imagery` (or of approxtree serve): its TileJSON
+// names the tiling (geographic TMS or Web Mercator XYZ), the zooms and the bounds.
+async function imageryProvider(C, url) {
+  const address = new URL(url, window.location.href);
+  const doc = await (await fetch(address)).json();
+  const meta = doc.approxtree || {};
+  // Resolved by hand: new URL() would percent-encode the template's braces.
+  const template = doc.tiles[0];
+  const folder = address.href.slice(0, address.href.lastIndexOf("/") + 1);
+  let tiles = /^https?:/.test(template) ? template : folder + template;
+  // TMS rows count from the south: Cesium's {reverseY}.
+  if (doc.scheme === "tms") tiles = tiles.replace("{y}", "{reverseY}");
+  const size = meta.tile_size || 256;
+  return new C.UrlTemplateImageryProvider({
+    url: tiles,
+    tilingScheme:
+      meta.tiling === "webmercator" ? new C.WebMercatorTilingScheme() : new C.GeographicTilingScheme(),
+    rectangle: C.Rectangle.fromDegrees(...doc.bounds),
+    minimumLevel: 0,
+    maximumLevel: doc.maxzoom,
+    tileWidth: size,
+    tileHeight: size,
+  });
+}
+
+// The default camera over a terrain: from the south, 35° down onto the centre of its bounds,
+// far enough to hold them (an oblique view, so the relief shows, not a flat map).
+function obliqueView(C, scene, bounds) {
+  const rect = C.Rectangle.fromDegrees(...bounds);
+  const centre = C.Rectangle.center(rect);
+  const corner = C.Cartesian3.fromRadians(rect.west, rect.south);
+  const target = C.Cartesian3.fromRadians(centre.longitude, centre.latitude);
+  const range = 1.6 * C.Cartesian3.distance(corner, target);
+  scene.camera.lookAt(target, new C.HeadingPitchRange(0.0, C.Math.toRadians(-35.0), range));
+  scene.camera.lookAtTransform(C.Matrix4.IDENTITY);
+}
+
 async function main() {
   const base = await loadCesium();
   const C = window.Cesium;
@@ -116,6 +154,7 @@ async function main() {
     throw new Error("give ?tileset=URL/tileset.json or ?terrain=URL (a folder with layer.json)");
   }
   const sse = params.has("sse") ? Number(params.get("sse")) : null;
+  const imageryUrl = params.get("imagery");
   const bg = params.get("bg");
 
   // Terrain: the quantized-mesh folder, else the plain ellipsoid (never Cesium ion's).
@@ -168,6 +207,11 @@ async function main() {
   viewer.resolutionScale = 1.0;
   viewer.useBrowserRecommendedResolution = false;
   if (params.get("globe") === "0") scene.globe.show = false;
+  if (params.has("exaggeration")) scene.verticalExaggeration = Number(params.get("exaggeration"));
+  let imagery = null;
+  if (imageryUrl) {
+    imagery = viewer.imageryLayers.addImageryProvider(await imageryProvider(C, imageryUrl));
+  }
   if (sse !== null) scene.globe.maximumScreenSpaceError = sse;
   const clip = numbers("clip", 4);
   if (clip) scene.globe.cartographicLimitRectangle = C.Rectangle.fromDegrees(...clip);
@@ -190,8 +234,7 @@ async function main() {
   } else if (tileset) {
     await viewer.zoomTo(tileset);
   } else {
-    const b = layer.bounds || [-180, -90, 180, 90];
-    scene.camera.setView({ destination: C.Rectangle.fromDegrees(...b) });
+    obliqueView(C, scene, layer.bounds || [-180, -90, 180, 90]);
   }
   // Cesium's fov is the horizontal one when the canvas is wider than high; ours is vertical.
   const vfov = params.has("vfov") ? Number(params.get("vfov")) : null;
@@ -207,8 +250,10 @@ async function main() {
   });
 
   // Shading: a fixed light from the north-west, 35° high at the camera's place (not the sun of
-  // the clock's time), so the relief shows the same at any hour; light=0 leaves it unlit.
-  if (params.get("light") !== "0") {
+  // the clock's time), so the relief shows the same at any hour; light=0 leaves it unlit, and
+  // so does draped imagery (a baked shading carries its own light) unless light=1.
+  const light = params.has("light") ? params.get("light") !== "0" : !imageryUrl;
+  if (light) {
     const enu = C.Transforms.eastNorthUpToFixedFrame(scene.camera.positionWC);
     const alt = C.Math.toRadians(35.0);
     const toLight = new C.Cartesian3(
@@ -241,6 +286,7 @@ async function main() {
   });
   window.approxtree.viewer = viewer;
   window.approxtree.tileset = tileset;
+  window.approxtree.imagery = imagery;
   window.approxtree.statistics = () => statistics(viewer, tileset);
   window.approxtree.cesiumBase = base;
   status.textContent = "loading tiles…";
