@@ -139,3 +139,19 @@ def test_a_command_imports_its_own_module_only():
     assert loaded == "['approxtree.cli.common', 'approxtree.cli.fractal', 'approxtree.cli.options']"
     assert sorted(main.commands) == sorted(_command_modules())
     assert main.get_command(click.Context(main), "nope") is None
+
+
+def test_every_subpackage_is_listed_for_the_wheel():
+    """pyproject.toml lists the packages a wheel ships by hand: every folder of approxtree with
+    an __init__.py is in it (approxtree.verify was missing: installed wheels had no verify)."""
+    import tomllib
+
+    listed = set(
+        tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
+    )
+    found = {
+        ".".join(p.parent.relative_to(ROOT).parts)
+        for p in (ROOT / "approxtree").rglob("__init__.py")
+        if "_kernel_cache" not in p.parts
+    }
+    assert found <= listed, sorted(found - listed)
