@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from approxtree.errors import StoreError
-from approxtree.io.atomic import refuse_link
+from approxtree.io.paths import refuse_link
 
 #: The word every mark holds.
 MARK = "approxtree"
