@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from affine import Affine
+from atree_writer import write_atree
 from conftest import data_file
 
 from approxtree.errors import InvalidParameterError, WholeBandError
@@ -391,8 +392,9 @@ def test_small_windowed_grid_builds_the_same_tree(tmp_path):
         for i in range(len(a)):
             np.testing.assert_array_equal(a.patch(i).vertices, b.patch(i).vertices)
             np.testing.assert_array_equal(a.patch(i).triangles, b.patch(i).triangles)
-    # A small windowed terrain saves whole (np.asarray of its heights) and loads in memory.
-    b.save(tmp_path / "t.atree")
+    # A small windowed terrain written to a legacy .atree (the tests' writer) holds it whole
+    # (np.asarray of its heights), and the reader loads it in memory.
+    write_atree(b, tmp_path / "t.atree")
     back = load_tree(tmp_path / "t.atree")
     assert not back.terrain.is_windowed
     np.testing.assert_array_equal(back.terrain.heights, g.heights)
@@ -486,7 +488,7 @@ def test_cli_build_on_a_too_large_windowed_raster_is_one_error_line(tmp_path, mo
 
     tif = _write_tif(tmp_path / "dem.tif", _synthetic(90, 70))
     monkeypatch.setattr(windowed_module, "WHOLE_BAND_LIMIT_BYTES", 1000)
-    out = tmp_path / "t.atree"
+    out = tmp_path / "t.zarr"
     args = ["build", str(tif), "--out", str(out), "--windowed", "on"]
     result = CliRunner().invoke(main, args)
     assert result.exit_code == 2

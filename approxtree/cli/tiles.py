@@ -5,7 +5,6 @@ as web tiles into the folder --out, replaced as a whole when done.
 from __future__ import annotations
 
 import time
-from pathlib import Path
 from typing import Any
 
 import click
@@ -25,13 +24,9 @@ def _store_epsilon(path: str) -> float | None:
     """The ε a tree store (or legacy tree) was built with; None for a raster."""
     if not _is_tree(path):
         return None
-    if Path(path).suffix.lower() == ".atree":
-        from approxtree.tree import load_tree
+    from approxtree.tree.store import open_store
 
-        return float(load_tree(path).epsilon)
-    from approxtree.tree.tree_store import StoreReader
-
-    eps = (StoreReader(path).meta.get("params") or {}).get("epsilon")
+    eps = (open_store(path).meta.get("params") or {}).get("epsilon")
     return float(eps) if eps else None
 
 

@@ -1,4 +1,8 @@
-"""The .atree file: one versioned, checksummed file holding a whole approximation tree.
+"""The legacy .atree file, read only: one versioned, checksummed file holding a whole tree.
+
+approxtree no longer writes it: trees are saved as tree stores (``tree.store``), and
+``approxtree convert OLD.atree NEW.zarr`` copies an old file into one. ``TreeFile`` opens it
+as the ``TreeSource`` that ``tree.store.open_store`` returns for a .atree path.
 
 Layout (all integers little-endian)::
 
@@ -18,14 +22,13 @@ open), each under its own CRC-32.
 A record is ``u32 manifest length M``, M bytes of JSON ``{"attrs": ..., "arrays": [[name,
 dtype, shape, offset, nbytes], ...]}``, then the array bytes. No pickle: only JSON and raw
 little-endian arrays are ever read. Every section and every patch has its own CRC-32, so one
-node's patch can be read and verified on its own, and truncation or corruption anywhere is
-reported as a StoreError. Files are written atomically.
+node's patch is read and verified on its own, and truncation or corruption anywhere is
+reported as a StoreError.
 
 Tree kinds: ``meta["tree_kind"]`` names what the file holds; absent (files of earlier
 versions) or "approximation_tree" is an ApproximationTree as above; "point_quadtree" is a
 PointQuadtree (seed 003): sections "terrain" and "quadtree" (nodes, errors, lattice heights,
-insertion orders; ``tree.point_quadtree``) and no patches. ``approxtree.load_tree`` opens
-either.
+insertion orders; ``tree.point_quadtree``) and no patches.
 """
 
 from __future__ import annotations
@@ -35,19 +38,21 @@ import mmap
 import os
 import struct
 import zlib
-from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from approxtree.errors import StoreError
-from approxtree.io.atomic import atomic_write
+from approxtree.errors import InvalidParameterError, StoreError
+from approxtree.geometry import TERRAIN_TYPES
+from approxtree.geometry.base import GeometryData
+from approxtree.patches.records import Batch, concat_records
 
 MAGIC = b"ATREE\x00\r\n"
-FORMAT_VERSION = 2
 #: Versions this reader opens; version 1's header CRC left out the 24-byte prefix.
 READ_VERSIONS = (1, 2)
+#: The first bytes of a zip file: the .npz files of point quadtrees of earlier versions.
+_ZIP_MAGIC = b"PK\x03\x04"
 _PREFIX = struct.Struct("<8sIIII")
 _ALIGN = 8
 
@@ -56,28 +61,6 @@ Record = tuple[dict[str, Any], dict[str, np.ndarray]]
 
 def _pad(n: int) -> int:
     return (-n) % _ALIGN
-
-
-def encode_record(attrs: dict[str, Any], arrays: dict[str, np.ndarray]) -> list[memoryview]:
-    """A record as a list of byte chunks (arrays are not copied when already little-endian)."""
-    entries = []
-    chunks: list[memoryview] = []
-    offset = 0
-    for name, value in arrays.items():
-        a = np.asarray(value)
-        a = np.ascontiguousarray(a.astype(a.dtype.newbyteorder("<"), copy=False))
-        entries.append([name, a.dtype.str, list(a.shape), offset, a.nbytes])
-        # memoryview cannot cast an empty array; an empty array has no bytes to write anyway.
-        if a.nbytes:
-            chunks.append(memoryview(a.reshape(-1)).cast("B"))
-        pad = _pad(a.nbytes)
-        if pad:
-            chunks.append(memoryview(bytes(pad)))
-        offset += a.nbytes + pad
-    manifest = json.dumps({"attrs": attrs, "arrays": entries}).encode()
-    head = struct.pack("<I", len(manifest)) + manifest
-    head += bytes(_pad(len(head)))
-    return [memoryview(head), *chunks]
 
 
 def decode_record(buf: memoryview) -> Record:
@@ -108,86 +91,8 @@ def _header_crc(version: int, prefix: bytes | memoryview, header: bytes | memory
     return zlib.crc32(header, zlib.crc32(prefix[20:24], zlib.crc32(prefix[:16])))
 
 
-def _crc(chunks: Iterable[memoryview]) -> tuple[int, int]:
-    """(CRC-32, total length) of a sequence of chunks."""
-    crc, n = 0, 0
-    for c in chunks:
-        crc = zlib.crc32(c, crc)
-        n += len(c)
-    return crc, n
-
-
-def write_tree_file(
-    path: str | os.PathLike,
-    meta: dict[str, Any],
-    sections: dict[str, Record],
-    patches: list[Record],
-    patch_kinds: np.ndarray,
-) -> int:
-    """Write the file atomically; returns its size in bytes."""
-    encoded = {name: encode_record(*rec) for name, rec in sections.items()}
-    patch_chunks = [encode_record(*rec) for rec in patches]
-    patch_sums = [_crc(c) for c in patch_chunks]
-    # Offsets depend on the header's length, which depends on the offsets: the patch index
-    # stores offsets relative to the start of the patch area, so one pass is enough.
-    rel = np.zeros(len(patches), dtype="<i8")
-    if patches:
-        lengths = np.array([n for _, n in patch_sums], dtype="<i8")
-        rel[1:] = np.cumsum(lengths)[:-1]
-    else:
-        lengths = np.zeros(0, dtype="<i8")
-    encoded["patch_index"] = encode_record(
-        {},
-        {
-            "offset": rel,
-            "length": lengths,
-            "crc": np.array([c for c, _ in patch_sums], dtype="<u4"),
-            "kind": np.asarray(patch_kinds, dtype="<u1"),
-        },
-    )
-    sums = {name: _crc(chunks) for name, chunks in encoded.items()}
-
-    def header_bytes(offsets: dict[str, int], patch_base: int, file_size: int) -> bytes:
-        table = {n: [offsets[n], sums[n][1], sums[n][0]] for n in encoded}
-        h = json.dumps(
-            {"file_size": file_size, "patch_base": patch_base, "meta": meta, "sections": table}
-        ).encode()
-        return h + b" " * _pad(_PREFIX.size + len(h))
-
-    # Fixed point on the header length (its numbers change width at most a couple of times).
-    header = header_bytes({n: 0 for n in encoded}, 0, 0)
-    for _ in range(5):
-        pos = _PREFIX.size + len(header)
-        offsets = {}
-        for name in encoded:
-            offsets[name] = pos
-            pos += sums[name][1]
-        patch_base = pos
-        file_size = pos + int(lengths.sum())
-        new_header = header_bytes(offsets, patch_base, file_size)
-        if len(new_header) == len(header):
-            header = new_header
-            break
-        header = new_header
-    else:  # pragma: no cover - the loop converges in two passes
-        raise StoreError("could not lay out the tree file header")
-    unsigned = _PREFIX.pack(MAGIC, FORMAT_VERSION, len(header), 0, 0)
-    crc = _header_crc(FORMAT_VERSION, unsigned, header)
-    prefix = _PREFIX.pack(MAGIC, FORMAT_VERSION, len(header), crc, 0)
-    with atomic_write(path) as f:
-        f.write(prefix)
-        f.write(header)
-        for name in encoded:
-            for c in encoded[name]:
-                f.write(c)
-        for chunks in patch_chunks:
-            for c in chunks:
-                f.write(c)
-    return file_size
-
-
 def is_legacy_path(path: str | os.PathLike) -> bool:
-    """Whether a tree written to ``path`` is a legacy .atree file (by its suffix)."""
+    """Whether ``path`` names a legacy .atree file (by its suffix)."""
     return "://" not in str(path) and str(path).lower().endswith(".atree")
 
 
@@ -202,20 +107,43 @@ def is_legacy_file(path: str | os.PathLike) -> bool:
     return is_legacy_path(path) and not p.exists()
 
 
+def refuse_legacy_target(path: str | os.PathLike) -> None:
+    """InvalidParameterError when a tree is to be written to a .atree path: that format is
+    read only now."""
+    if is_legacy_path(path):
+        raise InvalidParameterError(
+            f"Cannot write {path}: approxtree no longer writes the legacy .atree tree file. "
+            "Save the tree as a tree store: a folder NAME.zarr, a single file NAME.zarr.zip or "
+            "an fsspec URL (`approxtree convert OLD.atree NEW.zarr` copies an old file into one)."
+        )
+
+
 class TreeFile:
-    """A tree file opened read-only through a memory map; sections and patches on demand."""
+    """A tree file opened read-only through a memory map; sections and patches on demand.
+
+    The ``TreeSource`` of a .atree file (``tree.store``): meta, terrain, node arrays or
+    quadtree arrays, and each node's patch record, every one checked against its CRC-32.
+    """
 
     def __init__(self, path: str | os.PathLike) -> None:
         self.path = Path(path)
+        self.location = str(path)
         if not self.path.is_file():
             raise StoreError(f"Tree file {self.path} does not exist.")
         size = self.path.stat().st_size
-        if size < _PREFIX.size:
-            raise StoreError(
-                f"{self.path} is not an approxtree tree file (only {size} bytes); rebuild it "
-                "with `approxtree build`."
-            )
         with open(self.path, "rb") as f:
+            head = f.read(len(_ZIP_MAGIC))
+            if head == _ZIP_MAGIC:
+                raise StoreError(
+                    f"{self.path} is a zip file, such as the point quadtree .npz files of an "
+                    "earlier version, which are no longer read; rebuild it with `approxtree "
+                    "build POINTS --kind point-quadtree`."
+                )
+            if size < _PREFIX.size:
+                raise StoreError(
+                    f"{self.path} is not an approxtree tree file (only {size} bytes); rebuild it "
+                    "with `approxtree build`."
+                )
             self._mm = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
         self.buf = memoryview(self._mm)
         magic, version, hlen, hcrc, reserved = _PREFIX.unpack_from(self.buf, 0)
@@ -231,6 +159,8 @@ class TreeFile:
                 "`approxtree convert OLD.atree NEW.zarr` (using the approxtree that wrote it), "
                 "or rebuild the tree with this version."
             )
+        #: The file's format version (1 or 2).
+        self.version: int = version
         raw = self.buf[_PREFIX.size : _PREFIX.size + hlen]
         prefix = self.buf[: _PREFIX.size]
         if len(raw) != hlen or _header_crc(version, prefix, raw) != hcrc:
@@ -322,3 +252,30 @@ class TreeFile:
         for i in range(len(pi["offset"])):
             offset = self._patch_base + int(pi["offset"][i])
             self._checked(offset, int(pi["length"][i]), int(pi["crc"][i]), f"patch of node {i}")
+
+    # -- the TreeSource of tree.store ----------------------------------------------------------
+
+    @property
+    def tree_kind(self) -> str:
+        """The tree kind: "approximation_tree" (also when absent) or "point_quadtree"."""
+        return str(self.meta.get("tree_kind", "approximation_tree"))
+
+    def terrain(self) -> GeometryData:
+        """The terrain of the "terrain" section."""
+        return TERRAIN_TYPES[self.meta["terrain_kind"]].from_record(*self.section("terrain"))
+
+    def node_arrays(self) -> dict[str, np.ndarray]:
+        """The node table of an approximation tree (read-only (n, ...) arrays)."""
+        return self.section("nodes")[1]
+
+    def quadtree_arrays(self) -> dict[str, np.ndarray]:
+        """The "quadtree" section of a point quadtree (``PointQuadtree.to_sections``)."""
+        return self.section("quadtree")[1]
+
+    def records(self, nodes: np.ndarray, strategy: str) -> Batch:
+        """The patch records of ``nodes`` (one strategy) as a batch, each one verified."""
+        return concat_records([self.patch_record(int(i))[1] for i in nodes])
+
+    def verify(self) -> None:
+        """Check every patch now (the sections are checked whenever they are read)."""
+        self.verify_patches()
