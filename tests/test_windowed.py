@@ -482,14 +482,28 @@ def test_header_claiming_more_cells_fails_at_open(tmp_path):
 
 
 def test_cli_build_on_a_too_large_windowed_raster_is_one_error_line(tmp_path, monkeypatch):
+    """A build that needs the whole band of a windowed raster over the limit prints one Error
+    line and writes nothing (here the microstructures' resampling; a store is written block by
+    block, where the legacy .atree writer read the band whole)."""
+    import json
+
     from click.testing import CliRunner
 
     from approxtree.cli import main
 
     tif = _write_tif(tmp_path / "dem.tif", _synthetic(90, 70))
     monkeypatch.setattr(windowed_module, "WHOLE_BAND_LIMIT_BYTES", 1000)
+    crs = {"type": "name", "properties": {"name": "urn:ogc:def:crs:EPSG::32610"}}
+    line = {"type": "LineString", "coordinates": [[500010, 4199830], [500130, 4199990]]}
+    layer = {
+        "type": "FeatureCollection",
+        "crs": crs,
+        "features": [{"type": "Feature", "properties": {}, "geometry": line}],
+    }
+    (tmp_path / "river.geojson").write_text(json.dumps(layer))
     out = tmp_path / "t.zarr"
     args = ["build", str(tif), "--out", str(out), "--windowed", "on"]
+    args += ["--microstructures", str(tmp_path / "river.geojson")]
     result = CliRunner().invoke(main, args)
     assert result.exit_code == 2
     assert result.output.startswith("Error: ") and "windowed=False" in result.output
