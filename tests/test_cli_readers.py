@@ -201,7 +201,7 @@ def built(files, tmp_path_factory) -> dict[str, tuple[Path, dict]]:
 
     def get(reader: Reader) -> tuple[Path, dict]:
         if reader.id not in cache:
-            out = folder / f"{reader.id}.zarr"
+            out = folder / f"{reader.id}.zarr.zip"
             src = path_of(reader, files)
             figures = run_json(
                 "build", src, *reader.options, "--epsilon", reader.epsilon, "--out", out
