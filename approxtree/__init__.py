@@ -1,5 +1,6 @@
 """approxtree: real-time terrain visualization with approximation trees."""
 
+from approxtree._version import __version__
 from approxtree.errors import (
     ApproxTreeError,
     ApproxTreeWarning,
@@ -21,8 +22,6 @@ from approxtree.geometry import (
     Rect,
     TINPointSet,
 )
-
-__version__ = "0.1.0"
 
 #: Names of approxtree.tree: its patches and kernels cost a third of the import, and commands
 #: that never build nor load a tree (bake, mesh of a DEM) do without them.

@@ -156,7 +156,7 @@ def build_tree(size: int, folder: Path) -> Path:
 
     terrain = fractal_terrain(size, seed=7, relief=1000.0)
     tree = ApproximationTree.build(terrain, epsilon=1.0, progress=False)
-    path = folder / f"fractal_{size}.atree"
+    path = folder / f"fractal_{size}.zarr"
     tree.save(path)
     return path
 

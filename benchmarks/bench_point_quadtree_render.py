@@ -47,10 +47,10 @@ def case(ground: bool, tmp: Path) -> dict:
     q = PointQuadtree(terrain, 50)
     build = time.perf_counter() - t0
     t0 = time.perf_counter()
-    nbytes = q.save(tmp / "q.atree")
+    nbytes = q.save(tmp / "q.zarr.zip")
     save = time.perf_counter() - t0
     t0 = time.perf_counter()
-    q = PointQuadtree.load(tmp / "q.atree")
+    q = PointQuadtree.load(tmp / "q.zarr.zip")
     load = time.perf_counter() - t0
     d = terrain.domain
     (cx, cy), (z0, z1) = d.center, terrain.z_range

@@ -1,4 +1,5 @@
-"""Tree save and load: legacy .atree vs zarr tree store (folder) vs zip store, side by side.
+"""Tree save and load: zarr tree store (folder) vs zip store, side by side (approxtree no
+longer writes the legacy .atree file).
 
 The tree: a 1025² fractal DEM, grid strategy, max_points 9, ε = 0, i.e. a full quadtree of 10
 levels (349,525 nodes). For each form: save seconds, load seconds (verify on: every patch
@@ -69,7 +70,7 @@ def main() -> None:
     dem_bytes = int(np.asarray(grid.heights).nbytes)
     rows = []
     with tempfile.TemporaryDirectory(dir=".") as tmp:
-        for name in ("tree.atree", "tree.zarr", "tree.zarr.zip"):
+        for name in ("tree.zarr", "tree.zarr.zip"):
             path = Path(tmp) / name
 
             def save(path=path):
@@ -99,7 +100,7 @@ def main() -> None:
             rows.append(row)
             print(json.dumps(row), flush=True)
     report = {
-        "benchmark": "tree save/load: .atree vs zarr store vs zip store",
+        "benchmark": "tree save/load: zarr store vs zip store",
         "tree": {
             "dem": f"fractal_terrain({args.size}), {grid.heights.dtype} heights",
             "dem_bytes": dem_bytes,

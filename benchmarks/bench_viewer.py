@@ -152,7 +152,7 @@ def main() -> None:
         t0 = time.perf_counter()
         tree = ApproximationTree.build(terrain, epsilon=1.0, progress=False)
         build_s = time.perf_counter() - t0
-        tree_path = RESULTS / f"viewer_{name}.atree"
+        tree_path = RESULTS / f"viewer_{name}.zarr"
         tree.save(tree_path)
         for kind in ("flyover", "jumps"):
             if kind == "flyover":

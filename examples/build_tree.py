@@ -35,7 +35,7 @@ def main() -> None:
         )
 
     with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "terrain.atree"
+        path = Path(tmp) / "terrain.zarr.zip"
         size = tree.save(path)
         again = at.ApproximationTree.load(path)
         print(f"saved {size} bytes; reloaded {len(again)} nodes, root error {again.root.error:g}")

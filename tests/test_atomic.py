@@ -143,10 +143,10 @@ def test_tree_and_mesh_files_follow_the_umask(tmp_path, umask):
 
     umask(0o022)
     tree = ApproximationTree.build(fractal_terrain(9, seed=1), epsilon=1.0, max_points=9)
-    tree.save(tmp_path / "t.atree")
+    tree.save(tmp_path / "t.zarr.zip")
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 1]], dtype=float)
     write_mesh(tmp_path / "m.ply", v, np.array([[0, 1, 2]]))
-    for name in ("t.atree", "m.ply"):
+    for name in ("t.zarr.zip", "m.ply"):
         assert stat.S_IMODE(os.stat(tmp_path / name).st_mode) == 0o644, name
 
 

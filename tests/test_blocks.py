@@ -148,7 +148,7 @@ def test_cli_build_with_two_workers(tmp_path):
         f"yllcorner {5100000 - 1.5 * z.shape[0]}\ncellsize 1.5\nNODATA_value -9999\n"
     )
     path.write_text(header + "\n".join(" ".join(f"{v:.6g}" for v in row) for row in z))
-    out_serial, out_dask = tmp_path / "serial.atree", tmp_path / "dask.atree"
+    out_serial, out_dask = tmp_path / "serial.zarr", tmp_path / "dask.zarr"
     args = [str(path), "--epsilon", "0.5", "--max-points", "81", "--json"]
     runner = CliRunner()
     r1 = runner.invoke(main, ["build", *args, "--out", str(out_serial)], catch_exceptions=False)
@@ -171,7 +171,7 @@ def test_cli_rejects_workers_with_scheduler(tmp_path):
     np.save(path, z)
     r = CliRunner().invoke(
         main,
-        ["build", str(path), "--out", str(tmp_path / "t.atree"), "--workers", "2",
+        ["build", str(path), "--out", str(tmp_path / "t.zarr"), "--workers", "2",
          "--scheduler", "tcp://127.0.0.1:1"],
     )  # fmt: skip
     assert r.exit_code == 2

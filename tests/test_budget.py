@@ -92,7 +92,7 @@ def test_budget_errors(engine, tree):
 
 def test_cli_render_max_triangles(tree, tmp_path):
     """approxtree render --max-triangles keeps the frame within the budget."""
-    path = tmp_path / "t.atree"
+    path = tmp_path / "t.zarr"
     tree.save(path)
     out = CliRunner().invoke(
         main,

@@ -318,7 +318,7 @@ def test_land_use_is_softened_and_water_covers_the_streams(data_dir, tmp_path):
 
 def test_cli_refuses_bad_picture_options(tmp_path, hills_tree):
     """Bad palette, sun, background and exaggeration values: one Error line each, exit 2."""
-    tree_file = tmp_path / "h.atree"
+    tree_file = tmp_path / "h.zarr"
     hills_tree.save(tree_file)
     runner = CliRunner()
     base = ["render", str(tree_file), "--out", str(tmp_path / "x.png"), "--size", "64x48"]

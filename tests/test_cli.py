@@ -52,7 +52,7 @@ def test_info_text_on_a_point_set_says_what_does_not_apply(data_dir):
 
 def test_build_json_and_tree_file(data_dir, tmp_path):
     """build --json writes a loadable tree whose figures match the printed ones."""
-    out = tmp_path / "nc.atree"
+    out = tmp_path / "nc.zarr.zip"
     result = run(
         "build",
         str(data_file(data_dir, "nc/elev_ned_30m.tif")),
@@ -77,7 +77,7 @@ def test_build_json_and_tree_file(data_dir, tmp_path):
 
 def test_demo_builds_the_sample_terrain(tmp_path):
     """demo builds the matplotlib sample DEM's tree and prints its figures."""
-    out = tmp_path / "demo.atree"
+    out = tmp_path / "demo.zarr"
     result = run("demo", "--out", str(out), "--json")
     assert result.exit_code == 0, result.output
     figures = json.loads(result.output)
@@ -96,9 +96,10 @@ def test_demo_builds_the_sample_terrain(tmp_path):
         (["build", "{npy}", "--out", "{out}", "--epsilon", "-1"], "epsilon"),
         (["build", "{npy}", "--out", "{out}", "--epsilon", "nan"], "epsilon"),
         (["build", "{npy}", "--out", "{out}", "--max-points", "2"], "max_points"),
-        (["build", "{npy}", "--out", "/nonexistent/dir/t.atree"], "does not exist"),
+        (["build", "{npy}", "--out", "/nonexistent/dir/t.zarr.zip"], "does not exist"),
         (["build", "{nan_npy}", "--out", "{out}"], "no valid elevation"),
         (["build", "{thin_npy}", "--out", "{out}"], "2 × 2"),
+        (["build", "{npy}", "--out", "{atree}"], "no longer writes the legacy .atree"),
     ],
 )
 def test_bad_input_gives_one_line_and_exit_2(tmp_path, args, words):
@@ -110,7 +111,8 @@ def test_bad_input_gives_one_line_and_exit_2(tmp_path, args, words):
         "npy": tmp_path / "dem.npy",
         "nan_npy": tmp_path / "nan.npy",
         "thin_npy": tmp_path / "thin.npy",
-        "out": tmp_path / "t.atree",
+        "out": tmp_path / "t.zarr.zip",
+        "atree": tmp_path / "t.atree",
     }
     argv = [a.format(**paths) for a in args]
     proc = subprocess.run(
@@ -119,4 +121,4 @@ def test_bad_input_gives_one_line_and_exit_2(tmp_path, args, words):
     assert proc.returncode == 2
     assert proc.stderr.startswith("Error: ") and words in proc.stderr
     assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
-    assert not (tmp_path / "t.atree").exists()
+    assert not (tmp_path / "t.zarr.zip").exists() and not (tmp_path / "t.atree").exists()

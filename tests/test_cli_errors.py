@@ -54,10 +54,10 @@ def hills(rows: int = 24, cols: int = 32) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def folder(tmp_path_factory):
-    """A folder with a small DEM (dem.npy) and its tree (hills.atree)."""
+    """A folder with a small DEM (dem.npy) and its tree (hills.zarr)."""
     path = tmp_path_factory.mktemp("errors")
     np.save(path / "dem.npy", hills())
-    ApproximationTree.build(Grid(hills()), epsilon=0.5, progress=False).save(path / "hills.atree")
+    ApproximationTree.build(Grid(hills()), epsilon=0.5, progress=False).save(path / "hills.zarr")
     return path
 
 
@@ -76,8 +76,8 @@ def test_rendering_a_tree_of_one_valid_point_is_a_clear_error(tmp_path):
     tree = one_point_tree()
     with pytest.raises(EmptyTerrainError, match="nothing to draw"):
         Engine(tree)
-    tree.save(tmp_path / "one.atree")
-    code, _, err = run("render", tmp_path / "one.atree", "--out", tmp_path / "one.png")
+    tree.save(tmp_path / "one.zarr")
+    code, _, err = run("render", tmp_path / "one.zarr", "--out", tmp_path / "one.png")
     assert_one_error_line(code, err, "nothing to draw")
     assert not (tmp_path / "one.png").exists()
 
@@ -119,7 +119,7 @@ def test_render_fov_out_of_range_without_eye(folder, tmp_path):
     (0, 180) is one Error line."""
     for fov in ("0", "-10", "180", "nan"):
         png = tmp_path / "x.png"
-        code, _, err = run("render", folder / "hills.atree", "--fov", fov, "--out", png)
+        code, _, err = run("render", folder / "hills.zarr", "--fov", fov, "--out", png)
         assert_one_error_line(code, err, "fov must")
         assert not png.exists()
 
@@ -152,16 +152,16 @@ def no_work(monkeypatch):
 
 def output_commands(folder, out_file, out_dir):
     """(command line, its output) of every command that writes a file or a folder."""
-    dem, tree = folder / "dem.npy", folder / "hills.atree"
+    dem, tree = folder / "dem.npy", folder / "hills.zarr"
     return [
-        (["build", dem, "--out", out_file("t.atree")], "t.atree"),
+        (["build", dem, "--out", out_file("t.zarr.zip")], "t.zarr.zip"),
         (["mesh", dem, "--max-error", "1", "--out", out_file("m.ply")], "m.ply"),
         (["bake", dem, "--out", out_dir("tex")], "tex"),
         (["tiles", dem, "--format", "quantized-mesh", "--out", out_dir("qm")], "qm"),
         (["render", tree, "--out", out_file("r.png")], "r.png"),
         (["rd", dem, "--plot", out_file("rd.png")], "rd.png"),
-        (["demo", "--out", out_file("d.atree")], "d.atree"),
-        (["demo", "--out", folder / "unused.atree", "--png", out_file("d.png")], "d.png"),
+        (["demo", "--out", out_file("d.zarr.zip")], "d.zarr.zip"),
+        (["demo", "--out", folder / "unused.zarr", "--png", out_file("d.png")], "d.png"),
     ]
 
 
@@ -211,7 +211,7 @@ def test_real_read_only_mount_is_refused(folder, tmp_path):
     exe = Path(sys.executable).with_name("approxtree")
     dem = folder / "dem.npy"
     for command in (
-        f"'{exe}' build '{dem}' --out '{ro / 't.atree'}'",
+        f"'{exe}' build '{dem}' --out '{ro / 't.zarr.zip'}'",
         f"'{exe}' bake '{dem}' --out '{ro / 'tex'}'",
     ):
         proc = subprocess.run(
@@ -264,7 +264,7 @@ def test_empty_frames_say_so_in_stats_and_a_warning(folder, tmp_path):
     """An eye under the ground and a frustum that misses the terrain were blank images with
     no word: the stats say empty with the reason, the API warns and the CLI prints one
     Warning line (exit 0, the image is still written)."""
-    tree = ApproximationTree.load(folder / "hills.atree")
+    tree = ApproximationTree.load(folder / "hills.zarr")
     d = tree.terrain.domain
     cx, cy = d.center
     cases = {
@@ -286,7 +286,7 @@ def test_empty_frames_say_so_in_stats_and_a_warning(folder, tmp_path):
         eye_arg = ",".join(map(str, eye))
         target_arg = ",".join(map(str, target))
         code, out, err = run(
-            "render", folder / "hills.atree", "--eye", eye_arg, "--target", target_arg,
+            "render", folder / "hills.zarr", "--eye", eye_arg, "--target", target_arg,
             "--size", "48x32", "--background", "transparent", "--out", png, "--json",
         )  # fmt: skip
         assert code == 0, err
@@ -303,7 +303,7 @@ def test_usage_errors_are_one_error_line(folder):
     """An unknown option, a missing argument or option and a bad choice are one ``Error:``
     line naming the help to read, exit 2 (click printed usage, hint and error: three lines);
     --help still prints the whole help, exit 0."""
-    tree = folder / "hills.atree"
+    tree = folder / "hills.zarr"
     for args, words in (
         (["render", tree, "--bogus"], "No such option '--bogus'"),
         (["render"], "Missing argument 'TREE_FILE'"),
@@ -325,7 +325,7 @@ def test_camera_coordinates_are_checked_before_any_warning(folder, tmp_path):
     came first, then a near/far error)."""
     for option, value in (("--eye", "1e300,1,1"), ("--target", "inf,0,0"), ("--eye", "0,nan,5")):
         code, _, err = run(
-            "render", folder / "hills.atree", option, value, "--out", tmp_path / "r.png"
+            "render", folder / "hills.zarr", option, value, "--out", tmp_path / "r.png"
         )
         assert_one_error_line(code, err, "finite coordinates")
         assert "Warning" not in err
@@ -360,7 +360,7 @@ def test_an_unknown_crs_is_one_line_without_gdal_noise(tmp_path):
 def test_render_writes_the_format_its_extension_names(folder, tmp_path):
     """--out r.jpg is a JPEG (it was a PNG named .jpg), opaque RGB composited on the
     background; r.png is an RGBA PNG; another extension is refused before the work."""
-    tree = folder / "hills.atree"
+    tree = folder / "hills.zarr"
     for name, fmt, mode in (
         ("r.jpg", "JPEG", "RGB"),
         ("r.jpeg", "JPEG", "RGB"),

@@ -201,7 +201,7 @@ def built(files, tmp_path_factory) -> dict[str, tuple[Path, dict]]:
 
     def get(reader: Reader) -> tuple[Path, dict]:
         if reader.id not in cache:
-            out = folder / f"{reader.id}.atree"
+            out = folder / f"{reader.id}.zarr.zip"
             src = path_of(reader, files)
             figures = run_json(
                 "build", src, *reader.options, "--epsilon", reader.epsilon, "--out", out
@@ -389,7 +389,7 @@ def test_inapplicable_reader_option_given_explicitly_is_one_error_line(files):
     cases = [
         (["info", files / "small.las", "--nodata", "mask"], "--nodata does not apply"),
         (
-            ["build", tile, "--nodata", "fill", "--out", files / "t.atree"],
+            ["build", tile, "--nodata", "fill", "--out", files / "t.zarr"],
             "--nodata does not apply",
         ),
         (["mesh", files / "gray16.png", "--ground-only", "--max-points", 8], "--ground-only"),
@@ -399,7 +399,7 @@ def test_inapplicable_reader_option_given_explicitly_is_one_error_line(files):
         code, _, err = run(*args)
         assert code == 2, args
         assert err.startswith("Error: ") and words in err, err
-    assert not (files / "t.atree").exists()
+    assert not (files / "t.zarr").exists()
 
 
 def test_explicit_reader_options_still_apply_to_their_format():
@@ -455,7 +455,7 @@ def test_installed_entry_point_reads_point_clouds(files, tmp_path):
     info = subprocess.run([exe, "info", src, "--json"], capture_output=True, text=True)
     assert info.returncode == 0, info.stderr
     assert json.loads(info.stdout)["points"] == 400
-    out = tmp_path / "small.atree"
+    out = tmp_path / "small.zarr"
     proc = subprocess.run(
         [exe, "build", src, "--ground-only", "--epsilon", "1", "--out", out, "--json"],
         capture_output=True,

@@ -13,6 +13,7 @@ import sys
 
 import numpy as np
 import pytest
+from atree_writer import write_atree
 from numba.core.dispatcher import Dispatcher
 
 from approxtree import ApproximationTree, Grid, load_tree
@@ -70,7 +71,11 @@ def test_opened_tree_compiles_nothing_new(tmp_path, suffix):
     built = _frame_work(tree)
     before = _signatures()
     path = tmp_path / f"t{suffix}"
-    tree.save(path)
+    if suffix == ".atree":
+        # From the tests' writer: approxtree reads that format, it no longer writes it.
+        write_atree(tree, path)
+    else:
+        tree.save(path)
     opened = load_tree(path)
     got = _frame_work(opened)
     _assert_no_new_signature(before, _signatures())

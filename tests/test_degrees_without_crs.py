@@ -94,7 +94,7 @@ def test_a_crs_pyproj_cannot_read_is_refused(degrees):
 def test_cli_warns_then_crs_draws_the_terrain(degrees, tmp_path):
     """build warns without --crs; with it the tree is geographic and the fitted view (transparent
     background) is mostly terrain, where the needle read in one unit covers almost nothing."""
-    needle, tree = tmp_path / "needle.atree", tmp_path / "tree.atree"
+    needle, tree = tmp_path / "needle.zarr", tmp_path / "tree.zarr"
     code, _, err = run("build", degrees, "--epsilon", 2, "--out", needle)
     assert code == 0 and err.startswith("Warning: ") and "--crs EPSG:4326" in err
     code, _, err = run(
@@ -118,7 +118,7 @@ def test_cli_crs_errors_are_one_line(degrees, tmp_path):
     """A bad --crs, --crs on a format without a CRS option, --crs with a saved tree: Error."""
     tile = tmp_path / "t.terrain"
     tile.write_bytes(b"")  # detected by extension; refused before it is read
-    tree = tmp_path / "t.atree"
+    tree = tmp_path / "t.zarr"
     assert run("build", degrees, "--crs", "EPSG:4326", "--epsilon", 5, "--out", tree)[0] == 0
     cases = [
         (["info", degrees, "--crs", "not a crs"], "is not a CRS pyproj knows"),

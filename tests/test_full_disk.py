@@ -87,7 +87,6 @@ def snapshot(folder: Path) -> dict[str, bytes]:
 COMMANDS = [
     ("build store", ["build", "{dem}", "--out", "{d}/t.zarr", "-q"], "t.zarr"),
     ("build zip", ["build", "{dem}", "--out", "{d}/t.zarr.zip", "-q"], "t.zarr.zip"),
-    ("build atree", ["build", "{dem}", "--out", "{d}/t.atree", "-q"], "t.atree"),
     ("convert", ["convert", "{tree}", "{d}/c.zarr"], "c.zarr"),
     ("render", ["render", "{tree}", "--out", "{d}/r.png", "--size", "320x240"], "r.png"),
     ("render jpeg", ["render", "{tree}", "--out", "{d}/r.jpg", "--size", "320x240"], "r.jpg"),

@@ -170,7 +170,6 @@ def file_outputs(made: Path, tmp_path: Path) -> list[tuple[list, Path, object]]:
     o = tmp_path
     return [
         (["fractal", o / "f.tif", "--size", 64], o / "f.tif", copy_dem),
-        (["build", dem, "--out", o / "t.atree", "-q"], o / "t.atree", data),
         (["build", dem, "--out", o / "t.zarr.zip", "-q"], o / "t.zarr.zip", data),
         (["convert", tree, o / "c.zarr.zip"], o / "c.zarr.zip", data),
         (["mesh", dem, "--max-error", 5, "--out", o / "m.ply", "-q"], o / "m.ply", text),

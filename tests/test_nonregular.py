@@ -196,8 +196,8 @@ def test_tree_with_nonregular_policy_satisfies_invariants(data_dir, tmp_path):
         expected = brute_force_error(terrain, node.rect, node.patch.vertices, node.patch.triangles)
         assert node.error == pytest.approx(expected, abs=1e-6 * (1 + expected))
         assert node.rect.contains(node.patch.vertices[:, 0], node.patch.vertices[:, 1]).all()
-    tree.save(tmp_path / "t.atree")
-    back = ApproximationTree.load(tmp_path / "t.atree")
+    tree.save(tmp_path / "t.zarr")
+    back = ApproximationTree.load(tmp_path / "t.zarr")
     for i in range(len(tree)):
         a, b = tree.node(i).patch, back.node(i).patch
         assert a.error == b.error and a.rms_error == b.rms_error and b.kind == "nonregular"
@@ -223,7 +223,7 @@ def test_cli_builds_a_nonregular_tree(tmp_path):
 
     terrain = fractal_terrain(65, 70, seed=15, relief=150.0)
     np.save(tmp_path / "dem.npy", terrain.heights)
-    out = tmp_path / "dem.atree"
+    out = tmp_path / "dem.zarr"
     result = CliRunner().invoke(
         main, ["build", str(tmp_path / "dem.npy"), "--out", str(out), "--policy", "nonregular"]
     )

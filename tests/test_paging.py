@@ -46,7 +46,7 @@ def stored_tree(request, tmp_path_factory):
         terrain = at.open_terrain(data_file(data_dir, "nc/elev_ned_30m.tif"))
         eps = 2.0
     tree = ApproximationTree.build(terrain, epsilon=eps, max_points=17 * 17, progress=False)
-    path = tmp_path_factory.mktemp("paging") / f"{request.param}.atree"
+    path = tmp_path_factory.mktemp("paging") / f"{request.param}.zarr"
     tree.save(path)
     return at.load_tree(path)
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from atree_writer import write_atree
 from conftest import data_file
 from matplotlib.tri import LinearTriInterpolator, Triangulation
 
@@ -180,21 +181,24 @@ def test_kd_tree_a25_2_over_scattered_points(quadtree):
 
 
 def test_save_load_round_trip(quadtree, tmp_path):
-    """save → load through the .atree tree file gives the same nodes, errors, boxes, orders and
-    LOD mesh; foreign and old .npz files are StoreErrors that say what to do."""
-    path = tmp_path / "q.atree"
+    """save → load through a tree store, and load of a legacy .atree tree file, give the same
+    nodes, errors, boxes, orders and LOD mesh; foreign and old .npz files are StoreErrors that
+    say what to do."""
+    path = tmp_path / "q.zarr.zip"
     assert quadtree.save(path) == path.stat().st_size
-    assert path.read_bytes()[:5] == b"ATREE"
-    back = PointQuadtree.load(path)
-    assert back.children == quadtree.children and back.errors == quadtree.errors
-    np.testing.assert_array_equal(back.bboxes, quadtree.bboxes)
-    for leaf in quadtree.leaves:
-        np.testing.assert_array_equal(back.orders[leaf][0], quadtree.orders[leaf][0])
-        np.testing.assert_array_equal(back.orders[leaf][1], quadtree.orders[leaf][1])
-    eye = (quadtree.x0 - 10, quadtree.y0 - 10, 30.0)
-    a, b = lod_mesh(quadtree, eye, 60.0, 640, 2.0), lod_mesh(back, eye, 60.0, 640, 2.0)
-    np.testing.assert_array_equal(a.triangles, b.triangles)
-    np.testing.assert_array_equal(a.vertices, b.vertices)
+    legacy = tmp_path / "q.atree"
+    write_atree(quadtree, legacy)
+    assert legacy.read_bytes()[:5] == b"ATREE"
+    for back in (PointQuadtree.load(path), PointQuadtree.load(legacy)):
+        assert back.children == quadtree.children and back.errors == quadtree.errors
+        np.testing.assert_array_equal(back.bboxes, quadtree.bboxes)
+        for leaf in quadtree.leaves:
+            np.testing.assert_array_equal(back.orders[leaf][0], quadtree.orders[leaf][0])
+            np.testing.assert_array_equal(back.orders[leaf][1], quadtree.orders[leaf][1])
+        eye = (quadtree.x0 - 10, quadtree.y0 - 10, 30.0)
+        a, b = lod_mesh(quadtree, eye, 60.0, 640, 2.0), lod_mesh(back, eye, 60.0, 640, 2.0)
+        np.testing.assert_array_equal(a.triangles, b.triangles)
+        np.testing.assert_array_equal(a.vertices, b.vertices)
     old = tmp_path / "old.npz"
     np.savez(old, x=np.zeros(3))
     with pytest.raises(at.StoreError, match=r"earlier version.*--kind point-quadtree"):

@@ -9,6 +9,7 @@ import os
 
 import numpy as np
 import pytest
+from atree_writer import write_atree
 from click.testing import CliRunner
 from conftest import data_file
 from matplotlib.tri import LinearTriInterpolator, Triangulation
@@ -25,8 +26,8 @@ from approxtree.render.frustum import boxes_in_frustum
 from approxtree.render.lod_cut import LodSelector, node_mesh, pixels_per_radian
 from approxtree.render.point_quadtree_source import PointQuadtreeSource
 from approxtree.render.selector import SelectionResult
+from approxtree.tree.atree import TreeFile
 from approxtree.tree.point_quadtree import PointQuadtree
-from approxtree.tree.store import TreeFile
 
 SIZE = (400, 300)
 ALPHAS = (1.0, 4.0)
@@ -264,14 +265,14 @@ def test_tree_file_holds_either_kind(tmp_path):
     StoreError (checksummed like the rest)."""
     q = PointQuadtree(scattered_cloud(), 200)
     path = tmp_path / "q.atree"
-    q.save(path)
+    write_atree(q, path)
     back = at.load_tree(path)
     assert isinstance(back, PointQuadtree)
     np.testing.assert_array_equal(back.node_errors, q.node_errors)
     with pytest.raises(at.StoreError, match="load_tree"):
         at.ApproximationTree.load(path)
     grid = at.ApproximationTree.build(fractal_terrain(33, seed=1), epsilon=1.0, progress=False)
-    grid.save(tmp_path / "g.atree")
+    write_atree(grid, tmp_path / "g.atree")
     assert isinstance(at.load_tree(tmp_path / "g.atree"), at.ApproximationTree)
     with pytest.raises(at.StoreError, match="approximation tree, not a point quadtree"):
         PointQuadtree.load(tmp_path / "g.atree")
@@ -290,7 +291,7 @@ def test_cli_builds_renders_and_refuses_grids(tmp_path, data_dir):
     terrain and the frame stats; a raster is refused with one Error line and exit 2."""
     laz = data_file(data_dir, "lidar/autzen_trim.laz")
     runner = CliRunner()
-    out = tmp_path / "q.atree"
+    out = tmp_path / "q.zarr.zip"
     res = runner.invoke(
         main, ["build", str(laz), "--out", str(out), "--kind", "point-quadtree", "--json"]
     )
@@ -311,7 +312,7 @@ def test_cli_builds_renders_and_refuses_grids(tmp_path, data_dir):
     assert img.shape == (240, 320, 4) and (img[..., 3] == 255).mean() > 0.1
     np.save(tmp_path / "grid.npy", np.random.default_rng(0).uniform(0, 9, (20, 20)))
     res = runner.invoke(
-        main, ["build", str(tmp_path / "grid.npy"), "--out", str(tmp_path / "g.atree"),
+        main, ["build", str(tmp_path / "grid.npy"), "--out", str(tmp_path / "g.zarr"),
                "--kind", "point-quadtree"]
     )  # fmt: skip
     assert res.exit_code == 2
@@ -323,8 +324,8 @@ def test_viewer_engine_path_draws_into_a_host_framebuffer(gl_context, tmp_path):
     drawing into the framebuffer bound by the host, the upload call the viewer makes first,
     and the lighting option the viewer passes."""
     q = PointQuadtree(scattered_cloud(), 100)
-    q.save(tmp_path / "q.atree")
-    tree = at.load_tree(tmp_path / "q.atree")
+    q.save(tmp_path / "q.zarr")
+    tree = at.load_tree(tmp_path / "q.zarr")
     w, h = SIZE
     color = gl_context.renderbuffer((w, h), 4)
     depth = gl_context.depth_renderbuffer((w, h))
@@ -348,10 +349,10 @@ def test_viewer_engine_path_draws_into_a_host_framebuffer(gl_context, tmp_path):
 def test_cli_view_loads_a_quadtree_file_before_the_window(tmp_path):
     """`approxtree view q.atree` opens the quadtree file and gets as far as the window: without
     a display the one Error line is about glfw, not about the tree file."""
-    PointQuadtree(scattered_cloud(), 200).save(tmp_path / "q.atree")
+    PointQuadtree(scattered_cloud(), 200).save(tmp_path / "q.zarr")
     res = CliRunner().invoke(
         main,
-        ["view", str(tmp_path / "q.atree"), "--frames", "1"],
+        ["view", str(tmp_path / "q.zarr"), "--frames", "1"],
         env={"DISPLAY": None, "WAYLAND_DISPLAY": None},
     )
     assert res.exit_code == 2
@@ -372,7 +373,7 @@ def test_viewer_window_replays_a_quadtree(tmp_path):
     if shutil.which("Xvfb") is None:
         pytest.skip("Xvfb is not installed (Debian/Ubuntu: apt-get install -y xvfb)")
     q = PointQuadtree(scattered_cloud(), 100)
-    q.save(tmp_path / "q.atree")
+    q.save(tmp_path / "q.zarr")
     views = all_terrain_views(q)
     script = [
         {"eye": views[v].eye.tolist(), "target": views[v].target.tolist(), "frames": 3}
@@ -381,7 +382,7 @@ def test_viewer_window_replays_a_quadtree(tmp_path):
     (tmp_path / "path.json").write_text(json.dumps(script))
     with virtual_display("1280x1024x24") as display:
         result = subprocess.run(
-            [sys.executable, "-m", "approxtree", "view", "q.atree", "--script", "path.json",
+            [sys.executable, "-m", "approxtree", "view", "q.zarr", "--script", "path.json",
              "--stats", "stats.jsonl", "--screenshots", "shots", "--size", "480x270"],
             cwd=tmp_path,
             env={**os.environ, "DISPLAY": display},

@@ -104,7 +104,7 @@ def test_cli_build_reports_strategy_counts(tmp_path, terrain):
     """build --policy level:... --json reports per-strategy node counts matching the file."""
     dem = tmp_path / "f.npy"
     np.save(dem, terrain.heights)
-    out = tmp_path / "f.atree"
+    out = tmp_path / "f.zarr"
     result = CliRunner().invoke(
         main,
         [

@@ -86,8 +86,8 @@ def test_semantic_policy_counts_match(refined):
 def test_refinement_tree_round_trips_through_the_store(refined, tmp_path):
     """save → load keeps the GridRefinement, node strategies, patches and errors."""
     tree = ApproximationTree.build(refined, 1.0, 9 * 9, policy="semantic:tin@1,grid")
-    tree.save(tmp_path / "r.atree")
-    back = ApproximationTree.load(tmp_path / "r.atree")
+    tree.save(tmp_path / "r.zarr")
+    back = ApproximationTree.load(tmp_path / "r.zarr")
     assert isinstance(back.terrain, GridRefinement)
     assert back.strategy_counts == tree.strategy_counts
     np.testing.assert_array_equal(back.strategies, tree.strategies)
@@ -128,7 +128,7 @@ def test_cli_build_with_a_line_layer(tmp_path):
     }
     lines = tmp_path / "river.geojson"
     lines.write_text(json.dumps(layer))
-    out = tmp_path / "g.atree"
+    out = tmp_path / "g.zarr"
     args = ["build", str(dem), "--out", str(out), "--epsilon", "0.5", "--max-points", "81"]
     args += ["--microstructures", str(lines), "--microstructure-width", "3", "--json"]
     result = CliRunner().invoke(main, args)

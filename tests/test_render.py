@@ -307,7 +307,7 @@ def test_cli_render_writes_rgba_png_and_stats(tmp_path, fractal_tree):
 
     from approxtree.cli import main
 
-    tree_file = tmp_path / "t.atree"
+    tree_file = tmp_path / "t.zarr"
     fractal_tree.save(tree_file)
     png = tmp_path / "r.png"
     runner = CliRunner()

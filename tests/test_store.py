@@ -1,4 +1,5 @@
-"""The .atree file: checksums catch corruption and truncation; writes are atomic."""
+"""The legacy .atree file (read only): checksums catch corruption and truncation; tree stores
+are written atomically and .atree paths are refused."""
 
 from __future__ import annotations
 
@@ -6,21 +7,21 @@ import os
 
 import numpy as np
 import pytest
+from atree_writer import encode_record, write_atree
 
-from approxtree import ApproximationTree, StoreError
+from approxtree import ApproximationTree, InvalidParameterError, StoreError
 from approxtree.datasets import fractal_terrain
-from approxtree.patches import GridPatch
-from approxtree.tree.store import TreeFile
+from approxtree.tree.atree import TreeFile, decode_record
 
 
 @pytest.fixture(scope="module")
 def saved(tmp_path_factory):
-    """A small tree saved to disk, with its bytes."""
+    """A small tree written as a legacy .atree file (tests/atree_writer.py), with its bytes."""
     tree = ApproximationTree.build(
         fractal_terrain(65, seed=4, relief=100.0), epsilon=1.0, max_points=25
     )
     path = tmp_path_factory.mktemp("store") / "tree.atree"
-    tree.save(path)
+    write_atree(tree, path)
     return tree, path, path.read_bytes()
 
 
@@ -87,23 +88,35 @@ def test_other_files_and_versions_are_refused(saved, tmp_path):
 
 def test_interrupted_save_leaves_the_old_file_intact(saved, tmp_path, monkeypatch):
     """A save that fails midway keeps the previous tree file and leaves no temp file."""
-    tree, _, data = saved
-    path = tmp_path / "keep.atree"
-    path.write_bytes(data)
-    calls = {"n": 0}
-    original = GridPatch.to_record
+    import approxtree.tree.tree_store as ts
 
-    def failing(self):
+    tree, _, _ = saved
+    path = tmp_path / "keep.zarr.zip"
+    tree.save(path)
+    data = path.read_bytes()
+    calls = {"n": 0}
+    original = ts.write_array
+
+    def failing(*args, **kwargs):
         calls["n"] += 1
         if calls["n"] > 10:
             raise KeyboardInterrupt
-        return original(self)
+        return original(*args, **kwargs)
 
-    monkeypatch.setattr(GridPatch, "to_record", failing)
+    monkeypatch.setattr(ts, "write_array", failing)
     with pytest.raises(KeyboardInterrupt):
         tree.save(path)
     assert path.read_bytes() == data
-    assert os.listdir(tmp_path) == ["keep.atree"]
+    assert os.listdir(tmp_path) == ["keep.zarr.zip"]
+
+
+def test_atree_paths_are_refused_when_saving(saved, tmp_path):
+    """The legacy .atree file is read only: saving to a .atree path is an
+    InvalidParameterError naming the tree store forms, and writes nothing."""
+    tree, _, _ = saved
+    with pytest.raises(InvalidParameterError, match=r"no longer writes.*NAME\.zarr"):
+        tree.save(tmp_path / "t.atree")
+    assert os.listdir(tmp_path) == []
 
 
 def test_one_patch_loads_on_its_own(saved):
@@ -115,16 +128,15 @@ def test_one_patch_loads_on_its_own(saved):
 
 
 def test_records_round_trip_empty_and_odd_arrays():
-    """Empty arrays, odd byte counts and several dtypes survive encode → decode exactly."""
-    from approxtree.tree.store import decode_record, encode_record
-
+    """Empty arrays, odd byte counts and several dtypes survive encode (the tests' writer) →
+    decode (the reader) exactly."""
     arrays = {
         "empty": np.zeros((0, 3), dtype=np.int64),
         "bytes": np.arange(5, dtype=np.uint8),
         "floats": np.linspace(0, 1, 7, dtype=np.float32).reshape(7, 1),
         "big": np.arange(6, dtype=">i4"),
     }
-    buf = b"".join(bytes(c) for c in encode_record({"k": 1}, arrays))
+    buf = encode_record({"k": 1}, arrays)
     attrs, back = decode_record(memoryview(buf))
     assert attrs == {"k": 1}
     for name, a in arrays.items():
@@ -139,7 +151,7 @@ def tiny(tmp_path_factory):
         fractal_terrain(5, seed=4, relief=100.0), epsilon=0.5, max_points=9
     )
     path = tmp_path_factory.mktemp("tiny") / "tiny.atree"
-    tree.save(path)
+    write_atree(tree, path)
     return path.read_bytes()
 
 

@@ -213,8 +213,8 @@ def test_patch_records_round_trip_exactly(tmp_path, policy):
     """save → load gives identical patch vertices, triangles and errors."""
     terrain = fractal_terrain(65, 80, seed=10, relief=200.0)
     tree = ApproximationTree.build(terrain, epsilon=2.0, max_points=81, policy=policy)
-    tree.save(tmp_path / "t.atree")
-    back = ApproximationTree.load(tmp_path / "t.atree")
+    tree.save(tmp_path / "t.zarr")
+    back = ApproximationTree.load(tmp_path / "t.zarr")
     for i in range(len(tree)):
         a, b = tree.node(i).patch, back.node(i).patch
         assert a.error == b.error and a.kind == b.kind == policy

@@ -304,7 +304,7 @@ def test_cli_bake_and_render_with_textures(data_dir, tmp_path):
     reports the texture figures."""
     dem = data_file(data_dir, "nc/elev_ned_30m.tif")
     runner = CliRunner()
-    tree_file = tmp_path / "nc.atree"
+    tree_file = tmp_path / "nc.zarr"
     res = runner.invoke(cli_main, ["build", str(dem), "--out", str(tree_file)])
     assert res.exit_code == 0, res.output
     out = tmp_path / "tex"

@@ -99,7 +99,7 @@ def test_fractal_tree_save_load_round_trip(tmp_path):
     """save → load gives equal node arrays, parameters, terrain and patches."""
     terrain = fractal_terrain(129, 97, seed=1, relief=300.0)
     tree = ApproximationTree.build(terrain, epsilon=2.0, max_points=9 * 9, fanout=2)
-    path = tmp_path / "t.atree"
+    path = tmp_path / "t.zarr.zip"
     nbytes = tree.save(path)
     assert nbytes == path.stat().st_size
     back = ApproximationTree.load(path)

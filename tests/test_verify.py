@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zarr
+from atree_writer import write_atree
 from click.testing import CliRunner
 from conftest import data_file
 from zarr.storage import LocalStore
@@ -221,7 +222,7 @@ def test_bad_input_is_one_error_line(nc_store, tmp_path, data_dir):
     unreadable source: exit 2 with one Error line each, never a traceback."""
     store, crop = nc_store
     legacy = tmp_path / "t.atree"
-    at.load_tree(store).save(legacy)
+    write_atree(at.load_tree(store), legacy)
     other = tmp_path / "other.zarr"
     zarr.open_group(LocalStore(str(other)), mode="w").attrs["x"] = 1
     broken = tmp_path / "broken.tif"

@@ -42,7 +42,7 @@ def session(display, tmp_path_factory):
     (tree, folder, stats lines by keyframe, script)."""
     tmp = tmp_path_factory.mktemp("map")
     tree = ApproximationTree.build(sample_terrain(), epsilon=EPSILON, progress=False)
-    tree.save(tmp / "sample.atree")
+    tree.save(tmp / "sample.zarr")
     b = np.asarray(tree.bboxes[0]).reshape(2, 3)
     c = b.mean(axis=0)
     c[2] = b[0, 2]
@@ -87,7 +87,7 @@ def session(display, tmp_path_factory):
     env = dict(os.environ, DISPLAY=display, XDG_CONFIG_HOME=str(tmp / "config"))
     result = subprocess.run(
         [
-            sys.executable, "-m", "approxtree", "view", "sample.atree", "--script", "path.json",
+            sys.executable, "-m", "approxtree", "view", "sample.zarr", "--script", "path.json",
             "--stats", "stats.jsonl", "--screenshots", "shots", "--size", f"{w}x{h}",
             "--max-uploads", "0", "--bookmarks", "marks.json",
         ],

@@ -52,7 +52,7 @@ def terrain_fraction(image: np.ndarray) -> float:
 @pytest.fixture(scope="module")
 def sample_tree(tmp_path_factory):
     tree = ApproximationTree.build(sample_terrain(), epsilon=1.0, progress=False)
-    path = tmp_path_factory.mktemp("tree") / "sample.atree"
+    path = tmp_path_factory.mktemp("tree") / "sample.zarr"
     tree.save(path)
     return tree, path
 
@@ -184,7 +184,7 @@ def test_thematic_toggle_changes_colours_by_land_use(display, data_dir, tmp_path
     landuse = data_file(data_dir, "nc/landuse_r.tif")
     terrain = open_terrain(dem)
     tree = ApproximationTree.build(terrain, epsilon=1.0, progress=False)
-    tree.save(tmp_path / "nc.atree")
+    tree.save(tmp_path / "nc.zarr")
     bake(terrain, tmp_path / "landuse", shading=None, thematic=landuse, max_texture_size=1024)
     # Straight down over the domain centre, so every pixel shows one land-use cell.
     d = terrain.domain
@@ -195,7 +195,7 @@ def test_thematic_toggle_changes_colours_by_land_use(display, data_dir, tmp_path
     ]
     (tmp_path / "path.json").write_text(json.dumps(script))
     result = run_viewer(
-        display, tmp_path, "nc.atree", "--textures", "landuse", "--script", "path.json",
+        display, tmp_path, "nc.zarr", "--textures", "landuse", "--script", "path.json",
         "--screenshots", "shots", "--size", f"{SIZE[0]}x{SIZE[1]}", "--max-uploads", "0",
     )  # fmt: skip
     assert result.returncode == 0, result.stderr

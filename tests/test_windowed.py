@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from affine import Affine
+from atree_writer import write_atree
 from conftest import data_file
 
 from approxtree.errors import InvalidParameterError, WholeBandError
@@ -391,8 +392,9 @@ def test_small_windowed_grid_builds_the_same_tree(tmp_path):
         for i in range(len(a)):
             np.testing.assert_array_equal(a.patch(i).vertices, b.patch(i).vertices)
             np.testing.assert_array_equal(a.patch(i).triangles, b.patch(i).triangles)
-    # A small windowed terrain saves whole (np.asarray of its heights) and loads in memory.
-    b.save(tmp_path / "t.atree")
+    # A small windowed terrain written to a legacy .atree (the tests' writer) holds it whole
+    # (np.asarray of its heights), and the reader loads it in memory.
+    write_atree(b, tmp_path / "t.atree")
     back = load_tree(tmp_path / "t.atree")
     assert not back.terrain.is_windowed
     np.testing.assert_array_equal(back.terrain.heights, g.heights)
@@ -480,14 +482,28 @@ def test_header_claiming_more_cells_fails_at_open(tmp_path):
 
 
 def test_cli_build_on_a_too_large_windowed_raster_is_one_error_line(tmp_path, monkeypatch):
+    """A build that needs the whole band of a windowed raster over the limit prints one Error
+    line and writes nothing (here the microstructures' resampling; a store is written block by
+    block, where the legacy .atree writer read the band whole)."""
+    import json
+
     from click.testing import CliRunner
 
     from approxtree.cli import main
 
     tif = _write_tif(tmp_path / "dem.tif", _synthetic(90, 70))
     monkeypatch.setattr(windowed_module, "WHOLE_BAND_LIMIT_BYTES", 1000)
-    out = tmp_path / "t.atree"
+    crs = {"type": "name", "properties": {"name": "urn:ogc:def:crs:EPSG::32610"}}
+    line = {"type": "LineString", "coordinates": [[500010, 4199830], [500130, 4199990]]}
+    layer = {
+        "type": "FeatureCollection",
+        "crs": crs,
+        "features": [{"type": "Feature", "properties": {}, "geometry": line}],
+    }
+    (tmp_path / "river.geojson").write_text(json.dumps(layer))
+    out = tmp_path / "t.zarr"
     args = ["build", str(tif), "--out", str(out), "--windowed", "on"]
+    args += ["--microstructures", str(tmp_path / "river.geojson")]
     result = CliRunner().invoke(main, args)
     assert result.exit_code == 2
     assert result.output.startswith("Error: ") and "windowed=False" in result.output

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from atree_writer import write_atree
 from click.testing import CliRunner
 
 import approxtree as at
@@ -133,7 +134,7 @@ def test_point_quadtree_round_trip(tmp_path):
     path = tmp_path / "q.zarr"
     q.save(path)
     assert (path / "quadtree" / "orders" / "zarr.json").is_file()
-    q.save(tmp_path / "q.atree")
+    write_atree(q, tmp_path / "q.atree")
     res = CliRunner().invoke(main, ["convert", str(tmp_path / "q.atree"), str(tmp_path / "c.zip")])
     assert res.exit_code == 0, res.output
     trees = (load_tree(path), PointQuadtree.load(path), load_tree(tmp_path / "c.zip"))
@@ -345,7 +346,7 @@ def test_killed_write_leaves_nothing_that_opens(name, tmp_path):
 
 def test_convert_cli_atree_to_store_zip_and_back(grid, tmp_path):
     tree = ApproximationTree.build(grid, epsilon=0.3, max_points=25, policy="auto")
-    tree.save(tmp_path / "old.atree")
+    write_atree(tree, tmp_path / "old.atree")
     runner = CliRunner()
     steps = [("old.atree", "new.zarr"), ("new.zarr", "new.zarr.zip"), ("new.zarr.zip", "back.zarr")]
     for src, dst in steps:
@@ -360,7 +361,7 @@ def test_convert_cli_atree_to_store_zip_and_back(grid, tmp_path):
 
 def test_unreadable_atree_version_names_convert(grid, tmp_path):
     path = tmp_path / "v9.atree"
-    ApproximationTree.build(grid, epsilon=1.0, max_points=25).save(path)
+    write_atree(ApproximationTree.build(grid, epsilon=1.0, max_points=25), path)
     data = bytearray(path.read_bytes())
     data[8] = 9  # format version 9
     path.write_bytes(bytes(data))
@@ -402,7 +403,7 @@ def test_render_and_bake_read_a_store(grid, tmp_path):
 
     pytest.importorskip("moderngl")
     tree = ApproximationTree.build(grid, epsilon=0.3, max_points=25, policy="auto")
-    tree.save(tmp_path / "t.atree")
+    write_atree(tree, tmp_path / "t.atree")
     tree.save(tmp_path / "t.zarr")
     assert (tmp_path / "t.zarr" / "zarr.json").is_file()
     images = []

@@ -41,8 +41,8 @@ def _refine(terrain, files, width: float, depth: float, profile: str, spacing: f
     "out",
     default=None,
     type=click.Path(),
-    help="Tree store to write: a folder NAME.zarr, a single file NAME.zarr.zip, an fsspec URL, "
-    "or a legacy NAME.atree file [default: the DEM's name with .zarr, here].",
+    help="Tree store to write: a folder NAME.zarr, a single file NAME.zarr.zip or an fsspec URL "
+    "[default: the DEM's name with .zarr, here].",
 )
 @click.option(
     "--epsilon",

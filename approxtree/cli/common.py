@@ -149,14 +149,17 @@ def _is_tree(path: str) -> bool:
 
 def _check_tree_output(out: str) -> None:
     """StoreError now, before any work, when the tree cannot be written at ``out`` (or would
-    replace what approxtree did not write, without --overwrite)."""
+    replace what approxtree did not write, without --overwrite); InvalidParameterError for a
+    legacy .atree path (read only now)."""
     from approxtree.cli.options import replaceable
     from approxtree.io.output_path import check_output_file, check_output_folder
+    from approxtree.tree.atree import refuse_legacy_target
     from approxtree.tree.zarr_store import is_url, is_zip
 
+    refuse_legacy_target(out)
     if is_url(out):
         return
-    if is_zip(out) or Path(out).suffix.lower() == ".atree":
+    if is_zip(out):
         check_output_file(out, "tree file")
         replaceable(out, "tree file")
     else:
@@ -254,22 +257,17 @@ def _terrain_of(
     """The terrain of any terrain file or saved tree, for the commands that work on the
     terrain itself (tiles --format quantized-mesh, bake, mesh, rd).
 
-    A terrain file is read with the reader options (``_open``); a tree store gives its stored
-    terrain (a grid's heights read by windows from the store, nothing else of the tree
-    loaded), a legacy .atree its terrain. Reader options given with a saved tree are an
-    InvalidParameterError.
+    A terrain file is read with the reader options (``_open``); a saved tree gives its stored
+    terrain, nothing else of the tree loaded (a store's grid heights read by windows). Reader
+    options given with a saved tree are an InvalidParameterError.
     """
     reader = (encoding, nodata_policy, ground_only, height_scale)
     if not _is_tree(path):
         return _open(path, *reader)
     _no_reader_flags_for_tree(path, _given_reader_options(*reader))
-    if Path(path).suffix.lower() == ".atree":
-        from approxtree.tree import load_tree
+    from approxtree.tree.store import open_store
 
-        return load_tree(path).terrain
-    from approxtree.tree.tree_store import load_store_terrain
-
-    return load_store_terrain(path)
+    return open_store(path).terrain()
 
 
 def _no_build_flags_for_tree(path: str, given: tuple[str, ...]) -> None:

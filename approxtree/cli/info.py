@@ -23,16 +23,14 @@ from approxtree.cli.options import json_option, reader_options
 
 def _tree_info(path: str) -> dict[str, Any]:
     """Figures of a saved tree: a store's layout, or a legacy .atree's tree statistics."""
-    from approxtree.tree.store import is_legacy_file
+    from approxtree.tree import load_tree
+    from approxtree.tree.atree import TreeFile, is_legacy_file
     from approxtree.tree.tree_store import store_info
 
     if not is_legacy_file(path):
         return store_info(path)
-    from approxtree.tree import load_tree
-    from approxtree.tree.store import FORMAT_VERSION
-
     tree = load_tree(path)
-    figures: dict[str, Any] = {"tree_file": path, "format": f"atree {FORMAT_VERSION}"}
+    figures = {"tree_file": path, "format": f"atree {TreeFile(path).version}"}
     figures.update(tree.stats())
     figures["bytes"] = Path(path).stat().st_size
     return figures

@@ -32,6 +32,8 @@ from pathlib import Path
 from typing import BinaryIO
 
 from approxtree.errors import StoreError
+from approxtree.io.own_output import is_own_folder, overwrite_allowed
+from approxtree.io.paths import NO_ROOM, refuse_link, why_not_written
 
 _TOKEN_CHARS = "abcdefghijklmnopqrstuvwxyz0123456789"
 
@@ -144,44 +146,9 @@ def _check_folder(target: Path) -> Path:
     return folder
 
 
-#: errno values that mean the disk (or the user's quota) has no room.
-_NO_ROOM = (errno.ENOSPC, errno.EDQUOT)
 #: errno values that can only come from writing (the block's own OSErrors of these kinds
 #: become StoreErrors about the target).
-_WRITE_ERRNOS = (*_NO_ROOM, errno.EFBIG, errno.EROFS, errno.EIO)
-
-
-#: Any temp name of ours; group 1 is the target's name.
-_ANY_TEMP = re.compile(r"^\.(.+)\.\d+\.[a-z0-9]{8}\.tmp$")
-
-
-def public_path(path: str | os.PathLike) -> Path:
-    """``path`` as the user knows it: each temp folder or file of ours (``.NAME.PID.TOKEN.tmp``)
-    in it named as its target (for messages)."""
-    parts = []
-    for part in Path(path).parts:
-        m = _ANY_TEMP.match(part)
-        parts.append(m.group(1) if m else part)
-    return Path(*parts)
-
-
-def disk_full(path: str | os.PathLike) -> str:
-    """The words for a full disk where ``path`` is written, with the space left there."""
-    folder = public_path(Path(path).absolute()).parent
-    while not folder.is_dir() and folder != folder.parent:
-        folder = folder.parent
-    try:
-        free = f" ({shutil.disk_usage(folder).free:,} bytes free)"
-    except OSError:
-        free = ""
-    return f"the disk is full at {folder}{free}; free some space or write elsewhere"
-
-
-def why_not_written(target: str | os.PathLike, exc: OSError) -> str:
-    """Why ``exc`` kept ``target`` from being written, in words (a full disk says so)."""
-    if exc.errno in _NO_ROOM:
-        return disk_full(target)
-    return exc.strerror or str(exc)
+_WRITE_ERRNOS = (*NO_ROOM, errno.EFBIG, errno.EROFS, errno.EIO)
 
 
 @contextlib.contextmanager
@@ -206,18 +173,6 @@ def _write_errors(target: Path, tmp: Path) -> Iterator[None]:
         if exc.errno in _WRITE_ERRNOS or (name and name.startswith(str(tmp))):
             raise StoreError(f"Cannot write {target}: {why_not_written(target, exc)}.") from exc
         raise
-
-
-def refuse_link(target: str | os.PathLike, what: str = "") -> None:
-    """StoreError when ``target`` is a symbolic link (``what`` names it in the message)."""
-    target = Path(target)
-    if target.is_symlink():
-        raise StoreError(
-            f"Cannot write {what + ' ' if what else ''}{target}: it is a symbolic link (to "
-            f"{os.readlink(target)}); "
-            "approxtree never replaces a link nor writes through one, so that nothing it "
-            "points to is lost. Give the real path, or a new one."
-        )
 
 
 def _existing_mode(path: Path) -> int | None:
@@ -289,8 +244,6 @@ def atomic_directory(path: str | os.PathLike) -> Iterator[Path]:
     it; a symbolic link is refused (its target is never emptied). Callers check the same
     beforehand with ``own_output.check_replaceable``, so that no work is wasted.
     """
-    from approxtree.io.own_output import is_own_folder, overwrite_allowed
-
     target = Path(path)
     _check_folder(target)
     refuse_link(target)

@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from approxtree.errors import StoreError
-from approxtree.io.atomic import disk_full, public_path
+from approxtree.io.paths import disk_full, public_path
 
 #: rasterio's log records of a GDAL error (CE_Failure) start with this.
 _GDAL_ERROR = "GDAL signalled an error"
@@ -139,7 +139,7 @@ def checked_write(
     path: str | os.PathLike, target: str | os.PathLike | None = None
 ) -> Iterator[None]:
     """Around a rasterio write of ``path`` (closed within the block): StoreError naming
-    ``target`` (default: ``path`` without our temp names, ``atomic.public_path``) when GDAL
+    ``target`` (default: ``path`` without our temp names, ``paths.public_path``) when GDAL
     logged an error, rasterio raised, or the written GeoTIFF misses a block. libtiff prints
     nothing to stderr meanwhile."""
     from rasterio.errors import RasterioError

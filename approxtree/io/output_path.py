@@ -4,7 +4,7 @@ A build or a bake can take minutes; a PermissionError when the result is finally
 wastes them. These checks create (and remove) a probe file where the output will go, so they
 answer for the real file system — a read-only mount, a full quota, a path under a regular file —
 whoever the user is (root passes every permission bit, not a read-only mount). A symbolic link
-as the output is refused (``atomic.refuse_link``): it is never replaced nor written through.
+as the output is refused (``paths.refuse_link``): it is never replaced nor written through.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import tempfile
 from pathlib import Path
 
 from approxtree.errors import StoreError
-from approxtree.io.atomic import refuse_link
+from approxtree.io.paths import refuse_link
 
 
 def _blocking_file(path: Path) -> Path | None:

@@ -33,13 +33,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from approxtree.errors import StoreError
-from approxtree.io.atomic import refuse_link
+from approxtree.io.paths import refuse_link
 
 #: The word every mark holds.
 MARK = "approxtree"
 #: GeoTIFF dataset tag of approxtree's rasters; its value names the writer ("fractal", ...).
 GEOTIFF_TAG = "APPROXTREE_OUTPUT"
-#: Legacy tree files start with these bytes (tree/store.py's MAGIC).
+#: Legacy tree files start with these bytes (tree/atree.py's MAGIC).
 _ATREE_MAGIC = b"ATREE\x00\r\n"
 #: Bytes read to recognise a file's format.
 _HEAD = 4096

@@ -74,3 +74,42 @@ def cell_height_at(
     for i in prange(n):
         out[i] = interpolate_cell(z00[i], z01[i], z10[i], z11[i], dr[i], dc[i])
     return out
+
+
+@njit(cache=True)
+def lattice_triangles(heights: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """(m, 3) int64 triangles of the lattice ``rows`` (kr,) × ``cols`` (kc,) of ``heights``,
+    indexing its kr × kc vertices row-major.
+
+    Every lattice cell is cut by the diagonal of the picture above, triangle A then B,
+    counter-clockwise in (col, row) index space; a triangle with a nodata corner is left out.
+    Grid patches (``grid_patch_mesh``) and nonregular lattices triangulate with this one.
+    """
+    nbr = rows.shape[0] - 1
+    nbc = cols.shape[0] - 1
+    kc = nbc + 1
+    tris = np.empty((2 * nbr * nbc, 3), dtype=np.int64)
+    m = 0
+    for i in range(nbr):
+        for j in range(nbc):
+            a = i * kc + j  # (r, c)
+            b = a + 1  # (r, c+1)
+            c = a + kc  # (r+1, c)
+            d = c + 1  # (r+1, c+1)
+            za = heights[rows[i], cols[j]]
+            zb = heights[rows[i], cols[j + 1]]
+            zc = heights[rows[i + 1], cols[j]]
+            zd = heights[rows[i + 1], cols[j + 1]]
+            # Triangle A (fc >= fr): corners 00, 01, 11.
+            if not (np.isnan(za) or np.isnan(zb) or np.isnan(zd)):
+                tris[m, 0] = a
+                tris[m, 1] = b
+                tris[m, 2] = d
+                m += 1
+            # Triangle B (fc < fr): corners 00, 11, 10.
+            if not (np.isnan(za) or np.isnan(zd) or np.isnan(zc)):
+                tris[m, 0] = a
+                tris[m, 1] = d
+                tris[m, 2] = c
+                m += 1
+    return tris[:m]

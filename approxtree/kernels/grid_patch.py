@@ -20,6 +20,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from approxtree.kernels.grid_interp import lattice_triangles
+
 
 @njit(cache=True)
 def _block_count(lo: int, hi: int, step: int) -> int:
@@ -542,7 +544,7 @@ def grid_patch_mesh(
 
     Returns rows (kr,) int64 and cols (kc,) int64 of the sampled lines, and triangles (m, 3)
     int64 indexing the kr × kc lattice row-major, counter-clockwise in (col, row) index space;
-    triangles with a nodata corner are left out.
+    triangles with a nodata corner are left out (``grid_interp.lattice_triangles``).
     """
     nbr = _block_count(r0, r1, sr)
     nbc = _block_count(c0, c1, sc)
@@ -554,32 +556,7 @@ def grid_patch_mesh(
     for k in range(nbc):
         cols[k] = c0 + k * sc
     cols[nbc] = c1
-    kc = nbc + 1
-    tris = np.empty((2 * nbr * nbc, 3), dtype=np.int64)
-    m = 0
-    for i in range(nbr):
-        for j in range(nbc):
-            a = i * kc + j  # (rb, cb)
-            b = a + 1  # (rb, ce)
-            c = a + kc  # (re, cb)
-            d = c + 1  # (re, ce)
-            za = heights[rows[i], cols[j]]
-            zb = heights[rows[i], cols[j + 1]]
-            zc = heights[rows[i + 1], cols[j]]
-            zd = heights[rows[i + 1], cols[j + 1]]
-            # Triangle A (fc >= fr): corners 00, 01, 11.
-            if not (np.isnan(za) or np.isnan(zb) or np.isnan(zd)):
-                tris[m, 0] = a
-                tris[m, 1] = b
-                tris[m, 2] = d
-                m += 1
-            # Triangle B (fc < fr): corners 00, 11, 10.
-            if not (np.isnan(za) or np.isnan(zd) or np.isnan(zc)):
-                tris[m, 0] = a
-                tris[m, 1] = d
-                tris[m, 2] = c
-                m += 1
-    return rows, cols, tris[:m]
+    return rows, cols, lattice_triangles(heights, rows, cols)
 
 
 @njit(cache=True)

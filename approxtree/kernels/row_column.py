@@ -416,38 +416,3 @@ def lattice_errors(heights, rows, nrows, cols, ncols):
         zmin[k] = lo if m > 0 else np.nan
         zmax[k] = hi if m > 0 else np.nan
     return error, sumsq, count, zmin, zmax
-
-
-@njit(cache=True)
-def lattice_triangles(heights, rows, cols):
-    """(m, 3) int64 triangles of a lattice, indexing its kr × kc vertices row-major.
-
-    Counter-clockwise in (col, row) index space, like ``grid_patch_mesh``; triangles with a
-    nodata corner are left out.
-    """
-    nbr = rows.shape[0] - 1
-    nbc = cols.shape[0] - 1
-    kc = nbc + 1
-    tris = np.empty((2 * nbr * nbc, 3), dtype=np.int64)
-    m = 0
-    for i in range(nbr):
-        for j in range(nbc):
-            a = i * kc + j
-            b = a + 1
-            c = a + kc
-            d = c + 1
-            za = heights[rows[i], cols[j]]
-            zb = heights[rows[i], cols[j + 1]]
-            zc = heights[rows[i + 1], cols[j]]
-            zd = heights[rows[i + 1], cols[j + 1]]
-            if not (np.isnan(za) or np.isnan(zb) or np.isnan(zd)):
-                tris[m, 0] = a
-                tris[m, 1] = b
-                tris[m, 2] = d
-                m += 1
-            if not (np.isnan(za) or np.isnan(zd) or np.isnan(zc)):
-                tris[m, 0] = a
-                tris[m, 1] = d
-                tris[m, 2] = c
-                m += 1
-    return tris[:m]

@@ -317,6 +317,46 @@ def _edge_weight(ax, ay, bx, by, cx, cy, x, y, wab, wbc, wca) -> float:
     return 1.0
 
 
+# Inlined into its two callers (``_sse_rows``'s row loop and ``_small_sse``): one copy of the
+# arithmetic, so both sum every row exactly alike.
+@njit(cache=True, inline="always")
+def _row_sse(heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, wab, wbc, wca, y, lo, hi):
+    """The owned squared errors of row y, columns lo..hi (lo <= hi), of the triangle whose plane
+    through corner a is ``za + gx·(x − ax) + gy·(y − ay)`` (see ``triangle_sse``)."""
+    n = hi - lo + 1
+    base = za + gy * (y - ay) + gx * (lo - ax)
+    r = r0 + y
+    start = c0 + lo
+    # Long rows: a vectorized sum; short rows: a plain one.
+    if n >= 16:
+        s = _row_max_sse(heights[r], start, n, base, gx)[1]
+    else:
+        s = 0.0
+        ur = np.uint64(r)
+        us = np.uint64(start)
+        fi = 0.0
+        for i in range(n):
+            e = abs(float(heights[ur, us + np.uint64(i)]) - (base + gx * fi))
+            fi += 1.0
+            s += e * e
+    # Edge points are shared: a row along a horizontal edge lies wholly on it, otherwise only
+    # the row's two ends can touch an edge.
+    if ay == by == y:
+        s *= wab
+    elif by == cy == y:
+        s *= wbc
+    elif cy == ay == y:
+        s *= wca
+    else:
+        e = abs(float(heights[r, start]) - base)
+        s -= (1.0 - _edge_weight(ax, ay, bx, by, cx, cy, lo, y, wab, wbc, wca)) * e * e
+        if hi > lo:
+            e = abs(float(heights[r, c0 + hi]) - (base + gx * (n - 1)))
+            w = _edge_weight(ax, ay, bx, by, cx, cy, hi, y, wab, wbc, wca)
+            s -= (1.0 - w) * e * e
+    return s
+
+
 # A plain call, not inlined (see ``_scan_rows``).
 @njit(cache=True, _nrt=False)
 def _sse_rows(
@@ -341,68 +381,10 @@ def _sse_rows(
             rq += 1
         if lo > hi:
             continue
-        n = hi - lo + 1
-        base = za + gy * (y - ay) + gx * (lo - ax)
-        r = r0 + y
-        start = c0 + lo
-        # Long rows: a vectorized sum; short rows: a plain one.
-        if n >= 16:
-            s = _row_max_sse(heights[r], start, n, base, gx)[1]
-        else:
-            s = 0.0
-            ur = np.uint64(r)
-            us = np.uint64(start)
-            fi = 0.0
-            for i in range(n):
-                e = abs(float(heights[ur, us + np.uint64(i)]) - (base + gx * fi))
-                fi += 1.0
-                s += e * e
-        # Edge points are shared: a row along a horizontal edge lies wholly on it, otherwise
-        # only the row's two ends can touch an edge.
-        if ay == by == y:
-            s *= wab
-        elif by == cy == y:
-            s *= wbc
-        elif cy == ay == y:
-            s *= wca
-        else:
-            e = abs(float(heights[r, start]) - base)
-            s -= (1.0 - _edge_weight(ax, ay, bx, by, cx, cy, lo, y, wab, wbc, wca)) * e * e
-            if hi > lo:
-                e = abs(float(heights[r, c0 + hi]) - (base + gx * (n - 1)))
-                w = _edge_weight(ax, ay, bx, by, cx, cy, hi, y, wab, wbc, wca)
-                s -= (1.0 - w) * e * e
-        sse += s
+        sse += _row_sse(
+            heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, wab, wbc, wca, y, lo, hi
+        )
     return sse
-
-
-@njit(cache=True, inline="always")
-def _short_row_sse(heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, wab, wbc, wca, y, lo, hi):
-    """One row's term of ``_sse_rows`` (a short row, lo..hi), with the same arithmetic."""
-    n = hi - lo + 1
-    base = za + gy * (y - ay) + gx * (lo - ax)
-    r = r0 + y
-    start = c0 + lo
-    s = 0.0
-    ur = np.uint64(r)
-    us = np.uint64(start)
-    for i in range(n):
-        e = abs(float(heights[ur, us + np.uint64(i)]) - (base + gx * i))
-        s += e * e
-    if ay == by == y:
-        s *= wab
-    elif by == cy == y:
-        s *= wbc
-    elif cy == ay == y:
-        s *= wca
-    else:
-        e = abs(float(heights[r, start]) - base)
-        s -= (1.0 - _edge_weight(ax, ay, bx, by, cx, cy, lo, y, wab, wbc, wca)) * e * e
-        if hi > lo:
-            e = abs(float(heights[r, c0 + hi]) - (base + gx * (n - 1)))
-            w = _edge_weight(ax, ay, bx, by, cx, cy, hi, y, wab, wbc, wca)
-            s -= (1.0 - w) * e * e
-    return s
 
 
 @njit(cache=True, inline="always")
@@ -448,15 +430,15 @@ def _small_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca, o) -> flo
     sse = 0.0
     # In row order (the sum's order): the edge's row first when it lies above.
     if hy >= 0 and (my < 0 or hy < my):
-        sse += _short_row_sse(
+        sse += _row_sse(
             heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, wab, wbc, wca, hy, hlo, hhi
         )
     if my >= 0:
-        sse += _short_row_sse(
+        sse += _row_sse(
             heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, wab, wbc, wca, my, mlo, mhi
         )
         if 0 <= hy and my < hy:
-            sse += _short_row_sse(
+            sse += _row_sse(
                 heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, wab, wbc, wca, hy, hlo, hhi
             )
     return max(sse, 0.0)

@@ -19,7 +19,8 @@ from approxtree.errors import UnsupportedStrategyError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
-from approxtree.kernels.row_column import lattice_errors, lattice_triangles, refine_lattices
+from approxtree.kernels.grid_interp import lattice_triangles
+from approxtree.kernels.row_column import lattice_errors, refine_lattices
 from approxtree.patches.base import GeometryPatch
 from approxtree.patches.grid import lattice_world_mesh
 from approxtree.patches.lattice import require_grid

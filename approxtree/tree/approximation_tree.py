@@ -2,34 +2,32 @@
 
 The tree keeps its nodes in flat arrays (breadth-first order, children contiguous) so that
 selection can run vectorized over many nodes; ``Node`` is a light view of one entry. Patches
-are objects, loaded from the tree file on first access when the tree was loaded lazily.
+are objects, read from the saved tree (its ``TreeSource``, ``tree.store``) on first access when
+the tree was loaded.
 """
 
 from __future__ import annotations
 
 import os
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from approxtree import __version__
 from approxtree.errors import InvalidParameterError, StoreError
-from approxtree.geometry import TERRAIN_TYPES, TIN, Grid, GridRefinement
+from approxtree.geometry import TIN, Grid, GridRefinement
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.dataarray import is_dataarray
 from approxtree.geometry.rect import Rect
-from approxtree.patches import STRATEGIES, GeometryPatch, patch_class
+from approxtree.patches import GeometryPatch, patch_class
+from approxtree.patches.records import Batch, concat_records
 from approxtree.progress import ProgressCallback, as_callback
+from approxtree.tree import store
 from approxtree.tree.builder import build_levels
+from approxtree.tree.cut_mesh import CutMesh, cut_mesh
 from approxtree.tree.node import Node
-from approxtree.tree.patch_table import as_table
+from approxtree.tree.patch_table import PatchTable, as_table
 from approxtree.tree.policy import StrategyPolicy
-from approxtree.tree.store import TreeFile, is_legacy_file, is_legacy_path, write_tree_file
-
-if TYPE_CHECKING:
-    from approxtree.tree.cut_mesh import CutMesh
-    from approxtree.tree.tree_store import TreeStoreSource
 
 
 def with_microstructures(
@@ -60,7 +58,11 @@ class ApproximationTree:
     child_start, child_count: (n,) int64 — children of i are child_start[i] + range(count).
     strategies: (n,) uint8 index into ``strategy_names``.
     origin: (3,) float64 local origin for float32 GPU buffers (domain centre, z_min).
+    source: the saved tree its patches are read from (None for a built tree).
     """
+
+    #: What the Engine and the store see: an approximation tree, not a point quadtree.
+    tree_kind = "approximation_tree"
 
     def __init__(
         self,
@@ -76,7 +78,7 @@ class ApproximationTree:
         strategy_names: list[str],
         params: dict[str, Any],
         patches: list[GeometryPatch | None],
-        source: TreeFile | TreeStoreSource | None = None,
+        source: store.TreeSource | None = None,
     ) -> None:
         self.terrain = terrain
         self.rects = rects
@@ -292,8 +294,6 @@ class ApproximationTree:
         ``nodes`` (k,) node ids, e.g. ``frame.selection.nodes`` of an Engine frame, or None for
         the leaves; ``skirts`` hangs the renderer's walls. ``.to_trimesh()``/``.to_pyvista()``
         of the result carry z and the node of each face."""
-        from approxtree.tree.cut_mesh import cut_mesh
-
         return cut_mesh(self, nodes, skirts)
 
     @property
@@ -328,87 +328,61 @@ class ApproximationTree:
 
     # -- storage -------------------------------------------------------------------------------
 
+    def patch_records(self, nodes: np.ndarray, strategy: str) -> Batch:
+        """The patch records of ``nodes`` (k,), all of strategy ``strategy``, as one batch
+        (``patches.records``), from wherever they are: a built tree's arrays, the patch
+        objects held, or the saved tree it was loaded from."""
+        held = self._patches
+        if isinstance(held, PatchTable):
+            # A built tree's grid patches: records straight from its arrays, no object per node.
+            batch = held.records(nodes)
+            if batch is not None:
+                return batch
+        loaded = [held[i] for i in nodes]
+        if all(p is not None for p in loaded):
+            # One patch class per strategy and terrain: its batched gather; else record by record.
+            classes = {type(p) for p in loaded}
+            if len(classes) == 1:
+                return classes.pop().records_many(loaded)  # type: ignore[arg-type]
+            return concat_records([p.to_record() for p in loaded])  # type: ignore[union-attr]
+        if self._source is None:  # pragma: no cover - built trees hold every patch
+            raise StoreError(f"patches of {strategy!r} are missing")
+        return self._source.records(nodes, strategy)
+
     def save(self, path: str | os.PathLike) -> int:
-        """Write the tree (terrain included) atomically to ``path``; returns its size in bytes.
-
-        A ``.atree`` path gets the legacy single file (``tree.store``); any other path a tree
-        store (``tree.tree_store``): a folder (``NAME.zarr``), a zip (``NAME.zarr.zip``) or an
-        fsspec URL.
+        """Write the tree (terrain included) atomically as a tree store at ``path``: a folder
+        (``NAME.zarr``), a zip (``NAME.zarr.zip``) or an fsspec URL (``tree.store``); returns
+        the bytes stored. A .atree path is an InvalidParameterError (that format is read only).
         """
-        if not is_legacy_path(path):
-            from approxtree.tree.tree_store import save_tree
-
-            return save_tree(self, path)
-        tattrs, tarrays = self.terrain.to_record()
-        meta = {
-            "library": f"approxtree {__version__}",
-            "terrain_kind": self.terrain.kind,
-            "params": self.params,
-            "strategy_names": self.strategy_names,
-        }
-        nodes = {
-            "rects": self.rects,
-            "errors": self.errors,
-            "bboxes": self.bboxes,
-            "levels": self.levels,
-            "parents": self.parents,
-            "child_start": self.child_start,
-            "child_count": self.child_count,
-            "strategies": self.strategies,
-        }
-        fill = getattr(self._patches, "fill", None)
-        if fill is not None:
-            fill()  # a built tree's patch objects, in one batch
-        patches = [({}, self.patch(i).to_record()) for i in range(len(self))]
-        return write_tree_file(
-            path,
-            meta,
-            {"terrain": (tattrs, tarrays), "nodes": ({}, nodes)},
-            patches,
-            self.strategies,
-        )
+        return store.save(self, path)
 
     @classmethod
     def load(cls, path: str | os.PathLike, verify: bool = True) -> ApproximationTree:
         """Open a tree store or a legacy .atree file; patches load on first access.
 
-        verify: check the checksum of every patch now (sections are always checked), so a
-        corrupted file fails here rather than at render time.
+        verify: check the checksum of every patch now (the node table and terrain are always
+        checked), so a corrupted file fails here rather than at render time.
         """
-        if not is_legacy_file(path):
-            from approxtree.tree.tree_store import load_tree_store
+        return cls.from_source(store.open_store(path), verify=verify)
 
-            return load_tree_store(path, verify=verify)
-        f = TreeFile(path)
-        meta = f.meta
-        if meta.get("tree_kind", "approximation_tree") != "approximation_tree":
+    @classmethod
+    def from_source(cls, source: store.TreeSource, verify: bool = True) -> ApproximationTree:
+        """The tree of a saved tree opened by ``tree.store.open_store``; patches are read from
+        ``source`` on first access. verify: as in ``load``."""
+        if source.tree_kind != cls.tree_kind:
             raise StoreError(
-                f"{path} holds a {meta['tree_kind']!r} tree, not an approximation tree; open it "
-                "with approxtree.load_tree."
+                f"{source.location} holds a {source.tree_kind!r} tree, not an approximation "
+                "tree; open it with approxtree.load_tree."
             )
-        kind = meta.get("terrain_kind")
-        if kind not in TERRAIN_TYPES:
-            raise StoreError(f"{path} holds an unknown terrain kind {kind!r}.")
-        unknown = set(meta["strategy_names"]) - set(STRATEGIES)
-        if unknown:
-            raise StoreError(f"{path} uses strategies unknown to this version: {sorted(unknown)}.")
         if verify:
-            f.verify_patches()
-        terrain = TERRAIN_TYPES[kind].from_record(*f.section("terrain"))
-        _, nodes = f.section("nodes")
-        n = len(nodes["errors"])
+            source.verify()
+        terrain = source.terrain()
+        nodes = source.node_arrays()
         return cls(
             terrain,
-            rects=nodes["rects"],
-            errors=nodes["errors"],
-            bboxes=nodes["bboxes"],
-            levels=nodes["levels"],
-            parents=nodes["parents"],
-            child_start=nodes["child_start"],
-            child_count=nodes["child_count"],
-            strategies=nodes["strategies"],
-            strategy_names=list(meta["strategy_names"]),
-            params=dict(meta["params"]),
-            patches=[None] * n,
-            source=f,
+            **nodes,
+            strategy_names=list(source.meta["strategy_names"]),
+            params=dict(source.meta["params"]),
+            patches=[None] * len(nodes["errors"]),
+            source=source,
         )

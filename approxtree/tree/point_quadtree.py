@@ -21,10 +21,9 @@ drawn nodes — lives in render/lod_cut.py; the Engine draws it through its tile
 fan the node can be drawn as (with or without each side's midpoint), so the cut's screen
 errors are measured bounds, never estimates.
 
-Storage: ``save`` writes a tree store (``tree.tree_store``: terrain plus the "quadtree"
-arrays) or, for a ``.atree`` path, the project's legacy tree file (tree kind "point_quadtree",
-sections "terrain" and "quadtree", checksummed like every section); ``load`` reads it (and
-refuses the ``.npz`` files of earlier versions with a StoreError saying to rebuild).
+Storage (``tree.store``): ``save`` writes a tree store (terrain plus the "quadtree" arrays of
+``to_sections``); ``load`` reads a store or a legacy .atree file of tree kind "point_quadtree"
+(and refuses the ``.npz`` files of earlier versions with a StoreError saying to rebuild).
 """
 
 from __future__ import annotations
@@ -34,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from approxtree._version import __version__
 from approxtree.errors import InvalidParameterError, StoreError
 from approxtree.geometry.tin import TIN
 from approxtree.kernels.point_quadtree import (
@@ -42,8 +42,9 @@ from approxtree.kernels.point_quadtree import (
     morton_codes,
     range_z_bounds,
 )
+from approxtree.tree import store
 
-#: ``meta["tree_kind"]`` of a point quadtree inside a .atree tree file.
+#: ``meta["tree_kind"]`` of a point quadtree in a saved tree.
 TREE_KIND = "point_quadtree"
 #: Version of the "quadtree" section's layout.
 SECTION_VERSION = 1
@@ -396,23 +397,13 @@ class PointQuadtree:
     # -- storage -------------------------------------------------------------------------------
 
     def save(self, path: str | os.PathLike) -> int:
-        """Write the quadtree (terrain, nodes, heights, insertion orders) atomically: a tree
-        store (any path but ``.atree``) or a legacy ``.atree`` tree file of kind
-        "point_quadtree"; returns its size in bytes."""
-        from approxtree.tree.store import is_legacy_path, write_tree_file
-
-        if not is_legacy_path(path):
-            from approxtree.tree.tree_store import save_quadtree
-
-            return save_quadtree(self, path)
-        meta, arrays = self.to_sections()
-        sections = {"terrain": self.terrain.to_record(), "quadtree": ({}, arrays)}
-        return write_tree_file(path, meta, sections, [], np.zeros(0, dtype=np.uint8))
+        """Write the quadtree (terrain, nodes, heights, insertion orders) atomically as a tree
+        store at ``path`` (``tree.store``); returns the bytes stored. A .atree path is an
+        InvalidParameterError (that format is read only)."""
+        return store.save(self, path)
 
     def to_sections(self) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-        """(meta, arrays) of the quadtree for a tree file or store (terrain apart)."""
-        from approxtree import __version__
-
+        """(meta, arrays) of the quadtree for a tree store (terrain apart)."""
         leaves = [self.node_keys[r] for r in np.flatnonzero(~self.internal)]
         lattice = sorted(self.lattice.items())
         arrays = {
@@ -438,49 +429,30 @@ class PointQuadtree:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> PointQuadtree:
-        """Read a quadtree written by ``save`` (every section's checksum verified)."""
-        from approxtree.geometry import TERRAIN_TYPES
-        from approxtree.tree.store import TreeFile, is_legacy_file
+        """Read a quadtree written by ``save``, or a legacy .atree file of tree kind
+        "point_quadtree" (every checksum verified)."""
+        return cls.from_source(store.open_store(path))
 
-        if not is_legacy_file(path) and not str(path).lower().endswith(".npz"):
-            from approxtree.tree.tree_store import load_quadtree_store
-
-            return load_quadtree_store(path)
-
-        try:
-            with open(path, "rb") as fh:
-                head = fh.read(4)
-        except OSError as exc:
-            raise StoreError(f"Cannot read point quadtree {path}: {exc}") from exc
-        if head == b"PK\x03\x04":
+    @classmethod
+    def from_source(cls, source: store.TreeSource) -> PointQuadtree:
+        """The quadtree of a saved tree opened by ``tree.store.open_store`` (every array read
+        and checked now)."""
+        if source.tree_kind != TREE_KIND:
             raise StoreError(
-                f"{path} is a point quadtree .npz file of an earlier version, which is no longer "
-                "read; rebuild it with `approxtree build POINTS --kind point-quadtree`."
+                f"{source.location} holds an approximation tree, not a point quadtree; open it "
+                "with ApproximationTree.load or approxtree.load_tree."
             )
-        f = TreeFile(path)
-        meta = f.meta
-        if meta.get("tree_kind") != TREE_KIND:
-            raise StoreError(
-                f"{path} holds an approximation tree, not a point quadtree; open it with "
-                "ApproximationTree.load or approxtree.load_tree."
-            )
-        kind = meta.get("terrain_kind")
-        if kind not in TERRAIN_TYPES:
-            raise StoreError(f"{path} holds an unknown terrain kind {kind!r}.")
-        terrain = TERRAIN_TYPES[kind].from_record(*f.section("terrain"))
-        _, raw = f.section("quadtree")
-        return cls.from_sections(meta, terrain, raw, str(path))
+        source.verify()
+        return cls.from_sections(
+            source.meta, source.terrain(), source.quadtree_arrays(), source.location
+        )
 
     @classmethod
     def from_sections(
         cls, meta: dict[str, Any], terrain: TIN, raw: dict[str, np.ndarray], path: str
     ) -> PointQuadtree:
-        """The quadtree of ``to_sections``'s meta and arrays over ``terrain``."""
-        if meta.get("tree_kind") != TREE_KIND:
-            raise StoreError(
-                f"{path} holds an approximation tree, not a point quadtree; open it with "
-                "ApproximationTree.load or approxtree.load_tree."
-            )
+        """The quadtree of ``to_sections``'s meta and arrays over ``terrain`` (``path``: the
+        saved tree's location, for messages)."""
         if meta.get("section_version") != SECTION_VERSION:
             raise StoreError(
                 f"{path} has point quadtree layout {meta.get('section_version')!r}; this "

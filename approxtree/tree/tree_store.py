@@ -1,5 +1,9 @@
 """Trees in a tree store (``zarr_store``): the layout of an ApproximationTree or PointQuadtree.
 
+Writing: ``save_tree`` and ``save_quadtree`` (``tree.store.save`` picks one by tree kind).
+Reading: ``TreeStoreSource``, the ``TreeSource`` of a store (``tree.store.open_store``): meta
+data, terrain, node table or quadtree arrays, and each node's patch on demand.
+
 Layout (format version 1)::
 
     zarr.json                root attributes: format, format_version, metadata_crc32c, meta =
@@ -32,21 +36,26 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from approxtree import __version__
+from approxtree._version import __version__
 from approxtree.errors import StoreError
+from approxtree.geometry import TERRAIN_TYPES
+from approxtree.geometry.base import GeometryData
+from approxtree.geometry.grid import Grid
 from approxtree.geometry.windowed import WindowedHeights
-from approxtree.patches import STRATEGIES
-from approxtree.patches.records import Batch, concat_records, take
+from approxtree.patches.grid import GridPatch
+from approxtree.patches.records import Batch, take
+from approxtree.tree.patch_table import PatchTable
 from approxtree.tree.zarr_store import (
     HEIGHT_CHUNK,
     StoreReader,
     ZarrHeightSource,
+    is_url,
+    is_zip,
     write_array,
     writing,
 )
 
 if TYPE_CHECKING:
-    from approxtree.geometry.base import GeometryData
     from approxtree.tree.approximation_tree import ApproximationTree
     from approxtree.tree.point_quadtree import PointQuadtree
 
@@ -98,8 +107,6 @@ def _write_terrain(root: Any, terrain: GeometryData, tap: Any = None) -> None:
     A grid larger than its overview also gets ``overview`` (the Engine's normal map samples,
     ``Grid.strided_heights``), picked from the same slabs: no second read of the band.
     """
-    from approxtree.geometry.grid import Grid
-
     attrs, arrays = terrain.to_record()
     group = root.create_group("terrain", attributes={"kind": terrain.kind, "attrs": attrs})
     grid = getattr(terrain, "grid", terrain)
@@ -185,13 +192,9 @@ class _LatticeTap:
 
 def _lattice_tap(tree: ApproximationTree) -> _LatticeTap | None:
     """The tap for the coarse grid patches of a tree over a windowed grid (None otherwise)."""
-    from approxtree.patches.grid import GridPatch
-
     grid = tree.terrain
     if not getattr(grid, "is_windowed", False) or grid.index_offset != (0, 0):
         return None
-    from approxtree.tree.patch_table import PatchTable
-
     held = tree._patches
     if isinstance(held, PatchTable):
         # Only the coarse patches store a lattice: no object for the others.
@@ -205,8 +208,6 @@ def _lattice_tap(tree: ApproximationTree) -> _LatticeTap | None:
 
 
 def _read_terrain(reader: StoreReader) -> GeometryData:
-    from approxtree.geometry import TERRAIN_TYPES
-
     tattrs = reader.attrs("terrain")
     kind = tattrs.get("kind")
     if kind not in TERRAIN_TYPES:
@@ -259,34 +260,6 @@ def _write_batch(group: Any, batch: Batch) -> dict[str, int | None]:
     return fields
 
 
-def _tree_batch(tree: ApproximationTree, nodes: np.ndarray, strategy: str) -> Batch:
-    """The records of ``nodes`` (one strategy, storage order), from wherever they are."""
-    from approxtree.tree.patch_table import PatchTable
-
-    source = tree._source
-    held = tree._patches
-    if isinstance(held, PatchTable):
-        # A built tree's grid patches: records straight from its arrays, no object per node.
-        batch = held.records(nodes)
-        if batch is not None:
-            return batch
-    loaded = [held[i] for i in nodes]
-    if all(p is not None for p in loaded):
-        # One patch class per strategy and terrain: its batched gather; else record by record.
-        classes = {type(p) for p in loaded}
-        if len(classes) == 1:
-            return classes.pop().records_many(loaded)  # type: ignore[arg-type]
-        return concat_records([p.to_record() for p in loaded])  # type: ignore[union-attr]
-    if isinstance(source, TreeStoreSource):
-        # A store's batch, whole; reordered only if its storage order differs from this one.
-        batch = source.batch(strategy)
-        slots = source.slot[nodes]
-        same = np.array_equal(slots, np.arange(len(nodes)))
-        return batch if same else take(batch, slots)
-    # A legacy .atree: decode its records (one per node; conversion only).
-    return concat_records([source.patch_record(int(i))[1] for i in nodes])  # type: ignore[union-attr]
-
-
 def save_tree(tree: ApproximationTree, path: str | os.PathLike) -> int:
     """Write ``tree`` as a tree store at ``path`` atomically; returns the stored bytes."""
     n = len(tree)
@@ -313,7 +286,7 @@ def save_tree(tree: ApproximationTree, path: str | os.PathLike) -> int:
             slot[nodes] = np.arange(len(nodes))
             group = patches.create_group(name)
             write_array(group, "node", nodes.astype("<i8"))
-            fields = _write_batch(group, _tree_batch(tree, nodes, name))
+            fields = _write_batch(group, tree.patch_records(nodes, name))
             group.attrs.update({"count": len(nodes), "fields": fields})
         group = root.create_group("nodes")
         for name in NODE_ARRAYS:
@@ -324,8 +297,6 @@ def save_tree(tree: ApproximationTree, path: str | os.PathLike) -> int:
 
 def store_bytes(path: str | os.PathLike) -> int:
     """Bytes a store takes (a zip's file size; a folder's or URL's chunks and metadata)."""
-    from approxtree.tree.zarr_store import is_url, is_zip
-
     if is_zip(path):
         return os.path.getsize(path)
     if not is_url(path):
@@ -336,27 +307,66 @@ def store_bytes(path: str | os.PathLike) -> int:
 
 
 class TreeStoreSource:
-    """Node patches read on demand from a store (only node i's slice of each field)."""
+    """A tree store opened for reading: the ``TreeSource`` of a store (``tree.store``).
 
-    def __init__(
-        self,
-        reader: StoreReader,
-        strategy_names: list[str],
-        strategies: np.ndarray,
-        slot: np.ndarray,
-    ) -> None:
+    The root attributes are checked on opening (``StoreReader``); the node table, the terrain
+    and the quadtree arrays are read when asked for, a grid's heights by windows, and node i's
+    patch as node i's slice of each field only.
+    """
+
+    def __init__(self, reader: StoreReader) -> None:
         self.reader = reader
-        self.strategy_names = strategy_names
-        self.strategies = strategies
-        self.slot = slot
+        self.location = reader.location
+        self.meta: dict[str, Any] = reader.meta
         self._fields: dict[str, dict[str, int | None]] = {}
         self._offsets: dict[str, np.ndarray] = {}
+        # (strategies (n,), patch_slot (n,)) of the nodes: where each node's patch is.
+        self._placement: tuple[np.ndarray, np.ndarray] | None = None
+
+    @property
+    def tree_kind(self) -> str:
+        """The tree kind: "approximation_tree" or "point_quadtree"."""
+        return str(self.meta.get("tree_kind"))
+
+    def terrain(self) -> GeometryData:
+        """The stored terrain (a grid's heights stay in the store, read by windows)."""
+        return _read_terrain(self.reader)
+
+    def node_arrays(self) -> dict[str, np.ndarray]:
+        """The node table of an approximation tree, (n, ...) arrays (``NODE_ARRAYS``)."""
+        nodes = {name: self.reader.read(f"nodes/{name}") for name in NODE_ARRAYS}
+        slot = self.reader.read("nodes/patch_slot")
+        n = len(nodes["errors"])
+        if any(len(a) != n for a in (*nodes.values(), slot)):
+            raise StoreError(f"{self.location} has node arrays of different lengths; rebuild it.")
+        self._placement = (nodes["strategies"], slot)
+        return nodes
+
+    def quadtree_arrays(self) -> dict[str, np.ndarray]:
+        """The "quadtree" arrays of a point quadtree (``PointQuadtree.to_sections``)."""
+        return {
+            name: self.reader.read(f"quadtree/{name}") for name in self.reader.children("quadtree")
+        }
+
+    def verify(self) -> None:
+        """Read every array but the terrain's now (the terrain's chunks are checked as they are
+        read), so a damaged chunk fails here rather than when its patch is paged in; that
+        every chunk is there was checked when the store was opened."""
+        self.reader.verify(read_skip=("terrain/",))
+
+    def _where(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._placement is None:
+            self._placement = (
+                self.reader.read("nodes/strategies"),
+                self.reader.read("nodes/patch_slot"),
+            )
+        return self._placement
 
     def fields(self, strategy: str) -> dict[str, int | None]:
         if strategy not in self._fields:
             raw = self.reader.attrs(f"patches/{strategy}").get("fields")
             if not isinstance(raw, dict):
-                raise StoreError(f"{self.reader.location} lacks the patch fields of {strategy!r}.")
+                raise StoreError(f"{self.location} lacks the patch fields of {strategy!r}.")
             self._fields[strategy] = raw
         return self._fields[strategy]
 
@@ -367,8 +377,9 @@ class TreeStoreSource:
 
     def patch_record(self, i: int) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
         """({}, arrays) of node i's patch, like ``TreeFile.patch_record``."""
-        strategy = self.strategy_names[int(self.strategies[i])]
-        s = int(self.slot[i])
+        strategies, slot = self._where()
+        strategy = self.meta["strategy_names"][int(strategies[i])]
+        s = int(slot[i])
         base = f"patches/{strategy}"
         out = {}
         for name, width in self.fields(strategy).items():
@@ -380,6 +391,14 @@ class TreeStoreSource:
                     f"{base}/{name}_data", int(off[s]), int(off[s + 1])
                 )
         return {}, out
+
+    def records(self, nodes: np.ndarray, strategy: str) -> Batch:
+        """The records of ``nodes`` (one strategy): the store's batch whole, reordered only
+        if ``nodes`` do not follow its storage order."""
+        batch = self.batch(strategy)
+        slots = self._where()[1][nodes]
+        same = np.array_equal(slots, np.arange(len(nodes)))
+        return batch if same else take(batch, slots)
 
     def batch(self, strategy: str) -> Batch:
         """Every record of one strategy, in slot order."""
@@ -395,55 +414,6 @@ class TreeStoreSource:
         return out
 
 
-def _check_meta(reader: StoreReader) -> dict[str, Any]:
-    from approxtree.geometry import TERRAIN_TYPES
-
-    meta = reader.meta
-    if meta.get("terrain_kind") not in TERRAIN_TYPES:
-        raise StoreError(
-            f"{reader.location} holds an unknown terrain kind {meta.get('terrain_kind')!r}."
-        )
-    return meta
-
-
-def load_tree_store(path: str | os.PathLike, verify: bool = True) -> ApproximationTree:
-    """The ApproximationTree of a store; patches are read on first access.
-
-    Every chunk's presence is checked when the store is opened. verify: also read every
-    array but the terrain's now (the terrain's chunks are checked as they are read), so a
-    damaged chunk fails here rather than when its patch is paged in."""
-    from approxtree.tree.approximation_tree import ApproximationTree
-
-    reader = StoreReader(path)
-    meta = _check_meta(reader)
-    if meta.get("tree_kind") != "approximation_tree":
-        raise StoreError(
-            f"{path} holds a {meta.get('tree_kind')!r} tree, not an approximation tree; open it "
-            "with approxtree.load_tree."
-        )
-    names = list(meta.get("strategy_names", []))
-    unknown = set(names) - set(STRATEGIES)
-    if unknown:
-        raise StoreError(f"{path} uses strategies unknown to this version: {sorted(unknown)}.")
-    if verify:
-        reader.verify(read_skip=("terrain/",))
-    terrain = _read_terrain(reader)
-    nodes = {name: reader.read(f"nodes/{name}") for name in NODE_ARRAYS}
-    slot = reader.read("nodes/patch_slot")
-    n = len(nodes["errors"])
-    if any(len(a) != n for a in (*nodes.values(), slot)):
-        raise StoreError(f"{path} has node arrays of different lengths; rebuild it.")
-    source = TreeStoreSource(reader, names, nodes["strategies"], slot)
-    return ApproximationTree(
-        terrain,
-        **nodes,
-        strategy_names=names,
-        params=dict(meta["params"]),
-        patches=[None] * n,
-        source=source,  # type: ignore[arg-type]
-    )
-
-
 # -- point quadtrees ---------------------------------------------------------------------------
 
 
@@ -456,18 +426,6 @@ def save_quadtree(tree: PointQuadtree, path: str | os.PathLike) -> int:
         for name, a in arrays.items():
             write_array(group, name, np.asarray(a))
     return store_bytes(path)
-
-
-def load_quadtree_store(path: str | os.PathLike) -> PointQuadtree:
-    """The PointQuadtree of a store (every chunk read, so every checksum checked)."""
-    from approxtree.tree.point_quadtree import PointQuadtree
-
-    reader = StoreReader(path)
-    meta = _check_meta(reader)
-    reader.verify()
-    terrain = _read_terrain(reader)
-    arrays = {name: reader.read(f"quadtree/{name}") for name in reader.children("quadtree")}
-    return PointQuadtree.from_sections(meta, terrain, arrays, str(path))
 
 
 def store_info(path: str | os.PathLike) -> dict[str, Any]:
@@ -509,11 +467,3 @@ def store_info(path: str | os.PathLike) -> dict[str, Any]:
     out["bytes_raw"] = sizes["raw"]
     out["ratio"] = round(sizes["stored"] / sizes["raw"], 4) if sizes["raw"] else None
     return out
-
-
-def load_store_terrain(path: str | os.PathLike) -> GeometryData:
-    """The terrain of a tree store alone, without its nodes: a grid's heights stay in the
-    store and are read by windows as asked for (web tiles sample it tile by tile)."""
-    reader = StoreReader(path)
-    _check_meta(reader)
-    return _read_terrain(reader)

@@ -74,12 +74,12 @@ class TileService:
     tileset.json walk makes are kept too."""
 
     def __init__(self, store: str, textures: str | None = None) -> None:
-        from approxtree.tree.tree_store import load_store_terrain
+        from approxtree.tree.store import open_store
 
         self.store = store
         self.name = Path(str(store).rstrip("/")).name
         #: The store's terrain (its heights read by windows as tiles ask for them).
-        self.terrain = load_store_terrain(store)
+        self.terrain = open_store(store).terrain()
         self.layer_folders = find_layers(textures)
         self._lock = threading.RLock()
         self._opened: dict[Any, Any] = {}
