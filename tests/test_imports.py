@@ -15,8 +15,6 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-import pytest
-
 import approxtree
 from approxtree import _version
 
@@ -30,6 +28,8 @@ LEVELS = {
     "errors": 0,
     "_version": 0,
     "progress": 0,
+    # The loader of the package's GLSL programs (render/ draws with them, textures/ bakes).
+    "glsl": 1,
     "kernels": 1,
     "geometry": 2,
     "io": 3,
@@ -52,17 +52,6 @@ LEVELS = {
     "_warmup": 9,
 }
 
-#: Rooms two other helpers of issue 25 are rewriting now; their known violations (below) are
-#: reported by the xfail test until then. textures/gl_bake.py's import of render/engine.py is
-#: theirs too: the GL context moves to render/context.py and is passed in.
-THEIRS = ("approxtree.render", "approxtree.viewer", "approxtree.textures.gl_bake")
-KNOWN_THEIRS = (
-    "import cycle: approxtree.render.engine <-> approxtree.render.point_quadtree_engine",
-    "approxtree.textures.gl_bake (textures) imports approxtree.render.engine and "
-    "approxtree.render.shaders (render, a higher room)",
-)
-
-
 @dataclass(frozen=True)
 class Import:
     """One import statement: importer → imported module, its line, inside a function or not."""
@@ -83,10 +72,6 @@ class Violation:
 
     text: str
     modules: tuple[str, ...]
-
-    @property
-    def theirs(self) -> bool:
-        return all(m.startswith(THEIRS) for m in self.modules)
 
 
 def modules() -> dict[str, Path]:
@@ -253,20 +238,8 @@ def test_imports_are_found_inside_functions_too():
 
 def test_no_cycles_and_only_downward_imports():
     """No import cycle among the package's modules (imports in functions count) and no room
-    imports a room on its own or a higher level, outside the rooms being rewritten."""
-    found = [v for v in violations() if not v.theirs]
-    assert not found, _report(found)
-
-
-@pytest.mark.xfail(
-    strict=True,
-    reason="render/ and viewer/ are being rewritten (issue 25); known: "
-    + "; ".join(KNOWN_THEIRS)
-    + ". Remove this mark once they are merged.",
-)
-def test_no_cycles_and_only_downward_imports_in_render_and_viewer():
-    """The same for render/, viewer/ and textures/gl_bake.py's GL context."""
-    found = [v for v in violations() if v.theirs]
+    imports a room on its own or a higher level."""
+    found = violations()
     assert not found, _report(found)
 
 

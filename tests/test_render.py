@@ -18,7 +18,7 @@ from approxtree.render import Camera, Cut, Engine, Style, overview_camera
 from approxtree.render.context import create_context
 from approxtree.render.frame import STAT_KEYS
 from approxtree.render.gpu_cache import GpuCache
-from approxtree.render.shaders import ShaderError, create_program, load_source, shader_dir
+from approxtree.glsl import ShaderError, create_program, load_source, shader_dir
 
 
 @pytest.fixture(scope="session")

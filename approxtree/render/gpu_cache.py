@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from approxtree.render.shaders import VERTEX_LAYOUT
+from approxtree.glsl import VERTEX_LAYOUT
 
 
 @dataclass

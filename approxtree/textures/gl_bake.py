@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from approxtree.errors import ContextUnavailableError, InvalidParameterError
+from approxtree.glsl import create_program
 from approxtree.kernels import hillshade as hs
 from approxtree.textures.shading import ALGORITHMS, TopographicShading
 
@@ -60,8 +61,6 @@ def _on_context(
 ) -> np.ndarray:
     """The tiles drawn on ``context`` into a (rows, cols) array of ``dtype``: float32 values,
     or uint8 grey levels rounded tile by tile."""
-    from approxtree.render.shaders import create_program
-
     if tile_size is not None and not (isinstance(tile_size, int) and tile_size >= 1):
         raise InvalidParameterError(f"tile_size must be an int >= 1, got {tile_size!r}.")
     if context is None:
