@@ -27,9 +27,10 @@ from typing import Any
 import numpy as np
 
 from approxtree.errors import StoreError
+from approxtree.verify.implicit_read import implicit_tiles
 from approxtree.verify.measure import measure_for
 from approxtree.verify.mesh import measure_tolerance
-from approxtree.verify.mesh_read import read_glb, z_up
+from approxtree.verify.mesh_read import read_glb_parts, z_up
 from approxtree.verify.report import VerifyReport, claims_hold
 
 #: WGS84 axes (m), for the east-north-up frame of terrain without a CRS.
@@ -70,13 +71,16 @@ def walk(path: Path, report: VerifyReport) -> list[Tile]:
 
     doc = load(path)
     report.figures["tileset_geometric_error"] = doc.get("geometricError")
-    stack: list[tuple[dict, np.ndarray, int, str, Path]] = [
-        (doc.get("root") or {}, np.eye(4), -1, "root", path.parent)
+    stack: list[tuple[dict, np.ndarray, int, str, Path, dict]] = [
+        (doc.get("root") or {}, np.eye(4), -1, "root", path.parent, doc.get("schema") or {})
     ]
     seen: set[Path] = {path.resolve()}
     while stack:
-        raw, parent_m, parent, address, base = stack.pop()
+        raw, parent_m, parent, address, base, schema = stack.pop()
         m = parent_m @ _matrix(raw)
+        if "implicitTiling" in raw:
+            _expand_implicit(raw, m, parent, address, base, schema, tiles, report)
+            continue
         me = len(tiles)
         tile = Tile(
             address,
@@ -100,12 +104,66 @@ def walk(path: Path, report: VerifyReport) -> list[Tile]:
                     continue
                 seen.add(target.resolve())
                 sub = load(target)
-                stack.append((sub.get("root") or {}, m, me, f"{uri}:root", target.parent))
+                stack.append(
+                    (
+                        sub.get("root") or {},
+                        m,
+                        me,
+                        f"{uri}:root",
+                        target.parent,
+                        sub.get("schema") or {},
+                    )
+                )
             else:
                 tile.contents.append(target)
         for k, child in enumerate(raw.get("children") or []):
-            stack.append((child, m, me, f"{address}/{k}", base))
+            stack.append((child, m, me, f"{address}/{k}", base, schema))
     return tiles
+
+
+def _expand_implicit(
+    raw: dict,
+    matrix: np.ndarray,
+    parent: int,
+    address: str,
+    base: Path,
+    schema: dict,
+    tiles: list[Tile],
+    report: VerifyReport,
+) -> None:
+    """Append the available tiles of an implicit tile (parents first), each with the volume
+    and error its metadata declares (or its subdivision derives). The ``implicit`` check:
+    subtrees parse, and every tile's derived (halved) error is at least its declared one, so
+    clients that ignore tile metadata refine at least as soon."""
+    content = report.checks["content"]
+    check = report.check(
+        "implicit", "subtrees parse; each tile's halved error holds its declared one"
+    )
+    try:
+        found = implicit_tiles(raw, base, schema)
+    except (StoreError, KeyError, ValueError, IndexError) as exc:
+        check.items += 1
+        check.fail(address, "readable subtrees", str(exc)[:120])
+        return
+    index: dict[tuple[int, int, int], int] = {}
+    for t in found:
+        name = f"{address}@{t.level}/{t.x}/{t.y}"
+        up = parent if t.level == 0 else index.get((t.level - 1, t.x >> 1, t.y >> 1), -2)
+        check.items += 1
+        if up == -2:
+            check.fail(name, "its parent available", "missing")
+            up = parent
+        if t.error < t.declared_error * (1 - 1e-12):
+            check.fail(name, f">= {t.declared_error}", t.error, t.declared_error - t.error)
+        index[(t.level, t.x, t.y)] = len(tiles)
+        tile = Tile(name, matrix, t.declared_volume, t.declared_error, up)
+        if t.content is not None:
+            content.items += 1
+            if t.content.is_file():
+                tile.contents.append(t.content)
+            else:
+                content.fail(name, "a file", "missing")
+        tiles.append(tile)
 
 
 class _Frame:
@@ -165,17 +223,18 @@ def _geodetic(ecef: np.ndarray) -> np.ndarray:
     return np.column_stack([np.radians(lon), np.radians(lat), h])
 
 
-def _tile_mesh(tile: Tile) -> tuple[np.ndarray, np.ndarray]:
-    """(ECEF (n, 3), triangles (m, 3)) of a tile's GLB contents."""
-    pts, tris, count = [], [], 0
+def _tile_mesh(tile: Tile) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(ECEF (n, 3), triangles (m, 3), skirt flags (m,)) of a tile's GLB contents."""
+    pts, tris, skirts, count = [], [], [], 0
     for path in tile.contents:
-        pos, tri, _ = read_glb(path.read_bytes(), str(path))
+        pos, tri, skirt, _ = read_glb_parts(path.read_bytes(), str(path))
         pts.append(z_up(pos, tile.matrix))
         tris.append(tri + count)
+        skirts.append(skirt)
         count += len(pos)
     if not pts:
-        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
-    return np.concatenate(pts), np.concatenate(tris)
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=bool)
+    return np.concatenate(pts), np.concatenate(tris), np.concatenate(skirts)
 
 
 def verify_3dtiles(output: Path, terrain: Any, report: VerifyReport) -> None:
@@ -203,11 +262,13 @@ def verify_3dtiles(output: Path, terrain: Any, report: VerifyReport) -> None:
 
 
 def _read_tile(tile: Tile, report: VerifyReport) -> tuple[np.ndarray, np.ndarray] | None:
-    """(ECEF vertices, triangles) of a tile's contents; None (a failure) when they do not
-    parse or hold no triangle."""
+    """(ECEF vertices, surface triangles) of a tile's contents (skirt primitives left out:
+    their walls claim nothing); None (a failure) when they do not parse or hold no
+    triangle."""
     content = report.checks["content"]
     try:
-        ecef, tris = _tile_mesh(tile)
+        ecef, tris, skirt = _tile_mesh(tile)
+        tris = tris[~skirt]
     except StoreError as exc:
         content.fail(tile.address, "GLB", str(exc)[:120])
         return None
