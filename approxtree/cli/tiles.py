@@ -102,6 +102,21 @@ def _store_epsilon(path: str) -> float | None:
 )
 @click.option("--no-skirts", is_flag=True, help="3dtiles: leave the skirts out of the tiles.")
 @click.option(
+    "--compression",
+    type=click.Choice(["draco", "meshopt", "none"]),
+    default="draco",
+    show_default=True,
+    help="3dtiles: positions on a lattice whose error (at most 1 % of each tile's error or ε) "
+    "is added to its geometricError, compressed with KHR_draco_mesh_compression or "
+    "EXT_meshopt_compression; none: float32 positions.",
+)
+@click.option(
+    "--implicit",
+    is_flag=True,
+    help="3dtiles: 3D Tiles 1.1 implicit tiling (quadtree, subtree files with each tile's "
+    "exact geometricError and volume as metadata) instead of an explicit tile tree.",
+)
+@click.option(
     "--leaf-error",
     type=float,
     default=None,
@@ -140,6 +155,8 @@ def tiles(
     texture_format: str,
     origin: tuple[float, float],
     no_skirts: bool,
+    compression: str,
+    implicit: bool,
     leaf_error: float | None,
     workers: int,
     scheduler: str | None,
@@ -173,6 +190,7 @@ def tiles(
             as_json,
             reader,
             build,
+            {"compression": compression, "implicit": implicit},
         )
         return
     if build.given:
@@ -222,9 +240,10 @@ def _tiles_3dtiles(
     as_json: bool,
     reader: dict[str, Any],
     build: BuildChoices,
+    content: dict[str, Any],
 ) -> None:
     """`approxtree tiles --format 3dtiles`: the 3D Tiles tileset of a tree store, or of the
-    tree of a terrain file built in memory."""
+    tree of a terrain file built in memory; content: write_3dtiles' compression and implicit."""
     from approxtree.io.output_path import check_output_folder
     from approxtree.tiles import write_3dtiles
     from approxtree.tiles.parallel import check_workers
@@ -244,5 +263,6 @@ def _tiles_3dtiles(
         skirts=not no_skirts,
         image_format=texture_format,
         scheduler=scheduler,
+        **content,
     )
     _emit(figures, as_json)
