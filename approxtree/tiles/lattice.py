@@ -7,20 +7,23 @@ on the ellipsoid; the local frame's axes otherwise), ``origin`` + q · ``step`` 
 moves each vertex by d with |d_k| <= step / 2 along every axis.
 
 How much does that change the surface's height at a point p (what ``approxtree verify``
-measures, heights along each place's vertical)? Take the triangle T' (moved vertices) over p
-and the original T: with barycentric weights w' of p in T' (all in [0, 1]) and the vertices'
-moves split into vertical b_i and horizontal a_i,
+measures: heights along the vertical n_p of each place)? Take the triangle T' (moved
+vertices) over p and the original T: with barycentric weights w' of p in T' (all in
+[0, 1]) and the vertices' moves split into vertical b_i and horizontal a_i (about n_p),
 
     h_T'(p) − h_T(p) = Σ w'_i b_i − ∇h_T · Σ w'_i a_i,
 
-exactly (the plane of T is affine), so |h_T' − h_T| <= max |b| + S · max |a| with S the
-steepest surface triangle's slope. Verticals differ across the tile by at most ``tilt`` θ
-(the largest angle between a vertex's vertical and the lattice's up), so
-|b| <= step/2 · (1 + √2 θ), |a| <= √3 · step/2, and slopes seen from a tilted vertical are
-at most tan(atan S + θ): the bound is ``step · k`` with k = (1 + √2 θ + √3 tan(atan S + θ)) / 2.
+exactly (the plane of T is affine), so |h_T' − h_T| <= max |b| + |∇h_T| · max |a|. With φ
+the largest angle between a vertex's vertical and the lattice's up, |b| <= step/2 ·
+(cos φ + √2 sin φ) and |a| <= √3 · step/2; |∇h_T| = tan of the angle between T's normal and
+n_p, at most that angle at T's centroid plus the spread θ of its vertices' verticals. The
+bound is ``step · k``, k the largest over the surface triangles of
 
-``fit_lattice`` picks the coarsest power-of-two step whose bound is within a budget (at most
-``max_bits`` per axis), so a tile's claim grows by a known, small amount.
+    (cos φ_t + √2 sin φ_t) / 2 + √3 / 2 · tan(α_t + θ_t),
+
+α_t the angle between T's normal and the vertical at its centroid (for terrain in a local
+frame every vertical is the lattice's up: φ = θ = 0, tan α = the slope).
+
 """
 
 from __future__ import annotations
@@ -89,41 +92,73 @@ def local_axes(center: np.ndarray, georeferenced: bool) -> np.ndarray:
     return np.column_stack([east, np.cross(up, east), up])
 
 
-def tilt(geo: np.ndarray | None, up: np.ndarray) -> float:
-    """Largest angle (radians) between the verticals at (n, 3) lon, lat (degrees), height
-    points and ``up`` (3,) unit; 0 without points (a local frame: one vertical)."""
-    if geo is None or not len(geo):
-        return 0.0
+def verticals(geo: np.ndarray) -> np.ndarray:
+    """(n, 3) unit ellipsoid normals (ECEF) at (n, 3) longitude, latitude (degrees), height."""
     lam, phi = np.radians(geo[:, 0]), np.radians(geo[:, 1])
-    normals = np.column_stack([np.cos(phi) * np.cos(lam), np.cos(phi) * np.sin(lam), np.sin(phi)])
-    return float(np.arccos(np.clip((normals @ up).min(), -1.0, 1.0)))
+    return np.column_stack([np.cos(phi) * np.cos(lam), np.cos(phi) * np.sin(lam), np.sin(phi)])
 
 
-def steepest_slope(faces: np.ndarray, rotation: np.ndarray) -> float:
-    """Largest |gradient| of triangles given by their normals ``faces`` (m, 3) (tileset frame,
-    ``io.gltf.face_normals``) seen in the lattice's axes ``rotation`` (z up); inf for a
-    vertical or overturned triangle."""
+def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(m,) angles between rows of unit vectors a and b (m, 3)."""
+    return np.arccos(np.clip(np.einsum("ij,ij->i", a, b), -1.0, 1.0))
+
+
+def bound_factor(
+    faces: np.ndarray, triangles: np.ndarray, up: np.ndarray, normals: np.ndarray | None
+) -> float:
+    """k of the module docstring: the height bound per metre of step, inf when a triangle is
+    vertical or overturned. faces: (m, 3) normals of the surface triangles (m, 3);
+    up: (3,) the lattice's up; normals: (n, 3) the vertices' verticals, or None for one
+    vertical, ``up``, everywhere."""
     if not len(faces):
-        return 0.0
-    n = np.asarray(faces, dtype=np.float64) @ rotation
-    flat = np.hypot(n[:, 0], n[:, 1])
+        return 0.5
+    f = np.asarray(faces, dtype=np.float64)
+    f = f / np.maximum(np.linalg.norm(f, axis=1, keepdims=True), 1e-300)
+    if normals is None:
+        alpha = np.arccos(np.clip(f @ up, -1.0, 1.0))
+        phi = theta = np.zeros(1)
+    else:
+        corners = normals[triangles]
+        centroid = corners.sum(axis=1)
+        centroid /= np.linalg.norm(centroid, axis=1, keepdims=True)
+        alpha = _angle(f, centroid)
+        theta = np.max([_angle(corners[:, k], centroid) for k in range(3)], axis=0)
+        phi = np.arccos(np.clip(normals @ up, -1.0, 1.0)).max(keepdims=True)
+    steep = alpha + theta
+    if not (steep < np.pi / 2).all():
+        return math.inf
+    phi = np.minimum(phi, np.pi / 2)
+    vertical = float((np.cos(phi) + math.sqrt(2.0) * np.sin(phi)).max())
+    return 0.5 * vertical + 0.5 * math.sqrt(3.0) * float(np.tan(steep).max())
+
+
+def geographic_factor(geo: np.ndarray, triangles: np.ndarray) -> float:
+    """The height bound per metre of step of a TIN linear in longitude and latitude (as
+    quantized-mesh tiles are read): a move of r metres changes a vertex's height by at most r
+    and its longitude, latitude by at most r over the metres per degree there, so heights
+    under a triangle of gradient g (metres per degree) change by at most
+    r · (1 + |g| scaled by the metres per degree); r = √3 · step / 2.
+
+    geo: (n, 3) longitude, latitude (degrees), height; triangles: (m, 3)."""
+    t = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    if not len(t):
+        return 0.5 * math.sqrt(3.0)
+    p = np.asarray(geo, dtype=np.float64)[t]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
     with np.errstate(divide="ignore", invalid="ignore"):
-        slopes = np.where(n[:, 2] > 0, flat / n[:, 2], np.inf)
-    return float(slopes.max())
-
-
-def bound_factor(slope: float, theta: float) -> float:
-    """k of the module docstring: the height bound per metre of step."""
-    angle = math.atan(slope) + theta
-    steep = math.tan(angle) if angle < math.pi / 2 else math.inf
-    return 0.5 * (1.0 + math.sqrt(2.0) * theta + math.sqrt(3.0) * steep)
+        g_lon, g_lat = -n[:, 0] / n[:, 2], -n[:, 1] / n[:, 2]
+    # Fewest metres per degree over each triangle (the smallest radius of curvature).
+    per_degree = math.radians(1.0) * WGS84_B**2 / WGS84_A
+    coslat = np.cos(np.radians(np.abs(p[:, :, 1]).max(axis=1)))
+    slope = np.hypot(g_lon / (per_degree * np.maximum(coslat, 1e-9)), g_lat / per_degree)
+    worst = float(slope.max())
+    return 0.5 * math.sqrt(3.0) * (1.0 + worst) if math.isfinite(worst) else math.inf
 
 
 def fit_lattice(
     rel: np.ndarray,
     rotation: np.ndarray,
-    faces: np.ndarray,
-    theta: float,
+    k: float,
     budget: float,
     limit: float,
     max_bits: int,
@@ -133,13 +168,12 @@ def fit_lattice(
     at most ``max_bits`` bits per axis; when that cap leaves a bound over ``limit`` (a sliver
     steep enough to make the quantization matter), None: store the tile's positions as float32.
 
-    faces: (m, 3) normals of the surface's triangles (skirts left out: vertical walls hold no
-    point) in the tileset frame; theta: ``tilt`` of the tile.
+    k: the height bound per metre of step (``bound_factor`` of the surface's triangles,
+    skirts left out since their walls claim nothing, or ``geographic_factor``).
     """
     local = np.asarray(rel, dtype=np.float64) @ rotation
     origin = local.min(axis=0)
     extent = max(float((local.max(axis=0) - origin).max()), 1e-9)
-    k = bound_factor(steepest_slope(faces, rotation), theta)
     if not math.isfinite(k):
         return None
     # The coarsest power of two within the budget, then refined until it fits the bits.

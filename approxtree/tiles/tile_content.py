@@ -32,7 +32,7 @@ from approxtree.io.gltf_compact import MAX_BITS, compact_glb
 from approxtree.patches.skirts import add_skirts, patches_reach_rect, skirt_base, skirt_depths
 from approxtree.textures.embed import embedded_texture
 from approxtree.tiles.earth import WGS84_A, WGS84_B, EarthFrame, geodetic_to_ecef
-from approxtree.tiles.lattice import Y_UP, fit_lattice, local_axes, tilt
+from approxtree.tiles.lattice import Y_UP, bound_factor, fit_lattice, local_axes, verticals
 
 #: Smallest radius of curvature of the WGS84 ellipsoid (m), for chord sagittas.
 MIN_RADIUS = WGS84_B**2 / WGS84_A
@@ -177,8 +177,9 @@ class NodeWriter:
             lattice = fit_lattice(
                 points - center,
                 axes,
-                faces,
-                tilt(geo, axes[:, 2]),
+                bound_factor(
+                    faces, tris[:surface], axes[:, 2], None if geo is None else verticals(geo)
+                ),
                 QUANTIZATION_SHARE * scale,
                 scale,
                 MAX_BITS[self.compression],
