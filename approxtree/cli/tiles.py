@@ -39,10 +39,11 @@ def _store_epsilon(path: str) -> float | None:
 @click.option(
     "--format",
     "tile_format",
-    type=click.Choice(["3dtiles", "quantized-mesh"]),
+    type=click.Choice(["3dtiles", "quantized-mesh", "3dtiles-terrain"]),
     required=True,
     help="3dtiles: tileset.json + one GLB per node; quantized-mesh: Cesium terrain "
-    "(layer.json + z/x/y.terrain, gzip).",
+    "(layer.json + z/x/y.terrain, gzip); 3dtiles-terrain: the same tiles as implicit 3D Tiles "
+    "for CesiumJS's Cesium3DTilesTerrainProvider (meshopt GLBs, subtree metadata).",
 )
 @click.option(
     "--samples",
@@ -205,12 +206,31 @@ def tiles(
     from approxtree.tiles.quantized_mesh import DEFAULT_LEAF_ERROR, check_output
 
     # The output folder is checked before the terrain is read.
-    replaceable(out, "terrain tileset")
-    check_output(out)
+    if tile_format == "3dtiles-terrain":
+        _check_3dtiles_target(out, minzoom)
+    else:
+        replaceable(out, "terrain tileset")
+        check_output(out)
     t0 = time.perf_counter()
     terrain = _terrain_of(tree, **reader)
     if leaf_error is None:
         leaf_error = _store_epsilon(tree) or DEFAULT_LEAF_ERROR
+    if tile_format == "3dtiles-terrain":
+        from approxtree.tiles.terrain3d import write_3dtiles_terrain
+
+        figures = write_3dtiles_terrain(
+            terrain,
+            out,
+            samples=int(samples),
+            maxzoom=maxzoom,
+            max_error=max_error,
+            workers=workers,
+            leaf_error=leaf_error,
+            scheduler=scheduler,
+        )
+        figures["seconds"] = round(time.perf_counter() - t0, 3)
+        _emit(figures, as_json)
+        return
     figures = write_quantized_mesh(
         terrain,
         out,
@@ -226,6 +246,21 @@ def tiles(
     figures.pop("results")
     figures["seconds"] = round(time.perf_counter() - t0, 3)
     _emit(figures, as_json)
+
+
+def _check_3dtiles_target(out: str, minzoom: int) -> None:
+    """The 3D Tiles terrain's output folder, checked before the terrain is read; CesiumJS
+    starts at level 0, so every level from 0 is written."""
+    from approxtree.errors import InvalidParameterError
+    from approxtree.io.output_path import check_output_folder
+
+    if minzoom != 0:
+        raise InvalidParameterError(
+            "--minzoom does not apply to 3dtiles-terrain: Cesium3DTilesTerrainProvider starts "
+            "at level 0, so every level from 0 is written. Leave it out."
+        )
+    check_output_folder(out, "tileset folder")
+    replaceable(out, "3D Tiles tileset")
 
 
 def _tiles_3dtiles(
