@@ -31,6 +31,7 @@ from approxtree.verify.implicit_read import implicit_tiles
 from approxtree.verify.measure import measure_for
 from approxtree.verify.mesh import measure_tolerance
 from approxtree.verify.mesh_read import read_glb_parts, z_up
+from approxtree.verify.quantized_mesh import LonLatMeasure, tile_bounds
 from approxtree.verify.report import VerifyReport, claims_hold
 
 #: WGS84 axes (m), for the east-north-up frame of terrain without a CRS.
@@ -51,6 +52,9 @@ class Tile:
     error: float
     parent: int
     contents: list[Path] = field(default_factory=list)
+    #: (level, x, y) in Cesium's geographic tiling (TMS, y from the south) for the tiles of
+    #: an implicit hemisphere (3D Tiles terrain), else None.
+    geographic: tuple[int, int, int] | None = None
 
 
 def _matrix(tile: dict[str, Any]) -> np.ndarray:
@@ -146,6 +150,7 @@ def _expand_implicit(
         check.fail(address, "readable subtrees", str(exc)[:120])
         return
     index: dict[tuple[int, int, int], int] = {}
+    hemisphere = _hemisphere(raw.get("boundingVolume") or {})
     for t in found:
         name = f"{address}@{t.level}/{t.x}/{t.y}"
         up = parent if t.level == 0 else index.get((t.level - 1, t.x >> 1, t.y >> 1), -2)
@@ -157,6 +162,8 @@ def _expand_implicit(
             check.fail(name, f">= {t.declared_error}", t.error, t.declared_error - t.error)
         index[(t.level, t.x, t.y)] = len(tiles)
         tile = Tile(name, matrix, t.declared_volume, t.declared_error, up)
+        if hemisphere is not None:
+            tile.geographic = (t.level, t.x + (hemisphere << t.level), t.y)
         if t.content is not None:
             content.items += 1
             if t.content.is_file():
@@ -237,6 +244,18 @@ def _tile_mesh(tile: Tile) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.concatenate(pts), np.concatenate(tris), np.concatenate(skirts)
 
 
+def _hemisphere(volume: dict[str, Any]) -> int | None:
+    """0 or 1 for a region of the western or eastern hemisphere (level 0 of Cesium's
+    geographic tiling), else None."""
+    region = volume.get("region")
+    if region is None:
+        return None
+    for k, west in enumerate((-math.pi, 0.0)):
+        if np.allclose(region[:4], [west, -math.pi / 2, west + math.pi, math.pi / 2], atol=1e-12):
+            return k
+    return None
+
+
 def verify_3dtiles(output: Path, terrain: Any, report: VerifyReport) -> None:
     path = output / "tileset.json" if output.is_dir() else output
     tiles = walk(path, report)
@@ -244,7 +263,14 @@ def verify_3dtiles(output: Path, terrain: Any, report: VerifyReport) -> None:
     volumes = report.check("volumes", "each volume holds its content and its children's")
     _nested(tiles, volumes)
     _monotone(tiles, report)
-    errors = _Errors(terrain, tiles[0], report) if terrain is not None else None
+    errors: _Errors | _GeographicErrors | None = None
+    if terrain is not None:
+        geographic = [t for t in tiles if t.contents]
+        if geographic and all(t.geographic is not None for t in geographic):
+            samples = (json.loads(path.read_text()).get("extras") or {}).get("samples", 152)
+            errors = _GeographicErrors(terrain, report, int(samples))
+        else:
+            errors = _Errors(terrain, tiles[0], report)
     # Tiles a batch at a time: each GLB parsed once, memory bounded by a batch.
     meshes = [k for k, t in enumerate(tiles) if t.contents]
     for a in range(0, len(meshes), _BATCH):
@@ -255,7 +281,9 @@ def verify_3dtiles(output: Path, terrain: Any, report: VerifyReport) -> None:
                 volumes.items += 1
                 _content_inside(tiles[k], mesh[0], volumes)
                 batch[k] = mesh
-        if errors is not None:
+        if isinstance(errors, _GeographicErrors):
+            errors.measure_tiles(tiles, batch)
+        elif errors is not None:
             errors.measure(tiles, batch)
     if errors is not None:
         errors.finish()
@@ -404,3 +432,26 @@ class _Errors:
     def finish(self) -> None:
         self.report.figures["worst_tile_error"] = self.worst
         self.report.figures["data_points_measured"] = self.points
+
+
+class _GeographicErrors:
+    """3D Tiles terrain (Cesium's geographic tiling): each tile's TIN taken to longitude,
+    latitude and ellipsoidal height (pyproj) and measured linear in them against its declared
+    error, as quantized-mesh tiles are (``LonLatMeasure``: the data points within 1.5 sample
+    spacings of the DEM's edge are left out)."""
+
+    def __init__(self, terrain: Any, report: VerifyReport, samples: int) -> None:
+        self.measure = LonLatMeasure(terrain, report)
+        self.samples = samples
+
+    def measure_tiles(self, tiles: list[Tile], batch: dict[int, tuple[np.ndarray, np.ndarray]]):
+        for k, (ecef, tris) in sorted(batch.items()):
+            level, x, y = tiles[k].geographic  # type: ignore[misc]
+            self.measure.spacing[level] = 180.0 / 2**level / (self.samples - 1)
+            g = _geodetic(ecef)
+            verts = np.column_stack([np.degrees(g[:, 0]), np.degrees(g[:, 1]), g[:, 2]])
+            address = f"{level}/{x}/{y}"
+            self.measure.mesh(address, level, tile_bounds(level, x, y), verts, tris, tiles[k].error)
+
+    def finish(self) -> None:
+        self.measure.finish()
