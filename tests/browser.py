@@ -58,16 +58,24 @@ def run_views(
     out_dir: Path,
     size: tuple[int, int] = (480, 320),
     timeout_s: float = 240.0,
+    page: str = "/viewer/index.html",
 ) -> list[dict]:
     """Open the viewer once per view; returns one dict per view (see tests/web/shot.cjs).
 
     views: [{"name": str, "params": {url parameter: value}}]; the tiles folder is served at
     /tiles/, so params name it as "/tiles/tileset.json" or "/tiles/". Adds "screenshot" (the
-    PNG path) and "tile_requests" (paths requested under /tiles/) to each result.
+    PNG path) and "tile_requests" (paths requested under /tiles/) to each result. page: the
+    page opened, the viewer by default, or a test page of tests/web served at /pages/ (which
+    imports npm packages from /node_modules/).
     """
     serve = _serve_module()
     out_dir.mkdir(parents=True, exist_ok=True)
-    with serve.TileServer(serve.default_roots(tiles_dir)) as server:
+    roots = {
+        **serve.default_roots(tiles_dir),
+        "/pages/": REPO / "tests" / "web",
+        "/node_modules/": NODE_MODULES,
+    }
+    with serve.TileServer(roots) as server:
         job_views = []
         for view in views:
             params = {
@@ -77,7 +85,7 @@ def run_views(
             }
             job_views.append(
                 {
-                    "url": f"{server.url}/viewer/index.html?{urlencode(params, safe='/,')}",
+                    "url": f"{server.url}{page}?{urlencode(params, safe='/,')}",
                     "screenshot": str(out_dir / f"{view['name']}.png"),
                 }
             )
