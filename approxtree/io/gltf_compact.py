@@ -13,8 +13,11 @@ included). The caller chose the lattice, so it knows exactly what the file's pos
   every value below 2^24 steps). Normals are Draco's octahedral normals (8 bits), texture
   coordinates 14 bits. Draco merges duplicate vertices and drops unused ones: the file is
   decoded once (DracoPy) for the accessors' counts and bounds.
-- ``meshopt`` (EXT_meshopt_compression + KHR_mesh_quantization): positions as normalized
-  unsigned shorts (the node's matrix scales them by ``65535 · step``; ``bits`` <= 16),
+- ``meshopt`` (EXT_meshopt_compression + KHR_mesh_quantization): positions as unsigned shorts
+  (``bits`` <= 16), the node's matrix scaling them by ``step`` — or, ``normalized``, as
+  normalized shorts scaled by ``65535 · step``, the only form CesiumJS's 3D Tiles terrain
+  reads (the Khronos validator then reports the node matrix as not decomposable: it compares
+  determinants in float32, and (65535 · step)³ is large),
   normals through the OCTAHEDRAL filter (8 bits), texture coordinates as normalized unsigned
   shorts, indices through the index codec; vertices reordered for the vertex cache and
   fetch first (meshoptimizer), which is what makes the codecs compress. The uncompressed
@@ -73,6 +76,7 @@ def compact_glb(
     mime: str = "image/png",
     extras: dict[str, Any] | None = None,
     edges: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
+    normalized: bool = False,
 ) -> bytes:
     """The GLB of one mesh with lattice positions (see the module docstring).
 
@@ -81,7 +85,7 @@ def compact_glb(
     the lattice's axes; triangles: (m, 3) counter-clockwise, skirts from ``skirt_from`` on;
     uvs: (n, 2) texture coordinates (origin top-left) with ``image`` (encoded, ``mime``);
     extras: the scene's extras; edges: 4 arrays of vertex indices (west, south, east, north),
-    meshopt only.
+    meshopt only; normalized: meshopt positions as normalized shorts.
     """
     q = np.asarray(lattice, dtype=np.int64).reshape(-1, 3)
     tris = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
@@ -101,6 +105,15 @@ def compact_glb(
         raise InvalidParameterError("uvs and image come together (a textured mesh) or not at all.")
     if edges is not None and compression != "meshopt":
         raise InvalidParameterError("tile edges (CESIUM_tile_edges) are written with meshopt only.")
+    # Vertices no triangle uses (nodata holes) are left out: the codecs number the used ones.
+    used = np.unique(tris)
+    if len(used) < len(q):
+        new = np.full(len(q), -1, dtype=np.int64)
+        new[used] = np.arange(len(used))
+        q, tris, normals = q[used], new[tris], np.asarray(normals)[used]
+        uvs = None if uvs is None else np.asarray(uvs)[used]
+        if edges is not None:
+            edges = tuple(new[np.asarray(e, dtype=np.int64)] for e in edges)  # type: ignore[assignment]
     cut = len(tris) if skirt_from is None else int(skirt_from)
     parts = [tris[:cut], tris[cut:]] if cut < len(tris) else [tris]
     doc = _Document(extras)
@@ -108,9 +121,10 @@ def compact_glb(
         primitives = [_draco_primitive(doc, q, step, bits, normals, t, uvs) for t in parts]
         matrix = np.asarray(placement, dtype=np.float64)
     else:
-        primitives = _meshopt_primitives(doc, q, normals, parts, uvs, edges)
-        # Normalized shorts decode to q / 65535: the node scales them back to metres.
-        matrix = np.asarray(placement, dtype=np.float64) @ np.diag([65535.0 * step] * 3 + [1.0])
+        primitives = _meshopt_primitives(doc, q, normals, parts, uvs, edges, normalized)
+        # Shorts decode to q (q / 65535 normalized): the node scales them back to metres.
+        scale = 65535.0 * step if normalized else step
+        matrix = np.asarray(placement, dtype=np.float64) @ np.diag([scale] * 3 + [1.0])
     if len(primitives) > 1:
         primitives[1]["extras"] = {"skirt": True}
     if image is not None:
@@ -367,6 +381,7 @@ def _meshopt_primitives(
     parts: list[np.ndarray],
     uvs: np.ndarray | None,
     edges: tuple[np.ndarray, ...] | None,
+    normalized: bool,
 ) -> list[dict[str, Any]]:
     """The primitives (one per part of the triangles, sharing the vertices) of a
     meshopt-compressed, quantized mesh (its data appended to ``doc``)."""
@@ -385,7 +400,7 @@ def _meshopt_primitives(
         {
             "bufferView": view,
             "componentType": _USHORT,
-            "normalized": True,
+            "normalized": normalized,
             "count": n,
             "type": "VEC3",
             "min": [int(v) for v in pos[:, :3].min(axis=0)],

@@ -15,7 +15,8 @@ data points (``tile_mesh``), carried as GLB instead of quantized-mesh:
 - ``{hemisphere}/tiles/{level}/{x}/{y}.glb``: the TIN without skirts (the provider hangs its
   own), positions in ECEF on a lattice of the tile's east-north-up axes (tiles/lattice.py)
   stored as meshopt-compressed normalized shorts (the only compressed positions the provider
-  decodes), octahedral normals, and CESIUM_tile_edges: the vertices on each side, which the
+  decodes; the Khronos validator reports their node matrix, scaled by 65535 · step, as not
+  decomposable to TRS: a float32 determinant test), octahedral normals, and CESIUM_tile_edges: the vertices on each side, which the
   provider needs to stitch and skirt the tile. The lattice is as coarse as 1 % of the level's
   error allows (16 bits at most); a tile whose error plus the lattice's bound would pass its
   level's error is remeshed to a tighter error.
@@ -132,6 +133,7 @@ def make_terrain_tile(job: _Job, level: int, x: int, y: int) -> tuple[bytes, Ter
         mesh.triangles,
         "meshopt",
         edges=_edges(mesh.u, mesh.v),
+        normalized=True,
         extras={"tile": [level, x, y], "error": claim},
     )
     stored = center + lattice.positions()

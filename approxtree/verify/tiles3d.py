@@ -148,6 +148,9 @@ def _expand_implicit(
     except (StoreError, KeyError, ValueError, IndexError) as exc:
         check.items += 1
         check.fail(address, "readable subtrees", str(exc)[:120])
+        # The tile itself stays in the walk (its volume and claim as tileset.json gives them).
+        volume = raw.get("boundingVolume") or {}
+        tiles.append(Tile(address, matrix, volume, float(raw.get("geometricError", 0)), parent))
         return
     index: dict[tuple[int, int, int], int] = {}
     hemisphere = _hemisphere(raw.get("boundingVolume") or {})
