@@ -106,10 +106,8 @@ def compact_glb(
     if edges is not None and compression != "meshopt":
         raise InvalidParameterError("tile edges (CESIUM_tile_edges) are written with meshopt only.")
     # Vertices no triangle uses (nodata holes) are left out: the codecs number the used ones.
-    used = np.unique(tris)
+    used, new = _used(tris, len(q))
     if len(used) < len(q):
-        new = np.full(len(q), -1, dtype=np.int64)
-        new[used] = np.arange(len(used))
         q, tris, normals = q[used], new[tris], np.asarray(normals)[used]
         uvs = None if uvs is None else np.asarray(uvs)[used]
         if edges is not None:
@@ -134,6 +132,17 @@ def compact_glb(
         if image is not None:
             primitive["attributes"]["TEXCOORD_0"] = texcoord
     return doc.glb(primitives, matrix)
+
+
+def _used(tris: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(used (k,): the vertices the triangles (m, 3) use, in order; new (n,): each vertex's
+    index among them, −1 for an unused one)."""
+    mask = np.zeros(n, dtype=bool)
+    mask[tris.ravel()] = True
+    used = np.flatnonzero(mask)
+    new = np.full(n, -1, dtype=np.int64)
+    new[used] = np.arange(len(used))
+    return used, new
 
 
 class _Document:
@@ -237,8 +246,8 @@ def _draco_primitive(
     data appended to ``doc``)."""
     import DracoPy
 
-    used, tris = np.unique(tris, return_inverse=True)
-    tris = tris.reshape(-1, 3)
+    used, new = _used(tris, len(q))
+    tris = new[tris]
     q, normals = q[used], np.asarray(normals)[used]
     uvs = None if uvs is None else np.asarray(uvs)[used]
     # Lattice metres, exact in float32 (q < 2^24, step a power of two).

@@ -16,13 +16,13 @@ vertices) over p and the original T: with barycentric weights w' of p in T' (all
 exactly (the plane of T is affine), so |h_T' − h_T| <= max |b| + |∇h_T| · max |a|. With φ
 the largest angle between a vertex's vertical and the lattice's up, |b| <= step/2 ·
 (cos φ + √2 sin φ) and |a| <= √3 · step/2; |∇h_T| = tan of the angle between T's normal and
-n_p, at most that angle at T's centroid plus the spread θ of its vertices' verticals. The
-bound is ``step · k``, k the largest over the surface triangles of
+n_p, at most the angle α between T's normal and the vertical at its first vertex plus the
+largest angle θ between that vertical and its other vertices'. The bound is ``step · k``,
 
-    (cos φ_t + √2 sin φ_t) / 2 + √3 / 2 · tan(α_t + θ_t),
+    k = (cos φ + √2 sin φ) / 2 + √3 / 2 · tan(α + θ),
 
-α_t the angle between T's normal and the vertical at its centroid (for terrain in a local
-frame every vertical is the lattice's up: φ = θ = 0, tan α = the slope).
+with the largest φ, α and θ of the tile (for terrain in a local frame every vertical is the
+lattice's up: φ = θ = 0, tan α = the steepest slope).
 
 """
 
@@ -84,12 +84,15 @@ def local_axes(center: np.ndarray, georeferenced: bool) -> np.ndarray:
     identity for a local frame (already east, north, up)."""
     if not georeferenced:
         return np.eye(3)
-    up = np.asarray(center, dtype=np.float64) / np.array([WGS84_A**2, WGS84_A**2, WGS84_B**2])
-    up /= np.linalg.norm(up)
-    east = np.array([-up[1], up[0], 0.0])
-    norm = np.linalg.norm(east)
-    east = east / norm if norm > 0 else np.array([1.0, 0.0, 0.0])
-    return np.column_stack([east, np.cross(up, east), up])
+    x, y, z = (float(v) for v in center)
+    ux, uy, uz = x / WGS84_A**2, y / WGS84_A**2, z / WGS84_B**2
+    norm = math.sqrt(ux * ux + uy * uy + uz * uz)
+    ux, uy, uz = ux / norm, uy / norm, uz / norm
+    flat = math.hypot(ux, uy)
+    ex, ey = (-uy / flat, ux / flat) if flat > 0 else (1.0, 0.0)
+    # north = up × east (east has no z).
+    north = (-uz * ey, uz * ex, ux * ey - uy * ex)
+    return np.array([[ex, north[0], ux], [ey, north[1], uy], [0.0, north[2], uz]])
 
 
 def verticals(geo: np.ndarray) -> np.ndarray:
@@ -98,38 +101,37 @@ def verticals(geo: np.ndarray) -> np.ndarray:
     return np.column_stack([np.cos(phi) * np.cos(lam), np.cos(phi) * np.sin(lam), np.sin(phi)])
 
 
-def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(m,) angles between rows of unit vectors a and b (m, 3)."""
-    return np.arccos(np.clip(np.einsum("ij,ij->i", a, b), -1.0, 1.0))
-
-
 def bound_factor(
     faces: np.ndarray, triangles: np.ndarray, up: np.ndarray, normals: np.ndarray | None
 ) -> float:
     """k of the module docstring: the height bound per metre of step, inf when a triangle is
     vertical or overturned. faces: (m, 3) normals of the surface triangles (m, 3);
     up: (3,) the lattice's up; normals: (n, 3) the vertices' verticals, or None for one
-    vertical, ``up``, everywhere."""
+    vertical, ``up``, everywhere.
+
+    Angles are taken at each triangle's first vertex (α against its vertical, θ the largest
+    angle from it to the others'), and the largest α and θ over the tile are added: at least
+    the largest α_t + θ_t, with one arccos each."""
     if not len(faces):
         return 0.5
     f = np.asarray(faces, dtype=np.float64)
     f = f / np.maximum(np.linalg.norm(f, axis=1, keepdims=True), 1e-300)
     if normals is None:
-        alpha = np.arccos(np.clip(f @ up, -1.0, 1.0))
-        phi = theta = np.zeros(1)
+        alpha = math.acos(min(max(float((f @ up).min()), -1.0), 1.0))
+        phi = theta = 0.0
     else:
-        corners = normals[triangles]
-        centroid = corners.sum(axis=1)
-        centroid /= np.linalg.norm(centroid, axis=1, keepdims=True)
-        alpha = _angle(f, centroid)
-        theta = np.max([_angle(corners[:, k], centroid) for k in range(3)], axis=0)
-        phi = np.arccos(np.clip(normals @ up, -1.0, 1.0)).max(keepdims=True)
+        t = np.asarray(triangles, dtype=np.int64)
+        first = normals[t[:, 0]]
+        alpha = math.acos(min(max(float(np.einsum("ij,ij->i", f, first).min()), -1.0), 1.0))
+        spread = min(float(np.einsum("ij,ij->i", first, normals[t[:, k]]).min()) for k in (1, 2))
+        theta = math.acos(min(max(spread, -1.0), 1.0))
+        phi = min(math.acos(min(max(float((normals @ up).min()), -1.0), 1.0)), math.pi / 2)
     steep = alpha + theta
-    if not (steep < np.pi / 2).all():
+    if steep >= math.pi / 2:
         return math.inf
-    phi = np.minimum(phi, np.pi / 2)
-    vertical = float((np.cos(phi) + math.sqrt(2.0) * np.sin(phi)).max())
-    return 0.5 * vertical + 0.5 * math.sqrt(3.0) * float(np.tan(steep).max())
+    return 0.5 * (math.cos(phi) + math.sqrt(2.0) * math.sin(phi)) + 0.5 * math.sqrt(3.0) * math.tan(
+        steep
+    )
 
 
 def geographic_factor(geo: np.ndarray, triangles: np.ndarray) -> float:
