@@ -168,7 +168,7 @@ def write_subtrees(
         contents[index[order]] = has_content[order]
         children = np.zeros(4**levels, dtype=bool)
         for cx, cy in child_of.get((rl, rx, ry), []):
-            children[int(morton(cx, cy))] = True
+            children[int(morton(np.array([cx]), np.array([cy]))[0])] = True
         rows = None if table is None else {n: v[order] for n, v in table.items()}
         path = folder / SUBTREE_URI.format(level=rl, x=rx, y=ry)
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -16,10 +16,12 @@ data points (``tile_mesh``), carried as GLB instead of quantized-mesh:
   own), positions in ECEF on a lattice of the tile's east-north-up axes (tiles/lattice.py)
   stored as meshopt-compressed normalized shorts (the only compressed positions the provider
   decodes; the Khronos validator reports their node matrix, scaled by 65535 · step, as not
-  decomposable to TRS: a float32 determinant test), octahedral normals, and CESIUM_tile_edges: the vertices on each side, which the
-  provider needs to stitch and skirt the tile. The lattice is as coarse as 1 % of the level's
-  error allows (16 bits at most); a tile whose error plus the lattice's bound would pass its
-  level's error is remeshed to a tighter error.
+  decomposable to TRS: a float32 determinant test), octahedral normals, and
+  CESIUM_tile_edges: the vertices on each side, which the provider needs to stitch and
+  skirt the tile. The lattice is as coarse as 1 % of the level's error allows (16 bits at
+  most; triangles that reach no measured data point, the 0 m cliffs beyond the DEM, do not
+  count); a tile whose error plus the lattice's bound would pass its level's error is
+  remeshed to a tighter error.
 
 ``approxtree verify`` recomputes each tile's error in longitude, latitude and height as it
 does for quantized-mesh tiles.
@@ -33,6 +35,7 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -92,13 +95,13 @@ class TerrainTile:
     occlusion: np.ndarray
 
 
-def _edges(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, ...]:
+def _edges(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Vertex indices on the tile's west, south, east and north sides, sorted along them."""
     out = []
     for on, along in ((u == 0, v), (v == 0, u), (u == QMAX, v), (v == QMAX, u)):
         idx = np.flatnonzero(on)
         out.append(idx[np.argsort(along[idx], kind="stable")])
-    return tuple(out)
+    return out[0], out[1], out[2], out[3]
 
 
 def make_terrain_tile(job: _Job, level: int, x: int, y: int) -> tuple[bytes, TerrainTile]:
@@ -215,7 +218,7 @@ def _write_batch(job: _Job, addresses: Sequence[tuple[int, int, int]]) -> list[T
 def _schema() -> dict:
     properties = {}
     for semantic, (name, kind, count) in _PROPERTIES.items():
-        prop = {"type": kind, "componentType": "FLOAT64", "semantic": semantic}
+        prop: dict[str, Any] = {"type": kind, "componentType": "FLOAT64", "semantic": semantic}
         if count is not None:
             prop.update(array=True, count=count)
         properties[name] = prop

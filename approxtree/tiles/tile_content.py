@@ -166,7 +166,7 @@ class NodeWriter:
         if self.pyramid is not None:
             rect = Rect(*map(float, self.tree.rects[i]))
             uvs, image, mime = embedded_texture(self.pyramid, rect, verts, self.image_format)
-        extras = {"node": int(i), "error": json_float(self.tree.errors[i])}
+        extras: dict[str, Any] = {"node": int(i), "error": json_float(self.tree.errors[i])}
         # Implicit tiles share one transform: their content carries its centre itself.
         offset = None if self.addresses is None else center
         lattice = None
@@ -216,7 +216,7 @@ class NodeWriter:
         path = self.folder / self.uri(i)
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_bytes(data)
-        if self.frame.georeferenced:
+        if geo is not None:
             low, high = region(geo, stored, tris[:surface], moved)
         else:
             low, high = stored.min(axis=0), stored.max(axis=0)

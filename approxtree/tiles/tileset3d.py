@@ -1,22 +1,29 @@
 """OGC 3D Tiles 1.1 tileset of an approximation tree: tileset.json and one GLB per node.
 
-One tile per node (an explicit tree, refine REPLACE), so a client streams the tree's patches
-and refines by screen-space error exactly as the paging renderer refines by α:
+One tile per node (refine REPLACE), so a client streams the tree's patches and refines by
+screen-space error exactly as the paging renderer refines by α:
 
-- ``geometricError`` is ε_T(N) in metres (z units) plus a bound of what the content's float32
-  positions add to it (``_rounding_bound``), made monotone bottom-up (a node claims
-  at least its children's errors; the 3D Tiles spec wants a child's error no larger than its
+- ``geometricError`` is ε_T(N) in metres (z units) plus a bound of what the content's stored
+  positions add to it (tiles/tile_content.py: float32 rounding, or the lattice of compressed
+  content, at most 1 % of max(ε_T(N), ε)), made monotone bottom-up (a node claims at least
+  its children's errors; the 3D Tiles spec wants a child's error no larger than its
   parent's, and claiming more only refines sooner). Nodes of infinite error (patches missing
   data points) claim relief + largest finite error + 1, so clients always refine them. The
   tileset's own geometricError is the error of drawing nothing: the terrain's extent in metres
   (at least twice the root's error and the relief), so clients draw the root whenever the
   terrain is on screen.
-- Content: ``{level}/{node}.glb``, the node's patch with its skirts (patches/skirts.py, as the
-  renderer draws it), positions relative to the tile's centre in the tileset frame (RTC: the
-  centre is the tile's ``transform``, relative to its parent's), written in glTF's y-up axes
-  (the client applies glTF's y-up → z-up rotation), with vertex normals (surface normals, a
-  skirt vertex takes its top vertex's), texture coordinates and the node's texture patch
-  (textures/patch.py) embedded as PNG or JPEG when a pyramid is given.
+- Content (tiles/tile_content.py): the node's patch with its skirts, as the renderer draws it,
+  relative to the tile's centre in the tileset frame, in glTF's y-up axes, with normals and,
+  given a pyramid, the node's texture patch; ``compression`` ``draco`` (default:
+  KHR_draco_mesh_compression), ``meshopt`` (EXT_meshopt_compression + KHR_mesh_quantization)
+  or ``none`` (float32). Explicit tiling: ``{level}/{node}.glb``, each tile's ``transform``
+  its centre relative to its parent's. Implicit tiling (``implicit``, tiles/implicit.py): the
+  nodes as a QUADTREE (a child's quadrant is where its centre lies in its parent), contents
+  ``tiles/{level}/{x}/{y}.glb`` carrying their centre in their node matrix, subtree files with
+  each tile's exact geometricError and volume as tile metadata (TILE_GEOMETRIC_ERROR,
+  TILE_BOUNDING_REGION / BOX); clients without metadata halve the root's error per level, so
+  the root claims the largest 2^level × error of any tile, and derive quadrant volumes,
+  which need not hold the content (CesiumJS reads the metadata, 3DTilesRendererJS 0.5.3 not).
 - Frame (tiles/earth.py): terrain with a CRS goes to ECEF (pyproj); its bounding volumes are
   ``region``s (radians, ellipsoidal heights) lowered by the sagitta of the longest chord of the
   tile so the straight triangle edges stay inside. Terrain without a CRS lies in a local

@@ -173,10 +173,10 @@ def implicit_tiles(raw: dict[str, Any], base: Path, schema: dict[str, Any]) -> l
     root_error = float(raw["geometricError"])
     size = (4**levels - 1) // 3
     # Local (level, x, y) of every bit of a subtree.
-    local = []
+    local: list[tuple[int, int, int]] = []
     for d in range(levels):
-        lx, ly = _morton_decode(np.arange(4**d))
-        local.extend((d, int(a), int(b)) for a, b in zip(lx, ly, strict=True))
+        xs, ys = _morton_decode(np.arange(4**d))
+        local.extend((d, int(a), int(b)) for a, b in zip(xs, ys, strict=True))
     out: list[ImplicitTile] = []
     queue = [(0, 0, 0)]
     while queue:

@@ -1,9 +1,16 @@
-"""Verify a 3D Tiles folder (``approxtree tiles --format 3dtiles``) against its source terrain.
+"""Verify a 3D Tiles folder (``approxtree tiles --format 3dtiles`` or ``3dtiles-terrain``)
+against its source terrain.
 
-The tileset is walked from tileset.json through every tile and external tileset (a content
-uri ending in .json), each tile's transform composed with its parent's. Checks:
+The tileset is walked from tileset.json through every tile, external tileset (a content uri
+ending in .json) and implicit tileset (``implicitTiling``: its subtree files read by
+verify/implicit_read.py, each available tile with the volume and error its tile metadata
+declares), each tile's transform composed with its parent's. Checks:
 
-- ``content``: every content uri exists and parses as GLB (pygltflib), with triangles;
+- ``content``: every content uri exists and parses as GLB (pygltflib; Draco through DracoPy,
+  meshopt through meshoptimizer), with triangles;
+- ``implicit`` (implicit tilesets): subtrees parse, every available tile's parent is
+  available, and each tile's halved error (what clients without metadata use) is at least
+  its declared one;
 - ``volumes``: every tile's bounding volume (region or box) holds its content's vertices and
   its children's volumes (spheres are not checked);
 - ``monotone``: no child claims a larger geometricError than its parent;
@@ -12,7 +19,11 @@ uri ending in .json), each tile's transform composed with its parent's. Checks:
   and the tile's transform to ECEF, then to the terrain's CRS (pyproj, EPSG:4978 → 4979 →
   the CRS, heights as ellipsoidal heights, as the writer placed them), or, for terrain without
   a CRS, back through the local east-north-up frame of the root's transform (centred on the
-  terrain's domain). The float32 positions' rounding counts; skirts (vertical) hold no point.
+  terrain's domain). The stored positions count as they decode (float32 rounding, lattice
+  quantization); skirts hold no point: vertical walls in float32 content, a primitive marked
+  ``"extras": {"skirt": true}`` in compressed content (on a lattice its walls lean a little).
+  3D Tiles terrain (the two hemispheres of Cesium's geographic tiling as implicit tilesets)
+  is measured in longitude, latitude and height, as quantized-mesh tiles are.
 """
 
 from __future__ import annotations
