@@ -32,7 +32,7 @@ from approxtree.io.gltf_compact import MAX_BITS, compact_glb
 from approxtree.patches.skirts import add_skirts, patches_reach_rect, skirt_base, skirt_depths
 from approxtree.textures.embed import embedded_texture
 from approxtree.tiles.earth import WGS84_A, WGS84_B, EarthFrame, geodetic_to_ecef
-from approxtree.tiles.lattice import Y_UP, bound_factor, fit_lattice, local_axes, verticals
+from approxtree.tiles.lattice import Y_UP, Lattice, bound_factor, fit_lattice, local_axes, verticals
 
 #: Smallest radius of curvature of the WGS84 ellipsoid (m), for chord sagittas.
 MIN_RADIUS = WGS84_B**2 / WGS84_A
@@ -169,21 +169,7 @@ class NodeWriter:
         extras: dict[str, Any] = {"node": int(i), "error": json_float(self.tree.errors[i])}
         # Implicit tiles share one transform: their content carries its centre itself.
         offset = None if self.addresses is None else center
-        lattice = None
-        if self.compression != "none":
-            axes = local_axes(center, self.frame.georeferenced)
-            error = float(self.tree.errors[i])
-            scale = max(error if np.isfinite(error) else 0.0, self.epsilon)
-            lattice = fit_lattice(
-                points - center,
-                axes,
-                bound_factor(
-                    faces, tris[:surface], axes[:, 2], None if geo is None else verticals(geo)
-                ),
-                QUANTIZATION_SHARE * scale,
-                scale,
-                MAX_BITS[self.compression],
-            )
+        lattice = self._lattice(i, points, center, faces, tris[:surface], geo)
         if lattice is None:
             rounding = float32_bound(points, center, faces, self.frame.georeferenced)
             matrix = None
@@ -221,6 +207,34 @@ class NodeWriter:
         else:
             low, high = stored.min(axis=0), stored.max(axis=0)
         return TileContent(i, center, low, high, len(data), len(verts), len(tris), rounding, bits)
+
+    def _lattice(
+        self,
+        i: int,
+        points: np.ndarray,
+        center: np.ndarray,
+        faces: np.ndarray,
+        surface: np.ndarray,
+        geo: np.ndarray | None,
+    ) -> Lattice | None:
+        """Node i's lattice (positions ``points`` (n, 3) in the tileset frame, the tile's
+        ``center`` (3,), surface triangles (m, 3) of normals ``faces``, lon/lat/heights
+        ``geo`` or None), or None: float32 positions (``compression`` none, or a tile the
+        lattice cannot hold within reason)."""
+        if self.compression == "none":
+            return None
+        axes = local_axes(center, self.frame.georeferenced)
+        error = float(self.tree.errors[i])
+        scale = max(error if np.isfinite(error) else 0.0, self.epsilon)
+        normals = None if geo is None else verticals(geo)
+        return fit_lattice(
+            points - center,
+            axes,
+            bound_factor(faces, surface, axes[:, 2], normals),
+            QUANTIZATION_SHARE * scale,
+            scale,
+            MAX_BITS[self.compression],
+        )
 
 
 def skirt_tops(walls: np.ndarray) -> np.ndarray:
