@@ -207,7 +207,7 @@ def tiles(
 
     # The output folder is checked before the terrain is read.
     if tile_format == "3dtiles-terrain":
-        _check_3dtiles_target(out, minzoom)
+        _check_3dtiles_target(out, minzoom, water_mask)
     else:
         replaceable(out, "terrain tileset")
         check_output(out)
@@ -248,9 +248,9 @@ def tiles(
     _emit(figures, as_json)
 
 
-def _check_3dtiles_target(out: str, minzoom: int) -> None:
-    """The 3D Tiles terrain's output folder, checked before the terrain is read; CesiumJS
-    starts at level 0, so every level from 0 is written."""
+def _check_3dtiles_target(out: str, minzoom: int, water_mask: str | None) -> None:
+    """The 3D Tiles terrain's options and output folder, checked before the terrain is read;
+    CesiumJS starts at level 0, so every level from 0 is written."""
     from approxtree.errors import InvalidParameterError
     from approxtree.io.output_path import check_output_folder
 
@@ -258,6 +258,11 @@ def _check_3dtiles_target(out: str, minzoom: int) -> None:
         raise InvalidParameterError(
             "--minzoom does not apply to 3dtiles-terrain: Cesium3DTilesTerrainProvider starts "
             "at level 0, so every level from 0 is written. Leave it out."
+        )
+    if water_mask is not None:
+        raise InvalidParameterError(
+            "--water-mask is written into quantized-mesh tiles only; 3dtiles-terrain has no "
+            "water mask. Leave it out or use --format quantized-mesh."
         )
     check_output_folder(out, "tileset folder")
     replaceable(out, "3D Tiles tileset")
