@@ -154,10 +154,12 @@ def test_validator_finds_only_the_scaled_node_matrix(nc_terrain):
     assert codes <= {"NODE_MATRIX_NON_TRS"} and all(r["warnings"] == 0 for r in reports)
 
 
-def test_cli_refuses_a_minzoom(data_dir, tmp_path):
-    """--minzoom does not apply (the provider starts at level 0): exit 2 saying so."""
+def test_cli_refuses_a_minzoom_and_a_water_mask(data_dir, tmp_path):
+    """--minzoom (the provider starts at level 0) and --water-mask (quantized-mesh only) do
+    not apply: exit 2 saying which."""
     dem = data_file(data_dir, "nc/elev_ned_30m.tif")
-    result = run(
-        "tiles", dem, "--out", tmp_path / "t", "--format", "3dtiles-terrain", "--minzoom", "3"
-    )
+    args = ["tiles", dem, "--out", tmp_path / "t", "--format", "3dtiles-terrain"]
+    result = run(*args, "--minzoom", "3")
     assert result.exit_code == 2 and "--minzoom" in result.output
+    result = run(*args, "--water-mask", dem)
+    assert result.exit_code == 2 and "--water-mask" in result.output
