@@ -147,6 +147,20 @@ def _is_tree(path: str) -> bool:
     return Path(path).suffix.lower() == ".atree" or is_store(path)
 
 
+def _store_epsilon(path: str) -> float | None:
+    """The ε a tree store (or legacy tree) was built with; None for a raster."""
+    if not _is_tree(path):
+        return None
+    if Path(path).suffix.lower() == ".atree":
+        from approxtree.tree import load_tree
+
+        return float(load_tree(path).epsilon)
+    from approxtree.tree.tree_store import StoreReader
+
+    eps = (StoreReader(path).meta.get("params") or {}).get("epsilon")
+    return float(eps) if eps else None
+
+
 def _check_tree_output(out: str) -> None:
     """StoreError now, before any work, when the tree cannot be written at ``out`` (or would
     replace what approxtree did not write, without --overwrite)."""

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import time
-from pathlib import Path
 from typing import Any
 
 import click
 
-from approxtree.cli.common import _emit, _is_tree, _reports_errors, _terrain_of, _tree_of
+from approxtree.cli.common import _emit, _reports_errors, _store_epsilon, _terrain_of, _tree_of
 from approxtree.cli.options import (
     BuildChoices,
     build_options,
@@ -17,20 +16,6 @@ from approxtree.cli.options import (
     reader_options,
     replaceable,
 )
-
-
-def _store_epsilon(path: str) -> float | None:
-    """The ε a tree store (or legacy tree) was built with; None for a raster."""
-    if not _is_tree(path):
-        return None
-    if Path(path).suffix.lower() == ".atree":
-        from approxtree.tree import load_tree
-
-        return float(load_tree(path).epsilon)
-    from approxtree.tree.tree_store import StoreReader
-
-    eps = (StoreReader(path).meta.get("params") or {}).get("epsilon")
-    return float(eps) if eps else None
 
 
 @click.command()
@@ -42,8 +27,7 @@ def _store_epsilon(path: str) -> float | None:
     type=click.Choice(["3dtiles", "quantized-mesh", "3dtiles-terrain"]),
     required=True,
     help="3dtiles: tileset.json + one GLB per node; quantized-mesh: Cesium terrain "
-    "(layer.json + z/x/y.terrain, gzip); 3dtiles-terrain: the same tiles as implicit 3D Tiles "
-    "for CesiumJS's Cesium3DTilesTerrainProvider (meshopt GLBs, subtree metadata).",
+    "(layer.json + z/x/y.terrain, gzip); 3dtiles-terrain: those tiles as CesiumJS 3D Tiles.",
 )
 @click.option(
     "--samples",
@@ -103,21 +87,6 @@ def _store_epsilon(path: str) -> float | None:
 )
 @click.option("--no-skirts", is_flag=True, help="3dtiles: leave the skirts out of the tiles.")
 @click.option(
-    "--compression",
-    type=click.Choice(["draco", "meshopt", "none"]),
-    default="draco",
-    show_default=True,
-    help="3dtiles: positions on a lattice whose error (at most 1 % of each tile's error or ε) "
-    "is added to its geometricError, compressed with KHR_draco_mesh_compression or "
-    "EXT_meshopt_compression; none: float32 positions.",
-)
-@click.option(
-    "--implicit",
-    is_flag=True,
-    help="3dtiles: 3D Tiles 1.1 implicit tiling (quadtree, subtree files with each tile's "
-    "exact geometricError and volume as metadata) instead of an explicit tile tree.",
-)
-@click.option(
     "--leaf-error",
     type=float,
     default=None,
@@ -137,6 +106,17 @@ def _store_epsilon(path: str) -> float | None:
     default=None,
     help="Write the tiles as dask tasks on an existing cluster: its scheduler address "
     "(e.g. tcp://host:8786); its workers must see --out.",
+)
+@click.option(
+    "--compression",
+    type=click.Choice(["draco", "meshopt", "none"]),
+    default="draco",
+    show_default=True,
+    help="3dtiles: positions on a lattice whose error (at most 1 % of a tile's error or ε) "
+    "joins its geometricError, with KHR_draco_mesh_compression or EXT_meshopt_compression.",
+)
+@click.option(
+    "--implicit", is_flag=True, help="3dtiles: 3D Tiles 1.1 implicit tiling (subtree files)."
 )
 @build_options
 @reader_options
@@ -202,70 +182,25 @@ def tiles(
             f"{', '.join(build.given)} build the tree of --format 3dtiles; quantized-mesh "
             "tiles the terrain itself (its deepest level within --leaf-error). Leave them out."
         )
-    from approxtree.tiles import write_quantized_mesh
+    from approxtree.tiles import check_terrain_options, write_3dtiles_terrain, write_quantized_mesh
     from approxtree.tiles.quantized_mesh import DEFAULT_LEAF_ERROR, check_output
 
     # The output folder is checked before the terrain is read.
-    if tile_format == "3dtiles-terrain":
-        _check_3dtiles_target(out, minzoom, water_mask)
-    else:
-        replaceable(out, "terrain tileset")
-        check_output(out)
+    terrain3d = tile_format == "3dtiles-terrain"
+    replaceable(out, "3D Tiles tileset" if terrain3d else "terrain tileset")
+    check_terrain_options(out, minzoom, water_mask) if terrain3d else check_output(out)
     t0 = time.perf_counter()
     terrain = _terrain_of(tree, **reader)
     if leaf_error is None:
         leaf_error = _store_epsilon(tree) or DEFAULT_LEAF_ERROR
-    if tile_format == "3dtiles-terrain":
-        from approxtree.tiles.terrain3d import write_3dtiles_terrain
-
-        figures = write_3dtiles_terrain(
-            terrain,
-            out,
-            samples=int(samples),
-            maxzoom=maxzoom,
-            max_error=max_error,
-            workers=workers,
-            leaf_error=leaf_error,
-            scheduler=scheduler,
-        )
-        figures["seconds"] = round(time.perf_counter() - t0, 3)
-        _emit(figures, as_json)
-        return
-    figures = write_quantized_mesh(
-        terrain,
-        out,
-        samples=int(samples),
-        minzoom=minzoom,
-        maxzoom=maxzoom,
-        max_error=max_error,
-        workers=workers,
-        water_mask=water_mask,
-        leaf_error=leaf_error,
-        scheduler=scheduler,
-    )
-    figures.pop("results")
+    common = {"samples": int(samples), "maxzoom": maxzoom, "max_error": max_error}
+    common.update(workers=workers, leaf_error=leaf_error, scheduler=scheduler)
+    if not terrain3d:
+        common.update(minzoom=minzoom, water_mask=water_mask)
+    figures = (write_3dtiles_terrain if terrain3d else write_quantized_mesh)(terrain, out, **common)
+    figures.pop("results", None)
     figures["seconds"] = round(time.perf_counter() - t0, 3)
     _emit(figures, as_json)
-
-
-def _check_3dtiles_target(out: str, minzoom: int, water_mask: str | None) -> None:
-    """The 3D Tiles terrain's options and output folder, checked before the terrain is read;
-    CesiumJS starts at level 0, so every level from 0 is written."""
-    from approxtree.errors import InvalidParameterError
-    from approxtree.io.output_path import check_output_folder
-
-    if minzoom != 0:
-        raise InvalidParameterError(
-            "--minzoom does not apply to 3dtiles-terrain: Cesium3DTilesTerrainProvider starts "
-            "at level 0, so every level from 0 is written. Leave it out."
-        )
-    if water_mask is not None:
-        raise InvalidParameterError(
-            "--water-mask is written into quantized-mesh tiles only; 3dtiles-terrain has no "
-            "water mask. Leave it out or use --format quantized-mesh."
-        )
-    check_output_folder(out, "tileset folder")
-    replaceable(out, "3D Tiles tileset")
 
 
 def _tiles_3dtiles(
@@ -283,7 +218,7 @@ def _tiles_3dtiles(
     content: dict[str, Any],
 ) -> None:
     """`approxtree tiles --format 3dtiles`: the 3D Tiles tileset of a tree store, or of the
-    tree of a terrain file built in memory; content: write_3dtiles' compression and implicit."""
+    tree of a terrain file built in memory (content: write_3dtiles' storage keywords)."""
     from approxtree.io.output_path import check_output_folder
     from approxtree.tiles import write_3dtiles
     from approxtree.tiles.parallel import check_workers

@@ -13,7 +13,13 @@
 
 from approxtree.tiles.earth import EarthFrame
 from approxtree.tiles.quantized_mesh import write_quantized_mesh
-from approxtree.tiles.terrain3d import write_3dtiles_terrain
+from approxtree.tiles.terrain3d import check_terrain_options, write_3dtiles_terrain
 from approxtree.tiles.tileset3d import write_3dtiles
 
-__all__ = ["EarthFrame", "write_3dtiles", "write_3dtiles_terrain", "write_quantized_mesh"]
+__all__ = [
+    "EarthFrame",
+    "check_terrain_options",
+    "write_3dtiles",
+    "write_3dtiles_terrain",
+    "write_quantized_mesh",
+]

@@ -295,6 +295,23 @@ def _write_subtrees(folder: Path, results: list[TerrainTile]) -> None:
         write_subtrees(folder / str(hemisphere), addresses, np.ones(len(mine), bool), table)
 
 
+def check_terrain_options(out: str | os.PathLike, minzoom: int, water_mask: object) -> None:
+    """InvalidParameterError for options of quantized-mesh that the 3D Tiles terrain has not
+    (CesiumJS starts at level 0, so every level from 0 is written; no water mask), StoreError
+    for an output folder that cannot be written (checked before the terrain is read)."""
+    if minzoom != 0:
+        raise InvalidParameterError(
+            "--minzoom does not apply to 3dtiles-terrain: Cesium3DTilesTerrainProvider starts "
+            "at level 0, so every level from 0 is written. Leave it out."
+        )
+    if water_mask is not None:
+        raise InvalidParameterError(
+            "--water-mask is written into quantized-mesh tiles only; 3dtiles-terrain has no "
+            "water mask. Leave it out or use --format quantized-mesh."
+        )
+    check_output_folder(out, "tileset folder")
+
+
 def write_3dtiles_terrain(
     terrain,
     out: str | os.PathLike,
