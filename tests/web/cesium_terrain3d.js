@@ -55,7 +55,6 @@ async function main() {
     contextOptions: { webgl: { preserveDrawingBuffer: true } },
   });
   const scene = viewer.scene;
-  window.__scene = scene;
   scene.skyBox.show = false;
   scene.skyAtmosphere.show = false;
   scene.sun.show = false;
