@@ -61,7 +61,9 @@ def run_views(
     page: str = "index.html",
 ) -> list[dict]:
     """Open the viewer once per view; returns one dict per view (see tests/web/shot.cjs).
-    page: index.html (CesiumJS) or maplibre.html (MapLibre GL JS, its npm= set to /npm/).
+    page: a viewer page, index.html (CesiumJS) or maplibre.html (MapLibre GL JS, its npm= set
+    to /npm/), or the path of a test page of tests/web served at /pages/ (which imports npm
+    packages from /node_modules/).
 
     views: [{"name": str, "params": {url parameter: value}}]; the tiles folder is served at
     /tiles/, so params name it as "/tiles/tileset.json" or "/tiles/". Adds "screenshot" (the
@@ -69,17 +71,24 @@ def run_views(
     """
     serve = _serve_module()
     out_dir.mkdir(parents=True, exist_ok=True)
-    with serve.TileServer(serve.default_roots(tiles_dir)) as server:
+    # A page of the viewer by name, or any served path (a test page under /pages/).
+    path = page if page.startswith("/") else f"/viewer/{page}"
+    roots = {
+        **serve.default_roots(tiles_dir),
+        "/pages/": REPO / "tests" / "web",
+        "/node_modules/": NODE_MODULES,
+    }
+    with serve.TileServer(roots) as server:
         job_views = []
         for view in views:
-            if page == "index.html":
+            if path == "/viewer/index.html":
                 defaults = {"cesium": "/cesium/", "bg": "#{:02x}{:02x}{:02x}".format(*BACKGROUND)}
             else:
                 defaults = {"npm": "/npm/"}
             params = {**defaults, **view["params"]}
             job_views.append(
                 {
-                    "url": f"{server.url}/viewer/{page}?{urlencode(params, safe='/,')}",
+                    "url": f"{server.url}{path}?{urlencode(params, safe='/,')}",
                     "screenshot": str(out_dir / f"{view['name']}.png"),
                 }
             )

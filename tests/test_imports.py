@@ -52,6 +52,7 @@ LEVELS = {
     "_warmup": 9,
 }
 
+
 @dataclass(frozen=True)
 class Import:
     """One import statement: importer → imported module, its line, inside a function or not."""

@@ -14,11 +14,11 @@ from scipy.ndimage import binary_erosion
 
 from approxtree import ApproximationTree, ContextUnavailableError, InvalidParameterError
 from approxtree.datasets import fractal_terrain, sample_terrain
+from approxtree.glsl import ShaderError, create_program, load_source, shader_dir
 from approxtree.render import Camera, Cut, Engine, Style, overview_camera
 from approxtree.render.context import create_context
 from approxtree.render.frame import STAT_KEYS
 from approxtree.render.gpu_cache import GpuCache
-from approxtree.glsl import ShaderError, create_program, load_source, shader_dir
 
 
 @pytest.fixture(scope="session")

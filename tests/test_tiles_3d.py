@@ -65,7 +65,9 @@ def built(request, tmp_path_factory):
             tree = at.load_tree(folder / "tree.zarr", verify=False)
             origin = (10.0, 45.0) if name == "fractal" else (0.0, 0.0)
             out = folder / "tiles"
-            write_3dtiles(tree, out, workers=2, origin=origin)
+            # Float32 positions: the patch vertices themselves (test_tiles_3d_compact.py
+            # checks the compressed ones).
+            write_3dtiles(tree, out, workers=2, origin=origin, compression="none")
             frame = EarthFrame(tree.terrain.crs, tree.terrain.domain.center, origin)
             cache[name] = (tree, out, frame)
         return cache[name]
@@ -339,7 +341,7 @@ def test_textures_are_each_nodes_texture_patch(tmp_path):
     terrain = fractal_terrain(129, seed=5, relief=200.0, cell_size=10.0)
     bake(terrain, tmp_path / "tex", max_texture_size=64, gl=False)
     tree = at.ApproximationTree.build(terrain, epsilon=5.0, max_points=289)
-    write_3dtiles(tree, tmp_path / "tiles", textures=tmp_path / "tex")
+    write_3dtiles(tree, tmp_path / "tiles", textures=tmp_path / "tex", compression="none")
     pyramid = TexturePyramid(tmp_path / "tex")
     _, tiles = _tiles(tmp_path / "tiles")
     checked = 0

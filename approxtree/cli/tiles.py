@@ -2,19 +2,16 @@
 
 from __future__ import annotations
 
-import time
-from typing import Any
-
 import click
 
-from approxtree.cli.common import _emit, _is_tree, _reports_errors, _terrain_of, _tree_of
+from approxtree.cli import web_tiles
+from approxtree.cli.common import _reports_errors
 from approxtree.cli.options import (
     BuildChoices,
     build_options,
     json_option,
     overwrite_option,
     reader_options,
-    replaceable,
 )
 
 
@@ -24,11 +21,14 @@ from approxtree.cli.options import (
 @click.option(
     "--format",
     "tile_format",
-    type=click.Choice(["3dtiles", "quantized-mesh", "imagery", "terrarium", "terrain-rgb"]),
+    type=click.Choice(
+        ["3dtiles", "3dtiles-terrain", "quantized-mesh", "imagery", "terrarium", "terrain-rgb"]
+    ),
     required=True,
     help="3dtiles: tileset.json + one GLB per node; quantized-mesh: Cesium terrain "
-    "(layer.json + z/x/y.terrain, gzip); imagery (--textures), terrarium, terrain-rgb: map "
-    "tiles in a folder (tilejson.json + z/x/y) or a PMTiles archive (--out X.pmtiles).",
+    "(layer.json + z/x/y.terrain, gzip); 3dtiles-terrain: those tiles as CesiumJS 3D Tiles; "
+    "imagery (--textures), terrarium, terrain-rgb: map tiles in a folder (tilejson.json + "
+    "z/x/y) or a PMTiles archive (--out X.pmtiles).",
 )
 @click.option(
     "--scheme",
@@ -115,6 +115,17 @@ from approxtree.cli.options import (
     help="Write the tiles as dask tasks on an existing cluster: its scheduler address "
     "(e.g. tcp://host:8786); its workers must see --out.",
 )
+@click.option(
+    "--compression",
+    type=click.Choice(["draco", "meshopt", "none"]),
+    default="draco",
+    show_default=True,
+    help="3dtiles: positions on a lattice whose error (at most 1 % of a tile's error or ε) "
+    "joins its geometricError, with KHR_draco_mesh_compression or EXT_meshopt_compression.",
+)
+@click.option(
+    "--implicit", is_flag=True, help="3dtiles: 3D Tiles 1.1 implicit tiling (subtree files)."
+)
 @build_options
 @reader_options
 @overwrite_option
@@ -135,6 +146,8 @@ def tiles(
     texture_format: str,
     origin: tuple[float, float],
     no_skirts: bool,
+    compression: str,
+    implicit: bool,
     leaf_error: float | None,
     workers: int,
     scheduler: str | None,
@@ -156,86 +169,17 @@ def tiles(
         "height_scale": height_scale,
     }
     if tile_format == "3dtiles":
-        args = (tree, out, textures, texture_format, origin, no_skirts, workers, scheduler)
-        _tiles_3dtiles(*args, as_json, reader, build)
+        content = {"compression": compression, "implicit": implicit, "origin": origin}
+        content.update(skirts=not no_skirts, image_format=texture_format)
+        web_tiles.tiles_3d(tree, out, textures, content, workers, scheduler, reader, build, as_json)
         return
-    if build.given:
-        from approxtree.errors import InvalidParameterError
-
-        # The other formats sample the terrain itself, not a tree: no tree is built.
-        raise InvalidParameterError(
-            f"{', '.join(build.given)} build the tree of --format 3dtiles; {tile_format} "
-            "tiles the terrain itself. Leave them out."
-        )
-    if tile_format != "quantized-mesh":
-        from approxtree.tiles.web_maps import map_target, write_web_map
-
-        replaceable(out, map_target(out))
+    # The other formats sample the terrain itself, not a tree: no tree is built.
+    web_tiles.refuse_build_options(build, tile_format)
+    if tile_format in web_tiles.MAP_FORMATS:
         size = int(tile_size) if tile_size else None
-        given = (tile_format, _terrain_of(tree, **reader), out, textures, scheme, size)
-        _emit(write_web_map(*given, texture_format, minzoom, maxzoom, workers, scheduler), as_json)
+        given = (tile_format, out, textures, scheme, size, texture_format, minzoom, maxzoom)
+        web_tiles.map_tiles(tree, *given, workers, scheduler, reader, as_json)
         return
-    from approxtree.tiles import write_quantized_mesh
-    from approxtree.tiles.quantized_mesh import DEFAULT_LEAF_ERROR, check_output
-    from approxtree.tree.loading import tree_epsilon
-
-    # The output folder is checked before the terrain is read.
-    replaceable(out, "terrain tileset")
-    check_output(out)
-    t0 = time.perf_counter()
-    terrain = _terrain_of(tree, **reader)
-    if leaf_error is None:
-        leaf_error = (_is_tree(tree) and tree_epsilon(tree)) or DEFAULT_LEAF_ERROR
-    figures = write_quantized_mesh(
-        terrain,
-        out,
-        samples=int(samples),
-        minzoom=minzoom,
-        maxzoom=maxzoom,
-        max_error=max_error,
-        workers=workers,
-        water_mask=water_mask,
-        leaf_error=leaf_error,
-        scheduler=scheduler,
-    )
-    figures.pop("results")
-    figures["seconds"] = round(time.perf_counter() - t0, 3)
-    _emit(figures, as_json)
-
-
-def _tiles_3dtiles(
-    tree_path: str,
-    out: str,
-    textures: str | None,
-    texture_format: str,
-    origin: tuple[float, float],
-    no_skirts: bool,
-    workers: int,
-    scheduler: str | None,
-    as_json: bool,
-    reader: dict[str, Any],
-    build: BuildChoices,
-) -> None:
-    """`approxtree tiles --format 3dtiles`: the 3D Tiles tileset of a tree store, or of the
-    tree of a terrain file built in memory."""
-    from approxtree.io.output_path import check_output_folder
-    from approxtree.tiles import write_3dtiles
-    from approxtree.tiles.parallel import check_workers
-
-    check_workers(workers, scheduler)
-    # The output folder is checked before the tree is opened.
-    check_output_folder(out, "tileset folder")
-    replaceable(out, "3D Tiles tileset")
-    # verify=False: the patches are read one by one as the tiles are written.
-    tree = _tree_of(tree_path, build, **reader, verify=False)
-    figures = write_3dtiles(
-        tree,
-        out,
-        textures=textures,
-        workers=workers,
-        origin=(origin[0], origin[1]),
-        skirts=not no_skirts,
-        image_format=texture_format,
-        scheduler=scheduler,
-    )
-    _emit(figures, as_json)
+    options = {"samples": int(samples), "maxzoom": maxzoom, "max_error": max_error}
+    options.update(minzoom=minzoom, water_mask=water_mask, leaf_error=leaf_error)
+    web_tiles.terrain_tiles(tree, out, tile_format, options, workers, scheduler, reader, as_json)

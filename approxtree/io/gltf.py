@@ -33,12 +33,24 @@ def z_up(points: np.ndarray) -> np.ndarray:
     return np.column_stack([p[:, 0], -p[:, 2], p[:, 1]])
 
 
-def vertex_normals(positions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """(n, 3) float64 unit area-weighted vertex normals of a mesh (up (0, 0, 1) where a vertex
-    has no triangle). positions: (n, 3) float64; triangles: (m, 3) counter-clockwise."""
+def face_normals(positions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(m, 3) float64 cross products (b − a) × (c − a) of the triangles (m, 3): normals of
+    twice the triangles' areas. positions: (n, 3) float64."""
     p = np.asarray(positions, dtype=np.float64)
     t = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
-    face = np.cross(p[t[:, 1]] - p[t[:, 0]], p[t[:, 2]] - p[t[:, 0]])
+    a = p[t[:, 0]]
+    return np.cross(p[t[:, 1]] - a, p[t[:, 2]] - a)
+
+
+def vertex_normals(
+    positions: np.ndarray, triangles: np.ndarray, faces: np.ndarray | None = None
+) -> np.ndarray:
+    """(n, 3) float64 unit area-weighted vertex normals of a mesh (up (0, 0, 1) where a vertex
+    has no triangle). positions: (n, 3) float64; triangles: (m, 3) counter-clockwise; faces:
+    their ``face_normals`` when already computed."""
+    p = np.asarray(positions, dtype=np.float64)
+    t = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    face = face_normals(p, t) if faces is None else faces
     out = np.zeros_like(p)
     # Sum each face's normal onto its three corners: one bincount per axis.
     corners = t.ravel()

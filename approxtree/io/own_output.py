@@ -73,7 +73,16 @@ FOLDERS: dict[str, FolderKind] = {
                 r"\.pyramid\.json\..+\.tmp"
             ),
         ),
-        FolderKind("3D Tiles tileset", "tileset.json", re.compile(r"tileset\.json|\d+/\d+\.glb")),
+        # Explicit ({level}/{node}.glb), implicit (tiles/ and subtrees/ by level/x/y) and
+        # terrain (the same under 0/ and 1/, one per hemisphere) tilesets.
+        FolderKind(
+            "3D Tiles tileset",
+            "tileset.json",
+            re.compile(
+                r"tileset\.json|\d+/\d+\.glb|([01]/)?(tiles/\d+/\d+/\d+\.glb|"
+                r"subtrees/\d+/\d+/\d+\.subtree)"
+            ),
+        ),
         FolderKind(
             "terrain tileset", "layer.json", re.compile(r"layer\.json|\d+/\d+/\d+\.terrain")
         ),

@@ -16,10 +16,10 @@ from typing import Any
 
 import numpy as np
 
+from approxtree.glsl import create_program
 from approxtree.render.frame_state import FrameState
 from approxtree.render.gpu_cache import GpuCache, GpuMesh, GpuTexture
 from approxtree.render.provider import Payload
-from approxtree.glsl import create_program
 from approxtree.render.style import WALL_COLOUR, Background, Style
 
 #: moderngl.TRIANGLES (moderngl is imported where GL is used).

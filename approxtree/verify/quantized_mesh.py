@@ -121,7 +121,7 @@ def verify_quantized_mesh(output: Path, terrain: Any, report: VerifyReport) -> N
     on_disk = {p.resolve() for p in output.rglob("*.terrain")}
     report.figures["tiles"] = len(listed)
     report.figures["unlisted_tiles"] = len(on_disk - {p.resolve() for p in paths.values()})
-    measure = _Measure(terrain, report) if terrain is not None else None
+    measure = LonLatMeasure(terrain, report) if terrain is not None else None
     if measure is not None:
         measure.set_spacings(paths, lighting, water)
     for (z, x, y), path in paths.items():
@@ -140,8 +140,9 @@ def verify_quantized_mesh(output: Path, terrain: Any, report: VerifyReport) -> N
         measure.finish()
 
 
-class _Measure:
-    """Tile by tile: the DEM's data points inside the tile against the decoded TIN."""
+class LonLatMeasure:
+    """Tile by tile: the DEM's data points inside the tile against the decoded TIN, linear in
+    longitude and latitude (quantized-mesh tiles, 3D Tiles terrain)."""
 
     def __init__(self, terrain: Any, report: VerifyReport) -> None:
         from approxtree.geometry.grid import Grid
@@ -252,7 +253,22 @@ class _Measure:
         claimed = LEVEL_ZERO_ERROR / 2**level
         if deepest and isinstance(meta.get("geometricError"), (int, float)):
             claimed = float(meta["geometricError"])
-        allowance = (hi - lo) / (2 * QMAX)
+        self.mesh(address, level, bounds, verts, tris, claimed, (hi - lo) / (2 * QMAX))
+
+    def mesh(
+        self,
+        address: str,
+        level: int,
+        bounds,
+        verts: np.ndarray,
+        tris: np.ndarray,
+        claimed: float,
+        allowance: float = 0.0,
+    ) -> None:
+        """Measure one tile's TIN: verts (n, 3) longitude, latitude, height, tris (m, 3),
+        against ``claimed`` (+ ``allowance``)."""
+        west, south, east, north = bounds
+        hi = float(verts[:, 2].max()) if len(verts) else 0.0
         self.check.items += 1
         pts = self._points((west, south, east, north), self.spacing.get(level, 0.0))
         if not len(pts) or not len(tris):

@@ -1,9 +1,16 @@
-"""Verify a 3D Tiles folder (``approxtree tiles --format 3dtiles``) against its source terrain.
+"""Verify a 3D Tiles folder (``approxtree tiles --format 3dtiles`` or ``3dtiles-terrain``)
+against its source terrain.
 
-The tileset is walked from tileset.json through every tile and external tileset (a content
-uri ending in .json), each tile's transform composed with its parent's. Checks:
+The tileset is walked from tileset.json through every tile, external tileset (a content uri
+ending in .json) and implicit tileset (``implicitTiling``: its subtree files read by
+verify/implicit_read.py, each available tile with the volume and error its tile metadata
+declares), each tile's transform composed with its parent's. Checks:
 
-- ``content``: every content uri exists and parses as GLB (pygltflib), with triangles;
+- ``content``: every content uri exists and parses as GLB (pygltflib; Draco through DracoPy,
+  meshopt through meshoptimizer), with triangles;
+- ``implicit`` (implicit tilesets): subtrees parse, every available tile's parent is
+  available, and each tile's halved error (what clients without metadata use) is at least
+  its declared one;
 - ``volumes``: every tile's bounding volume (region or box) holds its content's vertices and
   its children's volumes (spheres are not checked);
 - ``monotone``: no child claims a larger geometricError than its parent;
@@ -12,7 +19,11 @@ uri ending in .json), each tile's transform composed with its parent's. Checks:
   and the tile's transform to ECEF, then to the terrain's CRS (pyproj, EPSG:4978 → 4979 →
   the CRS, heights as ellipsoidal heights, as the writer placed them), or, for terrain without
   a CRS, back through the local east-north-up frame of the root's transform (centred on the
-  terrain's domain). The float32 positions' rounding counts; skirts (vertical) hold no point.
+  terrain's domain). The stored positions count as they decode (float32 rounding, lattice
+  quantization); skirts hold no point: vertical walls in float32 content, a primitive marked
+  ``"extras": {"skirt": true}`` in compressed content (on a lattice its walls lean a little).
+  3D Tiles terrain (the two hemispheres of Cesium's geographic tiling as implicit tilesets)
+  is measured in longitude, latitude and height, as quantized-mesh tiles are.
 """
 
 from __future__ import annotations
@@ -27,9 +38,11 @@ from typing import Any
 import numpy as np
 
 from approxtree.errors import StoreError
+from approxtree.verify.implicit_read import implicit_tiles
 from approxtree.verify.measure import measure_for
 from approxtree.verify.mesh import measure_tolerance
-from approxtree.verify.mesh_read import read_glb, z_up
+from approxtree.verify.mesh_read import read_glb_parts, z_up
+from approxtree.verify.quantized_mesh import LonLatMeasure, tile_bounds
 from approxtree.verify.report import VerifyReport, claims_hold
 
 #: WGS84 axes (m), for the east-north-up frame of terrain without a CRS.
@@ -50,6 +63,9 @@ class Tile:
     error: float
     parent: int
     contents: list[Path] = field(default_factory=list)
+    #: (level, x, y) in Cesium's geographic tiling (TMS, y from the south) for the tiles of
+    #: an implicit hemisphere (3D Tiles terrain), else None.
+    geographic: tuple[int, int, int] | None = None
 
 
 def _matrix(tile: dict[str, Any]) -> np.ndarray:
@@ -70,13 +86,16 @@ def walk(path: Path, report: VerifyReport) -> list[Tile]:
 
     doc = load(path)
     report.figures["tileset_geometric_error"] = doc.get("geometricError")
-    stack: list[tuple[dict, np.ndarray, int, str, Path]] = [
-        (doc.get("root") or {}, np.eye(4), -1, "root", path.parent)
+    stack: list[tuple[dict, np.ndarray, int, str, Path, dict]] = [
+        (doc.get("root") or {}, np.eye(4), -1, "root", path.parent, doc.get("schema") or {})
     ]
     seen: set[Path] = {path.resolve()}
     while stack:
-        raw, parent_m, parent, address, base = stack.pop()
+        raw, parent_m, parent, address, base, schema = stack.pop()
         m = parent_m @ _matrix(raw)
+        if "implicitTiling" in raw:
+            _expand_implicit(raw, m, parent, address, base, schema, tiles, report)
+            continue
         me = len(tiles)
         tile = Tile(
             address,
@@ -100,12 +119,72 @@ def walk(path: Path, report: VerifyReport) -> list[Tile]:
                     continue
                 seen.add(target.resolve())
                 sub = load(target)
-                stack.append((sub.get("root") or {}, m, me, f"{uri}:root", target.parent))
+                stack.append(
+                    (
+                        sub.get("root") or {},
+                        m,
+                        me,
+                        f"{uri}:root",
+                        target.parent,
+                        sub.get("schema") or {},
+                    )
+                )
             else:
                 tile.contents.append(target)
         for k, child in enumerate(raw.get("children") or []):
-            stack.append((child, m, me, f"{address}/{k}", base))
+            stack.append((child, m, me, f"{address}/{k}", base, schema))
     return tiles
+
+
+def _expand_implicit(
+    raw: dict,
+    matrix: np.ndarray,
+    parent: int,
+    address: str,
+    base: Path,
+    schema: dict,
+    tiles: list[Tile],
+    report: VerifyReport,
+) -> None:
+    """Append the available tiles of an implicit tile (parents first), each with the volume
+    and error its metadata declares (or its subdivision derives). The ``implicit`` check:
+    subtrees parse, and every tile's derived (halved) error is at least its declared one, so
+    clients that ignore tile metadata refine at least as soon."""
+    content = report.checks["content"]
+    check = report.check(
+        "implicit", "subtrees parse; each tile's halved error holds its declared one"
+    )
+    try:
+        found = implicit_tiles(raw, base, schema)
+    except (StoreError, KeyError, ValueError, IndexError) as exc:
+        check.items += 1
+        check.fail(address, "readable subtrees", str(exc)[:120])
+        # The tile itself stays in the walk (its volume and claim as tileset.json gives them).
+        volume = raw.get("boundingVolume") or {}
+        tiles.append(Tile(address, matrix, volume, float(raw.get("geometricError", 0)), parent))
+        return
+    index: dict[tuple[int, int, int], int] = {}
+    hemisphere = _hemisphere(raw.get("boundingVolume") or {})
+    for t in found:
+        name = f"{address}@{t.level}/{t.x}/{t.y}"
+        up = parent if t.level == 0 else index.get((t.level - 1, t.x >> 1, t.y >> 1), -2)
+        check.items += 1
+        if up == -2:
+            check.fail(name, "its parent available", "missing")
+            up = parent
+        if t.error < t.declared_error * (1 - 1e-12):
+            check.fail(name, f">= {t.declared_error}", t.error, t.declared_error - t.error)
+        index[(t.level, t.x, t.y)] = len(tiles)
+        tile = Tile(name, matrix, t.declared_volume, t.declared_error, up)
+        if hemisphere is not None:
+            tile.geographic = (t.level, t.x + (hemisphere << t.level), t.y)
+        if t.content is not None:
+            content.items += 1
+            if t.content.is_file():
+                tile.contents.append(t.content)
+            else:
+                content.fail(name, "a file", "missing")
+        tiles.append(tile)
 
 
 class _Frame:
@@ -165,17 +244,30 @@ def _geodetic(ecef: np.ndarray) -> np.ndarray:
     return np.column_stack([np.radians(lon), np.radians(lat), h])
 
 
-def _tile_mesh(tile: Tile) -> tuple[np.ndarray, np.ndarray]:
-    """(ECEF (n, 3), triangles (m, 3)) of a tile's GLB contents."""
-    pts, tris, count = [], [], 0
+def _tile_mesh(tile: Tile) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(ECEF (n, 3), triangles (m, 3), skirt flags (m,)) of a tile's GLB contents."""
+    pts, tris, skirts, count = [], [], [], 0
     for path in tile.contents:
-        pos, tri, _ = read_glb(path.read_bytes(), str(path))
+        pos, tri, skirt, _ = read_glb_parts(path.read_bytes(), str(path))
         pts.append(z_up(pos, tile.matrix))
         tris.append(tri + count)
+        skirts.append(skirt)
         count += len(pos)
     if not pts:
-        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
-    return np.concatenate(pts), np.concatenate(tris)
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=bool)
+    return np.concatenate(pts), np.concatenate(tris), np.concatenate(skirts)
+
+
+def _hemisphere(volume: dict[str, Any]) -> int | None:
+    """0 or 1 for a region of the western or eastern hemisphere (level 0 of Cesium's
+    geographic tiling), else None."""
+    region = volume.get("region")
+    if region is None:
+        return None
+    for k, west in enumerate((-math.pi, 0.0)):
+        if np.allclose(region[:4], [west, -math.pi / 2, west + math.pi, math.pi / 2], atol=1e-12):
+            return k
+    return None
 
 
 def verify_3dtiles(output: Path, terrain: Any, report: VerifyReport) -> None:
@@ -185,7 +277,14 @@ def verify_3dtiles(output: Path, terrain: Any, report: VerifyReport) -> None:
     volumes = report.check("volumes", "each volume holds its content and its children's")
     _nested(tiles, volumes)
     _monotone(tiles, report)
-    errors = _Errors(terrain, tiles[0], report) if terrain is not None else None
+    errors: _Errors | _GeographicErrors | None = None
+    if terrain is not None:
+        geographic = [t for t in tiles if t.contents]
+        if geographic and all(t.geographic is not None for t in geographic):
+            samples = (json.loads(path.read_text()).get("extras") or {}).get("samples", 152)
+            errors = _GeographicErrors(terrain, report, int(samples))
+        else:
+            errors = _Errors(terrain, tiles[0], report)
     # Tiles a batch at a time: each GLB parsed once, memory bounded by a batch.
     meshes = [k for k, t in enumerate(tiles) if t.contents]
     for a in range(0, len(meshes), _BATCH):
@@ -196,18 +295,22 @@ def verify_3dtiles(output: Path, terrain: Any, report: VerifyReport) -> None:
                 volumes.items += 1
                 _content_inside(tiles[k], mesh[0], volumes)
                 batch[k] = mesh
-        if errors is not None:
+        if isinstance(errors, _GeographicErrors):
+            errors.measure_tiles(tiles, batch)
+        elif errors is not None:
             errors.measure(tiles, batch)
     if errors is not None:
         errors.finish()
 
 
 def _read_tile(tile: Tile, report: VerifyReport) -> tuple[np.ndarray, np.ndarray] | None:
-    """(ECEF vertices, triangles) of a tile's contents; None (a failure) when they do not
-    parse or hold no triangle."""
+    """(ECEF vertices, surface triangles) of a tile's contents (skirt primitives left out:
+    their walls claim nothing); None (a failure) when they do not parse or hold no
+    triangle."""
     content = report.checks["content"]
     try:
-        ecef, tris = _tile_mesh(tile)
+        ecef, tris, skirt = _tile_mesh(tile)
+        tris = tris[~skirt]
     except StoreError as exc:
         content.fail(tile.address, "GLB", str(exc)[:120])
         return None
@@ -343,3 +446,26 @@ class _Errors:
     def finish(self) -> None:
         self.report.figures["worst_tile_error"] = self.worst
         self.report.figures["data_points_measured"] = self.points
+
+
+class _GeographicErrors:
+    """3D Tiles terrain (Cesium's geographic tiling): each tile's TIN taken to longitude,
+    latitude and ellipsoidal height (pyproj) and measured linear in them against its declared
+    error, as quantized-mesh tiles are (``LonLatMeasure``: the data points within 1.5 sample
+    spacings of the DEM's edge are left out)."""
+
+    def __init__(self, terrain: Any, report: VerifyReport, samples: int) -> None:
+        self.measure = LonLatMeasure(terrain, report)
+        self.samples = samples
+
+    def measure_tiles(self, tiles: list[Tile], batch: dict[int, tuple[np.ndarray, np.ndarray]]):
+        for k, (ecef, tris) in sorted(batch.items()):
+            level, x, y = tiles[k].geographic  # type: ignore[misc]
+            self.measure.spacing[level] = 180.0 / 2**level / (self.samples - 1)
+            g = _geodetic(ecef)
+            verts = np.column_stack([np.degrees(g[:, 0]), np.degrees(g[:, 1]), g[:, 2]])
+            address = f"{level}/{x}/{y}"
+            self.measure.mesh(address, level, tile_bounds(level, x, y), verts, tris, tiles[k].error)
+
+    def finish(self) -> None:
+        self.measure.finish()
