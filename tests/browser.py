@@ -81,10 +81,12 @@ def run_views(
     with serve.TileServer(roots) as server:
         job_views = []
         for view in views:
-            if path == "/viewer/index.html":
-                defaults = {"cesium": "/cesium/", "bg": "#{:02x}{:02x}{:02x}".format(*BACKGROUND)}
-            else:
+            # MapLibre's page loads its packages from /npm/; the CesiumJS pages (the viewer and
+            # the test pages) take CesiumJS and the background the terrain mask expects.
+            if path == "/viewer/maplibre.html":
                 defaults = {"npm": "/npm/"}
+            else:
+                defaults = {"cesium": "/cesium/", "bg": "#{:02x}{:02x}{:02x}".format(*BACKGROUND)}
             params = {**defaults, **view["params"]}
             job_views.append(
                 {
