@@ -273,9 +273,7 @@ def measure_ancestors(
         b1 = bc1 if bc1 == c1 else bc1 - 1
         part = (br0, a1, bc0, b1)
         patch = (r0, r1, c0, c1, sr, sc)
-        out[a] = grid_patch_part(
-            heights, wr0, wc0, *part, anc.lattice, anc.k_lo, anc.j_lo, *patch
-        )
+        out[a] = grid_patch_part(heights, wr0, wc0, *part, anc.lattice, anc.k_lo, anc.j_lo, *patch)
     # No data point: no z range (NaN, as the serial build reports it).
     out[out[:, 3] == 0, 1:3] = np.nan
     return out
