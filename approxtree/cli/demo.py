@@ -76,7 +76,7 @@ def demo(out: str, epsilon: float, png: str | None, as_json: bool, style: dict[s
     tree = ApproximationTree.build(terrain, epsilon=epsilon)
     seconds = time.perf_counter() - t0
     nbytes = tree.save(out)
-    figures = {"terrain": "jacksboro_fault_dem (matplotlib sample data)"}
+    figures: dict[str, Any] = {"terrain": "jacksboro_fault_dem (matplotlib sample data)"}
     figures.update(terrain_figures(terrain))
     figures.update(tree_figures(tree, seconds, nbytes))
     figures["tree_file"] = str(Path(out))

@@ -30,7 +30,7 @@ def _tree_info(path: str) -> dict[str, Any]:
     if not is_legacy_file(path):
         return store_info(path)
     tree = load_tree(path)
-    figures = {"tree_file": path, "format": f"atree {TreeFile(path).version}"}
+    figures: dict[str, Any] = {"tree_file": path, "format": f"atree {TreeFile(path).version}"}
     figures.update(tree.stats())
     figures["bytes"] = Path(path).stat().st_size
     return figures

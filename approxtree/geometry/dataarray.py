@@ -30,7 +30,7 @@ from __future__ import annotations
 import importlib.util
 import sys
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeGuard
 
 import numpy as np
 from affine import Affine
@@ -38,12 +38,16 @@ from affine import Affine
 from approxtree.errors import InvalidParameterError
 from approxtree.geometry.windowed import WindowedHeights
 
+if TYPE_CHECKING:
+    # Types only: xarray is optional and never imported here at run time.
+    import xarray
+
 #: Dimension names read as x (east) and y (north), lower case.
 X_NAMES = ("x", "lon", "long", "longitude", "easting")
 Y_NAMES = ("y", "lat", "latitude", "northing")
 
 
-def is_dataarray(obj: object) -> bool:
+def is_dataarray(obj: object) -> TypeGuard[xarray.DataArray]:
     """True for an xarray.DataArray (found without importing xarray)."""
     xr = sys.modules.get("xarray")
     return xr is not None and isinstance(obj, xr.DataArray)

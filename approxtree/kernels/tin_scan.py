@@ -20,6 +20,8 @@ import math
 import numpy as np
 from numba import njit
 
+from approxtree.kernels._jit import njit_no_nrt
+
 NO_CANDIDATE = -1.0
 
 
@@ -70,7 +72,7 @@ def plane(za, zb, zc, ax, ay, bx, by, cx, cy):
     return gx, gy
 
 
-@njit(cache=True, fastmath=True, _nrt=False)
+@njit_no_nrt(fastmath=True)
 def _grid_row_max(heights: np.ndarray, r: int, start: int, n: int, base: float, gx: float):
     """``_row_max`` of heights[r, start:start + n], indexed in place (no row view to count)."""
     m = 0.0
@@ -83,7 +85,7 @@ def _grid_row_max(heights: np.ndarray, r: int, start: int, n: int, base: float, 
 
 
 @njit(cache=True, inline="always")
-def _floor_div(num: int, d: int):
+def _floor_div(num: int, d: int | np.integer):
     """(q, r) with num = q·d + r, 0 <= r < d (d > 0): a float quotient fixed up exactly
     (cheaper than an integer division; |num| < 2^53 keeps it within one of the truth)."""
     q = math.floor(num / d)
@@ -225,7 +227,7 @@ def _midpoint_candidate(heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy):
     return e, np.int64(my), np.int64(mx)
 
 
-@njit(cache=True, _nrt=False)
+@njit_no_nrt()
 def scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy):
     """(key, candidate y, candidate x) of a triangle on a grid without nodata.
 
@@ -282,7 +284,7 @@ def scan_candidate(heights, r0, c0, ax, ay, bx, by, cx, cy):
     return best, best_y, best_x
 
 
-@njit(cache=True, fastmath=True, _nrt=False)
+@njit_no_nrt(fastmath=True)
 def _row_max_sse(row: np.ndarray, start: int, n: int, base: float, gx: float):
     """(max, sum of squares) of |row[start + i] − (base + gx·i)| for i < n (SIMD, no nodata)."""
     m = 0.0
@@ -358,7 +360,7 @@ def _row_sse(heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, wab, wbc, wca,
 
 
 # A plain call, not inlined (see ``_scan_rows``).
-@njit(cache=True, _nrt=False)
+@njit_no_nrt()
 def _sse_rows(
     heights, r0, c0, za, gx, gy, ax, ay, bx, by, cx, cy, wab, wbc, wca, ya, yb, left, right, sse
 ):
@@ -444,7 +446,7 @@ def _small_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca, o) -> flo
     return max(sse, 0.0)
 
 
-@njit(cache=True, _nrt=False)
+@njit_no_nrt()
 def triangle_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca) -> float:
     """The triangle's owned sum of squared errors on a grid without nodata.
 
@@ -518,7 +520,7 @@ def triangle_sse(heights, r0, c0, ax, ay, bx, by, cx, cy, wab, wbc, wca) -> floa
     return max(sse, 0.0)
 
 
-@njit(cache=True, _nrt=False)
+@njit_no_nrt()
 def scan_with_holes(heights, r0, c0, ax, ay, bx, by, cx, cy):
     """(key, candidate y, candidate x) of a triangle on a grid with nodata (NaN).
 
@@ -577,7 +579,7 @@ def orient_i(ax, ay, bx, by, px, py):
     return (bx - ax) * (py - ay) - (by - ay) * (px - ax)
 
 
-@njit(cache=True, _nrt=False)
+@njit_no_nrt()
 def triangle_error(heights, r0, c0, ax, ay, bx, by, cx, cy, has_nan) -> float:
     """Largest |z − plane| over the triangle's data points (inf when nodata forces a split)."""
     if has_nan:

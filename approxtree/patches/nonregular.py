@@ -19,6 +19,7 @@ from approxtree.errors import UnsupportedStrategyError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
+from approxtree.geometry.windowed import WindowedHeights
 from approxtree.kernels.grid_interp import lattice_triangles
 from approxtree.kernels.row_column import lattice_errors, refine_lattices
 from approxtree.patches.base import GeometryPatch
@@ -32,12 +33,13 @@ def lattice_mesh(grid: Grid, rows: np.ndarray, cols: np.ndarray) -> tuple[np.nda
 
     Nodata vertices are left out (with the triangles touching them).
     """
-    if grid.is_windowed:
+    heights = grid.heights
+    if isinstance(heights, WindowedHeights):
         # A windowed grid reads only the lattice; the kernel sees it with consecutive lines.
-        z = grid.heights[rows[:, None], cols[None, :]]
+        z = heights[rows[:, None], cols[None, :]]
         kr, kc = np.arange(len(rows)), np.arange(len(cols))
         return lattice_world_mesh(grid, rows, cols, lattice_triangles(z, kr, kc))
-    return lattice_world_mesh(grid, rows, cols, lattice_triangles(grid.heights, rows, cols))
+    return lattice_world_mesh(grid, rows, cols, lattice_triangles(heights, rows, cols))
 
 
 def refine_windows(

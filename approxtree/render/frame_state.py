@@ -280,11 +280,12 @@ def framing_camera(
     tan_y = math.tan(math.radians(fov) / 2.0)
     tan_x = tan_y * w / h
     angles = FRAMING_ELEVATIONS if elevation is None else (float(elevation),)
-    best = None
-    for el in angles:
-        eye_d, target_d, cover = _fit(corners, hi[2], el, azimuth, tan_x, tan_y, margin)
-        if best is None or cover > best[2] + 1e-9:
-            best = (eye_d, target_d, cover)
+    # The first elevation that covers the most (a later one must cover more by over 1e-9).
+    best = _fit(corners, hi[2], angles[0], azimuth, tan_x, tan_y, margin)
+    for el in angles[1:]:
+        fit = _fit(corners, hi[2], el, azimuth, tan_x, tan_y, margin)
+        if fit[2] > best[2] + 1e-9:
+            best = fit
     eye_d, target_d, _ = best
     return Camera.look_at(centre + eye_d / scale, centre + target_d / scale, fov=fov)
 

@@ -12,7 +12,7 @@ patch larger than the budget can still be drawn. Nothing relies on the garbage c
 from __future__ import annotations
 
 from collections import OrderedDict
-from collections.abc import Callable, Hashable
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -107,7 +107,7 @@ class GpuCache:
         """Keys from least to most recently used."""
         return list(self._entries)
 
-    def is_resident(self, keys: list[Hashable]) -> np.ndarray:
+    def is_resident(self, keys: Sequence[Hashable]) -> np.ndarray:
         """(k,) bool: whether each of ``keys`` has an entry (no entry is touched)."""
         return np.array(list(map(self._entries.__contains__, keys)), dtype=bool)
 

@@ -93,4 +93,4 @@ def source_for(
     options: dict[str, Any] = {"skirts": skirts, "loader_threads": loader_threads}
     if cpu_cache_bytes is not None:
         options["cpu_cache_bytes"] = cpu_cache_bytes
-    return SOURCES[kind](tree, **options)  # type: ignore[no-any-return]
+    return SOURCES[kind](tree, **options)

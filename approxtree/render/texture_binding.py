@@ -71,7 +71,7 @@ class TextureBinding:
         groups: dict[TextureKey, list[MeshKey]] = {}
         for key, owner in zip(meshes, owners, strict=True):
             groups.setdefault(TextureKey.of(self.patch(owner)), []).append(key)
-        return list(groups.items())  # type: ignore[arg-type]
+        return list(groups.items())
 
     def page(self, groups: Groups, loaded: Callable[[TextureKey], bool]) -> tuple[Groups, list]:
         """The groups of an interactive frame, drawable without waiting for the store: a
@@ -89,7 +89,7 @@ class TextureBinding:
                 requests.append(tex_key)
                 tex_key = root
             merged.setdefault(tex_key, []).extend(keys)
-        return list(merged.items()), requests  # type: ignore[return-value]
+        return list(merged.items()), requests
 
     def uv(self, key: TextureKey) -> tuple[float, float, float, float]:
         """uv = local.xy * t[:2] + t[2:] of a texture window (u along columns, v along rows,

@@ -69,7 +69,7 @@ def _on_context(
             "approxtree.render.context.create_context() (context=)."
         )
     tile = min(tile_size or DEFAULT_TILE, max_tile_size(context))
-    out = np.zeros(shading.terrain.shape, dtype=dtype)
+    out: np.ndarray = np.zeros(shading.terrain.shape, dtype=dtype)
     return _draw_tiles(context, create_program, shading, tile, out)
 
 

@@ -65,12 +65,12 @@ def run_batches(
     local = None if scheduler else max(1, min(workers, len(batches)))
     with dask_client(local, scheduler, processes) as client:
         # The job goes to every worker once (it holds the terrain), not with each task.
-        [shared] = client.scatter([job], broadcast=True, hash=False)  # type: ignore[attr-defined]
+        [shared] = client.scatter([job], broadcast=True, hash=False)
         # Keys unique to this run: a key reused on a shared cluster could return another
         # run's result still held there.
         run_id = uuid.uuid4().hex[:12]
         futures = [
-            client.submit(fn, shared, b, key=f"approxtree-{what}-{run_id}-{i}", pure=False)  # type: ignore[attr-defined]
+            client.submit(fn, shared, b, key=f"approxtree-{what}-{run_id}-{i}", pure=False)
             for i, b in enumerate(batches)
         ]
         try:

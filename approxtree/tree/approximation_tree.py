@@ -77,7 +77,7 @@ class ApproximationTree:
         strategies: np.ndarray,
         strategy_names: list[str],
         params: dict[str, Any],
-        patches: list[GeometryPatch | None],
+        patches: list[GeometryPatch | None] | PatchTable,
         source: store.TreeSource | None = None,
     ) -> None:
         self.terrain = terrain
@@ -196,7 +196,7 @@ class ApproximationTree:
                 fanout,
                 policy_obj,
                 block_size,
-                run=run,  # type: ignore[arg-type]
+                run=run,
                 progress=on_progress,
             )
         return build_levels(terrain, epsilon, max_points, fanout, policy_obj, on_progress)
@@ -237,7 +237,7 @@ class ApproximationTree:
                 "fanout": int(fanout),
                 "policy": policy_obj.name,
             },
-            patches=table,  # type: ignore[arg-type]
+            patches=table,
         )
         tree.build_seconds = built.seconds
         return tree
@@ -338,13 +338,13 @@ class ApproximationTree:
             batch = held.records(nodes)
             if batch is not None:
                 return batch
-        loaded = [held[i] for i in nodes]
-        if all(p is not None for p in loaded):
+        loaded = [p for i in nodes.tolist() if (p := held[i]) is not None]
+        if len(loaded) == len(nodes):
             # One patch class per strategy and terrain: its batched gather; else record by record.
             classes = {type(p) for p in loaded}
             if len(classes) == 1:
-                return classes.pop().records_many(loaded)  # type: ignore[arg-type]
-            return concat_records([p.to_record() for p in loaded])  # type: ignore[union-attr]
+                return classes.pop().records_many(loaded)
+            return concat_records([p.to_record() for p in loaded])
         if self._source is None:  # pragma: no cover - built trees hold every patch
             raise StoreError(f"patches of {strategy!r} are missing")
         return self._source.records(nodes, strategy)

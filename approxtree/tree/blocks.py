@@ -19,14 +19,17 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from approxtree.errors import InvalidParameterError
+from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
+from approxtree.geometry.windowed import WindowedHeights
 from approxtree.kernels.grid_patch import grid_patch_part
 from approxtree.patches.base import GeometryPatch
 from approxtree.patches.grid import GridPatch, grid_steps
@@ -259,15 +262,18 @@ def measure_ancestors(
     out = np.zeros((len(ancestors), 4))
     br0, br1, bc0, bc1 = block
     wr0, wc0 = window.index_offset
+    heights = window.heights_array("measuring a block's ancestor patches")
     for a, anc in enumerate(ancestors):
+        if anc.lattice is None:
+            raise InvalidParameterError(
+                f"Ancestor {anc.node} of the block carries no lattice: read it with lattice_part."
+            )
         r0, r1, c0, c1, sr, sc = anc.index
         a1 = br1 if br1 == r1 else br1 - 1
         b1 = bc1 if bc1 == c1 else bc1 - 1
         part = (br0, a1, bc0, b1)
         patch = (r0, r1, c0, c1, sr, sc)
-        out[a] = grid_patch_part(
-            window.heights, wr0, wc0, *part, anc.lattice, anc.k_lo, anc.j_lo, *patch
-        )
+        out[a] = grid_patch_part(heights, wr0, wc0, *part, anc.lattice, anc.k_lo, anc.j_lo, *patch)
     # No data point: no z range (NaN, as the serial build reports it).
     out[out[:, 3] == 0, 1:3] = np.nan
     return out
@@ -280,7 +286,9 @@ def run_block(task: BlockTask) -> BlockResult:
     t0 = time.perf_counter()
     threads = numba.get_num_threads()
     if task.threads:
-        numba.set_num_threads(min(task.threads, numba.config.NUMBA_NUM_THREADS))
+        # numba.config sets its settings from the environment at import; its stubs list none.
+        limit = numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
+        numba.set_num_threads(min(task.threads, limit))
     try:
         r0, r1, c0, c1 = task.index
         grid = task.grid
@@ -301,7 +309,7 @@ def run_block(task: BlockTask) -> BlockResult:
             task.max_points,
             task.fanout,
             task.policy,
-            progress=False,
+            progress=None,
             root=task.rect,
             root_level=task.level,
         )
@@ -310,7 +318,7 @@ def run_block(task: BlockTask) -> BlockResult:
         numba.set_num_threads(threads)
         # A worker keeps a task until its result is collected: a windowed terrain's block
         # cache and dataset handle go now, so worker memory does not grow with the blocks done.
-        if getattr(task.grid, "is_windowed", False):
+        if isinstance(task.grid.heights, WindowedHeights):
             task.grid.heights.clear_cache()
             close = getattr(task.grid.heights.source, "close", None)
             if close is not None:
@@ -328,14 +336,14 @@ def run_block(task: BlockTask) -> BlockResult:
     else:
         # Grid patches (most nodes) travel as two arrays rather than one record each.
         is_grid = [type(p) is GridPatch for p in built.patches]
-        grid_patches = [p for p, g in zip(built.patches, is_grid, strict=True) if g]
+        grid_patches = [p for p in built.patches if type(p) is GridPatch]
         grid_index = np.array([p.index for p in grid_patches], dtype=np.int64).reshape(-1, 6)
         grid_stats = np.array(
             [(p.error, *p.z_range, p.data_count) for p in grid_patches], dtype=np.float64
         ).reshape(-1, 4)
     grid_index[:, :4] += offset
     kinds = [GridPatch.kind] * n if all(is_grid) else [p.kind for p in built.patches]
-    records = (
+    records: list[dict[str, np.ndarray] | None] = (
         [None] * n
         if all(is_grid)
         else [None if g else p.to_record() for p, g in zip(built.patches, is_grid, strict=True)]
@@ -451,7 +459,7 @@ def assemble(
     block_gid: dict[int, np.ndarray] = {}
     next_id = 0
     for level in range(plan.block_level + 1):
-        for node in np.flatnonzero(kept & (np.array(plan.levels) == level)):
+        for node in np.flatnonzero(kept & (np.array(plan.levels) == level)).tolist():
             gid[node] = next_id
             next_id += 1
             if node in block_of:
@@ -480,7 +488,7 @@ def assemble(
     parents = np.full(n, -1, dtype=np.int64)
     child_start = np.zeros(n, dtype=np.int64)
     child_count = np.zeros(n, dtype=np.int64)
-    for node in np.flatnonzero(kept):
+    for node in np.flatnonzero(kept).tolist():
         if node not in upper_patch:
             continue
         g = gid[node]
@@ -524,14 +532,14 @@ def assemble(
 
 
 def build_blocked(
-    grid: Grid,
+    grid: GeometryData,
     epsilon: float,
     max_points: int,
     fanout: int,
     policy: StrategyPolicy,
     block_size: int | None = None,
     block_level: int | None = None,
-    run: Any = None,
+    run: Callable[[list[BlockTask]], list[BlockResult]] | None = None,
     progress: ProgressCallback | None = None,
 ) -> BuiltLevels:
     """The serial build's nodes, built block by block.

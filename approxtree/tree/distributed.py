@@ -14,10 +14,15 @@ import os
 import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from approxtree.errors import ApproxTreeError, InvalidParameterError
 from approxtree.progress import ProgressCallback, as_callback
 from approxtree.tree.blocks import BlockResult, BlockTask, run_block
+
+if TYPE_CHECKING:
+    # Types only: distributed is imported when a cluster is used (it is slow to import).
+    from distributed import Client
 
 #: Memory of one idle local worker with approxtree imported, its nanny included (measured
 #: 145 MB a worker on Linux, Python 3.11).
@@ -55,7 +60,7 @@ def check_cluster_options(workers: int | None, scheduler: str | None) -> None:
 @contextlib.contextmanager
 def dask_client(
     workers: int | None, scheduler: str | None, processes: bool = True
-) -> Iterator[object]:
+) -> Iterator[Client]:
     """A distributed Client: of ``scheduler``, or of a LocalCluster of ``workers`` processes
     (one thread each; ``processes=False``: worker threads in this process), closed on exit."""
     from distributed import Client, LocalCluster
@@ -90,7 +95,7 @@ def dask_client(
         cluster.close()
 
 
-def _report_context(client: object, report: str | os.PathLike | None):
+def _report_context(client: Client, report: str | os.PathLike | None):
     """distributed.performance_report writing ``report`` (needs bokeh), or a null context."""
     if report is None:
         return contextlib.nullcontext()
@@ -110,7 +115,7 @@ def dask_runner(
     scheduler: str | None = None,
     report: str | os.PathLike | None = None,
     progress: ProgressCallback | bool | None = None,
-    client: object | None = None,
+    client: Client | None = None,
 ) -> Callable[[list[BlockTask]], list[BlockResult]]:
     """The ``run`` of ``build_blocked`` on dask (an existing ``client``, else one made from
     ``workers`` / ``scheduler`` for the duration of the build)."""
@@ -130,8 +135,7 @@ def dask_runner(
             # result of another build's task still held there.
             build_id = uuid.uuid4().hex[:12]
             futures = [
-                cl.submit(run_block, t, key=f"approxtree-{build_id}-block-{t.block}")  # type: ignore[attr-defined]
-                for t in tasks
+                cl.submit(run_block, t, key=f"approxtree-{build_id}-block-{t.block}") for t in tasks
             ]
             block_of = {f.key: t.block for f, t in zip(futures, tasks, strict=True)}
             results: list[BlockResult] = []

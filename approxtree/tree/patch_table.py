@@ -10,9 +10,11 @@ read from the arrays directly, so neither a build nor a save makes an object per
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
+from typing import cast
 
 import numpy as np
 
+from approxtree.errors import StoreError
 from approxtree.patches.base import GeometryPatch
 from approxtree.patches.grid import GridPatchArrays
 from approxtree.patches.records import Batch
@@ -51,20 +53,23 @@ class PatchTable:
         """How many patch objects the table holds (made on access, or handed over as such)."""
         return len(self._held) - self._held.count(None)
 
-    def __getitem__(self, i: int) -> GeometryPatch | None:
+    def __getitem__(self, i: int) -> GeometryPatch:
         p = self._held[i]
         if p is None:
+            # Not made yet, so a row of the arrays: the nodes of list parts are held from the start.
             r = int(self.row[i])
-            if r >= 0:
-                p = self._held[i] = self.arrays.patch(r)  # type: ignore[union-attr]
+            if r < 0 or self.arrays is None:  # pragma: no cover - every node is one or the other
+                raise StoreError(f"patch of node {i} is missing")
+            p = self._held[i] = self.arrays.patch(r)
         return p
 
-    def __setitem__(self, i: int, patch: GeometryPatch | None) -> None:
+    def __setitem__(self, i: int, patch: GeometryPatch) -> None:
         self._held[i] = patch
 
-    def __iter__(self) -> Iterator[GeometryPatch | None]:
+    def __iter__(self) -> Iterator[GeometryPatch]:
         self.fill()
-        return iter(list(self._held))
+        # fill() made every patch not held: no entry is None any more.
+        return iter(cast(list[GeometryPatch], list(self._held)))
 
     def fill(self) -> None:
         """Make every patch not held yet, in one batch (before visiting all of them)."""
@@ -138,7 +143,7 @@ class PatchTable:
             where = np.flatnonzero(self.row >= 0)
             node_of = np.empty(len(self.arrays), dtype=np.int64)
             node_of[self.row[where]] = where
-            out.extend(self[int(i)] for i in node_of[coarse])  # type: ignore[misc]
+            out.extend(self[int(i)] for i in node_of[coarse])
         return out
 
 

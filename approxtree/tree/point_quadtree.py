@@ -204,7 +204,9 @@ class PointQuadtree:
         z = self.points[np.asarray(near).reshape(len(x), k), 2].mean(axis=1)
         keys = zip(ku.tolist(), kv.tolist(), strict=True)
         xyz = zip(x.tolist(), y.tolist(), z.tolist(), strict=True)
-        self.lattice = dict(zip(keys, xyz, strict=True))
+        self.lattice: dict[tuple[int, int], tuple[float, float, float]] = dict(
+            zip(keys, xyz, strict=True)
+        )
 
     @staticmethod
     def _ring_codes(level: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
@@ -305,8 +307,8 @@ class PointQuadtree:
 
     def _neighbour(self, di: int, dj: int, rows: np.ndarray | None = None) -> np.ndarray:
         """(k,) rows of the same-level neighbours across side (di, dj) of ``rows`` (all)."""
-        rows = slice(None) if rows is None else rows
-        return self._lookup(self.levels[rows], self.cells[rows, 0] + di, self.cells[rows, 1] + dj)
+        sel: slice | np.ndarray = slice(None) if rows is None else rows
+        return self._lookup(self.levels[sel], self.cells[sel, 0] + di, self.cells[sel, 1] + dj)
 
     def __len__(self) -> int:
         return len(self.node_keys)
@@ -443,9 +445,13 @@ class PointQuadtree:
                 "with ApproximationTree.load or approxtree.load_tree."
             )
         source.verify()
-        return cls.from_sections(
-            source.meta, source.terrain(), source.quadtree_arrays(), source.location
-        )
+        terrain = source.terrain()
+        if not isinstance(terrain, TIN):
+            raise StoreError(
+                f"{source.location} holds a point quadtree over a {terrain.kind}, not a TIN; "
+                "rebuild it."
+            )
+        return cls.from_sections(source.meta, terrain, source.quadtree_arrays(), source.location)
 
     @classmethod
     def from_sections(
@@ -472,10 +478,10 @@ class PointQuadtree:
         q = cls(terrain, int(header[0]), _build=False)
         q.size, q.x0, q.y0 = float(header[1]), float(header[2]), float(header[3])
         q.points, q.codes = a["points"].astype(np.float64), a["codes"].astype(np.int64)
-        nodes = [tuple(int(v) for v in n) for n in a["nodes"]]
+        nodes = [(int(n[0]), int(n[1]), int(n[2])) for n in a["nodes"]]
         q.children = dict(zip(nodes, a["internal"].astype(bool).tolist(), strict=True))
         q.lattice = {
-            (int(k[0]), int(k[1])): tuple(float(c) for c in v)
+            (int(k[0]), int(k[1])): (float(v[0]), float(v[1]), float(v[2]))
             for k, v in zip(a["lattice_keys"], a["lattice_xyz"], strict=True)
         }
         q._index()
@@ -515,7 +521,7 @@ class PointQuadtree:
 
     def interpolation_point_count(self) -> int:
         """N_C: distinct lattice points of the leaves' initial triangulations."""
-        keys = set()
+        keys: set[tuple[int, int]] = set()
         for leaf in self.leaves:
             level, i, j = leaf
             finer = self.finer_sides(leaf)

@@ -30,7 +30,7 @@ import numpy as np
 from approxtree.errors import InvalidParameterError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.rect import Rect
-from approxtree.patches import STRATEGIES, GeometryPatch
+from approxtree.patches import STRATEGIES, GeometryPatch, Strategy
 from approxtree.patches.table import type_strategy
 
 
@@ -91,7 +91,7 @@ class StrategyPolicy:
         """The patch the node keeps among its candidates' patches (see ``choose_patch``)."""
         return choose_patch(patches, epsilon)
 
-    def strategy_for(self, terrain: GeometryData, level: int, rect: Rect) -> type[GeometryPatch]:
+    def strategy_for(self, terrain: GeometryData, level: int, rect: Rect) -> Strategy:
         """The patch class of a node with a single candidate (the first one otherwise)."""
         return STRATEGIES[self.candidates(terrain, level, rect)[0]]
 

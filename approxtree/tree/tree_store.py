@@ -39,7 +39,7 @@ import numpy as np
 from approxtree._version import __version__
 from approxtree.errors import StoreError
 from approxtree.geometry import TERRAIN_TYPES
-from approxtree.geometry.base import GeometryData
+from approxtree.geometry.base import GeometryData, RecordArray
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.windowed import WindowedHeights
 from approxtree.patches.grid import GridPatch
@@ -193,12 +193,11 @@ class _LatticeTap:
 def _lattice_tap(tree: ApproximationTree) -> _LatticeTap | None:
     """The tap for the coarse grid patches of a tree over a windowed grid (None otherwise)."""
     grid = tree.terrain
-    if not getattr(grid, "is_windowed", False) or grid.index_offset != (0, 0):
+    if not isinstance(grid, Grid) or not grid.is_windowed or grid.index_offset != (0, 0):
         return None
-    held = tree._patches
-    if isinstance(held, PatchTable):
-        # Only the coarse patches store a lattice: no object for the others.
-        held = held.lattice_holders()
+    patches = tree._patches
+    # Of a PatchTable only the coarse patches store a lattice: no object for the others.
+    held = patches.lattice_holders() if isinstance(patches, PatchTable) else patches
     wanted = [
         p
         for p in held
@@ -212,7 +211,7 @@ def _read_terrain(reader: StoreReader) -> GeometryData:
     kind = tattrs.get("kind")
     if kind not in TERRAIN_TYPES:
         raise StoreError(f"{reader.location} holds an unknown terrain kind {kind!r}.")
-    arrays = {}
+    arrays: dict[str, RecordArray] = {}
     overview = None
     for name in reader.children("terrain"):
         path = f"terrain/{name}"
@@ -300,8 +299,9 @@ def store_bytes(path: str | os.PathLike) -> int:
     if is_zip(path):
         return os.path.getsize(path)
     if not is_url(path):
+        folder = os.fspath(path)
         return sum(
-            os.path.getsize(os.path.join(d, f)) for d, _, files in os.walk(path) for f in files
+            os.path.getsize(os.path.join(d, f)) for d, _, files in os.walk(folder) for f in files
         )
     return StoreReader(path).sizes()["stored"]
 

@@ -32,9 +32,9 @@ import shutil
 import threading
 import zipfile
 from collections import OrderedDict
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -108,7 +108,9 @@ def codecs(dtype: np.dtype) -> list[Any]:
     """Compression then the crc32c checksum (the checksum covers the compressed bytes)."""
     from zarr.codecs import BloscCodec, Crc32cCodec
 
-    shuffle = "bitshuffle" if np.dtype(dtype).itemsize == 1 else "shuffle"
+    shuffle: Literal["bitshuffle", "shuffle"] = (
+        "bitshuffle" if np.dtype(dtype).itemsize == 1 else "shuffle"
+    )
     return [BloscCodec(cname="zstd", clevel=5, shuffle=shuffle), Crc32cCodec()]
 
 
@@ -298,6 +300,13 @@ def _zip_folder(folder: Path, f: Any) -> None:
 # -- reading -----------------------------------------------------------------------------------
 
 
+def _json_object(value: object) -> dict[str, Any]:
+    """A JSON attribute that must be an object, as a dict (TypeError when it is not)."""
+    if not isinstance(value, Mapping):
+        raise TypeError(f"expected a JSON object, got {type(value).__name__}")
+    return dict(value)
+
+
 def _wrap(location: str, what: str, exc: BaseException) -> StoreError:
     return StoreError(
         f"Tree store {location} is corrupted or incomplete ({what}: {exc}). Rebuild it with "
@@ -339,8 +348,9 @@ class StoreReader:
                 f"version {FORMAT_VERSION}. Rebuild it with this version."
             )
         try:
-            self.meta: dict[str, Any] = dict(attrs["meta"])
-            self._sums: dict[str, int] = {k: int(v) for k, v in attrs["metadata_crc32c"].items()}
+            self.meta: dict[str, Any] = _json_object(attrs["meta"])
+            sums = _json_object(attrs["metadata_crc32c"])
+            self._sums: dict[str, int] = {k: int(v) for k, v in sums.items()}
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise _wrap(self.location, "root attributes", exc) from exc
         self._nodes: dict[str, Any] = {}
