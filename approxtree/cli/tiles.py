@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import click
 
 from approxtree.cli import web_tiles
@@ -180,6 +182,7 @@ def tiles(
         given = (tile_format, out, textures, scheme, size, texture_format, minzoom, maxzoom)
         web_tiles.map_tiles(tree, *given, workers, scheduler, reader, as_json)
         return
-    options = {"samples": int(samples), "maxzoom": maxzoom, "max_error": max_error}
-    options.update(minzoom=minzoom, water_mask=water_mask, leaf_error=leaf_error)
+    options: dict[str, Any] = {"samples": int(samples), "maxzoom": maxzoom}
+    options.update(max_error=max_error, minzoom=minzoom, water_mask=water_mask)
+    options["leaf_error"] = leaf_error
     web_tiles.terrain_tiles(tree, out, tile_format, options, workers, scheduler, reader, as_json)
