@@ -33,7 +33,6 @@ from typing import Any
 
 import numpy as np
 
-from approxtree._version import __version__
 from approxtree.errors import InvalidParameterError, StoreError
 from approxtree.geometry.tin import TIN
 from approxtree.kernels.point_quadtree import (
@@ -42,12 +41,9 @@ from approxtree.kernels.point_quadtree import (
     morton_codes,
     range_z_bounds,
 )
-from approxtree.tree import store
+from approxtree.tree import quadtree_store, store
+from approxtree.tree.quadtree_store import TREE_KIND
 
-#: ``meta["tree_kind"]`` of a point quadtree in a saved tree.
-TREE_KIND = "point_quadtree"
-#: Version of the "quadtree" section's layout.
-SECTION_VERSION = 1
 #: Finest quadtree level (2^20 cells a side); points sharing a finest cell stay in one leaf.
 MAX_DEPTH = 20
 #: Bits of the second coordinate in a finest-lattice code (u << bits | v; u, v <= 2^21).
@@ -313,29 +309,10 @@ class PointQuadtree:
     def __len__(self) -> int:
         return len(self.node_keys)
 
-    def finer_sides(self, node: tuple[int, int, int], drawn: set | None = None) -> list[bool]:
-        """Per side (W, E, S, N): is the neighbour finer (in the tree, or in the cut ``drawn``)?"""
+    def finer_sides(self, node: tuple[int, int, int]) -> list[bool]:
+        """Per side (W, E, S, N): is the neighbour in the tree finer than ``node``?"""
         level, i, j = node
-        out = []
-        for di, dj in _SIDES:
-            nb = (level, i + di, j + dj)
-            if drawn is None:
-                out.append(bool(self.children.get(nb, False)))
-            else:
-                out.append(self._subdivided(nb, drawn))
-        return out
-
-    def _subdivided(self, node: tuple[int, int, int], drawn: set) -> bool:
-        """True when the cut ``drawn`` covers ``node`` with finer nodes (a cut partitions the
-        domain: an existing node that is neither drawn nor under a drawn one is refined)."""
-        if node not in self.children or node in drawn:
-            return False
-        level, i, j = node
-        while level > 0:
-            level, i, j = level - 1, i // 2, j // 2
-            if (level, i, j) in drawn:
-                return False
-        return True
+        return [bool(self.children.get((level, i + di, j + dj), False)) for di, dj in _SIDES]
 
     def boundary(
         self, node: tuple[int, int, int], midpoints: list[bool], keep: list[bool] | None = None
@@ -405,29 +382,8 @@ class PointQuadtree:
         return store.save(self, path)
 
     def to_sections(self) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-        """(meta, arrays) of the quadtree for a tree store (terrain apart)."""
-        leaves = [self.node_keys[r] for r in np.flatnonzero(~self.internal)]
-        lattice = sorted(self.lattice.items())
-        arrays = {
-            "header": np.array([self.max_points, self.size, self.x0, self.y0], dtype="<f8"),
-            "points": self.points,
-            "codes": self.codes,
-            "nodes": np.array(self.node_keys, dtype="<i8").reshape(-1, 3),
-            "internal": self.internal,
-            "node_errors": self.node_errors,
-            "lattice_keys": np.array([k for k, _ in lattice], dtype="<i8").reshape(-1, 2),
-            "lattice_xyz": np.array([v for _, v in lattice], dtype="<f8").reshape(-1, 3),
-            "order_counts": np.array([len(self.orders[n][0]) for n in leaves], dtype="<i8"),
-            "orders": np.concatenate([self.orders[n][0] for n in leaves]).astype("<i8"),
-            "order_errors": np.concatenate([self.orders[n][1] for n in leaves]),
-        }
-        meta = {
-            "library": f"approxtree {__version__}",
-            "tree_kind": TREE_KIND,
-            "section_version": SECTION_VERSION,
-            "terrain_kind": self.terrain.kind,
-        }
-        return meta, arrays
+        """(meta, arrays) of the quadtree for a tree store (terrain apart; ``quadtree_store``)."""
+        return quadtree_store.to_sections(self)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> PointQuadtree:
@@ -459,46 +415,9 @@ class PointQuadtree:
     ) -> PointQuadtree:
         """The quadtree of ``to_sections``'s meta and arrays over ``terrain`` (``path``: the
         saved tree's location, for messages)."""
-        if meta.get("section_version") != SECTION_VERSION:
-            raise StoreError(
-                f"{path} has point quadtree layout {meta.get('section_version')!r}; this "
-                f"approxtree reads {SECTION_VERSION}. Rebuild it with this version."
-            )
-        a = {k: np.array(v) for k, v in raw.items()}
-        try:
-            return cls._from_arrays(terrain, a)
-        except (KeyError, ValueError, IndexError) as exc:
-            raise StoreError(
-                f"{path} holds a malformed point quadtree ({exc}); rebuild it."
-            ) from exc
-
-    @classmethod
-    def _from_arrays(cls, terrain: TIN, a: dict[str, np.ndarray]) -> PointQuadtree:
-        header = a["header"]
-        q = cls(terrain, int(header[0]), _build=False)
-        q.size, q.x0, q.y0 = float(header[1]), float(header[2]), float(header[3])
-        q.points, q.codes = a["points"].astype(np.float64), a["codes"].astype(np.int64)
-        nodes = [(int(n[0]), int(n[1]), int(n[2])) for n in a["nodes"]]
-        q.children = dict(zip(nodes, a["internal"].astype(bool).tolist(), strict=True))
-        q.lattice = {
-            (int(k[0]), int(k[1])): (float(v[0]), float(v[1]), float(v[2]))
-            for k, v in zip(a["lattice_keys"], a["lattice_xyz"], strict=True)
-        }
-        q._index()
-        q.node_errors = a["node_errors"].astype(np.float64)
-        if len(q.node_errors) != len(q):
-            raise ValueError("one error per node expected")
-        q.errors = dict(zip(q.node_keys, q.node_errors.tolist(), strict=True))
-        q.orders = {}
-        o = e = 0
-        leaves = [q.node_keys[r] for r in np.flatnonzero(~q.internal)]
-        for leaf, n in zip(leaves, a["order_counts"].tolist(), strict=True):
-            q.orders[leaf] = (
-                a["orders"][o : o + n].astype(np.int64),
-                a["order_errors"][e : e + n + 1],
-            )
-            o, e = o + n, e + n + 1
-        q._order_error_table()
+        arrays = quadtree_store.checked_arrays(meta, raw, path)
+        q = cls(terrain, quadtree_store.max_points(arrays), _build=False)
+        quadtree_store.fill(q, arrays, path)
         return q
 
     # -- figures -------------------------------------------------------------------------------
