@@ -77,6 +77,8 @@ EXTRAS = {
     "approxtree.tree": (
         "approxtree.tree.cut_mesh.CutMesh",
         "approxtree.tree.policy.LevelPolicy",
+        "approxtree.tree.patch_table.PatchTable",
+        "approxtree.tree.store.TreeSource",
     ),
     "approxtree.render": (
         "approxtree.render.lod_cut.LODCut",
