@@ -280,6 +280,27 @@ def _meander(rng: np.random.Generator, start: np.ndarray, steps: int, step: floa
     return np.vstack([start, start + np.cumsum(moves, axis=0)])
 
 
+def river_pieces(grid: Grid, count: int, seed: int = 0, step: float | None = None) -> np.ndarray:
+    """At least ``count`` short river pieces inside ``grid``'s domain: random meandering rivers
+    of 40 steps of ``step`` world units (default: the grid's cell size), cut into pieces of two
+    steps, each piece one microstructure's centre line. Returns a shapely LineString array."""
+    import shapely
+
+    step = float(grid.cell_size[0]) if step is None else float(step)
+    rng = np.random.default_rng(seed)
+    d = grid.domain
+    inner = shapely.box(d.xmin, d.ymin, d.xmax, d.ymax).buffer(-step)
+    # A piece that leaves the domain's inner box is dropped: its corridor would be cut.
+    pieces_per_river = 20
+    lines: list = []
+    while len(lines) < count:
+        start = rng.uniform([d.xmin, d.ymin], [d.xmax, d.ymax])
+        path = _meander(rng, start, 2 * pieces_per_river, step)
+        pieces = [shapely.linestrings(path[2 * k : 2 * k + 3]) for k in range(pieces_per_river)]
+        lines.extend(p for p in pieces if inner.contains(p))
+    return np.array(lines, dtype=object)
+
+
 def case_study_terrain(
     seed: int = 0,
     rows: int = 321,
@@ -297,27 +318,15 @@ def case_study_terrain(
     with the defaults the full model has about 500,000
     triangles, as in the paper (641 × 321 grid, 20,652 microstructures).
     """
-    import shapely
-
     from approxtree.io.microstructures import corridor_microstructures
 
     grid = fractal_terrain(rows, cols, seed=seed, relief=600.0, cell_size=cell_size)
-    rng = np.random.default_rng(seed)
-    d = grid.domain
-    inner = shapely.box(d.xmin, d.ymin, d.xmax, d.ymax).buffer(-cell_size)
-    # Rivers of 40 steps of one cell, cut into pieces of two steps; each piece inside the
-    # domain is one microstructure. A few spare pieces make up for the ones that end up with
-    # no triangle of their own (crossed by a nearer river).
-    pieces_per_river = 20
-    lines: list = []
-    while len(lines) < microstructures * 1.04:
-        start = rng.uniform([d.xmin, d.ymin], [d.xmax, d.ymax])
-        path = _meander(rng, start, 2 * pieces_per_river, cell_size)
-        pieces = [shapely.linestrings(path[2 * k : 2 * k + 3]) for k in range(pieces_per_river)]
-        lines.extend(p for p in pieces if inner.contains(p))
+    # A few spare pieces make up for the ones that end up with no triangle of their own
+    # (crossed by a nearer river).
+    lines = river_pieces(grid, int(np.ceil(microstructures * 1.04)), seed, cell_size)
     tins = corridor_microstructures(
         grid,
-        np.array(lines, dtype=object),
+        lines,
         width=width * cell_size,
         spacing=spacing * cell_size,
         profile="incised",
