@@ -275,3 +275,35 @@ def test_hillshade_strips_are_the_whole_hillshade(windowed, options):
     assert sum(int((s[1] == 0).sum()) for s in strips) > 2 * (53 + 41)  # holes and border
     # A windowed grid is read strip by strip, never whole.
     assert "_whole_heights" not in grid.__dict__
+
+
+class _Info:
+    def __init__(self, renderer: str) -> None:
+        self.info = {"GL_RENDERER": renderer}
+
+
+def test_software_renderers_are_recognised():
+    """Mesa's and Google's CPU rasterizers count as software, a GPU's driver does not."""
+    from approxtree.render.context import is_software
+
+    assert is_software(_Info("llvmpipe (LLVM 15.0.6, 256 bits)"))
+    assert is_software(_Info("Google SwiftShader"))
+    assert is_software(_Info("softpipe"))
+    assert not is_software(_Info("NVIDIA H100 80GB HBM3/PCIe/SSE2"))
+    assert not is_software(_Info("AMD Radeon RX 7900 XTX (radeonsi, navi31, LLVM 17.0.6)"))
+
+
+def test_cli_bake_uses_opengl_only_on_a_gpu(tmp_path):
+    """The CLI bakes with OpenGL where a GPU draws, with numpy on a CPU-only OpenGL."""
+    import json
+
+    from click.testing import CliRunner
+
+    from approxtree.cli import main
+    from approxtree.render.context import hardware_gl
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, fractal_terrain(65, seed=3).heights)
+    done = CliRunner().invoke(main, ["bake", str(dem), "--out", str(tmp_path / "p"), "--json"])
+    assert done.exit_code == 0, done.output
+    assert json.loads(done.output)["gl"] is hardware_gl()

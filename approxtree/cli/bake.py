@@ -90,7 +90,9 @@ def _takes_windowed(path: str, encoding: str | None) -> bool:
     show_default=True,
     help="Texture size limit (power of two): the pyramid halves until a level fits.",
 )
-@click.option("--no-gl", is_flag=True, help="Bake with numpy even when OpenGL is available.")
+@click.option(
+    "--no-gl", is_flag=True, help="Bake with numpy even on a GPU (a CPU-only OpenGL is never used)."
+)
 @click.option(
     "--out", required=True, type=click.Path(file_okay=False), help="Folder of the pyramid."
 )
@@ -138,16 +140,19 @@ def bake_command(
     from approxtree.errors import InvalidParameterError
     from approxtree.io.output_path import check_output_folder
     from approxtree.progress import progress_bar
-    from approxtree.render.context import optional_context
+    from approxtree.render.context import hardware_gl, optional_context
     from approxtree.textures.bake import bake
 
     check_output_folder(out, "texture pyramid folder")
     replaceable(out, "texture pyramid")
+    # The hillshade is baked with OpenGL on a GPU; with numpy without one, and on a software
+    # rasterizer (llvmpipe), which the numba kernels outrun on the same cores.
+    gl = not no_gl and shading == "topographic" and hardware_gl()
     if not _is_tree(source):
         ctx = click.get_current_context()
         if (
             ctx.meta.get("approxtree.windowed") is None
-            and no_gl
+            and not gl
             and shading == "topographic"
             and thematic is None
             and texel is None
@@ -168,8 +173,6 @@ def bake_command(
         )
     if palette is not None and thematic is None:
         raise InvalidParameterError("--palette colours a --thematic raster; give one.")
-    # The hillshade is baked with OpenGL on a context made here (numpy without one).
-    gl = not no_gl and shading == "topographic"
     with (
         optional_context(gl) as gl_context,
         progress_bar("baking pyramid", unit="row", quiet=quiet) as on_progress,
@@ -189,7 +192,7 @@ def bake_command(
             blend=blend,
             texel_size=texel,
             max_texture_size=max_texture_size,
-            gl=not no_gl,
+            gl=gl,
             context=gl_context,
         )
     _emit(result.figures(), as_json)

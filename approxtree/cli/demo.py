@@ -82,13 +82,14 @@ def demo(out: str, epsilon: float, png: str | None, as_json: bool, style: dict[s
     figures["tree_file"] = str(Path(out))
     # Bake the hillshade pyramid next to the tree, then render the oblique overview with it:
     # the baked hillshade is the shading, drawn once (core paper 5.1), over the palette.
-    from approxtree.render.context import optional_context
+    from approxtree.render.context import hardware_gl, optional_context
     from approxtree.textures.bake import bake as bake_textures
 
     # The baked light is the one asked for (sun and exaggeration, z factor of gdaldem).
     az, alt = style["sun"]
     shading = {"azimuth": az, "altitude": alt, "z_factor": style["exaggeration"]}
-    with optional_context() as gl_context:
+    # A GPU bakes the shading; on a CPU-only OpenGL the numba kernels are faster.
+    with optional_context(hardware_gl()) as gl_context:
         baked = bake_textures(terrain, folder, shading_options=shading, context=gl_context)
     figures.update(textures=str(folder), bake_seconds=round(baked.seconds, 4), bake_gl=baked.gl)
     figures.update(

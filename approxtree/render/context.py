@@ -9,6 +9,7 @@ names the packages to install (``INSTALL_HINT``).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
@@ -44,6 +45,30 @@ def create_context() -> Any:
             f"OpenGL 3.3 or newer is needed, the EGL context offers {version}. {INSTALL_HINT}"
         )
     return ctx
+
+
+#: Renderer names of Mesa's and Google's CPU rasterizers (GL_RENDERER).
+SOFTWARE_RENDERERS = ("llvmpipe", "softpipe", "swrast", "swiftshader")
+
+
+def is_software(ctx: Any) -> bool:
+    """Whether ``ctx`` draws on the CPU (Mesa llvmpipe, softpipe, SwiftShader)."""
+    renderer = str(ctx.info.get("GL_RENDERER", "")).lower()
+    return any(name in renderer for name in SOFTWARE_RENDERERS)
+
+
+@functools.cache
+def hardware_gl() -> bool:
+    """Whether this process can make a context that draws on a GPU (not ``is_software``);
+    asked once per process."""
+    try:
+        ctx = create_context()
+    except ContextUnavailableError:
+        return False
+    try:
+        return not is_software(ctx)
+    finally:
+        ctx.release()
 
 
 @contextmanager
