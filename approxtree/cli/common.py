@@ -235,8 +235,11 @@ def _tree_of(
     is read with the reader options (as the command received them, see ``_open``) and built
     into a tree in memory, as ``approxtree build`` builds it with the same options. build: the
     command's ``BuildChoices`` (cli/options.py). Reader and build options given with a saved
-    tree are an InvalidParameterError: it is read and built already.
+    tree are an InvalidParameterError: it is read and built already. The build shows the
+    "building tree" bar on a terminal unless the command was given -q (``is_quiet``).
     """
+    from approxtree.cli.options import is_quiet
+    from approxtree.progress import progress_bar
     from approxtree.tree import ApproximationTree, load_tree
 
     reader = (encoding, nodata_policy, ground_only, height_scale)
@@ -244,7 +247,9 @@ def _tree_of(
         _no_reader_flags_for_tree(path, _given_reader_options(*reader))
         _no_build_flags_for_tree(path, build.given)
         return load_tree(path, verify=verify)
-    return ApproximationTree.build(_open(path, *reader), **build.kwargs(), progress=False)
+    terrain = _open(path, *reader)
+    with progress_bar("building tree", unit="point", quiet=is_quiet()) as on_progress:
+        return ApproximationTree.build(terrain, **build.kwargs(), progress=on_progress)
 
 
 def _terrain_of(

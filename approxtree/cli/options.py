@@ -201,13 +201,30 @@ def _remember(ctx: click.Context, param: click.Parameter, value: object) -> None
 
 
 def quiet_option(fn: Callable[..., Any]) -> Callable[..., Any]:
-    """-q/--quiet (keyword ``quiet``): no progress bar. Without it a command shows its bar on
-    stderr only when stderr is a terminal; use it as
+    """-q/--quiet (keyword ``quiet``, also kept in the click context as "approxtree.quiet"):
+    no progress bar and no progress or note lines; errors and warnings stay one line each.
+    Without it a command shows its bar on stderr only when stderr is a terminal; use it as
     ``with progress_bar("desc", unit="…", quiet=quiet) as report: work(..., progress=report)``
-    (``approxtree.progress``)."""
+    (``approxtree.progress``). Every command that shows progress takes it."""
     return click.option(
-        "-q", "--quiet", is_flag=True, help="No progress bar (none either off a terminal)."
+        "-q",
+        "--quiet",
+        is_flag=True,
+        callback=_remember_and_pass,
+        help="No progress bar or progress lines (no bar either off a terminal).",
     )(fn)
+
+
+def is_quiet() -> bool:
+    """Whether the running command was given -q/--quiet (False outside a command)."""
+    ctx = click.get_current_context(silent=True)
+    return bool(ctx is not None and ctx.meta.get("approxtree.quiet"))
+
+
+def _remember_and_pass(ctx: click.Context, param: click.Parameter, value: object) -> object:
+    """Keep the option in the context like ``_remember`` and pass it to the command too."""
+    _remember(ctx, param, value)
+    return value
 
 
 def cartographic_options(fn: Callable[..., Any]) -> Callable[..., Any]:

@@ -16,6 +16,7 @@ from approxtree.cli.options import (
     build_options,
     cartographic_options,
     fov_option,
+    quiet_option,
     reader_options,
     threshold_options,
 )
@@ -87,6 +88,7 @@ from approxtree.cli.options import (
 @cartographic_options
 @build_options
 @reader_options
+@quiet_option
 @_reports_errors
 def view(
     source: str,
@@ -110,8 +112,10 @@ def view(
     nodata_policy,
     ground_only,
     height_scale,
+    quiet: bool,
 ) -> None:
-    """Open an interactive window over a tree file or a DEM (F1 in the window: keys)."""
+    """Open an interactive window over a tree file or a DEM (F1 in the window: keys). A
+    terrain file's build shows a bar on a terminal (-q: none)."""
     from approxtree.io.output_path import check_output_file, check_output_folder
     from approxtree.render.cut import Cut
     from approxtree.viewer import load_script, parse_key_presses, script_frames

@@ -1,0 +1,99 @@
+"""The command line keeps its own conventions (issue 27, section 3): every command that shows
+progress takes -q, a bad --palette names every kind of palette accepted, stats keys say what
+they count, line overlays are named for what they are."""
+
+from __future__ import annotations
+
+import fcntl
+import inspect
+import os
+import pty
+import struct
+import subprocess
+import sys
+import termios
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from approxtree.cli import _COMMANDS, main
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def run(*args: object) -> tuple[int, str, str]:
+    """(exit code, stdout, stderr) of the CLI run in-process."""
+    result = CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+    return result.exit_code, result.stdout, result.stderr
+
+
+def _shows_progress(name: str) -> bool:
+    """Whether a command's module (or the helper it hands its work to) shows progress."""
+    import importlib
+
+    module = importlib.import_module(f"approxtree.cli.{_COMMANDS[name][0]}")
+    source = inspect.getsource(module)
+    if name == "tiles":
+        source += inspect.getsource(importlib.import_module("approxtree.cli.web_tiles"))
+    return any(word in source for word in ("progress_bar", "progress=", "_tree_of("))
+
+
+def test_every_command_showing_progress_takes_quiet():
+    """Each command that shows a bar (its own or its in-memory build's) has -q/--quiet."""
+    showing = [name for name in _COMMANDS if _shows_progress(name)]
+    assert {"build", "bake", "mesh", "rd", "fractal", "render", "tiles", "demo", "view"} <= set(
+        showing
+    )
+    for name in showing:
+        options = {o for p in main.get_command(None, name).params for o in p.opts}  # type: ignore[union-attr]
+        assert {"-q", "--quiet"} <= options, name
+
+
+def _stderr_on_terminal(*args: str) -> tuple[int, str]:
+    """(exit code, stderr) of the CLI in a subprocess whose stderr is a pseudo-terminal."""
+    master, slave = pty.openpty()
+    # A terminal of 80 columns (a fresh pty has 0: tqdm would draw an empty bar).
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 80, 0, 0))
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "approxtree", *args],
+        stdout=subprocess.DEVNULL,
+        stderr=slave,
+        env=env,
+    )
+    os.close(slave)
+    chunks = []
+    while True:
+        try:
+            data = os.read(master, 4096)
+        except OSError:  # EIO: the child closed the terminal
+            break
+        if not data:
+            break
+        chunks.append(data)
+    os.close(master)
+    return proc.wait(timeout=600), b"".join(chunks).decode(errors="replace")
+
+
+def test_fractal_bar_on_a_terminal_and_none_with_quiet(tmp_path):
+    """fractal shows its bar on a terminal; with -q stderr stays empty."""
+    args = ["fractal", "--size", "512", "--block", "512", "--workers", "1"]
+    code, err = _stderr_on_terminal(*args, str(tmp_path / "a.tif"))
+    assert code == 0 and "%|" in err
+    code, err = _stderr_on_terminal(*args, str(tmp_path / "b.tif"), "-q")
+    assert code == 0 and err == ""
+
+
+@pytest.mark.parametrize("command", ["render", "tiles", "fractal"])
+def test_quiet_errors_stay_one_line(command, tmp_path):
+    """-q is accepted by render, tiles and fractal, and an error is still one Error: line."""
+    missing = tmp_path / "missing.tif"
+    args = {
+        "render": ["render", missing, "--out", tmp_path / "x.png", "-q"],
+        "tiles": ["tiles", missing, "--out", tmp_path / "t", "--format", "3dtiles", "-q"],
+        "fractal": ["fractal", tmp_path / "f.tif", "--size", "0", "-q"],
+    }[command]
+    code, _, err = run(*args)
+    assert code == 2
+    assert err.startswith("Error: ") and err.count("\n") == 1, err
