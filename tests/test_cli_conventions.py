@@ -14,6 +14,7 @@ import sys
 import termios
 from pathlib import Path
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -97,3 +98,37 @@ def test_quiet_errors_stay_one_line(command, tmp_path):
     code, _, err = run(*args)
     assert code == 2
     assert err.startswith("Error: ") and err.count("\n") == 1, err
+
+
+def _names_every_kind(message: str) -> None:
+    """The hypsometric palettes, the legends, colour files and colormaps are all named."""
+    from approxtree.textures.palettes import PALETTES
+    from approxtree.textures.thematic import LEGENDS
+
+    for name in [*PALETTES, *LEGENDS, "colour file", "matplotlib colormap"]:
+        assert name in message, (name, message)
+
+
+def test_render_bad_palette_names_every_kind(tmp_path):
+    """render --palette nonsense: one Error line naming every kind of palette accepted."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.zeros((8, 8), dtype=np.float32))
+    code, _, err = run("render", dem, "--out", tmp_path / "x.png", "--palette", "nonsense")
+    assert code == 2 and err.count("\n") == 1
+    assert err.startswith("Error: Unknown palette 'nonsense'")
+    _names_every_kind(err)
+
+
+@pytest.mark.parametrize("palette", ["nonsense", "relief"])
+def test_bake_bad_palette_names_every_kind(tmp_path, palette):
+    """bake --thematic R --palette nonsense (or a hypsometric name): one Error line naming
+    every kind, before the terrain is read."""
+    raster = tmp_path / "classes.tif"
+    raster.write_bytes(b"")
+    code, _, err = run(
+        "bake", tmp_path / "none.tif", "--out", tmp_path / "p", "--thematic", raster,
+        "--palette", palette,
+    )  # fmt: skip
+    assert code == 2 and err.count("\n") == 1, err
+    assert err.startswith(f"Error: Unknown palette '{palette}' for the thematic raster")
+    _names_every_kind(err)

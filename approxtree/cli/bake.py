@@ -140,9 +140,12 @@ def bake_command(
     from approxtree.progress import progress_bar
     from approxtree.render.context import optional_context
     from approxtree.textures.bake import bake
+    from approxtree.textures.palettes import check_thematic_palette
 
     check_output_folder(out, "texture pyramid folder")
     replaceable(out, "texture pyramid")
+    # A palette nothing takes fails before the terrain is read.
+    check_thematic_palette(palette)
     if not _is_tree(source):
         ctx = click.get_current_context()
         if (

@@ -17,10 +17,12 @@ Named choices (``PALETTES``):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from approxtree.errors import InvalidParameterError
+from approxtree.textures.thematic import LEGENDS, THEMATIC_PALETTE_KINDS
 
 
 @dataclass(frozen=True)
@@ -132,5 +134,29 @@ def get_palette(palette: str | Palette | None) -> Palette:
         return PALETTES[str(palette)]
     except KeyError:
         raise InvalidParameterError(
-            f"Unknown palette {palette!r}; choose one of {', '.join(PALETTES)}."
+            f"Unknown palette {palette!r}; the elevation colours take a hypsometric palette: "
+            f"{', '.join(PALETTES)}. A thematic raster takes {THEMATIC_PALETTE_KINDS} "
+            "(approxtree bake --thematic RASTER --palette NAME)."
         ) from None
+
+
+def check_thematic_palette(palette: str | None) -> None:
+    """InvalidParameterError, naming every kind of palette, unless ``palette`` names what a
+    thematic raster is coloured with: None, a legend, an existing file or a matplotlib
+    colormap (a hypsometric palette of PALETTES colours elevations, not classes)."""
+    import matplotlib
+
+    if palette is None or palette in LEGENDS or Path(palette).is_file():
+        return
+    if palette in matplotlib.colormaps:
+        return
+    what = (
+        "is a hypsometric palette (elevation colours: approxtree render --palette)"
+        if palette in PALETTES
+        else "is neither a legend, a file nor a colormap"
+    )
+    raise InvalidParameterError(
+        f"Unknown palette {palette!r} for the thematic raster: it {what}. A thematic raster "
+        f"takes {THEMATIC_PALETTE_KINDS}; the hypsometric palettes {', '.join(PALETTES)} colour "
+        "the elevations of an untextured terrain (render, view, demo --palette)."
+    )
