@@ -19,9 +19,9 @@ encoder's version does not matter). What is drawn:
 
 Cuts and images are deterministic (the selection is pure, uploads are ordered, Mesa llvmpipe
 rasterizes the same way each run); timings are left out, and so are the paging figures
-"pending" and "uploads": two loader threads fill a small CPU cache in the order their loads end,
-so which payloads it evicts, and those two counts, vary from run to run (±1-2 here, on any
-checkout) while the drawn images do not.
+"pending" and "paged_uploads": two loader threads fill a small CPU cache in the order their
+loads end, so which payloads it evicts, and those two counts, vary from run to run (±1-2 here,
+on any checkout) while the drawn images do not.
 
     PYTHONPATH=<checkout> python benchmarks/render_regression.py OUT_DIR [--data DIR]
 """

@@ -132,3 +132,19 @@ def test_bake_bad_palette_names_every_kind(tmp_path, palette):
     assert code == 2 and err.count("\n") == 1, err
     assert err.startswith(f"Error: Unknown palette '{palette}' for the thematic raster")
     _names_every_kind(err)
+
+
+def test_render_json_names_what_its_upload_count_counts(tmp_path):
+    """render --json: gpu_uploads counts what upload_ms timed (> 0 for a first frame),
+    paged_uploads is 0 for a frame that waits, and no bare "uploads" key is left."""
+    import json
+
+    dem = tmp_path / "dem.npy"
+    z = np.add.outer(np.arange(33.0), np.arange(33.0)).astype(np.float32)
+    np.save(dem, z)
+    code, out, err = run("render", dem, "--out", tmp_path / "x.png", "--size", "64x48", "--json")
+    assert code == 0, err
+    stats = json.loads(out)
+    assert "uploads" not in stats
+    assert stats["gpu_uploads"] >= stats["patches"] > 0
+    assert stats["paged_uploads"] == 0

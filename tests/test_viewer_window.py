@@ -97,7 +97,7 @@ def test_replay_keys_screenshots_and_stats(display, sample_tree, tmp_path):
     lines = [json.loads(s) for s in (tmp_path / "stats.jsonl").read_text().splitlines()]
     assert len(lines) == 12 + 2 + 5
     assert all(s["triangles"] > 0 and s["patches"] > 0 for s in lines)
-    assert all(s["uploads"] <= 16 for s in lines)
+    assert all(s["paged_uploads"] <= 16 for s in lines)
     assert [s["keyframe"] for s in lines if s["keyframe"] is not None] == [0, 1, 2]
     # The queue drained while the first keyframe was held: its screenshot is the wanted cut.
     assert lines[11]["pending"] == 0 and lines[0]["pending"] > 0
