@@ -244,8 +244,8 @@ class MapUI:
             imgui.text(f"max alpha {stats.get('max_alpha', 0):.2f} px (<= {s.alpha:.2f})")
             imgui.text(f"max gamma {stats.get('max_gamma', 0):.2f} px2 (<= {s.gamma:.2f})")
             imgui.text(
-                f"paged uploads {stats.get('paged_uploads', 0)}  pending {stats.get('pending', 0)}  "
-                f"stand-ins {stats.get('stand_ins', 0)}"
+                f"paged uploads {stats.get('paged_uploads', 0)}  "
+                f"pending {stats.get('pending', 0)}  stand-ins {stats.get('stand_ins', 0)}"
             )
             imgui.text(f"{'fly' if s.fly else 'orbit'}  frozen {s.frozen}  wireframe {s.wireframe}")
         for line in v.messages[-3:]:
