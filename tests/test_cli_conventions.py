@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from conftest import data_file
 
 from approxtree.cli import _COMMANDS, main
 
@@ -148,3 +149,26 @@ def test_render_json_names_what_its_upload_count_counts(tmp_path):
     assert "uploads" not in stats
     assert stats["gpu_uploads"] >= stats["patches"] > 0
     assert stats["paged_uploads"] == 0
+
+
+def test_bake_lines_is_the_line_overlay_and_roads_its_alias(data_dir, tmp_path):
+    """bake --lines draws the NC streams as a line overlay; --roads, its former name, bakes
+    the same pyramid (its level 0 pixel for pixel)."""
+    import json
+
+    import rasterio
+
+    dem = data_file(data_dir, "nc/elev_ned_30m.tif")
+    streams = data_file(data_dir, "nc/streams.shp")
+    levels = []
+    for flag in ("--lines", "--roads"):
+        out = tmp_path / flag.strip("-")
+        code, text, err = run("bake", dem, flag, streams, "--out", out, "--no-gl", "-q", "--json")
+        assert code == 0, err
+        assert json.loads(text)["levels"] >= 1
+        with rasterio.open(out / "level0.tif") as ds:
+            levels.append(ds.read())
+    assert (levels[0] == levels[1]).all()
+    # The overlay colour (#2864c8) is drawn somewhere: the streams are in.
+    r, g, b = levels[0][:3]
+    assert ((r == 0x28) & (g == 0x64) & (b == 0xC8)).any()

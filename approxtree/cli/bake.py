@@ -52,28 +52,31 @@ def _takes_windowed(path: str, encoding: str | None) -> bool:
     "for --thematic [default: its colour table, softened].",
 )
 @click.option(
+    "--lines",
     "--roads",
+    "lines",
     multiple=True,
     type=click.Path(exists=True, dir_okay=False),
-    help="Vector layer drawn on top (repeatable).",
+    help="Line overlay: a vector layer of lines (streams, roads, boundaries) drawn on top "
+    "(repeatable; --roads is the same option under its former name).",
 )
 @click.option(
     "--overlay-colour",
     default="#2864c8",
     show_default=True,
-    help="Colour of the --roads lines (#rrggbb).",
+    help="Colour of the --lines overlay (#rrggbb).",
 )
 @click.option(
     "--overlay-width",
     type=float,
     default=None,
-    help="Width of the --roads lines in world units [default: 2 texels, the least].",
+    help="Width of the --lines overlay in world units [default: 2 texels, the least].",
 )
 @click.option(
     "--water",
     multiple=True,
     type=click.Path(exists=True, dir_okay=False),
-    help="Water polygon layer drawn over the --roads lines (repeatable).",
+    help="Water polygon layer drawn over the --lines overlay (repeatable).",
 )
 @click.option(
     "--blend",
@@ -110,7 +113,7 @@ def bake_command(
     multidirectional: bool,
     thematic: str | None,
     palette: str | None,
-    roads: tuple[str, ...],
+    lines: tuple[str, ...],
     overlay_colour: str,
     overlay_width: float | None,
     water: tuple[str, ...],
@@ -185,7 +188,7 @@ def bake_command(
             shading_options=options if shading != "none" else None,
             thematic=thematic,
             palette=palette,
-            overlays=list(roads),
+            overlays=list(lines),
             overlay_colour=_rgba(overlay_colour),
             overlay_width=overlay_width,
             water=list(water),
