@@ -89,9 +89,18 @@ def cli(*args: str) -> str:
     return run.stdout
 
 
+#: The palette of every render that does not choose one: the fixed-elevation "relief", the
+#: default before the default became the terrain's own range ("hypsometric"), so that a
+#: checkout from either side of that change draws the same pictures.
+PALETTE = ("--palette", "relief")
+
+
 def render_cli(out: Path, name: str, source: str, *args: str) -> dict:
     png = out / f"{name}.png"
-    stats = json.loads(cli("render", source, "--out", str(png), "--size", SIZE, "--json", *args))
+    palette = () if "--palette" in args else PALETTE
+    stats = json.loads(
+        cli("render", source, "--out", str(png), "--size", SIZE, "--json", *palette, *args)
+    )
     digest, shape = pixel_hash(png)
     return {"sha256": digest, "shape": shape, **{k: stats.get(k) for k in STAT_KEYS}}
 
@@ -113,6 +122,9 @@ def python_api(out: Path, data: Path, work: Path) -> dict[str, dict]:
     results: dict[str, dict] = {}
 
     def frames(engine: Engine, cams, label: str) -> None:
+        # The fixed palette of every checkout (see PALETTE).
+        if hasattr(engine, "set_palette"):
+            engine.set_palette("relief")
         for k, cam in enumerate(cams):
             if new_api:
                 frame = engine.render(cam, (320, 240), Cut(alpha=1.0), paging=Paging(False, 4))

@@ -255,9 +255,11 @@ def cartographic_options(fn: Callable[..., Any]) -> Callable[..., Any]:
         click.option(
             "--palette",
             "relief_palette",
-            default="relief",
+            default="hypsometric",
             show_default=True,
-            help="Hypsometric palette by elevation: relief, atlas, grey or stretched (min..max).",
+            help="Hypsometric palette: hypsometric (tints over the terrain's own min..max), "
+            "relief or atlas (fixed elevations in metres), grey, stretched (the former min..max "
+            "ramp).",
         ),
         click.option(
             "--background",

@@ -73,7 +73,7 @@ class Viewer:
         visible: bool = True,
         exaggeration: float = 1.0,
         sun: tuple[float, float] = (315.0, 45.0),
-        palette: str = "relief",
+        palette: str | None = None,
         background: str = "sky",
         lighting: str = "auto",
         legend: str | None = None,
