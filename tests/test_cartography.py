@@ -8,11 +8,14 @@
 - the sun's azimuth decides which slopes are lit: the rendered brightness correlates best with
   a hillshade of the same azimuth computed independently with numpy;
 - the walls along the terrain's border have the wall colour; the background modes;
-- the default palette ties colours to elevations: no top-of-ramp colour on 150 m hills.
+- the fixed relief palette ties colours to elevations: no top-of-ramp colour on 150 m hills;
+  the default tint spans the terrain's own range;
+- a classified lidar cloud's default picture is its ground surface, filling the frame.
 """
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -83,6 +86,31 @@ def test_default_framing_covers_most_of_the_image(gl_context, nc_tree, data_dir)
             cover = surface_coverage(eng, tree)
         print(f"{name}: surface covers {cover:.1%} of the frame")
         assert cover >= 0.60, (name, cover)
+
+
+def test_a_lidar_cloud_default_picture_is_its_ground_filling_the_frame(data_dir, tmp_path):
+    """render of a classified LAZ: its ground points (class 2), said in one Note line (none
+    with -q), gaps filled, the surface covering >= 60 % of the frame (34 % before: every
+    point, trees as needles, sky through its gaps); --all-points keeps every point."""
+    laz = str(data_file(data_dir, "lidar/autzen_trim.laz"))
+    runner = CliRunner()
+    png = tmp_path / "autzen.png"
+    base = ["render", laz, "--background", "transparent", "--json"]
+    res = runner.invoke(cli_main, [*base, "--out", str(png)])
+    assert res.exit_code == 0, res.output
+    assert res.stderr == (
+        "Note: autzen_trim.laz: drawing its 26,107 ground points (classification 2) of "
+        "110,000, gaps filled; --all-points draws every point.\n"
+    )
+    cover = float((np.asarray(Image.open(png))[..., 3] > 0).mean())
+    print(f"autzen: terrain covers {cover:.1%} of the frame")
+    assert cover >= 0.60
+    quiet = runner.invoke(cli_main, [*base, "--out", str(tmp_path / "q.png"), "-q"])
+    assert quiet.exit_code == 0 and quiet.stderr == ""
+    res = runner.invoke(cli_main, [*base, "--out", str(tmp_path / "all.png"), "--all-points"])
+    assert res.exit_code == 0 and res.stderr == ""
+    # Every point: the trees' needles take far more triangles than the ground surface.
+    assert json.loads(res.stdout)["triangles"] > 10 * json.loads(quiet.stdout)["triangles"]
 
 
 def test_cli_demo_is_coloured_and_framed(tmp_path):

@@ -227,6 +227,22 @@ def _remember_and_pass(ctx: click.Context, param: click.Parameter, value: object
     return value
 
 
+def ground_surface_option(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """--all-points, on the commands that draw a picture of a terrain file (render, view):
+    without it a point cloud with ground points (class 2) beside others is drawn from its
+    ground points, and one ``Note:`` line says so (``common._open``). Kept in the click
+    context as "approxtree.all_points" (present: the command draws a ground surface)."""
+    return click.option(
+        "--all-points",
+        is_flag=True,
+        default=False,
+        expose_value=False,
+        callback=_remember,
+        help="Point clouds: draw every point (trees, buildings) [default: the ground points, "
+        "class 2, when the cloud has them beside others].",
+    )(fn)
+
+
 def cartographic_options(fn: Callable[..., Any]) -> Callable[..., Any]:
     """The picture options of render and demo: exaggeration, sun, palette, background,
     lighting (passed to the command as keyword ``style``, a dict for ``_render_to_png``)."""

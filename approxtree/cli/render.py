@@ -15,6 +15,7 @@ from approxtree.cli.options import (
     build_options,
     cartographic_options,
     fov_option,
+    ground_surface_option,
     json_option,
     overwrite_option,
     quiet_option,
@@ -79,6 +80,7 @@ def _xyz(ctx: click.Context, param: click.Parameter, value: str | None):
 @cartographic_options
 @build_options
 @reader_options
+@ground_surface_option
 @overwrite_option
 @quiet_option
 @json_option

@@ -16,6 +16,7 @@ from approxtree.cli.options import (
     build_options,
     cartographic_options,
     fov_option,
+    ground_surface_option,
     quiet_option,
     reader_options,
     threshold_options,
@@ -88,6 +89,7 @@ from approxtree.cli.options import (
 @cartographic_options
 @build_options
 @reader_options
+@ground_surface_option
 @quiet_option
 @_reports_errors
 def view(
