@@ -107,7 +107,7 @@ class Viewer:
             max_uploads=max_uploads,
             budget_ms=budget_ms,
         )
-        self.nav = Navigation(self.settings, tree, self.driver.scale, fov)
+        self.nav = Navigation(self.settings, tree, self.driver.scale, fov, size)
         # 3. Map tools, interface, and the input that drives them all.
         marks = Bookmarks(
             bookmarks if bookmarks is not None else default_bookmarks_path(),
