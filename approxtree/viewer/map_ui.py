@@ -48,7 +48,11 @@ class MapUI:
         self.viewer = viewer
         self.unit = "m"
 
-    def draw(self, fs: Any, stats: dict[str, Any], size: tuple[int, int]) -> dict[str, Any]:
+    def draw(
+        self, fs: Any, stats: dict[str, Any], size: tuple[int, int], panel: bool = True
+    ) -> dict[str, Any]:
+        """Draw the map furniture (scale bar, north arrow, measured line, legend) and, with
+        ``panel``, the Map panel; returns their boxes."""
         from imgui_bundle import imgui
 
         v = self.viewer
@@ -107,8 +111,9 @@ class MapUI:
                     dl.add_line(scr[0], scr[1], _col(1, 0.9, 0.1), 2.0)
         # 4. Legend window, bottom-right.
         boxes["legend"] = self._legend(w, h)
-        # 5. The Map panel, top-left.
-        self._panel(stats)
+        # 5. The Map panel, top-left (not in a screenshot that keeps the furniture only).
+        if panel:
+            self._panel(stats)
         return boxes
 
     # -- legend --------------------------------------------------------------------------------
