@@ -8,6 +8,7 @@ from an EPSG code in the GeoTIFF keys; pyproj is not needed.
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import numpy as np
 
@@ -74,7 +75,7 @@ def read_ground_surface(
     return TINPointSet(points, crs=crs or file_crs), kept
 
 
-def _read_las(p: os.PathLike) -> tuple[np.ndarray, np.ndarray, str | None]:
+def _read_las(p: Path) -> tuple[np.ndarray, np.ndarray, str | None]:
     """(points (n, 3) float64 scaled x, y, z; classes (n,) uint8; the file's CRS or None)."""
     # laspy and lazrs trust the header (a bad one hangs laspy or aborts the process in lazrs):
     # every size and offset is checked against the file and the memory first.
