@@ -3,12 +3,12 @@
 ``repr_png(obj)`` is the PNG a notebook shows for a ``Frame`` (its image), an
 ``ApproximationTree`` (an overview rendered with an offscreen EGL Engine) or a terrain
 (``GeometryData``: a quick coarse tree of it, then the same overview). The overview is
-``framing_camera``'s fitted view from the south, 640 × 360 pixels, α = 2 px, relief palette,
-sky background. Without an OpenGL context it returns None, and Jupyter falls back to the text
-repr (a repr never raises). ``approxtree/__init__.py`` registers it with IPython's PNG
-formatter when imported inside IPython, so the tree and terrain classes need not know about
-this module (imports point down: notebook → viewer, render → tree). A Frame has its own
-``_repr_png_``.
+``framing_camera``'s fitted view from the south, 640 × 360 pixels, α = 2 px, the default
+palette (a tint over the terrain's own range), sky background. Without an OpenGL context it
+returns None, and Jupyter falls back to the text repr (a repr never raises).
+``approxtree/__init__.py`` registers it with IPython's PNG formatter when imported inside
+IPython, so the tree and terrain classes need not know about this module (imports point down:
+notebook → viewer, render → tree). A Frame has its own ``_repr_png_``.
 
 ``TerrainWidget(tree)`` is a jupyter-rfb ``RemoteFrameBuffer``: each frame is rendered by an
 Engine, a drag orbits (left button) or pans (right or middle button, or with Shift) and the

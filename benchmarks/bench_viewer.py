@@ -120,7 +120,7 @@ def run(display: str, tree_path: Path, script: Path, alpha: float, uploads: int)
         "first_frame_ms": round(ms[0], 2),
         "triangles_median": int(statistics.median(s["triangles"] for s in lines)),
         "patches_median": int(statistics.median(s["patches"] for s in lines)),
-        "uploads_max": max(s["uploads"] for s in lines),
+        "paged_uploads_max": max(s["paged_uploads"] for s in lines),
         "upload_ms_max": max(s["upload_ms"] for s in lines),
         "frames_with_stand_ins": sum(1 for s in lines if s["pending"] > 0),
         "max_alpha_max": max(s["max_alpha"] for s in lines),

@@ -8,11 +8,14 @@
 - the sun's azimuth decides which slopes are lit: the rendered brightness correlates best with
   a hillshade of the same azimuth computed independently with numpy;
 - the walls along the terrain's border have the wall colour; the background modes;
-- the default palette ties colours to elevations: no top-of-ramp colour on 150 m hills.
+- the fixed relief palette ties colours to elevations: no top-of-ramp colour on 150 m hills;
+  the default tint spans the terrain's own range;
+- a classified lidar cloud's default picture is its ground surface, filling the frame.
 """
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -29,7 +32,7 @@ from approxtree.render import Camera, Engine, FrameState, Style, select
 from approxtree.render.context import create_context
 from approxtree.render.frame_state import framing_camera
 from approxtree.render.style import WALL_COLOUR, Sun
-from approxtree.textures.palettes import PALETTES
+from approxtree.textures.palettes import DEFAULT_PALETTE, PALETTES
 
 SIZE = (1280, 720)
 
@@ -83,6 +86,31 @@ def test_default_framing_covers_most_of_the_image(gl_context, nc_tree, data_dir)
             cover = surface_coverage(eng, tree)
         print(f"{name}: surface covers {cover:.1%} of the frame")
         assert cover >= 0.60, (name, cover)
+
+
+def test_a_lidar_cloud_default_picture_is_its_ground_filling_the_frame(data_dir, tmp_path):
+    """render of a classified LAZ: its ground points (class 2), said in one Note line (none
+    with -q), gaps filled, the surface covering >= 60 % of the frame (34 % before: every
+    point, trees as needles, sky through its gaps); --all-points keeps every point."""
+    laz = str(data_file(data_dir, "lidar/autzen_trim.laz"))
+    runner = CliRunner()
+    png = tmp_path / "autzen.png"
+    base = ["render", laz, "--background", "transparent", "--json"]
+    res = runner.invoke(cli_main, [*base, "--out", str(png)])
+    assert res.exit_code == 0, res.output
+    assert res.stderr == (
+        "Note: autzen_trim.laz: drawing its 26,107 ground points (classification 2) of "
+        "110,000, gaps filled; --all-points draws every point.\n"
+    )
+    cover = float((np.asarray(Image.open(png))[..., 3] > 0).mean())
+    print(f"autzen: terrain covers {cover:.1%} of the frame")
+    assert cover >= 0.60
+    quiet = runner.invoke(cli_main, [*base, "--out", str(tmp_path / "q.png"), "-q"])
+    assert quiet.exit_code == 0 and quiet.stderr == ""
+    res = runner.invoke(cli_main, [*base, "--out", str(tmp_path / "all.png"), "--all-points"])
+    assert res.exit_code == 0 and res.stderr == ""
+    # Every point: the trees' needles take far more triangles than the ground surface.
+    assert json.loads(res.stdout)["triangles"] > 10 * json.loads(quiet.stdout)["triangles"]
 
 
 def test_cli_demo_is_coloured_and_framed(tmp_path):
@@ -258,13 +286,15 @@ def test_background_modes(gl_context, hills_tree):
 
 
 def test_palette_follows_elevation_not_the_data_range(gl_context, hills_tree):
-    """Unlit, seen from above, the 50–250 m hills are drawn in the relief palette's colour at
-    each pixel's elevation (within 4 grey levels); none of them gets the palette's top
-    (snow) colour, nor anything near white, which the min/max-stretched ramp painted."""
+    """Unlit, seen from above, the 50–250 m hills are drawn in the fixed-elevation relief
+    palette's colour at each pixel's elevation (within 4 grey levels); none of them gets the
+    palette's top (snow) colour, nor anything near white, which the min/max-stretched ramp
+    painted. (relief is asked for by name: the default tint follows the terrain's range.)"""
     tree = hills_tree
     c = tree.terrain.domain.center
     cam = Camera.look_at((c[0], c[1], 15000.0), (c[0], c[1] + 1.0, 0.0), fov=30)
     with Engine(tree, context=gl_context, offscreen=True) as eng:
+        eng.set_palette("relief")
         frame = eng.render(cam, (300, 300), style=Style(lighting=False))
         eng.world_positions(frame)
     surface = frame.positions[..., 3] == 1
@@ -276,6 +306,34 @@ def test_palette_follows_elevation_not_the_data_range(gl_context, hills_tree):
     snow = np.array(PALETTES["relief"].stops[-1][1], dtype=float)
     assert np.linalg.norm(rgb[high] - snow, axis=1).min() > 40.0
     assert (rgb[high].min(axis=1) < 215).all()
+
+
+def test_default_tint_spans_the_terrain_own_range(gl_context, hills_tree):
+    """Unlit, seen from above, the default palette lays its tint over the terrain's own
+    min..max: the lowest pixels take its first colour, the highest its last (within 6 grey
+    levels), where the fixed relief palette gives 200 m of hills nearly one green."""
+    tree = hills_tree
+    c = tree.terrain.domain.center
+    cam = Camera.look_at((c[0], c[1], 15000.0), (c[0], c[1] + 1.0, 0.0), fov=30)
+    with Engine(tree, context=gl_context, offscreen=True) as eng:
+        frame = eng.render(cam, (300, 300), style=Style(lighting=False))
+        eng.world_positions(frame)
+        eng.set_palette("relief")
+        fixed = eng.render(cam, (300, 300), style=Style(lighting=False)).image
+    surface = frame.positions[..., 3] == 1
+    z = frame.positions[surface][:, 2]
+    rgb = frame.image[surface][:, :3].astype(float)
+    tint = PALETTES[DEFAULT_PALETTE]
+    assert tint.relative
+    expected = tint.colours(z, tree.terrain.z_range) * 255.0
+    assert np.median(np.abs(rgb - expected)) <= 4.0
+    low, high = z < np.quantile(z, 0.001), z > np.quantile(z, 0.999)
+    first, last = (np.array(tint.stops[i][1], dtype=float) for i in (0, -1))
+    assert np.abs(rgb[low].mean(axis=0) - first).max() <= 6.0
+    assert np.abs(rgb[high].mean(axis=0) - last).max() <= 6.0
+    # The spread of colours across the terrain: several times the fixed palette's.
+    spread = np.ptp(rgb, axis=0).max()
+    assert spread > 3 * np.ptp(fixed[surface][:, :3].astype(float), axis=0).max()
 
 
 def test_land_use_is_softened_and_water_covers_the_streams(data_dir, tmp_path):

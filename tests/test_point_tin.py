@@ -257,3 +257,25 @@ def test_points_at_absurd_coordinates_are_refused_not_triangulated():
     points = rng.uniform(-1.7e293, 1.7e293, size=(200, 3))
     with pytest.raises(TerrainFormatError, match="scale factors or offsets"):
         TINPointSet(points)
+
+
+def test_gap_fill_points_fill_holes_and_corners_only():
+    """gap_fill_points: a cloud with a square hole and a missing corner gets lattice points in
+    them (at the mean height of their 4 nearest points), none where the cloud is dense, and
+    the cloud with them covers its whole bounding rectangle."""
+    from approxtree.geometry.tin import gap_fill_points
+
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(0.0, 100.0, (20000, 2))
+    hole = (np.abs(xy - 50.0) < 15.0).all(axis=1) | ((xy[:, 0] > 85) & (xy[:, 1] > 85))
+    xy = xy[~hole]
+    points = np.column_stack([xy, 0.1 * xy[:, 0]])
+    filled = gap_fill_points(points, cells=32)
+    assert len(filled) > 0
+    in_hole = (np.abs(filled[:, :2] - 50.0) < 15.0).all(axis=1)
+    in_corner = (filled[:, 0] > 85) & (filled[:, 1] > 85)
+    assert (in_hole | in_corner).all()
+    assert in_hole.sum() >= 9 and in_corner.any()
+    # Heights come from the nearest data points: within the plane's range nearby.
+    assert np.abs(filled[:, 2] - 0.1 * filled[:, 0]).max() < 3.0
+    assert len(gap_fill_points(points, cells=1)) == 0

@@ -297,6 +297,25 @@ def test_navigation_keeps_the_world_pose():
     assert np.allclose(nav.pose_world()[1], home[1])
 
 
+def test_home_is_the_fitted_view_of_render():
+    """The viewer's home pose is render's fitted view for the window's size (the terrain
+    fills the window), not the bounding-sphere overview that left it ~20-25 % of it."""
+    from approxtree.render.frame_state import framing_camera
+
+    tree = fake_tree()
+    for size in [(1280, 720), (640, 640)]:
+        nav = Navigation(ViewSettings(), tree, np.ones(3), FOV, size)
+        fitted = framing_camera(tree.bboxes[0], np.ones(3), size, fov=FOV)
+        eye, target = nav.pose_world()
+        assert np.allclose(eye, fitted.eye) and np.allclose(target, fitted.target)
+        # The box top's corners land inside the window, spanning most of its width.
+        fs = FrameState.from_camera(fitted, size, tree.bboxes[0], np.zeros(3), np.ones(3))
+        top = np.array([[x, y, 100.0] for x in (0.0, 1000.0) for y in (0.0, 1000.0)])
+        px = fs.world_to_pixels(top)[0]
+        assert (px >= 0).all() and (px[:, 0] <= size[0]).all() and (px[:, 1] <= size[1]).all()
+        assert np.ptp(px[:, 0]) > 0.9 * size[0] or np.ptp(px[:, 1]) > 0.9 * size[1]
+
+
 def test_bookmark_and_flight(tmp_path):
     """B saves "view 1"; G flies there in FLIGHT_FRAMES eased poses, landing exactly on it."""
     settings = ViewSettings()

@@ -97,7 +97,7 @@ def test_replay_keys_screenshots_and_stats(display, sample_tree, tmp_path):
     lines = [json.loads(s) for s in (tmp_path / "stats.jsonl").read_text().splitlines()]
     assert len(lines) == 12 + 2 + 5
     assert all(s["triangles"] > 0 and s["patches"] > 0 for s in lines)
-    assert all(s["uploads"] <= 16 for s in lines)
+    assert all(s["paged_uploads"] <= 16 for s in lines)
     assert [s["keyframe"] for s in lines if s["keyframe"] is not None] == [0, 1, 2]
     # The queue drained while the first keyframe was held: its screenshot is the wanted cut.
     assert lines[11]["pending"] == 0 and lines[0]["pending"] > 0
@@ -253,3 +253,53 @@ def test_clear_errors_without_display_and_for_bad_scripts(sample_tree, tmp_path)
     )
     assert result.returncode == 2
     assert "eye and target must differ" in result.stderr
+
+
+def test_screenshots_keep_the_map_furniture_when_asked(display, sample_tree, tmp_path):
+    """--screenshot-furniture: keyframe and P pictures keep the legend (bottom right) and the
+    scale bar (bottom left) but not the Map panel (top left); --screenshot-name names P's
+    files; without the flag the pictures are the 3D view alone."""
+    tree, path = sample_tree
+    cam = overview_camera(tree.bboxes[0], display_scale(tree.terrain))
+    eye, target = cam.eye.tolist(), cam.target.tolist()
+    script = [{"eye": eye, "target": target, "frames": 4}]
+    (tmp_path / "path.json").write_text(json.dumps(script))
+    shots = {}
+    for name, extra in [("plain", ()), ("furniture", ("--screenshot-furniture",))]:
+        folder = tmp_path / name
+        folder.mkdir()
+        result = run_viewer(
+            display, folder, str(path), "--script", "../path.json", "--screenshots", "shots",
+            "--size", f"{SIZE[0]}x{SIZE[1]}", "--max-uploads", "0",
+            "--screenshot-name", "nc-{n:03d}.png", "--keys", "2:P", *extra,
+        )  # fmt: skip
+        assert result.returncode == 0, result.stderr
+        assert [p.name for p in folder.glob("*.png")] == ["nc-001.png"]
+        key = np.asarray(Image.open(folder / "shots" / "keyframe_000.png")).astype(int)
+        pressed = np.asarray(Image.open(folder / "nc-001.png")).astype(int)
+        assert pressed.shape == key.shape
+        shots[name] = (key, pressed)
+    w, h = SIZE
+    for k in range(2):
+        plain, kept = shots["plain"][k], shots["furniture"][k]
+        changed = np.abs(plain - kept).max(axis=2) > 20
+        # The legend (bottom right) and the scale bar (bottom left) are in the picture...
+        assert changed[h - 60 :, w - 190 : w - 20].mean() > 0.2
+        assert changed[h - 45 :, :150].mean() > 0.2
+        # ...the Map panel (top left) is not.
+        assert not changed[:60, :120].any()
+
+
+def test_bad_screenshot_name_is_one_error_line(sample_tree, tmp_path):
+    """A screenshot name with an unknown field or a folder: one Error line before any
+    window opens."""
+    _, path = sample_tree
+    for name in ("shot-{x}.png", "sub/shot.png", "shot.jpg"):
+        result = subprocess.run(
+            [sys.executable, "-m", "approxtree", "view", str(path), "--screenshot-name", name],
+            cwd=tmp_path, capture_output=True, text=True, timeout=300,
+        )  # fmt: skip
+        assert result.returncode == 2, result.stderr
+        assert result.stderr.startswith("Error: Bad screenshot name") and (
+            result.stderr.count("\n") == 1
+        ), result.stderr

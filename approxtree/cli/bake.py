@@ -52,28 +52,31 @@ def _takes_windowed(path: str, encoding: str | None) -> bool:
     "for --thematic [default: its colour table, softened].",
 )
 @click.option(
+    "--lines",
     "--roads",
+    "lines",
     multiple=True,
     type=click.Path(exists=True, dir_okay=False),
-    help="Vector layer drawn on top (repeatable).",
+    help="Line overlay: a vector layer of lines (streams, roads, boundaries) drawn on top "
+    "(repeatable; --roads is the same option under its former name).",
 )
 @click.option(
     "--overlay-colour",
     default="#2864c8",
     show_default=True,
-    help="Colour of the --roads lines (#rrggbb).",
+    help="Colour of the --lines overlay (#rrggbb).",
 )
 @click.option(
     "--overlay-width",
     type=float,
     default=None,
-    help="Width of the --roads lines in world units [default: 2 texels, the least].",
+    help="Width of the --lines overlay in world units [default: 2 texels, the least].",
 )
 @click.option(
     "--water",
     multiple=True,
     type=click.Path(exists=True, dir_okay=False),
-    help="Water polygon layer drawn over the --roads lines (repeatable).",
+    help="Water polygon layer drawn over the --lines overlay (repeatable).",
 )
 @click.option(
     "--blend",
@@ -112,7 +115,7 @@ def bake_command(
     multidirectional: bool,
     thematic: str | None,
     palette: str | None,
-    roads: tuple[str, ...],
+    lines: tuple[str, ...],
     overlay_colour: str,
     overlay_width: float | None,
     water: tuple[str, ...],
@@ -142,9 +145,12 @@ def bake_command(
     from approxtree.progress import progress_bar
     from approxtree.render.context import hardware_gl, optional_context
     from approxtree.textures.bake import bake
+    from approxtree.textures.palettes import check_thematic_palette
 
     check_output_folder(out, "texture pyramid folder")
     replaceable(out, "texture pyramid")
+    # A palette nothing takes fails before the terrain is read.
+    check_thematic_palette(palette)
     # The hillshade is baked with OpenGL on a GPU; with numpy without one, and on a software
     # rasterizer (llvmpipe), which the numba kernels outrun on the same cores.
     gl = not no_gl and shading == "topographic" and hardware_gl()
@@ -185,7 +191,7 @@ def bake_command(
             shading_options=options if shading != "none" else None,
             thematic=thematic,
             palette=palette,
-            overlays=list(roads),
+            overlays=list(lines),
             overlay_colour=_rgba(overlay_colour),
             overlay_width=overlay_width,
             water=list(water),

@@ -75,12 +75,45 @@ def _open(
 
     options = _given_reader_options(encoding, nodata_policy, ground_only, height_scale)
     ctx = click.get_current_context(silent=True)
-    windowed = ctx.meta.get("approxtree.windowed") if ctx is not None else None
+    meta = ctx.meta if ctx is not None else {}
+    windowed = meta.get("approxtree.windowed")
     # "auto" is the reader's default: it is passed on only as an explicit on or off.
     if windowed in ("on", "off"):
         options["windowed"] = windowed == "on"
     _check_reader_flags(path, options)
+    if "approxtree.all_points" in meta:
+        surface = _ground_surface(path, options, bool(meta["approxtree.all_points"]))
+        if surface is not None:
+            return surface
     return open_terrain(path, **options)
+
+
+def _ground_surface(path: str, options: dict[str, Any], all_points: bool):
+    """The ground surface of a point cloud drawn by a picture command (``ground_surface_option``):
+    its ground points when it has them beside others and neither --ground-only nor
+    --all-points was given, with one ``Note:`` line (none with -q); None for any other file
+    or choice (the reader's own defaults apply)."""
+    from approxtree.cli.options import is_quiet
+    from approxtree.errors import InvalidParameterError
+    from approxtree.io import detect_format
+    from approxtree.io._common import existing_file
+    from approxtree.io.pointcloud import read_ground_surface, read_point_cloud
+
+    if all_points and options.get("ground_only"):
+        raise InvalidParameterError("--all-points and --ground-only contradict; give one.")
+    if all_points or options.get("ground_only"):
+        return None
+    fmt = detect_format(existing_file(path), encoding=options.get("encoding"))
+    if fmt.reader is not read_point_cloud:
+        return None
+    terrain, kept = read_ground_surface(path, crs=options.get("crs"))
+    if kept is not None and not is_quiet():
+        click.echo(
+            f"Note: {Path(path).name}: drawing its {kept[0]:,} ground points (classification 2) "
+            f"of {kept[1]:,}, gaps filled; --all-points draws every point.",
+            err=True,
+        )
+    return terrain
 
 
 #: The reader options of the command line, by the keyword the readers take.
@@ -235,8 +268,11 @@ def _tree_of(
     is read with the reader options (as the command received them, see ``_open``) and built
     into a tree in memory, as ``approxtree build`` builds it with the same options. build: the
     command's ``BuildChoices`` (cli/options.py). Reader and build options given with a saved
-    tree are an InvalidParameterError: it is read and built already.
+    tree are an InvalidParameterError: it is read and built already. The build shows the
+    "building tree" bar on a terminal unless the command was given -q (``is_quiet``).
     """
+    from approxtree.cli.options import is_quiet
+    from approxtree.progress import progress_bar
     from approxtree.tree import ApproximationTree, load_tree
 
     reader = (encoding, nodata_policy, ground_only, height_scale)
@@ -244,7 +280,9 @@ def _tree_of(
         _no_reader_flags_for_tree(path, _given_reader_options(*reader))
         _no_build_flags_for_tree(path, build.given)
         return load_tree(path, verify=verify)
-    return ApproximationTree.build(_open(path, *reader), **build.kwargs(), progress=False)
+    terrain = _open(path, *reader)
+    with progress_bar("building tree", unit="point", quiet=is_quiet()) as on_progress:
+        return ApproximationTree.build(terrain, **build.kwargs(), progress=on_progress)
 
 
 def _terrain_of(

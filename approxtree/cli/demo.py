@@ -24,6 +24,7 @@ from approxtree.cli.options import (
     cartographic_options,
     json_option,
     overwrite_option,
+    quiet_option,
     replaceable,
 )
 
@@ -47,14 +48,19 @@ from approxtree.cli.options import (
 )
 @cartographic_options
 @overwrite_option
+@quiet_option
 @json_option
 @_reports_errors
-def demo(out: str, epsilon: float, png: str | None, as_json: bool, style: dict[str, Any]) -> None:
+def demo(
+    out: str, epsilon: float, png: str | None, quiet: bool, as_json: bool, style: dict[str, Any]
+) -> None:
     """Build the tree of the sample terrain (matplotlib's Jacksboro fault DEM), bake its
     hillshade pyramid (next to the tree, <out>_textures/) and render it: the baked shading
-    over the hypsometric palette, fitted to the frame, in front of a sky."""
+    over the hypsometric palette, fitted to the frame, in front of a sky. The build and the
+    bake show bars on a terminal (-q: none)."""
     from approxtree.datasets import sample_terrain
     from approxtree.io.output_path import check_output_file, check_output_folder
+    from approxtree.progress import progress_bar
     from approxtree.render.style import Background, Sun
     from approxtree.textures.palettes import get_palette
     from approxtree.tree import ApproximationTree
@@ -73,7 +79,8 @@ def demo(out: str, epsilon: float, png: str | None, as_json: bool, style: dict[s
     replaceable(str(folder), "texture pyramid")
     terrain = sample_terrain()
     t0 = time.perf_counter()
-    tree = ApproximationTree.build(terrain, epsilon=epsilon)
+    with progress_bar("building tree", unit="point", quiet=quiet) as on_progress:
+        tree = ApproximationTree.build(terrain, epsilon=epsilon, progress=on_progress)
     seconds = time.perf_counter() - t0
     nbytes = tree.save(out)
     figures: dict[str, Any] = {"terrain": "jacksboro_fault_dem (matplotlib sample data)"}
@@ -89,8 +96,13 @@ def demo(out: str, epsilon: float, png: str | None, as_json: bool, style: dict[s
     az, alt = style["sun"]
     shading = {"azimuth": az, "altitude": alt, "z_factor": style["exaggeration"]}
     # A GPU bakes the shading; on a CPU-only OpenGL the numba kernels are faster.
-    with optional_context(hardware_gl()) as gl_context:
-        baked = bake_textures(terrain, folder, shading_options=shading, context=gl_context)
+    with (
+        optional_context(hardware_gl()) as gl_context,
+        progress_bar("baking pyramid", unit="row", quiet=quiet) as on_progress,
+    ):
+        baked = bake_textures(
+            terrain, folder, shading_options=shading, context=gl_context, progress=on_progress
+        )
     figures.update(textures=str(folder), bake_seconds=round(baked.seconds, 4), bake_gl=baked.gl)
     figures.update(
         _render_to_png(

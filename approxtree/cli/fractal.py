@@ -9,7 +9,7 @@ import time
 import click
 
 from approxtree.cli.common import _emit, _reports_errors
-from approxtree.cli.options import json_option, overwrite_option, replaceable
+from approxtree.cli.options import json_option, overwrite_option, quiet_option, replaceable
 
 
 @click.command()
@@ -62,6 +62,7 @@ from approxtree.cli.options import json_option, overwrite_option, replaceable
     help="Cells per computed block edge (a multiple of 512).",
 )
 @overwrite_option
+@quiet_option
 @json_option
 @_reports_errors
 def fractal(
@@ -79,12 +80,13 @@ def fractal(
     cog: bool,
     workers: int | None,
     block: int,
+    quiet: bool,
     as_json: bool,
 ) -> None:
     """Write a seeded fractal DEM of any size as a tiled, compressed GeoTIFF, block by block
     (memory stays at a few blocks). Heights depend on (row, col, seed) only: a smaller DEM of
     the same seed is a crop of a larger one. The bytes it will take are checked against the
-    disk's free space before the first block (and shown on the progress bar)."""
+    disk's free space before the first block (and shown on the progress bar; -q: no bar)."""
     from approxtree.datasets import write_fractal_terrain
     from approxtree.io.output_path import check_output_file
 
@@ -106,7 +108,7 @@ def fractal(
         cog=cog,
         workers=workers,
         block=block,
-        progress=not as_json,
+        progress=not (as_json or quiet),
     )
     seconds = time.perf_counter() - t0
     rows, ncols = size, size if cols is None else cols

@@ -201,12 +201,45 @@ def _remember(ctx: click.Context, param: click.Parameter, value: object) -> None
 
 
 def quiet_option(fn: Callable[..., Any]) -> Callable[..., Any]:
-    """-q/--quiet (keyword ``quiet``): no progress bar. Without it a command shows its bar on
-    stderr only when stderr is a terminal; use it as
+    """-q/--quiet (keyword ``quiet``, also kept in the click context as "approxtree.quiet"):
+    no progress bar and no progress or note lines; errors and warnings stay one line each.
+    Without it a command shows its bar on stderr only when stderr is a terminal; use it as
     ``with progress_bar("desc", unit="…", quiet=quiet) as report: work(..., progress=report)``
-    (``approxtree.progress``)."""
+    (``approxtree.progress``). Every command that shows progress takes it."""
     return click.option(
-        "-q", "--quiet", is_flag=True, help="No progress bar (none either off a terminal)."
+        "-q",
+        "--quiet",
+        is_flag=True,
+        callback=_remember_and_pass,
+        help="No progress bar or progress lines (no bar either off a terminal).",
+    )(fn)
+
+
+def is_quiet() -> bool:
+    """Whether the running command was given -q/--quiet (False outside a command)."""
+    ctx = click.get_current_context(silent=True)
+    return bool(ctx is not None and ctx.meta.get("approxtree.quiet"))
+
+
+def _remember_and_pass(ctx: click.Context, param: click.Parameter, value: object) -> object:
+    """Keep the option in the context like ``_remember`` and pass it to the command too."""
+    _remember(ctx, param, value)
+    return value
+
+
+def ground_surface_option(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """--all-points, on the commands that draw a picture of a terrain file (render, view):
+    without it a point cloud with ground points (class 2) beside others is drawn from its
+    ground points, and one ``Note:`` line says so (``common._open``). Kept in the click
+    context as "approxtree.all_points" (present: the command draws a ground surface)."""
+    return click.option(
+        "--all-points",
+        is_flag=True,
+        default=False,
+        expose_value=False,
+        callback=_remember,
+        help="Point clouds: draw every point (trees, buildings) [default: the ground points, "
+        "class 2, when the cloud has them beside others].",
     )(fn)
 
 
@@ -238,9 +271,11 @@ def cartographic_options(fn: Callable[..., Any]) -> Callable[..., Any]:
         click.option(
             "--palette",
             "relief_palette",
-            default="relief",
+            default="hypsometric",
             show_default=True,
-            help="Hypsometric palette by elevation: relief, atlas, grey or stretched (min..max).",
+            help="Hypsometric palette: hypsometric (tints over the terrain's own min..max), "
+            "relief or atlas (fixed elevations in metres), grey, stretched (the former min..max "
+            "ramp).",
         ),
         click.option(
             "--background",

@@ -15,8 +15,10 @@ from approxtree.cli.options import (
     build_options,
     cartographic_options,
     fov_option,
+    ground_surface_option,
     json_option,
     overwrite_option,
+    quiet_option,
     reader_options,
     replaceable,
     threshold_options,
@@ -78,7 +80,9 @@ def _xyz(ctx: click.Context, param: click.Parameter, value: str | None):
 @cartographic_options
 @build_options
 @reader_options
+@ground_surface_option
 @overwrite_option
+@quiet_option
 @json_option
 @_reports_errors
 def render(
@@ -99,6 +103,7 @@ def render(
     nodata_policy,
     ground_only,
     height_scale,
+    quiet: bool,
     as_json: bool,
     style: dict[str, Any],
     build: BuildChoices,
@@ -106,7 +111,7 @@ def render(
     """Render a saved tree (store or .atree), or any terrain file built into a tree in memory
     (--epsilon, ...), to a PNG (or JPEG) and print the stats. Without --eye the terrain is
     fitted to the frame, seen from the south; --background transparent leaves alpha 0 where no
-    terrain is drawn (a PNG's)."""
+    terrain is drawn (a PNG's). A terrain file's build shows a bar on a terminal (-q: none)."""
     from approxtree.io.output_path import check_output_file
 
     check_output_file(out, "image")

@@ -13,6 +13,7 @@ from approxtree.cli.options import (
     build_options,
     json_option,
     overwrite_option,
+    quiet_option,
     reader_options,
 )
 
@@ -131,6 +132,7 @@ from approxtree.cli.options import (
 @build_options
 @reader_options
 @overwrite_option
+@quiet_option
 @json_option
 @_reports_errors
 def tiles(
@@ -157,12 +159,13 @@ def tiles(
     nodata_policy,
     ground_only,
     height_scale,
+    quiet: bool,
     as_json: bool,
     build: BuildChoices,
 ) -> None:
     """Write TREE (a tree store from `approxtree build`, or any terrain file: 3dtiles builds
     its tree in memory with --epsilon, ...) as web tiles into the folder --out, replaced as a
-    whole when done."""
+    whole when done. That build shows a bar on a terminal (-q: none)."""
 
     reader = {
         "encoding": encoding,

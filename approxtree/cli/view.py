@@ -16,6 +16,8 @@ from approxtree.cli.options import (
     build_options,
     cartographic_options,
     fov_option,
+    ground_surface_option,
+    quiet_option,
     reader_options,
     threshold_options,
 )
@@ -48,6 +50,19 @@ from approxtree.cli.options import (
     "--screenshots",
     type=click.Path(file_okay=False),
     help="Folder for one PNG per keyframe of --script.",
+)
+@click.option(
+    "--screenshot-name",
+    default="approxtree-{time}.png",
+    show_default=True,
+    help="File name of P's screenshots (in the working folder): {time} and {n} (1, 2, ...) "
+    "are filled in, e.g. nc-{n:03d}.png.",
+)
+@click.option(
+    "--screenshot-furniture",
+    is_flag=True,
+    help="Keep the map furniture (legend, scale bar, north arrow; not the panels) in the "
+    "pictures of P and --screenshots [default: the 3D view alone].",
 )
 @click.option(
     "--keys",
@@ -87,6 +102,8 @@ from approxtree.cli.options import (
 @cartographic_options
 @build_options
 @reader_options
+@ground_surface_option
+@quiet_option
 @_reports_errors
 def view(
     source: str,
@@ -98,6 +115,8 @@ def view(
     script_path: str | None,
     stats_path: str | None,
     screenshots: str | None,
+    screenshot_name: str,
+    screenshot_furniture: bool,
     keys_text: str,
     frames: int | None,
     max_uploads: int,
@@ -110,14 +129,18 @@ def view(
     nodata_policy,
     ground_only,
     height_scale,
+    quiet: bool,
 ) -> None:
-    """Open an interactive window over a tree file or a DEM (F1 in the window: keys)."""
+    """Open an interactive window over a tree file or a DEM (F1 in the window: keys). A
+    terrain file's build shows a bar on a terminal (-q: none)."""
     from approxtree.io.output_path import check_output_file, check_output_folder
     from approxtree.render.cut import Cut
     from approxtree.viewer import load_script, parse_key_presses, script_frames
     from approxtree.viewer.app import Viewer
+    from approxtree.viewer.map_tools import screenshot_name as screenshot_file_name
 
     Cut(alpha, gamma)  # bad thresholds fail before the window opens
+    screenshot_file_name(screenshot_name, 1)
     if stats_path is not None:
         check_output_file(stats_path, "stats file")
     if screenshots is not None:
@@ -148,6 +171,8 @@ def view(
         legend=legend,
         bookmarks=bookmarks_path,
         source=source,
+        screenshot_name=screenshot_name,
+        furniture_in_shots=screenshot_furniture,
         **style,
     ) as viewer:
         drawn = viewer.run(script, presses, stats_path, screenshots, max_frames=frames)

@@ -210,3 +210,42 @@ class TINPointSet(TIN):
         #: Input points dropped because another point had the same (x, y).
         self.duplicates_merged = int(len(p) - len(merged))
         super().__init__(merged, verts[tv.reshape(-1, 3)], crs=crs)
+
+
+#: Lattice steps along the longer side of a point cloud's rectangle in ``gap_fill_points``.
+GAP_FILL_CELLS = 64
+
+
+def gap_fill_points(points: np.ndarray, cells: int = GAP_FILL_CELLS, k: int = 4) -> np.ndarray:
+    """Points that fill a point cloud's gaps, the way the point quadtree's interpolation points
+    do: a square lattice over the points' bounding rectangle, ``cells`` steps along its longer
+    side (both edges included); each lattice point with no data point within one step gets
+    the mean height of its ``k`` nearest data points. The cloud and these points together
+    triangulate into a surface over the whole rectangle, without holes wider than a step.
+
+    points: (n, 3) float64 x, y, z (n >= 1). Returns (m, 3) float64, m >= 0 (none where the
+    cloud is dense everywhere).
+    """
+    from scipy.spatial import cKDTree
+
+    p = np.asarray(points, dtype=np.float64)
+    lo, hi = p[:, :2].min(axis=0), p[:, :2].max(axis=0)
+    step = float((hi - lo).max()) / max(int(cells), 1)
+    if not step > 0.0:
+        return np.empty((0, 3))
+    # Lattice along each side, its last line on the rectangle's far edge.
+    axes = [
+        np.linspace(a, b, max(2, int(np.ceil((b - a) / step)) + 1))
+        for a, b in zip(lo, hi, strict=True)
+    ]
+    gx, gy = np.meshgrid(*axes)
+    lattice = np.column_stack([gx.ravel(), gy.ravel()])
+    index = cKDTree(p[:, :2])
+    nearest, _ = index.query(lattice, k=1)
+    empty = lattice[nearest > step]
+    if len(empty) == 0:
+        return np.empty((0, 3))
+    k = min(k, len(p))
+    _, near = index.query(empty, k=k)
+    z = p[np.asarray(near).reshape(len(empty), k), 2].mean(axis=1)
+    return np.column_stack([empty, z])

@@ -8,11 +8,13 @@ from an EPSG code in the GeoTIFF keys; pyproj is not needed.
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import numpy as np
 
 from approxtree.errors import EmptyTerrainError
 from approxtree.geometry import TINPointSet
+from approxtree.geometry.tin import gap_fill_points
 from approxtree.io._common import check_crs, check_flag, existing_file, reading
 from approxtree.io.las_layout import check_las_layout
 
@@ -38,6 +40,43 @@ def read_point_cloud(
     p = existing_file(path)
     ground_only = check_flag(ground_only, "ground_only")
     crs = check_crs(crs)
+    points, classes, file_crs = _read_las(p)
+    if ground_only:
+        points = points[classes == GROUND_CLASS]
+    if len(points) == 0:
+        what = "ground points (classification 2)" if ground_only else "points"
+        hint = " Leave ground_only off to use all points." if ground_only else ""
+        raise EmptyTerrainError(f"{p} has no {what}.{hint}")
+    return TINPointSet(points, crs=crs or file_crs)
+
+
+def read_ground_surface(
+    path: str | os.PathLike, *, crs: str | None = None
+) -> tuple[TINPointSet, tuple[int, int] | None]:
+    """A point cloud's ground surface: its ground points (class 2) when it has them beside
+    points of other classes (trees, buildings: needles and slabs in a picture of the
+    surface), every point otherwise, with its gaps filled the way the point quadtree fills
+    them (``gap_fill_points``: lattice points at the mean height of their 4 nearest points),
+    so the surface covers the cloud's whole rectangle; crs replaces the file's CRS.
+
+    Returns (the TINPointSet, (ground points kept, points in the file) when only the ground
+    was kept, else None), so that a caller can say that it kept the ground.
+    """
+    p = existing_file(path)
+    crs = check_crs(crs)
+    points, classes, file_crs = _read_las(p)
+    ground = classes == GROUND_CLASS
+    kept: tuple[int, int] | None = None
+    if ground.any() and not ground.all():
+        points, kept = points[ground], (int(ground.sum()), len(points))
+    if len(points) == 0:
+        raise EmptyTerrainError(f"{p} has no points.")
+    points = np.concatenate([points, gap_fill_points(points)])
+    return TINPointSet(points, crs=crs or file_crs), kept
+
+
+def _read_las(p: Path) -> tuple[np.ndarray, np.ndarray, str | None]:
+    """(points (n, 3) float64 scaled x, y, z; classes (n,) uint8; the file's CRS or None)."""
     # laspy and lazrs trust the header (a bad one hangs laspy or aborts the process in lazrs):
     # every size and offset is checked against the file and the memory first.
     with reading(p, "a LAS/LAZ point cloud"):
@@ -46,14 +85,7 @@ def read_point_cloud(
 
         las = laspy.read(p)
         points = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)])
-        if ground_only:
-            points = points[np.asarray(las.classification) == GROUND_CLASS]
-        file_crs = _crs_of(las.header)
-    if len(points) == 0:
-        what = "ground points (classification 2)" if ground_only else "points"
-        hint = " Leave ground_only off to use all points." if ground_only else ""
-        raise EmptyTerrainError(f"{p} has no {what}.{hint}")
-    return TINPointSet(points, crs=crs or file_crs)
+        return points, np.asarray(las.classification), _crs_of(las.header)
 
 
 def _crs_of(header) -> str | None:

@@ -207,6 +207,7 @@ class Engine:
         self._check_alive()
         _check_kinds(cut=(cut, Cut), style=(style, Style), paging=(paging, Paging))
         fs = self.frame_state(camera, size)
+        uploads = self.cache.uploads
         t0 = time.perf_counter()
         wanted = self.source.select(fs, cut)
         t1 = time.perf_counter()
@@ -222,6 +223,8 @@ class Engine:
             "triangles": triangles,
             "select_ms": (t1 - t0) * 1e3,
             "upload_ms": (t2 - t1) * 1e3,
+            # Meshes and texture patches put on the GPU this frame, whichever path did it.
+            "gpu_uploads": self.cache.uploads - uploads,
             "draw_ms": draw_ms,
             "gpu_bytes": self.cache.nbytes,
             "texture_switches": switches,

@@ -32,6 +32,7 @@ STAT_KEYS = (
     "max_gamma",
     "select_ms",
     "upload_ms",
+    "gpu_uploads",
     "draw_ms",
     "gpu_bytes",
     "texture_patches",
@@ -39,13 +40,17 @@ STAT_KEYS = (
     "stand_ins",
     "texture_stand_ins",
     "pending",
-    "uploads",
+    "paged_uploads",
     "cpu_bytes",
     "empty",
     "warning",
 )
-#: The paging figures of a frame, in the order of the stats (a settled frame has them all 0).
-PAGING_KEYS = ("stand_ins", "pending", "uploads", "texture_stand_ins")
+#: The paging figures of a frame, in the order of the stats (a settled frame has them all 0):
+#: nodes drawn as a resident ancestor meanwhile, nodes still loading, meshes paged onto the GPU
+#: ahead of the draw by a frame that does not wait (its budget: ``Paging.max_uploads``), and
+#: texture patches drawn as an ancestor's meanwhile. A frame that waits (``render``) pages
+#: nothing: its uploads are all in ``gpu_uploads``.
+PAGING_KEYS = ("stand_ins", "pending", "paged_uploads", "texture_stand_ins")
 
 #: [(texture patch or None, meshes drawn with it)]: one bind per group.
 Groups = list[tuple[TextureKey | None, list[MeshKey]]]
@@ -160,6 +165,7 @@ def finish_frame(
         "max_gamma": sel.stats["max_gamma"],
         "select_ms": round(figures["select_ms"], 3),
         "upload_ms": round(figures["upload_ms"], 3),
+        "gpu_uploads": int(figures["gpu_uploads"]),
         "draw_ms": round(figures["draw_ms"], 3),
         "gpu_bytes": int(figures["gpu_bytes"]),
         "texture_patches": sum(1 for tex, _ in plan.groups if tex is not None),

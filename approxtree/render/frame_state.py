@@ -246,6 +246,11 @@ def overview_camera(
 
 #: Elevation angles (degrees) tried by ``framing_camera`` when none is given.
 FRAMING_ELEVATIONS = (20.0, 25.0, 30.0, 35.0, 40.0, 45.0, 50.0)
+#: Steeper angles tried, in order, when none of FRAMING_ELEVATIONS covers FRAMING_COVERAGE
+#: (a terrain much wider than the frame, seen obliquely, leaves sky above and below it).
+FRAMING_STEEPER = (55.0, 60.0, 65.0, 70.0, 75.0, 80.0)
+#: The fraction of the frame a fitted view's box top should cover.
+FRAMING_COVERAGE = 0.62
 
 
 def framing_camera(
@@ -265,7 +270,8 @@ def framing_camera(
     included) are projected: the distance is the smallest that keeps them inside the frame
     less ``margin`` (a fraction of each half-side), and the target is shifted so their
     projection is centred. Without ``elevation`` the angle among FRAMING_ELEVATIONS whose
-    fitted box top covers the most of the frame is taken.
+    fitted box top covers the most of the frame is taken, unless it covers less than
+    FRAMING_COVERAGE: then the first of FRAMING_STEEPER that covers it (or the steepest).
     """
     Projection(fov)
     w, h = check_viewport(size)
@@ -283,6 +289,13 @@ def framing_camera(
     # The first elevation that covers the most (a later one must cover more by over 1e-9).
     best = _fit(corners, hi[2], angles[0], azimuth, tan_x, tan_y, margin)
     for el in angles[1:]:
+        fit = _fit(corners, hi[2], el, azimuth, tan_x, tan_y, margin)
+        if fit[2] > best[2] + 1e-9:
+            best = fit
+    # Too little of the frame covered: look down more steeply until enough is.
+    for el in FRAMING_STEEPER if elevation is None else ():
+        if best[2] >= FRAMING_COVERAGE:
+            break
         fit = _fit(corners, hi[2], el, azimuth, tan_x, tan_y, margin)
         if fit[2] > best[2] + 1e-9:
             best = fit

@@ -197,7 +197,7 @@ class ApproximationTreeSource:
         figures = {
             "stand_ins": drawn.stand_ins,
             "pending": drawn.pending,
-            "uploads": uploads,
+            "paged_uploads": uploads,
             "texture_stand_ins": 0,
         }
         return drawn.drawn, figures, node_keys(plan.request)

@@ -1,26 +1,33 @@
-"""Hypsometric palettes for relief maps: colours tied to elevations in metres, not to the data's
-min/max, so a 150 m hill stays lowland green and snow white only appears on high mountains.
+"""Hypsometric palettes for relief maps: a cartographer's tint laid over the terrain's own
+elevation range by default, or colours tied to elevations in metres on request.
 
 Each palette is a list of (elevation, (r, g, b)) stops (cpt-city style), linear in between and
-held constant outside. ``relative`` palettes (``stretched``, the former ramp) are instead laid
-over the terrain's own z range, for data whose z is not an elevation in metres.
+held constant outside. ``relative`` palettes run their stops over [0, 1] of the terrain's own z
+range (min..max), so 100 m of relief (North Carolina's piedmont) spans the whole tint, and data
+whose z is not an elevation in metres (feet, file units) is coloured as well; the fixed ones tie
+each colour to an elevation in metres, so a 150 m hill stays lowland green and snow white only
+appears on high mountains.
 
 Named choices (``PALETTES``):
 
-- ``relief`` (default): the Wikipedia/cpt-city "wiki-2.0" hypsometric tints — greens in the
+- ``hypsometric`` (default, relative): the atlas tints — green lowlands, yellow and ochre
+  hills, brown heights — stretched over the terrain's min..max.
+- ``relief`` (fixed): the Wikipedia/cpt-city "wiki-2.0" hypsometric tints — greens in the
   lowlands, pale yellow and tan hills, browns in the mountains, greys then white above 4500 m.
-- ``atlas``: a more saturated school-atlas ramp (green, yellow, ochre, brown, white).
+- ``atlas`` (fixed): a more saturated school-atlas ramp (green, yellow, ochre, brown, white).
 - ``grey``: one light grey (the shading alone carries the relief).
-- ``stretched``: the former ramp over the data's min..max (green → white), kept for comparison.
+- ``stretched`` (relative): the former ramp over the data's min..max (green → white).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from approxtree.errors import InvalidParameterError
+from approxtree.textures.thematic import LEGENDS, THEMATIC_PALETTE_KINDS
 
 
 @dataclass(frozen=True)
@@ -65,6 +72,19 @@ class Palette:
 
 
 PALETTES: dict[str, Palette] = {
+    "hypsometric": Palette(
+        "hypsometric",
+        (
+            (0.0, (86, 150, 92)),
+            (0.2, (128, 178, 102)),
+            (0.4, (196, 210, 128)),
+            (0.6, (232, 220, 150)),
+            (0.8, (214, 180, 118)),
+            (0.9, (190, 142, 92)),
+            (1.0, (160, 112, 76)),
+        ),
+        relative=True,
+    ),
     "relief": Palette(
         "relief",
         (
@@ -118,8 +138,8 @@ PALETTES: dict[str, Palette] = {
         relative=True,
     ),
 }
-#: The palette of untextured terrain unless another is asked for.
-DEFAULT_PALETTE = "relief"
+#: The palette of untextured terrain unless another is asked for: the terrain's own range.
+DEFAULT_PALETTE = "hypsometric"
 
 
 def get_palette(palette: str | Palette | None) -> Palette:
@@ -132,5 +152,29 @@ def get_palette(palette: str | Palette | None) -> Palette:
         return PALETTES[str(palette)]
     except KeyError:
         raise InvalidParameterError(
-            f"Unknown palette {palette!r}; choose one of {', '.join(PALETTES)}."
+            f"Unknown palette {palette!r}; the elevation colours take a hypsometric palette: "
+            f"{', '.join(PALETTES)}. A thematic raster takes {THEMATIC_PALETTE_KINDS} "
+            "(approxtree bake --thematic RASTER --palette NAME)."
         ) from None
+
+
+def check_thematic_palette(palette: str | None) -> None:
+    """InvalidParameterError, naming every kind of palette, unless ``palette`` names what a
+    thematic raster is coloured with: None, a legend, an existing file or a matplotlib
+    colormap (a hypsometric palette of PALETTES colours elevations, not classes)."""
+    import matplotlib
+
+    if palette is None or palette in LEGENDS or Path(palette).is_file():
+        return
+    if palette in matplotlib.colormaps:
+        return
+    what = (
+        "is a hypsometric palette (elevation colours: approxtree render --palette)"
+        if palette in PALETTES
+        else "is neither a legend, a file nor a colormap"
+    )
+    raise InvalidParameterError(
+        f"Unknown palette {palette!r} for the thematic raster: it {what}. A thematic raster "
+        f"takes {THEMATIC_PALETTE_KINDS}; the hypsometric palettes {', '.join(PALETTES)} colour "
+        "the elevations of an untextured terrain (render, view, demo --palette)."
+    )

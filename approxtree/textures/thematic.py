@@ -86,6 +86,12 @@ LEGENDS: dict[str, dict[int, tuple[str, tuple[int, int, int]]]] = {
 }
 #: The water class of each legend (drawn over streams).
 WATER_CLASSES: dict[str, tuple[int, ...]] = {"nlcd": (11,), "landclass96": (6,)}
+
+#: What the palette of a thematic raster may be, in the words of the errors that list them.
+THEMATIC_PALETTE_KINDS = (
+    f"a land-cover legend ({', '.join(LEGENDS)}), a gdaldem colour file (lines 'value R G B') "
+    "or a matplotlib colormap name such as 'terrain'"
+)
 #: How much ``soften`` moves a legend colour towards a light grey by default.
 SOFTEN = 0.35
 
@@ -160,7 +166,7 @@ class ColourRamp:
             self.cmap = matplotlib.colormaps[cmap]
         except KeyError as exc:
             raise InvalidParameterError(
-                f"Unknown colormap {cmap!r}; use a matplotlib colormap name such as 'terrain'."
+                f"Unknown colormap {cmap!r}; a thematic raster takes {THEMATIC_PALETTE_KINDS}."
             ) from exc
         self.vmin, self.vmax = vmin, vmax
 

@@ -14,7 +14,9 @@ A frame (``run``):
 2. move the fly camera by the held keys (scripted runs use a fixed 1/30 s step);
 3. the terrain (FrameDriver.draw: paging within the upload budget, the frozen frustum);
    the map tools read the frame (cursor readout, measure clicks);
-4. screenshots read the window's back buffer (terrain only, before the interface);
+4. screenshots read the window's back buffer: the terrain only, before the interface, or,
+   with ``furniture_in_shots``, after an interface frame of the map furniture alone (legend,
+   scale bar, north arrow; the panels come back the next frame);
 5. the interface (ui.Interface), window title, swap buffers; one stats line
    (replay.stats_line), written at the end when asked.
 """
@@ -33,7 +35,12 @@ from approxtree.viewer.frame_driver import FrameDriver
 from approxtree.viewer.input import Input
 from approxtree.viewer.keys import KeyPress
 from approxtree.viewer.map_session import MapSession
-from approxtree.viewer.map_tools import Bookmarks, default_bookmarks_path, timestamp
+from approxtree.viewer.map_tools import (
+    DEFAULT_SCREENSHOT_NAME,
+    Bookmarks,
+    default_bookmarks_path,
+)
+from approxtree.viewer.map_tools import screenshot_name as screenshot_name_of
 from approxtree.viewer.map_ui import check_legend
 from approxtree.viewer.navigation import Navigation
 from approxtree.viewer.replay import Replay, frame_title, stats_line
@@ -49,7 +56,9 @@ class Viewer:
     textures: texture pyramid folders (thematic layers, cycled with TAB); size: window
     (w, h); alpha, gamma: initial thresholds; fov: degrees; max_uploads, budget_ms: the
     per-frame upload budget (0 and None: no budget, every frame waits for its whole cut);
-    screenshot_dir: where P writes its PNGs (and the measure tool its profiles); visible: show
+    screenshot_dir: where P writes its PNGs (and the measure tool its profiles);
+    screenshot_name: their file name, with {time} and {n} (``map_tools.screenshot_name``);
+    furniture_in_shots: P and keyframe screenshots keep the map furniture; visible: show
     the window (False for benchmarks that only need the context). exaggeration, sun
     (azimuth, altitude), palette, background, lighting: the carto picture options
     (Engine and ``Engine.render``); legend: the land-cover legend of the thematic layer
@@ -69,11 +78,13 @@ class Viewer:
         max_uploads: int = 32,
         budget_ms: float | None = None,
         screenshot_dir: str | Path = ".",
+        screenshot_name: str = DEFAULT_SCREENSHOT_NAME,
+        furniture_in_shots: bool = False,
         title: str = "approxtree viewer",
         visible: bool = True,
         exaggeration: float = 1.0,
         sun: tuple[float, float] = (315.0, 45.0),
-        palette: str = "relief",
+        palette: str | None = None,
         background: str = "sky",
         lighting: str = "auto",
         legend: str | None = None,
@@ -88,8 +99,13 @@ class Viewer:
             sun_azimuth=float(sun[0]),
             sun_altitude=float(sun[1]),
             lighting=str(lighting),
+            furniture_in_shots=bool(furniture_in_shots),
         )
         check_legend(legend)
+        # A bad file name fails before the window opens.
+        screenshot_name_of(screenshot_name, 1)
+        self.screenshot_name = screenshot_name
+        self.screenshots_taken = 0
         self.legend = legend
         self.title = title
         self.screenshot_dir = Path(screenshot_dir)
@@ -107,7 +123,7 @@ class Viewer:
             max_uploads=max_uploads,
             budget_ms=budget_ms,
         )
-        self.nav = Navigation(self.settings, tree, self.driver.scale, fov)
+        self.nav = Navigation(self.settings, tree, self.driver.scale, fov, size)
         # 3. Map tools, interface, and the input that drives them all.
         marks = Bookmarks(
             bookmarks if bookmarks is not None else default_bookmarks_path(),
@@ -234,20 +250,34 @@ class Viewer:
     ) -> None:
         """Steps 3-5 of a frame: terrain, screenshots, interface, title, stats line."""
         stats = self.render_frame()
-        shot = replay.keyframe_shot(step)
-        if shot is not None:
-            self.window.save_png(shot)
-        if self._screenshot_due:
-            self._screenshot_due = False
-            path = self.window.save_png(self.screenshot_dir / f"approxtree-{timestamp()}.png")
-            self.messages.append(f"screenshot {path}")
+        shots = self._shots_due(replay, step)
+        furniture = bool(shots) and self.settings.furniture_in_shots
+        if not furniture:
+            for path in shots:
+                self.window.save_png(path)
         frame_ms = (time.perf_counter() - t0) * 1e3
-        boxes = self.interface.draw(self.frame_state, stats, size, dt)
-        for path in replay.take_ui_shots():
+        boxes = self.interface.draw(self.frame_state, stats, size, dt, furniture_only=furniture)
+        for path in [*(shots if furniture else []), *replay.take_ui_shots()]:
             self.window.save_png(path)
         self.window.show(frame_title(self.title, stats, frame_ms))
         frame_ms = (time.perf_counter() - t0) * 1e3
         replay.record(stats_line(stats, frame, frame_ms, size, step, self, boxes))
+
+    def _shots_due(self, replay: Replay, step: ScriptFrame | None) -> list[Path]:
+        """The screenshots this frame takes: a completed keyframe's, P's (its name told in
+        the messages)."""
+        shots = []
+        keyframe = replay.keyframe_shot(step)
+        if keyframe is not None:
+            shots.append(keyframe)
+        if self._screenshot_due:
+            self._screenshot_due = False
+            self.screenshots_taken += 1
+            name = screenshot_name_of(self.screenshot_name, self.screenshots_taken)
+            path = self.screenshot_dir / name
+            shots.append(path)
+            self.messages.append(f"screenshot {path}")
+        return shots
 
     def close(self) -> None:
         """Free the interface and the engine, close the window and end glfw."""

@@ -40,7 +40,7 @@ class FrameDriver:
         ctx: Any,
         settings: ViewSettings,
         exaggeration: float = 1.0,
-        palette: str = "relief",
+        palette: str | None = None,
         background: str = "sky",
         max_uploads: int = 32,
         budget_ms: float | None = None,

@@ -221,6 +221,30 @@ def timestamp() -> str:
     return time.strftime("%Y%m%d-%H%M%S") + f"-{int(time.time() * 1e3) % 1000:03d}"
 
 
+#: The file name of P's screenshots unless another is asked for (``screenshot_name``).
+DEFAULT_SCREENSHOT_NAME = "approxtree-{time}.png"
+
+
+def screenshot_name(pattern: str, n: int) -> str:
+    """The file name of the ``n``-th screenshot (1, 2, ...) taken with P: ``pattern`` with
+    {time} (``timestamp()``) and {n} filled in, e.g. "nc-{n:03d}.png" → "nc-001.png" (in the
+    viewer's screenshot folder). InvalidParameterError for a pattern with other fields, a
+    folder in it, or not ending in .png."""
+    try:
+        name = pattern.format(time=timestamp(), n=n)
+    except (KeyError, IndexError, ValueError) as exc:
+        raise InvalidParameterError(
+            f"Bad screenshot name {pattern!r} ({exc}); use the fields {{time}} and {{n}}, e.g. "
+            "'nc-{n:03d}.png'."
+        ) from None
+    if not name.lower().endswith(".png") or Path(name).name != name:
+        raise InvalidParameterError(
+            f"Bad screenshot name {pattern!r}: give a PNG file name (ending in .png, no "
+            "folder); screenshots go to the screenshot folder."
+        )
+    return name
+
+
 def default_bookmarks_path() -> Path:
     """``$XDG_CONFIG_HOME/approxtree/bookmarks.json`` (``~/.config`` without it)."""
     base = os.environ.get("XDG_CONFIG_HOME") or os.path.join(os.path.expanduser("~"), ".config")

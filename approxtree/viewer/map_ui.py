@@ -48,7 +48,11 @@ class MapUI:
         self.viewer = viewer
         self.unit = "m"
 
-    def draw(self, fs: Any, stats: dict[str, Any], size: tuple[int, int]) -> dict[str, Any]:
+    def draw(
+        self, fs: Any, stats: dict[str, Any], size: tuple[int, int], panel: bool = True
+    ) -> dict[str, Any]:
+        """Draw the map furniture (scale bar, north arrow, measured line, legend) and, with
+        ``panel``, the Map panel; returns their boxes."""
         from imgui_bundle import imgui
 
         v = self.viewer
@@ -107,8 +111,9 @@ class MapUI:
                     dl.add_line(scr[0], scr[1], _col(1, 0.9, 0.1), 2.0)
         # 4. Legend window, bottom-right.
         boxes["legend"] = self._legend(w, h)
-        # 5. The Map panel, top-left.
-        self._panel(stats)
+        # 5. The Map panel, top-left (not in a screenshot that keeps the furniture only).
+        if panel:
+            self._panel(stats)
         return boxes
 
     # -- legend --------------------------------------------------------------------------------
@@ -244,8 +249,8 @@ class MapUI:
             imgui.text(f"max alpha {stats.get('max_alpha', 0):.2f} px (<= {s.alpha:.2f})")
             imgui.text(f"max gamma {stats.get('max_gamma', 0):.2f} px2 (<= {s.gamma:.2f})")
             imgui.text(
-                f"uploads {stats.get('uploads', 0)}  pending {stats.get('pending', 0)}  "
-                f"stand-ins {stats.get('stand_ins', 0)}"
+                f"paged uploads {stats.get('paged_uploads', 0)}  "
+                f"pending {stats.get('pending', 0)}  stand-ins {stats.get('stand_ins', 0)}"
             )
             imgui.text(f"{'fly' if s.fly else 'orbit'}  frozen {s.frozen}  wireframe {s.wireframe}")
         for line in v.messages[-3:]:

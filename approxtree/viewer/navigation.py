@@ -2,7 +2,8 @@
 
 The controllers (controllers.py) work in display coordinates (world minus the tree's origin,
 times the display scale, exaggeration included); poses given to or read from the viewer are
-world coordinates. ``settings.fly`` says which camera is in use; the overview pose is "home".
+world coordinates. ``settings.fly`` says which camera is in use; "home" is the fitted view of
+``approxtree render`` (``framing_camera``: the terrain fills the window, seen from the south).
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from approxtree.render.camera import Camera
-from approxtree.render.frame_state import overview_camera
+from approxtree.render.frame_state import framing_camera
 from approxtree.viewer.controllers import (
     FlyController,
     OrbitController,
@@ -30,16 +31,23 @@ ZOOM_STEP, FLY_SPEED, FAST = 0.85, 0.1, 4.0
 
 class Navigation:
     """Orbit and fly cameras over ``tree`` seen with display ``scale`` (3,) and ``fov``
-    (degrees); ``settings.fly`` picks the one in use."""
+    (degrees) in a window of ``size`` (w, h) pixels; ``settings.fly`` picks the one in use."""
 
-    def __init__(self, settings: ViewSettings, tree: Any, scale: np.ndarray, fov: float) -> None:
+    def __init__(
+        self,
+        settings: ViewSettings,
+        tree: Any,
+        scale: np.ndarray,
+        fov: float,
+        size: tuple[int, int] = (1280, 720),
+    ) -> None:
         self.settings = settings
         self.terrain = tree.terrain
         self.origin = tree.origin
         self.root_box = np.asarray(tree.bboxes[0], dtype=np.float64).reshape(2, 3)
         self.scale = scale
         self.fov = float(fov)
-        home = overview_camera(tree.bboxes[0], scale, fov=self.fov)
+        home = framing_camera(tree.bboxes[0], scale, size, fov=self.fov)
         self.home_world = (home.eye.copy(), home.target.copy())
         eye, target = self.to_display(*self.home_world)
         self.orbit = OrbitController(eye, target)

@@ -12,7 +12,8 @@ LIGHTING_MODES = ("auto", "on", "off")
 class ViewSettings:
     """What the keys and the panel change. alpha: px; gamma: px²; exaggeration: z factor;
     lighting: "auto", "on" or "off"; sun: degrees; ui: the map interface shown; tool: the
-    active map tool ("measure") or None."""
+    active map tool ("measure") or None; furniture_in_shots: screenshots (P, --screenshots)
+    keep the map furniture (legend, scale bar, north arrow), not the panels."""
 
     alpha: float = 1.0
     gamma: float = 2.0
@@ -29,3 +30,4 @@ class ViewSettings:
     sun_altitude: float = 45.0
     ui: bool = True
     tool: str | None = None
+    furniture_in_shots: bool = False

@@ -26,18 +26,25 @@ class Interface:
         self.map_ui = MapUI(viewer)
 
     def draw(
-        self, frame_state: Any, stats: dict[str, Any], size: tuple[int, int], dt: float
+        self,
+        frame_state: Any,
+        stats: dict[str, Any],
+        size: tuple[int, int],
+        dt: float,
+        furniture_only: bool = False,
     ) -> dict[str, Any]:
         """Draw one imgui frame over the terrain of ``frame_state`` (framebuffer ``size``)
-        into the window; returns the boxes drawn (empty while the interface is hidden)."""
+        into the window; returns the boxes drawn (empty while the interface is hidden).
+        furniture_only: the map furniture (legend, scale bar, north arrow) without the
+        panels, even while the interface is hidden (a screenshot that keeps it)."""
         from imgui_bundle import imgui
 
         v = self.viewer
         self.gui.new_frame(v.window.size(), dt)
         boxes: dict[str, Any] = {}
-        if v.settings.ui and frame_state is not None:
-            boxes = self.map_ui.draw(frame_state, stats, size)
-            if v.settings.help:
+        if (v.settings.ui or furniture_only) and frame_state is not None:
+            boxes = self.map_ui.draw(frame_state, stats, size, panel=not furniture_only)
+            if v.settings.help and not furniture_only:
                 imgui.begin("Keys (F1)")
                 for line in help_lines():
                     imgui.text(line)

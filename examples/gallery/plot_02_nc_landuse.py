@@ -9,7 +9,7 @@ tree. The same as::
 
     approxtree build nc/elev_ned_30m.tif --out nc.zarr
     approxtree bake nc/elev_ned_30m.tif --thematic nc/landuse_r.tif --palette landclass96 \\
-        --roads nc/streams.shp --out nc_lu
+        --lines nc/streams.shp --out nc_lu
     approxtree render nc.zarr --textures nc_lu --out nc.png
 """
 
