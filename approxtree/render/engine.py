@@ -159,7 +159,7 @@ class Engine:
 
     @property
     def texels(self) -> np.ndarray:
-        """(n, 2) texel sizes of the nodes (γ): their texture patches', else data spacing."""
+        """(n, 2) texel sizes of the nodes (γ): their texture patches', else the normal map's."""
         return self.source.texels
 
     @property
