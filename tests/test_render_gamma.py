@@ -104,7 +104,7 @@ def test_small_grids_shade_with_finer_texels_than_their_cells(monkeypatch):
     fine = normal_texels(z, xs, xs, u)
     np.testing.assert_array_equal(fine[::u, ::u], normal_texels(z, xs, xs))
     # Half way between two data columns: the mean of their normals (to the uint8 rounding).
-    mid = (fine[::u, : -u : u].astype(float) + fine[::u, u::u]) / 2
+    mid = (fine[::u, :-u:u].astype(float) + fine[::u, u::u]) / 2
     assert np.abs(fine[::u, u // 2 :: u].astype(float) - mid).max() <= 1.0
     monkeypatch.setattr(normal_map_module, "NORMAL_MAP_MAX", 32)
     strided = shading_lattice(terrain)

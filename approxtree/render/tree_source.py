@@ -38,8 +38,8 @@ from approxtree.render.cut import Cut
 from approxtree.render.frame import PAGING_KEYS, FramePlan
 from approxtree.render.frame_state import FrameState
 from approxtree.render.full_resolution import FullResolutionSource
-from approxtree.render.provider import DEFAULT_CPU_CACHE_BYTES, Payload, PayloadProvider
 from approxtree.render.normal_map import shading_texels
+from approxtree.render.provider import DEFAULT_CPU_CACHE_BYTES, Payload, PayloadProvider
 from approxtree.render.renderer import Renderer
 from approxtree.render.selector import Selection, finer_below, select
 from approxtree.render.skirts import add_skirts, patches_reach_rect, skirt_base, skirt_depths
