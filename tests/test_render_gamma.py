@@ -125,3 +125,26 @@ def test_upsampled_shading_is_only_resampling(gl_context, tree, monkeypatch):
     assert (images[0][..., 3] == images[1][..., 3]).all()
     mse = float(np.mean((a - b) ** 2))
     assert mse == 0.0 or 10 * math.log10(255.0**2 / mse) > 40.0
+
+
+def test_baked_pyramid_gamma_stops_at_its_finest_level(gl_context, tree, tmp_path):
+    """A baked hillshade of 128-texel patches seen from low: γ refines nodes whose descendants
+    have finer texels until γ is met, and draws nodes still over γ only at the finest texels
+    below them (where refining adds triangles, not texels)."""
+    from approxtree.render import Camera
+    from approxtree.textures.bake import bake
+
+    pyramid = bake(tree.terrain, tmp_path / "hillshade", max_texture_size=128, gl=False).pyramid
+    assert len(pyramid) > 2
+    d = tree.terrain.domain
+    top = float(tree.bboxes[0, 5])
+    low = Camera.look_at((d.xmin, d.ymin, top + 20.0), (*d.center, float(tree.bboxes[0, 2])))
+    with Engine(tree, textures=pyramid, context=gl_context, offscreen=True) as eng:
+        frame = eng.render(low, (640, 360), Cut(alpha=1e6, gamma=2.0))
+        finer = finer_below(tree, eng.texels)
+    sel = frame.selection
+    over = sel.gammas > 2.0
+    assert len(sel.nodes) > 1 and over.any()
+    assert not finer[sel.nodes[over]].any()
+    # Some of them have children: the texels ran out, not the tree.
+    assert (tree.child_count[sel.nodes[over]] > 0).any()
