@@ -156,6 +156,13 @@ class ApproximationTreeSource:
         self.texels = patch_texel_sizes(pyramid, np.asarray(self.tree.rects, dtype=np.float64))
         self.finer = finer_below(self.tree, self.texels)
 
+    def set_shading_side(self, side: int) -> None:
+        """The normal map's largest side (the context's texture limit): untextured texels
+        follow it."""
+        self.shading_texels = shading_texels(self.tree.terrain, len(self.tree), side)
+        if self.binding is None:
+            self.texels = self.shading_texels
+
     def set_skirts(self, skirts: bool) -> bool:
         """Hang skirts or not; True when that changes the meshes (the cached ones dropped)."""
         skirts = bool(skirts)
