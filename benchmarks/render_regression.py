@@ -29,6 +29,12 @@ fitted box covers under 62 % of the frame from 20-50° (lux, asc, usgs_dem, stm,
 more steeply (``frame_state.FRAMING_STEEPER``).
 
     PYTHONPATH=<checkout> python benchmarks/render_regression.py OUT_DIR [--data DIR]
+        [--against OTHER_OUT_DIR]
+
+``--against`` compares with another checkout's run: per image whether its pixels are the same,
+and for one that changed, whether its cut is the same (STAT_KEYS) and the PSNR of its pixels
+(a change of shading alone keeps the cut; a change of cut shows in the triangles), written to
+OUT_DIR/against.json.
 """
 
 from __future__ import annotations
@@ -161,10 +167,43 @@ def python_api(out: Path, data: Path, work: Path) -> dict[str, dict]:
     return results
 
 
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    """PSNR (dB) of two uint8 images of one shape (inf when equal)."""
+    d = a.astype(np.float64) - b.astype(np.float64)
+    mse = float(np.mean(d * d))
+    return float("inf") if mse == 0 else 10.0 * np.log10(255.0**2 / mse)
+
+
+def against(out: Path, other: Path, results: dict[str, dict]) -> dict[str, dict]:
+    """Per image of ``results``: same pixels as ``other``'s run, and for a changed one,
+    whether its stats (the cut) are the same and the PSNR of its PNG against the other's."""
+    from PIL import Image
+
+    theirs = json.loads((other / "hashes.json").read_text())
+    report = {}
+    for name, r in results.items():
+        t = theirs.get(name)
+        if t is None:
+            continue
+        row: dict = {"same_pixels": r["sha256"] == t["sha256"]}
+        if not row["same_pixels"] and "triangles" in r:
+            row["same_cut"] = all(r.get(k) == t.get(k) for k in STAT_KEYS)
+            row["triangles"] = [t.get("triangles"), r.get("triangles")]
+            a, b = out / f"{name}.png", other / f"{name}.png"
+            if a.exists() and b.exists():
+                with Image.open(a) as ia, Image.open(b) as ib:
+                    pa, pb = np.asarray(ia.convert("RGBA")), np.asarray(ib.convert("RGBA"))
+                if pa.shape == pb.shape:
+                    row["psnr_db"] = round(float(psnr(pa, pb)), 2)
+        report[name] = row
+    return report
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("out", type=Path)
     ap.add_argument("--data", type=Path, default=DATA)
+    ap.add_argument("--against", type=Path, help="OUT_DIR of another checkout's run")
     args = ap.parse_args()
     out, data = args.out, args.data
     out.mkdir(parents=True, exist_ok=True)
@@ -220,6 +259,14 @@ def main() -> None:
         print(name, r["sha256"][:16], flush=True)
     (out / "hashes.json").write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
     print(f"{len(results)} images in {time.perf_counter() - t0:.0f} s -> {out / 'hashes.json'}")
+    if args.against is not None:
+        report = against(out, args.against, results)
+        (out / "against.json").write_text(json.dumps(report, indent=1, sort_keys=True) + "\n")
+        for name, row in report.items():
+            if not row["same_pixels"]:
+                print(f"changed {name}: {row}")
+        same = sum(row["same_pixels"] for row in report.values())
+        print(f"{same} of {len(report)} images have the same pixels as {args.against}")
 
 
 if __name__ == "__main__":

@@ -207,15 +207,29 @@ def test_geographic_terrain_is_scaled_to_metres():
     assert sz == 1.0
 
 
+def _finer_below(tree, texels, node) -> bool:
+    """Whether some descendant of ``node`` has a smaller texel area, walked plainly."""
+    area = texels[node, 0] * texels[node, 1]
+    stack = list(range(tree.child_start[node], tree.child_start[node] + tree.child_count[node]))
+    while stack:
+        c = stack.pop()
+        if texels[c, 0] * texels[c, 1] < area:
+            return True
+        stack += range(tree.child_start[c], tree.child_start[c] + tree.child_count[c])
+    return False
+
+
 def _reference_select(tree, fs, alpha, gamma, texels, node=0, out=None):
-    """The recursion of section 4.2 written plainly, node by node."""
+    """The recursion of section 4.2 written plainly, node by node (γ refines only where a
+    descendant's texel is finer: refining cannot make texels finer elsewhere)."""
     out = [] if out is None else out
     if not boxes_in_frustum(tree.bboxes[node : node + 1], fs.planes)[0]:
         return out
     a, g = visual_errors(
         tree.bboxes[node : node + 1], tree.errors[node : node + 1], texels[node : node + 1], fs
     )
-    if tree.child_count[node] > 0 and (a[0] > alpha or g[0] > gamma):
+    over_gamma = g[0] > gamma and _finer_below(tree, texels, node)
+    if tree.child_count[node] > 0 and (a[0] > alpha or over_gamma):
         for c in range(tree.child_start[node], tree.child_start[node] + tree.child_count[node]):
             _reference_select(tree, fs, alpha, gamma, texels, int(c), out)
     else:

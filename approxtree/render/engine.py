@@ -140,6 +140,8 @@ class Engine:
         side = max_texture_size(self.ctx, default=4096)
         data, uv = normal_map(self.tree.terrain, self.tree.origin, self.scale, side)
         self.renderer.set_normal_map(data, uv)
+        # Untextured γ measures the normal map's texel, which the texture limit may coarsen.
+        self.source.set_shading_side(side)
 
     def set_skirts(self, skirts: bool) -> None:
         """Turn skirts on or off; cached meshes are dropped when this changes them."""
@@ -159,7 +161,7 @@ class Engine:
 
     @property
     def texels(self) -> np.ndarray:
-        """(n, 2) texel sizes of the nodes (γ): their texture patches', else data spacing."""
+        """(n, 2) texel sizes of the nodes (γ): their texture patches', else the normal map's."""
         return self.source.texels
 
     @property

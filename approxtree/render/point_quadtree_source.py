@@ -141,6 +141,9 @@ class PointQuadtreeSource:
                 "apply to approximation trees (build one without --kind point-quadtree)."
             )
 
+    def set_shading_side(self, side: int) -> None:
+        """Nothing changes: γ does not apply to a point quadtree."""
+
     def set_skirts(self, skirts: bool) -> bool:
         """Nothing changes: the LOD mesh needs no skirts."""
         return False

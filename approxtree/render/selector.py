@@ -8,11 +8,19 @@ Decision for each node N of the frontier (starting with the root):
 
 1. B_N misses the view frustum (or N holds no data)   → CULLED: N and its subtree are skipped.
 2. N has children and (α_N > alpha or γ_N > gamma)     → REFINED: its children join the next
-                                                          frontier.
+                                                          frontier; γ counts only where a
+                                                          descendant's texel is finer.
 3. otherwise (a leaf, or errors within the thresholds)  → SELECTED: T_N is drawn.
 
 α_N bounds the on-screen length of every error segment of N anywhere in the view, image edges
 included (visual_error.py), so every drawn inner node is within alpha pixels of the terrain.
+
+γ_N is the texel of the texture patch N is drawn with (core paper, 3.3 and 4.1). Refining N
+gets finer texels only when some descendant's patch has them; where none has (the pyramid's
+finest level reached, or one texture shading every node, as the untextured normal map does),
+the texels have run out and refining would add geometry, not texels: γ_N > gamma refines N
+only where ``finer_below`` says a descendant's texel area is smaller than N's. γ_N is reported
+as it is either way (Selection.gammas, stats "max_gamma").
 
 Before the traversal: an eye below the terrain surface (z < h_T(x, y)) sees nothing, and the
 selection is empty.
@@ -95,17 +103,20 @@ def select(
     alpha: float = 1.0,
     gamma: float = 2.0,
     texels: np.ndarray | None = None,
+    finer: np.ndarray | None = None,
 ) -> Selection:
     """The nodes to draw for ``frame`` with thresholds ``alpha`` (px) and ``gamma`` (px²).
 
     tree: an ApproximationTree (only its flat arrays are read, and the terrain's height_at).
-    texels: (n, 2) texel sizes; ``texel_sizes(tree)`` when None (callers that draw many
-    frames compute it once).
+    texels: (n, 2) texel sizes; ``texel_sizes(tree)`` when None. finer: (n,) bool
+    ``finer_below(tree, texels)`` when None (callers that draw many frames compute both once).
     """
     cut = Cut(alpha, gamma)  # the thresholds are checked where a Cut is made
     alpha, gamma = cut.alpha, cut.gamma
     if texels is None:
         texels = texel_sizes(tree)
+    if finer is None:
+        finer = finer_below(tree, texels)
     empty_i = np.empty(0, dtype=np.int64)
     empty_f = np.empty(0)
     if eye_below_ground(tree, frame):
@@ -118,6 +129,7 @@ def select(
         readonly(tree.bboxes, np.float64),
         readonly(tree.errors, np.float64),
         readonly(texels, np.float64),
+        readonly(finer, np.bool_),
         readonly(tree.child_start, np.int64),
         readonly(tree.child_count, np.int64),
         readonly(frame.planes, np.float64),
@@ -137,7 +149,20 @@ def select(
 
 @njit(cache=True)
 def _traverse(
-    bboxes, errors, texels, child_start, child_count, planes, eye, m, vw, vh, lens, alpha, gamma
+    bboxes,
+    errors,
+    texels,
+    finer,
+    child_start,
+    child_count,
+    planes,
+    eye,
+    m,
+    vw,
+    vh,
+    lens,
+    alpha,
+    gamma,
 ):
     """Breadth-first traversal; returns (visited ids, results, α, γ) in visiting order.
 
@@ -166,8 +191,9 @@ def _traverse(
             )
             a_out[head] = a
             g_out[head] = g
-            # 2. Refine a node with children while either visual error is over its threshold.
-            if child_count[i] > 0 and (a > alpha or g > gamma):
+            # 2. Refine a node with children while either visual error is over its threshold
+            # (γ only where a descendant has finer texels).
+            if child_count[i] > 0 and (a > alpha or (g > gamma and finer[i])):
                 results[head] = 1
                 if tail + child_count[i] > cap:
                     cap = 2 * cap + child_count[i]
@@ -183,6 +209,23 @@ def _traverse(
                 results[head] = 2
         head += 1
     return visited[:tail], results[:tail], a_out[:tail], g_out[:tail]
+
+
+def finer_below(tree, texels: np.ndarray) -> np.ndarray:
+    """(n,) bool: whether some descendant of each node has a smaller texel area than it.
+
+    tree: its ``parents`` and ``levels`` arrays are read; texels: (n, 2) texel sizes.
+    """
+    texels = np.asarray(texels, dtype=np.float64)
+    area = texels[:, 0] * texels[:, 1]
+    parents = np.asarray(tree.parents, dtype=np.int64)
+    levels = np.asarray(tree.levels, dtype=np.int64)
+    # The smallest texel area below each node, gathered level by level from the deepest.
+    below = np.full(len(area), np.inf)
+    for depth in range(int(levels.max(initial=0)), 0, -1):
+        nodes = np.flatnonzero(levels == depth)
+        np.minimum.at(below, parents[nodes], np.minimum(area[nodes], below[nodes]))
+    return below < area
 
 
 @njit(cache=True)

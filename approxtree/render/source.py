@@ -11,6 +11,8 @@ types and strategies to patch classes. A source implements ``TileSource``:
 - ``load(key)``: a node's payload (mesh with skirts, or texture patch) for the GPU cache;
 - ``set_textures(textures)``: the texture pyramid (or None), which the texel sizes ``texels``
   of γ follow;
+- ``set_shading_side(side)``: the largest side of the normal map (the context's texture limit),
+  which the untextured texels follow;
 - ``set_skirts(skirts)``: hang skirts or not (True when that changes the meshes);
 - ``release()``: stop background work and free what the source holds.
 
@@ -67,6 +69,8 @@ class TileSource(Protocol):
     def load(self, key: MeshKey | TextureKey) -> Payload: ...
 
     def set_textures(self, textures: Any) -> None: ...
+
+    def set_shading_side(self, side: int) -> None: ...
 
     def set_skirts(self, skirts: bool) -> bool: ...
 

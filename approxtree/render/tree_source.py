@@ -17,7 +17,10 @@ What the Engine draws of an ApproximationTree, and from where:
    extent; walls on node borders only when patches reach their rectangle), float32 relative
    to the tree's origin — or a texture patch's texels, through the provider's CPU cache.
 
-Texel sizes (γ): the texture patch's with a pyramid (``set_textures``), else the data spacing.
+Texel sizes (γ): the texture patch's with a pyramid (``set_textures``), else the normal map's
+(render/normal_map.py: the untextured shading's one texture patch, which every node shares),
+and per node whether a descendant's texel is finer (``selector.finer_below``): γ refines only
+there.
 """
 
 from __future__ import annotations
@@ -35,14 +38,14 @@ from approxtree.render.cut import Cut
 from approxtree.render.frame import PAGING_KEYS, FramePlan
 from approxtree.render.frame_state import FrameState
 from approxtree.render.full_resolution import FullResolutionSource
+from approxtree.render.normal_map import shading_texels
 from approxtree.render.provider import DEFAULT_CPU_CACHE_BYTES, Payload, PayloadProvider
 from approxtree.render.renderer import Renderer
-from approxtree.render.selector import Selection, select
+from approxtree.render.selector import Selection, finer_below, select
 from approxtree.render.skirts import add_skirts, patches_reach_rect, skirt_base, skirt_depths
 from approxtree.render.texture_binding import TextureBinding, as_pyramid
 from approxtree.render.texture_sharing import texture_nodes
 from approxtree.render.traversal import Paging, plan_frame
-from approxtree.render.visual_error import texel_sizes
 from approxtree.textures.patch import patch_texel_sizes
 
 
@@ -70,9 +73,11 @@ class ApproximationTreeSource:
         self.full = FullResolutionSource(tree)
         self.skirts = bool(skirts)
         self.binding: TextureBinding | None = None
-        # Per-node figures used every frame, computed once.
-        self.data_texels = texel_sizes(tree)
-        self.texels = self.data_texels
+        # Per-node figures used every frame, computed once: the untextured shading's texels
+        # (one texture patch for every node: γ refines nothing there).
+        self.shading_texels = shading_texels(tree.terrain, len(tree))
+        self.texels = self.shading_texels
+        self.finer = np.zeros(len(tree), dtype=bool)
         # Skirts: infinite errors stand in by the node's z extent; walls on node borders only.
         extents = tree.bboxes[:, 5] - tree.bboxes[:, 2]
         self._node_borders = patches_reach_rect(tree.terrain)
@@ -97,7 +102,7 @@ class ApproximationTreeSource:
             return select_budget(
                 self.tree, view, cut.max_triangles, self._node_triangles, self.texels
             )
-        return select(self.tree, view, cut.alpha, cut.gamma, self.texels)
+        return select(self.tree, view, cut.alpha, cut.gamma, self.texels, self.finer)
 
     def plan(
         self, wanted: Selection, fs: FrameState, cut: Cut, paging: Paging, renderer: Renderer
@@ -144,10 +149,19 @@ class ApproximationTreeSource:
         pyramid = as_pyramid(textures, self.tree.terrain)
         self.provider.drop(lambda key: isinstance(key, TextureKey))
         if pyramid is None:
-            self.binding, self.texels = None, self.data_texels
+            self.binding, self.texels = None, self.shading_texels
+            self.finer = np.zeros(len(self.tree), dtype=bool)
             return
         self.binding = TextureBinding(pyramid, self.tree.origin, self._rect_of)
         self.texels = patch_texel_sizes(pyramid, np.asarray(self.tree.rects, dtype=np.float64))
+        self.finer = finer_below(self.tree, self.texels)
+
+    def set_shading_side(self, side: int) -> None:
+        """The normal map's largest side (the context's texture limit): untextured texels
+        follow it."""
+        self.shading_texels = shading_texels(self.tree.terrain, len(self.tree), side)
+        if self.binding is None:
+            self.texels = self.shading_texels
 
     def set_skirts(self, skirts: bool) -> bool:
         """Hang skirts or not; True when that changes the meshes (the cached ones dropped)."""

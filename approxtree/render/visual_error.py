@@ -40,8 +40,10 @@ z range holds the node's data, and the patch interpolates data points.
 An eye inside B_N gives +inf (always refined), as does a rectangle reaching behind the eye for
 γ (clip w <= 0). A segment part outside the frustum is not on screen and is not bounded.
 
-The texel of a node is its texture patch's texel (``textures.patch.patch_texel_sizes``) when
-the Engine has a texture pyramid, else its data spacing (``texel_sizes``).
+The texel of a node is that of the texture patch it is drawn with: with a texture pyramid its
+own patch's (``textures.patch.patch_texel_sizes``), untextured the normal map's, which shades
+every node (``render.normal_map.shading_texels``). ``texel_sizes`` (the node's data spacing)
+is what ``select`` takes when a caller passes no texels.
 """
 
 from __future__ import annotations
@@ -244,9 +246,8 @@ def visual_errors(
 
 
 def texel_sizes(tree) -> np.ndarray:
-    """(n, 2) float64 texel width and height of every node, in world x, y units.
-
-    Without a texture pyramid the "texel" is the node's data spacing:
+    """(n, 2) float64 data spacing of every node as a texel, in world x, y units: the texels
+    ``select`` takes when given none (the Engine passes the texels its nodes are drawn with):
     grid-strategy nodes on a Grid: the rectangle's extent over the number of sampled
     intervals (computed from the rectangles alone, so no patch is loaded);
     other nodes: sqrt(area / points) of their patch, in both directions.
