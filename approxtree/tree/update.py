@@ -166,7 +166,8 @@ def _level_part(
             fields[name] = col
         return GridPatchArrays(built.grid, **fields)
     out: list[GeometryPatch] = [None] * k  # type: ignore[list-item]
-    for i, p in zip(fresh.tolist(), built, strict=True):
+    made = built.patches() if isinstance(built, GridPatchArrays) else built
+    for i, p in zip(fresh.tolist(), made, strict=True):
         out[i] = p
     for i, o in zip(keep.tolist(), old_ids[keep].tolist(), strict=True):
         out[i] = tree.patch(o)
