@@ -28,7 +28,7 @@ from approxtree.tree.cut_mesh import CutMesh, cut_mesh
 from approxtree.tree.node import Node
 from approxtree.tree.patch_table import PatchTable, as_table
 from approxtree.tree.policy import StrategyPolicy
-from approxtree.tree.update import TreeUpdate, update_tree
+from approxtree.tree.update import KEPT_CHANGES, TreeUpdate, compose_changes, update_tree
 
 
 def with_microstructures(
@@ -118,6 +118,9 @@ class ApproximationTree:
         self.params = params
         self._patches = patches
         self._source = source
+        #: Updates applied (``update``); the node maps of the last few, for Engines to follow.
+        self.version = 0
+        self._changes: list[np.ndarray] = []
         z0 = terrain.z_range[0]
         cx, cy = terrain.domain.center
         self.origin = np.array([cx, cy, z0], dtype=np.float64)
@@ -263,7 +266,15 @@ class ApproximationTree:
         ``heights`` (rows, cols; north-up as the grid; NaN = no data) and rebuild the nodes
         the window reaches, as a fresh build of the edited terrain would (``tree.update``).
         The terrain (an in-memory Grid) is edited in place; returns what changed."""
-        return update_tree(self, rect, heights)
+        report = update_tree(self, rect, heights)
+        self._changes = [*self._changes[-(KEPT_CHANGES - 1) :], report.old_to_new]
+        self.version += 1
+        return report
+
+    def changes_since(self, version: int) -> np.ndarray | None:
+        """(n_then,) int64 the id now of every node of the tree at ``version`` whose patch
+        is unchanged since (−1: rebuilt or gone); None when that version is too old."""
+        return compose_changes(self._changes, self.version - version)
 
     build_seconds: float = 0.0
 

@@ -37,6 +37,9 @@ from approxtree.tree.subdivision import subdivide_level
 if TYPE_CHECKING:
     from approxtree.tree.approximation_tree import ApproximationTree
 
+#: Node maps of the last updates a tree keeps for the Engines drawing it (``changes_since``).
+KEPT_CHANGES = 16
+
 #: Tolerance, in cells, on a window's edges lying on the grid's cell edges.
 _ALIGN_TOLERANCE = 1e-6
 
@@ -288,3 +291,14 @@ def update_tree(tree: ApproximationTree, rect: Rect, heights: np.ndarray) -> Tre
         nodes_after=len(tree),
         seconds=time.perf_counter() - t0,
     )
+
+
+def compose_changes(changes: list[np.ndarray], behind: int) -> np.ndarray | None:
+    """The node map from ``behind`` updates ago to now: the last ``behind`` old_to_new maps
+    composed (−1 stays −1); None when fewer are kept. behind 0 is no map (None as well)."""
+    if behind <= 0 or behind > len(changes):
+        return None
+    out = changes[-behind]
+    for step in changes[len(changes) - behind + 1 :]:
+        out = np.where(out >= 0, step[np.maximum(out, 0)], -1)
+    return out
