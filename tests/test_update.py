@@ -10,6 +10,7 @@ from approxtree.errors import InvalidParameterError
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
 from approxtree.io import read_grid
+from approxtree.tree import update_cells
 from approxtree.tree.approximation_tree import ApproximationTree
 from tests.conftest import data_file
 
@@ -71,19 +72,38 @@ def check_sequence(grid: Grid, seed: int, nodata: bool, **params) -> None:
         assert len(kept) + len(report.removed) == report.nodes_before
 
 
+@pytest.fixture(params=["built", "cells"])
+def large_nodes(request, monkeypatch) -> str:
+    """Run twice: large nodes rebuilt whole, and measured per lattice cell from 400 points."""
+    if request.param == "cells":
+        monkeypatch.setattr(update_cells, "LARGE_POINTS", 400)
+    return request.param
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 @pytest.mark.parametrize("nodata", [False, True])
-def test_fractal_updates_equal_fresh_builds(seed: int, nodata: bool) -> None:
+def test_fractal_updates_equal_fresh_builds(seed: int, nodata: bool, large_nodes: str) -> None:
     """Random edits of a generated fractal give the fresh build's tree after each edit."""
     grid = fractal_terrain(129 + seed * 17, 150, seed=seed)
     check_sequence(grid, seed, nodata, epsilon=5.0, max_points=9 * 9)
 
 
 @pytest.mark.parametrize("fanout", [2, 4])
-def test_real_dem_updates_equal_fresh_builds(data_dir, fanout: int) -> None:
+def test_real_dem_updates_equal_fresh_builds(data_dir, fanout: int, large_nodes: str) -> None:
     """Random edits of the NC DEM (with holes of no data) give the fresh build's tree."""
     grid = read_grid(data_file(data_dir, "nc/elev_ned_30m.tif"))
     check_sequence(grid, 7 + fanout, True, epsilon=1.0, max_points=17 * 17, fanout=fanout)
+
+
+def test_signed_zero_extremes_follow_the_build(monkeypatch) -> None:
+    """A terrain whose lowest heights are +0.0 and −0.0 gets the build's z range bit for bit."""
+    monkeypatch.setattr(update_cells, "LARGE_POINTS", 400)
+    grid = fractal_terrain(97, 97, seed=4)
+    z = np.array(grid.heights)
+    z -= np.nanmin(z)
+    z[::7, ::5] = -0.0
+    grid = Grid(z, grid.transform)
+    check_sequence(grid, 4, False, epsilon=5.0, max_points=9 * 9)
 
 
 def test_hybrid_policy_updates_equal_fresh_builds() -> None:

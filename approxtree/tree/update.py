@@ -33,6 +33,7 @@ from approxtree.tree.builder import BuiltLevels, _build_level
 from approxtree.tree.patch_table import PatchTable
 from approxtree.tree.policy import StrategyPolicy
 from approxtree.tree.subdivision import subdivide_level
+from approxtree.tree.update_cells import CellCache
 
 if TYPE_CHECKING:
     from approxtree.tree.approximation_tree import ApproximationTree
@@ -184,10 +185,55 @@ def _errors(patches: Sequence[GeometryPatch] | GridPatchArrays) -> np.ndarray:
     return np.fromiter((p.error for p in patches), dtype=np.float64, count=len(patches))
 
 
+def _build_need(
+    grid: Grid,
+    policy: StrategyPolicy,
+    level: int,
+    rects: np.ndarray,
+    need: np.ndarray,
+    max_points: int,
+    eps: float,
+    cells: CellCache | None,
+    window: tuple[int, int, int, int],
+) -> Sequence[GeometryPatch] | GridPatchArrays:
+    """The patches of the level's nodes in ``need`` (in order): large grid patches from the
+    cell cache (``update_cells``), the others by the builder's own level code."""
+    wanted = rects[need]
+    if not len(wanted):
+        return []
+    large = (
+        cells.eligible(grid, policy, level, wanted, max_points)
+        if cells is not None
+        else np.zeros(len(wanted), dtype=bool)
+    )
+    if cells is None or not large.any():
+        return _build_level(grid, policy, level, wanted, max_points, eps)
+    measured = cells.build(grid, wanted[large], max_points, window)
+    if large.all():
+        return measured
+    rest = _build_level(grid, policy, level, wanted[~large], max_points, eps)
+    if isinstance(rest, GridPatchArrays):
+        # Both arrays: one table in node order.
+        fields = {}
+        for name in GridPatchArrays._fields:
+            a, b = getattr(measured, name), getattr(rest, name)
+            col = np.empty((len(wanted), *a.shape[1:]), dtype=a.dtype)
+            col[large], col[~large] = a, b
+            fields[name] = col
+        return GridPatchArrays(grid, **fields)
+    out: list[GeometryPatch] = [None] * len(wanted)  # type: ignore[list-item]
+    for i, p in zip(np.flatnonzero(large).tolist(), measured.patches(), strict=True):
+        out[i] = p
+    for i, p in zip(np.flatnonzero(~large).tolist(), rest, strict=True):
+        out[i] = p
+    return out
+
+
 def update_levels(
     tree: ApproximationTree,
     window: tuple[int, int, int, int],
     policy: StrategyPolicy,
+    cells: CellCache | None = None,
 ) -> tuple[BuiltLevels, np.ndarray, np.ndarray]:
     """The new tree's nodes after the terrain's cells in ``window`` changed.
 
@@ -212,9 +258,7 @@ def update_levels(
         need = old_ids < 0
         known = np.flatnonzero(~need)
         need[known] = _meets(grid, rects[known], window)
-        built = (
-            _build_level(grid, policy, level, rects[need], max_points, eps) if need.any() else []
-        )
+        built = _build_need(grid, policy, level, rects, need, max_points, eps, cells, window)
         patches = _level_part(old_patches, tree, old_ids, need, built)
         split = np.flatnonzero(_errors(patches) > eps)
         # Split nodes that had children keep them (same rectangles); others are cut afresh.
@@ -276,7 +320,16 @@ def update_tree(tree: ApproximationTree, rect: Rect, heights: np.ndarray) -> Tre
     window = window_cells(grid, rect, heights.shape)
     edit_grid(grid, window, heights)
     policy = StrategyPolicy.resolve(tree.params["policy"])
-    built, old_of, rebuilt = update_levels(tree, window, policy)
+    # Large grid patches are measured per lattice cell, kept by the tree between updates.
+    cells = tree.__dict__.setdefault("_cell_cache", CellCache())
+    cells.begin()
+    try:
+        built, old_of, rebuilt = update_levels(tree, window, policy, cells)
+    except BaseException:
+        # A failed walk leaves the cache unknown: forget it (the next update measures anew).
+        tree.__dict__.pop("_cell_cache", None)
+        raise
+    cells.end(window)
     n_old = len(tree)
     old_to_new = np.full(n_old, -1, dtype=np.int64)
     kept = np.flatnonzero(old_of >= 0)
