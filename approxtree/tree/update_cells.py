@@ -24,8 +24,10 @@ from approxtree.kernels.grid_cells import grid_patch_cells
 from approxtree.patches.grid import GridPatch, GridPatchArrays
 from approxtree.tree.policy import StrategyPolicy
 
-#: Data points from which a node's grid patch is measured per cell (512² and more).
-LARGE_POINTS = 1 << 18
+#: Data points from which a node's grid patch is measured per cell (2048² and more): below,
+#: a whole re-measure by the build's kernel (a few ns a point, all threads) costs no more than
+#: the cells around an edit (one thread, ~25 ns a point).
+LARGE_POINTS = 1 << 22
 
 #: Points of a re-measure below which it runs on one thread.
 SERIAL_POINTS = 1 << 20
