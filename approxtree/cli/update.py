@@ -29,6 +29,6 @@ def update(store: str, patch: str, no_verify: bool, as_json: bool) -> None:
     report = update_store(store, read_grid(patch), verify=not no_verify)
     figures = {"store": store, "patch": patch, **report.as_dict()}
     if not as_json:
-        w = figures.pop("window")
-        figures["window"] = f"rows {w['row']}..+{w['rows']}, columns {w['col']}..+{w['cols']}"
+        r0, r1, c0, c1 = report.window
+        figures["window"] = f"rows {r0}..{r1}, columns {c0}..{c1}"
     _emit(figures, as_json)

@@ -182,7 +182,7 @@ class ApproximationTreeSource:
             self.binding.forget()
         # Skirted meshes all change when their common base moves.
         everything = old_to_new is None or (self.skirts and self.skirt_base != base)
-        new_ids = np.full(0, -1, dtype=np.int64) if everything else old_to_new
+        new_ids = np.full(0, -1, dtype=np.int64) if old_to_new is None or everything else old_to_new
         same = np.zeros(len(self.tree), dtype=bool)
         if not everything:
             kept = np.flatnonzero(new_ids >= 0)

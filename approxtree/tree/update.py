@@ -222,8 +222,8 @@ def _build_need(
             fields[name] = col
         return GridPatchArrays(grid, **fields)
     out: list[GeometryPatch] = [None] * len(wanted)  # type: ignore[list-item]
-    for i, p in zip(np.flatnonzero(large).tolist(), measured.patches(), strict=True):
-        out[i] = p
+    for i, g in zip(np.flatnonzero(large).tolist(), measured.patches(), strict=True):
+        out[i] = g
     for i, p in zip(np.flatnonzero(~large).tolist(), rest, strict=True):
         out[i] = p
     return out
@@ -241,6 +241,8 @@ def update_levels(
     −1, rebuilt (k,) int64 new ids whose patch was built here).
     """
     grid = tree.terrain
+    if not isinstance(grid, Grid):  # pragma: no cover - update_tree checks it first
+        raise InvalidParameterError("Only a tree over a regular Grid can be updated.")
     eps, max_points, fanout = tree.epsilon, tree.max_points, tree.fanout
     o_rects, o_cs, o_cc = tree.rects, tree.child_start, tree.child_count
     # Patches of the old tree: a build's table, or the loaded tree's (read on demand).
