@@ -10,6 +10,7 @@ from approxtree.errors import InvalidParameterError
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
 from approxtree.io import read_grid
+from approxtree.tree import update as update_module
 from approxtree.tree import update_cells
 from approxtree.tree.approximation_tree import ApproximationTree
 from tests.conftest import data_file
@@ -150,3 +151,20 @@ def test_misaligned_window_is_refused() -> None:
         tree.update(rect, np.zeros((3, 4)))
     with pytest.raises(InvalidParameterError, match="not inside"):
         tree.update(cell_rect(grid, 30, 30, 4, 4), np.zeros((4, 4)))
+
+
+def test_failed_update_leaves_terrain_and_tree(monkeypatch) -> None:
+    """An update that fails in the middle leaves the terrain's heights and the tree as before."""
+    grid = fractal_terrain(65, 65, seed=2)
+    tree = ApproximationTree.build(grid, epsilon=3.0, max_points=25)
+    heights, errors = np.array(grid.heights), tree.errors.copy()
+
+    def broken(*args, **kwargs):
+        raise MemoryError("out of memory in the middle of the walk")
+
+    monkeypatch.setattr(update_module, "update_levels", broken)
+    with pytest.raises(MemoryError):
+        tree.update(cell_rect(grid, 4, 4, 8, 8), np.zeros((8, 8)))
+    np.testing.assert_array_equal(grid.heights, heights)
+    assert grid.point_count == heights.size
+    assert tree.errors.tobytes() == errors.tobytes() and tree.version == 0

@@ -111,8 +111,9 @@ def window_cells(grid: Grid, rect: Rect, shape: tuple[int, ...]) -> tuple[int, i
     return r0, r_end - 1, c0, c_end - 1
 
 
-def edit_grid(grid: Grid, window: tuple[int, int, int, int], heights: np.ndarray) -> None:
-    """Write ``heights`` (rows, cols; NaN = no data) into the grid's cells, in place."""
+def edit_grid(grid: Grid, window: tuple[int, int, int, int], heights: np.ndarray) -> np.ndarray:
+    """Write ``heights`` (rows, cols; NaN = no data) into the grid's cells, in place; returns
+    the cells' previous heights (rows, cols), a copy."""
     if grid.is_windowed or not isinstance(grid.heights, np.ndarray):
         raise InvalidParameterError(
             "Only an in-memory Grid can be updated; read the terrain whole (not windowed)."
@@ -127,10 +128,12 @@ def edit_grid(grid: Grid, window: tuple[int, int, int, int], heights: np.ndarray
     if not band.flags.writeable:
         # A band read from a store may be read-only: the grid takes its own copy once.
         band = grid.heights = np.array(band)
+    before = np.array(old)
     band[r0 : r1 + 1, c0 : c1 + 1] = new
     # The grid's cached figures follow; its z range is found again when next asked.
     grid.__dict__["_n_valid"] = n_valid
     grid.__dict__.pop("_z_range", None)
+    return before
 
 
 def _meets(grid: Grid, rects: np.ndarray, window: tuple[int, int, int, int]) -> np.ndarray:
@@ -320,15 +323,16 @@ def update_tree(tree: ApproximationTree, rect: Rect, heights: np.ndarray) -> Tre
         )
     heights = np.asarray(heights)
     window = window_cells(grid, rect, heights.shape)
-    edit_grid(grid, window, heights)
     policy = StrategyPolicy.resolve(tree.params["policy"])
+    before = edit_grid(grid, window, heights)
     # Large grid patches are measured per lattice cell, kept by the tree between updates.
     cells = tree.__dict__.setdefault("_cell_cache", CellCache())
     cells.begin()
     try:
         built, old_of, rebuilt = update_levels(tree, window, policy, cells)
     except BaseException:
-        # A failed walk leaves the cache unknown: forget it (the next update measures anew).
+        # A failed walk leaves tree and terrain as they were; the cache is forgotten.
+        edit_grid(grid, window, before)
         tree.__dict__.pop("_cell_cache", None)
         raise
     cells.end(window)

@@ -4,8 +4,9 @@ A node's grid patch error is a maximum over its data points; the few large nodes
 edit (the root, its children, ...) would cost a pass over most of the terrain each. The cache
 keeps, per large patch (keyed by its index (r0, r1, c0, c1, sr, sc), which does not depend
 on node ids), the figures of each lattice cell (``kernels.grid_cells``); an update measures
-again the cells whose points or vertices the window reaches (one cell more on each side: a
-point on a sampled line may use the neighbouring cell's triangle) and reduces the cells into
+again the cells owning edited points, and around an edited vertex the cells on both sides and
+one more each way (a point on a sampled line may use the neighbouring cell's triangle), and
+reduces the cells into
 the patch's figures, bit for bit those of a fresh build. Entries meeting a window that an
 update did not refresh (their node is gone) are forgotten, so none goes stale.
 """
@@ -24,10 +25,10 @@ from approxtree.kernels.grid_cells import grid_patch_cells
 from approxtree.patches.grid import GridPatch, GridPatchArrays
 from approxtree.tree.policy import StrategyPolicy
 
-#: Data points from which a node's grid patch is measured per cell (2048² and more): below,
-#: a whole re-measure by the build's kernel (a few ns a point, all threads) costs no more than
-#: the cells around an edit (one thread, ~25 ns a point).
-LARGE_POINTS = 1 << 22
+#: Data points from which a node's grid patch is measured per cell (1024² and more): the cells
+#: around an edit (one thread, ~25 ns a point) cost less than a whole re-measure by the
+#: build's kernel, and the first measure of every cell (once per node) stays affordable.
+LARGE_POINTS = 1 << 20
 
 #: Points of a re-measure below which it runs on one thread.
 SERIAL_POINTS = 1 << 20
@@ -105,7 +106,7 @@ class CellCache:
             entry = grid_patch_cells(heights, lattice, *index, 0, nbr - 1, 0, nbc - 1)
             self.entries[index] = entry
             return entry
-        # The cells whose closed extent meets the window, and one more on each side.
+        # The cells owning edited points, and those around edited vertices (``_cell_span``).
         k0, k1 = _cell_span(window[0], window[1], r0, r1, sr, nbr)
         j0, j1 = _cell_span(window[2], window[3], c0, c1, sc, nbc)
         if k0 <= k1 and j0 <= j1:
@@ -137,11 +138,22 @@ class CellCache:
 
 
 def _cell_span(w0: int, w1: int, lo: int, hi: int, step: int, cells: int) -> tuple[int, int]:
-    """First and last cell (of ``cells`` along one axis, lines lo..hi every ``step``) whose
-    closed extent meets lines w0..w1, widened by one cell each side; empty when apart."""
+    """First and last cell (of ``cells`` along one axis, lines lo..hi sampled every ``step``
+    and at hi) to measure again after lines w0..w1 changed; empty (0, −1) when apart.
+
+    The cells owning a changed line; and where a sampled line (a patch vertex) changed, the
+    cells on both sides of it and one more each way (a point on a sampled line may be
+    measured against the neighbouring cell's triangle, ``_lattice_edge_value``).
+    """
     a, b = max(w0, lo), min(w1, hi)
     if a > b:
         return 0, -1
-    first = max(0, -(-(a - lo) // step) - 1)
-    last = min(cells - 1, (b - lo) // step)
-    return max(0, first - 1), min(cells - 1, last + 1)
+    first = min((a - lo) // step, cells - 1)
+    last = min((b - lo) // step, cells - 1)
+    # Vertex lines inside a..b: indices m (line lo + m·step, and ``cells`` for hi).
+    m_first = -(-(a - lo) // step)
+    m_last = cells if b == hi else min((b - lo) // step, cells - 1)
+    if m_first <= m_last:
+        first = min(first, m_first - 1)
+        last = max(last, m_last + 1)
+    return max(0, first), min(cells - 1, last)
