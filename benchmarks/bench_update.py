@@ -10,7 +10,7 @@ every large node holds its per-cell figures) are reported on their own. Results 
 benchmarks/results/update_<size>.json and .png (cost against edit size).
 
     python benchmarks/bench_update.py [--size 8192] [--edits 64 128 256 512 1024 2048]
-        [--repeats 3] [--epsilon 1.0] [--warmup 24]
+        [--repeats 3] [--epsilon 1.0] [--warmup 96]
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ def main() -> None:
     parser.add_argument("--edits", type=int, nargs="+", default=[64, 128, 256, 512, 1024, 2048])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--epsilon", type=float, default=1.0)
-    parser.add_argument("--warmup", type=int, default=24, help="untimed 256² edits first")
+    parser.add_argument("--warmup", type=int, default=96, help="untimed 256² edits first")
     args = parser.parse_args()
 
     from approxtree.datasets import fractal_terrain

@@ -259,10 +259,15 @@ def update_levels(
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("rects", "lv", "par", "cs", "cc", "old")}
     patch_parts: list[Sequence[GeometryPatch] | GridPatchArrays] = []
     rebuilt: list[np.ndarray] = []
+    # Whether each frontier node's parent met the window: a child's points are among its
+    # parent's, so only those children are tested (a new node's children are new anyway).
+    parent_met = np.ones(1, dtype=bool)
     while len(rects):
         need = old_ids < 0
-        known = np.flatnonzero(~need)
-        need[known] = _meets(grid, rects[known], window)
+        known = np.flatnonzero(~need & parent_met)
+        met = np.zeros(len(rects), dtype=bool)
+        met[known] = _meets(grid, rects[known], window)
+        need |= met
         built = _build_need(grid, policy, level, rects, need, max_points, eps, cells, window)
         patches = _level_part(old_patches, tree, old_ids, need, built)
         split = np.flatnonzero(_errors(patches) > eps)
@@ -296,6 +301,7 @@ def update_levels(
         rebuilt.append(first + np.flatnonzero(need))
         parents = next_first - len(rects) + split[owner]
         rects, old_ids = children, child_old
+        parent_met = met[split[owner]]
         first = next_first
         level += 1
     out = BuiltLevels(
