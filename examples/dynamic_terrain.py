@@ -47,24 +47,24 @@ def main() -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 
-    # The pit: a bowl in the middle third of the terrain, deepened each step; spoil east of it.
+    # The pit: flat-bottomed, steep-walled, in the middle third of the terrain, deepened each
+    # step; its spoil heaped east of it.
     rows, cols = grid.height // 3, grid.width // 3
     r0, c0 = grid.height // 3, grid.width // 3
     yy, xx = np.mgrid[:rows, :cols]
-    bowl = np.clip(
-        1 - ((yy - rows / 2) / (rows / 3)) ** 2 - ((xx - cols / 3) / (cols / 4)) ** 2, 0, 1
-    )
+    radius = np.hypot((yy - rows / 2) / (rows / 3), (xx - cols / 3) / (cols / 4))
+    bowl = np.clip(4.0 * (1.0 - radius), 0.0, 1.0)
     heap = np.exp(-(((yy - rows / 2) / (rows / 6)) ** 2 + ((xx - 0.8 * cols) / (cols / 8)) ** 2))
     relief = grid.z_range[1] - grid.z_range[0]
     ground = np.array(grid.heights[r0 : r0 + rows, c0 : c0 + cols], dtype=np.float64)
     rect = window_rect(grid, r0, c0, rows, cols)
 
-    with at.Engine(tree) as engine:
-        camera = overview_camera(tree.bboxes[0], engine.scale)
+    with at.Engine(tree, exaggeration=4.0) as engine:
+        camera = overview_camera(tree.bboxes[0], engine.scale, fov=40.0, elevation=35.0)
         cut = Cut(alpha=1.0, gamma=math.inf)
         for step in range(args.steps + 1):
             if step:
-                depth = 0.04 * relief * step
+                depth = 0.15 * relief * step
                 report = tree.update(rect, ground - depth * bowl + 0.5 * depth * heap)
                 update_ms = report.seconds * 1e3
                 changed = f"{len(report.rebuilt)} nodes rebuilt of {report.nodes_after}"
