@@ -28,7 +28,8 @@ from approxtree.errors import EmptyTerrainError, InvalidParameterError
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
 from approxtree.patches.base import GeometryPatch
-from approxtree.patches.grid import GridPatchArrays
+from approxtree.patches.grid import GridPatch, GridPatchArrays
+from approxtree.tree import update_cells
 from approxtree.tree.builder import BuiltLevels, _build_level
 from approxtree.tree.patch_table import PatchTable
 from approxtree.tree.policy import StrategyPolicy
@@ -188,48 +189,97 @@ def _errors(patches: Sequence[GeometryPatch] | GridPatchArrays) -> np.ndarray:
     return np.fromiter((p.error for p in patches), dtype=np.float64, count=len(patches))
 
 
+def _prebuild(
+    tree: ApproximationTree,
+    grid: Grid,
+    policy: StrategyPolicy,
+    window: tuple[int, int, int, int],
+    max_points: int,
+) -> tuple[np.ndarray, GridPatchArrays] | None:
+    """The new grid patches of every old node the window reaches (below the per-cell size),
+    in one kernel call rather than one per level: (old ids (m,) ascending, their patches).
+    None unless the policy makes all of them grid patches (a patch then depends on its
+    rectangle alone, whatever its level)."""
+    ids = np.flatnonzero(_meets(grid, tree.rects, window))
+    r = grid.index_ranges(tree.rects[ids])
+    points = (r[:, 1] - r[:, 0] + 1) * (r[:, 3] - r[:, 2] + 1)
+    ids = ids[points < update_cells.LARGE_POINTS]
+    if not len(ids):
+        return None
+    levels = tree.levels[ids]
+    for lv in np.unique(levels).tolist():
+        groups = policy.candidates_level(grid, int(lv), tree.rects[ids[levels == lv]])
+        if len(groups) != 1 or tuple(groups[0][0]) != ("grid",):
+            return None
+    return ids, GridPatch.build_level_arrays(grid, tree.rects[ids], max_points)
+
+
+def _merge(
+    grid: Grid, parts: list[tuple[np.ndarray, Sequence[GeometryPatch] | GridPatchArrays]]
+) -> Sequence[GeometryPatch] | GridPatchArrays:
+    """One level's patches from parts (mask (k,) bool, the patches of the masked nodes in
+    order) that together cover the k nodes once: one table when all parts are arrays."""
+    k = len(parts[0][0])
+    if all(isinstance(p, GridPatchArrays) for _, p in parts):
+        fields = {}
+        for name in GridPatchArrays._fields:
+            first = getattr(parts[0][1], name)
+            col = np.empty((k, *first.shape[1:]), dtype=first.dtype)
+            for mask, p in parts:
+                col[mask] = getattr(p, name)
+            fields[name] = col
+        return GridPatchArrays(grid, **fields)
+    out: list[GeometryPatch] = [None] * k  # type: ignore[list-item]
+    for mask, p in parts:
+        made = p.patches() if isinstance(p, GridPatchArrays) else p
+        for i, g in zip(np.flatnonzero(mask).tolist(), made, strict=True):
+            out[i] = g
+    return out
+
+
 def _build_need(
     grid: Grid,
     policy: StrategyPolicy,
     level: int,
     rects: np.ndarray,
     need: np.ndarray,
+    old_ids: np.ndarray,
     max_points: int,
     eps: float,
     cells: CellCache | None,
     window: tuple[int, int, int, int],
+    pre: tuple[np.ndarray, GridPatchArrays] | None,
 ) -> Sequence[GeometryPatch] | GridPatchArrays:
-    """The patches of the level's nodes in ``need`` (in order): large grid patches from the
-    cell cache (``update_cells``), the others by the builder's own level code."""
+    """The patches of the level's nodes in ``need`` (in order): prebuilt ones (``_prebuild``),
+    large grid patches from the cell cache (``update_cells``), the others by the builder's own
+    level code."""
     wanted = rects[need]
     if not len(wanted):
         return []
-    large = (
-        cells.eligible(grid, policy, level, wanted, max_points)
-        if cells is not None
-        else np.zeros(len(wanted), dtype=bool)
-    )
-    if cells is None or not large.any():
-        return _build_level(grid, policy, level, wanted, max_points, eps)
-    measured = cells.build(grid, wanted[large], max_points, window)
-    if large.all():
-        return measured
-    rest = _build_level(grid, policy, level, wanted[~large], max_points, eps)
-    if isinstance(rest, GridPatchArrays):
-        # Both arrays: one table in node order.
-        fields = {}
-        for name in GridPatchArrays._fields:
-            a, b = getattr(measured, name), getattr(rest, name)
-            col = np.empty((len(wanted), *a.shape[1:]), dtype=a.dtype)
-            col[large], col[~large] = a, b
-            fields[name] = col
-        return GridPatchArrays(grid, **fields)
-    out: list[GeometryPatch] = [None] * len(wanted)  # type: ignore[list-item]
-    for i, g in zip(np.flatnonzero(large).tolist(), measured.patches(), strict=True):
-        out[i] = g
-    for i, p in zip(np.flatnonzero(~large).tolist(), rest, strict=True):
-        out[i] = p
-    return out
+    parts: list[tuple[np.ndarray, Sequence[GeometryPatch] | GridPatchArrays]] = []
+    left = np.ones(len(wanted), dtype=bool)
+    if pre is not None:
+        # Old nodes prebuilt in one call: their rows, by old id.
+        wanted_old = old_ids[need]
+        pos = np.minimum(np.searchsorted(pre[0], wanted_old), len(pre[0]) - 1)
+        taken = (wanted_old >= 0) & (pre[0][pos] == wanted_old)
+        if taken.any():
+            a = pre[1]
+            rows = pos[taken]
+            cols = [getattr(a, name)[rows] for name in GridPatchArrays._fields]
+            parts.append((taken, GridPatchArrays(a.grid, *cols)))
+            left &= ~taken
+    if cells is not None and left.any():
+        large = np.zeros(len(wanted), dtype=bool)
+        large[left] = cells.eligible(grid, policy, level, wanted[left], max_points)
+        if large.any():
+            parts.append((large, cells.build(grid, wanted[large], max_points, window)))
+            left &= ~large
+    if left.any():
+        parts.append((left, _build_level(grid, policy, level, wanted[left], max_points, eps)))
+    if len(parts) == 1:
+        return parts[0][1]
+    return _merge(grid, parts)
 
 
 def update_levels(
@@ -259,6 +309,7 @@ def update_levels(
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("rects", "lv", "par", "cs", "cc", "old")}
     patch_parts: list[Sequence[GeometryPatch] | GridPatchArrays] = []
     rebuilt: list[np.ndarray] = []
+    pre = _prebuild(tree, grid, policy, window, max_points)
     # Whether each frontier node's parent met the window: a child's points are among its
     # parent's, so only those children are tested (a new node's children are new anyway).
     parent_met = np.ones(1, dtype=bool)
@@ -268,7 +319,9 @@ def update_levels(
         met = np.zeros(len(rects), dtype=bool)
         met[known] = _meets(grid, rects[known], window)
         need |= met
-        built = _build_need(grid, policy, level, rects, need, max_points, eps, cells, window)
+        built = _build_need(
+            grid, policy, level, rects, need, old_ids, max_points, eps, cells, window, pre
+        )
         patches = _level_part(old_patches, tree, old_ids, need, built)
         split = np.flatnonzero(_errors(patches) > eps)
         # Split nodes that had children keep them (same rectangles); others are cut afresh.
