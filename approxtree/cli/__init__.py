@@ -40,6 +40,7 @@ _COMMANDS = {
     "rd": ("rd", "rd"),
     "verify": ("verify", "verify"),
     "serve": ("serve", "serve"),
+    "update": ("update", "update"),
 }
 
 

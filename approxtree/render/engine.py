@@ -102,9 +102,34 @@ class Engine:
         self.renderer.set_walls(tree.terrain.domain, tree.origin)
         self.set_vertical_exaggeration(exaggeration)
         self.set_palette(palette)
+        #: The tree's version the caches hold (``follow_tree``); figures of the last update.
+        self._tree_version = getattr(tree, "version", 0)
+        self.update_figures: dict[str, int] = {}
         # Load the compiled selection kernels now, so select_ms of the first frame is honest.
         warm = self.frame_state(overview_camera(tree.bboxes[0], self.scale), (2, 2))
         self.source.select(warm, Cut())
+
+    # -- a tree that changes (tree.update) -----------------------------------------------------
+
+    def follow_tree(self) -> bool:
+        """Take the tree's updates since the last frame (every frame calls this): meshes of
+        changed nodes leave the GPU and CPU caches, the others are re-keyed to their new ids;
+        the normal map and palette range follow the edited terrain. True when it changed."""
+        version = getattr(self.tree, "version", 0)
+        if version == self._tree_version:
+            return False
+        follow = getattr(self.source, "follow", None)
+        old_to_new = self.tree.changes_since(self._tree_version)
+        self._tree_version = version
+        before = len(self.cache)
+        if follow is None:  # pragma: no cover - only approximation trees change
+            dropped = self.cache.drop(lambda key: isinstance(key, MeshKey))
+        else:
+            dropped = self.cache.rekey(follow(old_to_new))
+        self.update_figures = {"gpu_dropped": dropped, "gpu_kept": before - dropped}
+        self.set_vertical_exaggeration(self.exaggeration)
+        self.set_palette(self.palette)
+        return True
 
     # -- settings ---------------------------------------------------------------------------
 
@@ -208,6 +233,7 @@ class Engine:
         """
         self._check_alive()
         _check_kinds(cut=(cut, Cut), style=(style, Style), paging=(paging, Paging))
+        self.follow_tree()
         fs = self.frame_state(camera, size)
         uploads = self.cache.uploads
         t0 = time.perf_counter()
@@ -251,6 +277,7 @@ class Engine:
 
     def resident(self, nodes: np.ndarray) -> np.ndarray:
         """(k,) bool: whether a mesh of each node id of ``nodes`` (k,) is in the GPU cache."""
+        self.follow_tree()
         on_gpu = {key.node for key in self.cache.keys() if isinstance(key, MeshKey)}
         return np.array([int(i) in on_gpu for i in np.asarray(nodes)], dtype=bool)
 
@@ -258,6 +285,7 @@ class Engine:
         """Upload the mesh of ``node`` now unless resident; True when it was uploaded (never
         for a tree whose meshes depend on the view: a frame uploads its own)."""
         self._check_alive()
+        self.follow_tree()
         key = MeshKey(NODE, int(node))
         if self.source.view_dependent or key in self.cache:
             return False

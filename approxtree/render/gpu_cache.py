@@ -155,6 +155,23 @@ class GpuCache:
             entry.release()
         return len(keys)
 
+    def rekey(self, mapping: Callable[[Hashable], Hashable | None]) -> int:
+        """Give every entry the key ``mapping(key)`` (its node renumbered by a tree update),
+        keeping the LRU order; entries mapped to None are released. Returns how many."""
+        kept: OrderedDict[Hashable, GpuMesh | GpuTexture] = OrderedDict()
+        dropped = 0
+        for key, entry in self._entries.items():
+            new = mapping(key)
+            if new is None:
+                self.nbytes -= entry.nbytes
+                entry.release()
+                dropped += 1
+            else:
+                kept[new] = entry
+        self._entries = kept
+        self.pinned = {k for k in (mapping(p) for p in self.pinned) if k is not None}
+        return dropped
+
     def _add(self, key: Hashable, entry):
         self._entries[key] = entry
         self.nbytes += entry.nbytes

@@ -249,6 +249,26 @@ class PayloadProvider:
             self._queued = set(self._queue)
         return len(keys)
 
+    def rekey(self, mapping: Callable[[Hashable], Hashable | None]) -> int:
+        """Give every cached payload the key ``mapping(key)`` (its node renumbered by a tree
+        update), forgetting those mapped to None and every queued key; loads in flight are
+        not cached (they may be stale). Returns how many payloads were forgotten."""
+        with self._lock:
+            self._generation += 1
+            kept: OrderedDict[Hashable, Payload] = OrderedDict()
+            dropped = 0
+            for key, payload in self._entries.items():
+                new = mapping(key)
+                if new is None:
+                    self.nbytes -= payload.nbytes
+                    dropped += 1
+                else:
+                    kept[new] = payload
+            self._entries = kept
+            self._queue = []
+            self._queued = set()
+        return dropped
+
     def figures(self) -> dict[str, Any]:
         """hits, misses, loads, bytes, entries, evictions, cancelled, pending."""
         return {

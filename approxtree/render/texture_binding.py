@@ -65,6 +65,10 @@ class TextureBinding:
             self._patches[owner] = patch
         return patch
 
+    def forget(self) -> None:
+        """Forget the owners' patches (their nodes were renumbered by a tree update)."""
+        self._patches.clear()
+
     def groups(self, meshes: list[MeshKey], owners: list[MeshKey]) -> Groups:
         """[(texture key, meshes)]: ``meshes`` grouped by the texture patch of their
         ``owners`` (one owner per mesh), in first-seen order."""

@@ -26,6 +26,7 @@ there.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Hashable
 from typing import Any
 
 import numpy as np
@@ -33,12 +34,12 @@ import numpy as np
 from approxtree.errors import EmptyTerrainError, InvalidParameterError
 from approxtree.geometry.rect import Rect
 from approxtree.render.budget import node_triangles, select_budget
-from approxtree.render.cache_keys import CHUNK, MeshKey, TextureKey, node_keys
+from approxtree.render.cache_keys import CHUNK, NODE, MeshKey, TextureKey, node_keys
 from approxtree.render.cut import Cut
 from approxtree.render.frame import PAGING_KEYS, FramePlan
 from approxtree.render.frame_state import FrameState
 from approxtree.render.full_resolution import FullResolutionSource
-from approxtree.render.normal_map import shading_texels
+from approxtree.render.normal_map import NORMAL_MAP_MAX, shading_texels
 from approxtree.render.provider import DEFAULT_CPU_CACHE_BYTES, Payload, PayloadProvider
 from approxtree.render.renderer import Renderer
 from approxtree.render.selector import Selection, finer_below, select
@@ -73,19 +74,30 @@ class ApproximationTreeSource:
         self.full = FullResolutionSource(tree)
         self.skirts = bool(skirts)
         self.binding: TextureBinding | None = None
-        # Per-node figures used every frame, computed once: the untextured shading's texels
-        # (one texture patch for every node: γ refines nothing there).
-        self.shading_texels = shading_texels(tree.terrain, len(tree))
+        self._node_borders = patches_reach_rect(tree.terrain)
+        d = tree.terrain.domain
+        self._domain = (d.xmin, d.ymin, d.xmax, d.ymax)
+        self._shading_side = NORMAL_MAP_MAX
+        self._node_figures()
+
+    def _node_figures(self) -> None:
+        """Per-node figures used every frame, computed once (and again after a tree update)."""
+        tree = self.tree
+        # The untextured shading's texels (one texture patch for every node: γ refines nothing
+        # there); with a pyramid, each node's texture patch's, and where a finer one lies below.
+        self.shading_texels = shading_texels(tree.terrain, len(tree), self._shading_side)
         self.texels = self.shading_texels
         self.finer = np.zeros(len(tree), dtype=bool)
+        if self.binding is not None:
+            self.texels = patch_texel_sizes(
+                self.binding.pyramid, np.asarray(tree.rects, dtype=np.float64)
+            )
+            self.finer = finer_below(tree, self.texels)
         # Skirts: infinite errors stand in by the node's z extent; walls on node borders only.
         extents = tree.bboxes[:, 5] - tree.bboxes[:, 2]
-        self._node_borders = patches_reach_rect(tree.terrain)
         rects = np.asarray(tree.rects, dtype=np.float64) if self._node_borders else None
         self.skirt_depths = skirt_depths(tree.errors, tree.terrain.z_range, extents, rects)
         self.skirt_base = skirt_base(tree.errors, tree.terrain.z_range, extents)
-        d = tree.terrain.domain
-        self._domain = (d.xmin, d.ymin, d.xmax, d.ymax)
         #: Triangles drawn per node (the budget's counts), made on first use.
         self._node_triangles: np.ndarray | None = None
 
@@ -159,6 +171,7 @@ class ApproximationTreeSource:
     def set_shading_side(self, side: int) -> None:
         """The normal map's largest side (the context's texture limit): untextured texels
         follow it."""
+        self._shading_side = side
         self.shading_texels = shading_texels(self.tree.terrain, len(self.tree), side)
         if self.binding is None:
             self.texels = self.shading_texels
@@ -172,6 +185,39 @@ class ApproximationTreeSource:
         self._node_triangles = None
         self.provider.drop(lambda key: isinstance(key, MeshKey))
         return True
+
+    def follow(self, old_to_new: np.ndarray | None) -> Callable[[Hashable], Hashable | None]:
+        """Take a tree update (``ApproximationTree.changes_since``: (n_old,) new id of every
+        unchanged old node, −1 elsewhere; None: unknown, everything changed) and return the
+        key map of the caches: an unchanged node's mesh gets its new id; a mesh whose payload
+        changed (node rebuilt, skirt depth or base moved) maps to None, as does every
+        full-resolution chunk. Texture patches keep their keys (the pyramid is not re-baked
+        here). The provider's CPU cache is re-keyed here; the caller re-keys the GPU cache."""
+        depths, base = self.skirt_depths, self.skirt_base
+        self._node_figures()
+        self.full = FullResolutionSource(self.tree)
+        if self.binding is not None:
+            self.binding.forget()
+        # Skirted meshes all change when their common base moves.
+        everything = old_to_new is None or (self.skirts and self.skirt_base != base)
+        new_ids = np.full(0, -1, dtype=np.int64) if old_to_new is None or everything else old_to_new
+        same = np.zeros(len(self.tree), dtype=bool)
+        if not everything:
+            kept = np.flatnonzero(new_ids >= 0)
+            same[new_ids[kept]] = (
+                True if not self.skirts else depths[kept] == self.skirt_depths[new_ids[kept]]
+            )
+
+        def mapping(key: Hashable) -> Hashable | None:
+            if isinstance(key, TextureKey):
+                return key
+            if not isinstance(key, MeshKey) or key.kind != NODE or everything:
+                return None
+            new = int(new_ids[key.item]) if key.item < len(new_ids) else -1
+            return MeshKey(NODE, new) if new >= 0 and same[new] else None
+
+        self.provider.rekey(mapping)
+        return mapping
 
     def release(self) -> None:
         """Stop the provider's threads and empty its CPU cache."""

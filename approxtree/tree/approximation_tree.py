@@ -23,11 +23,12 @@ from approxtree.patches import GeometryPatch, patch_class
 from approxtree.patches.records import Batch, concat_records
 from approxtree.progress import ProgressCallback, as_callback
 from approxtree.tree import store
-from approxtree.tree.builder import build_levels
+from approxtree.tree.builder import BuiltLevels, build_levels
 from approxtree.tree.cut_mesh import CutMesh, cut_mesh
 from approxtree.tree.node import Node
 from approxtree.tree.patch_table import PatchTable, as_table
 from approxtree.tree.policy import StrategyPolicy
+from approxtree.tree.update import KEPT_CHANGES, TreeUpdate, compose_changes, update_tree
 
 
 def with_microstructures(
@@ -46,6 +47,30 @@ def with_microstructures(
     for item in microstructures:
         tins.extend([item] if isinstance(item, TIN) else load_microstructures(item, terrain))
     return GridRefinement(terrain, tins)
+
+
+def _node_arrays(built: BuiltLevels) -> dict[str, Any]:
+    """The tree's node arrays and patch table of a build's levels (no patch object made)."""
+    # Figures straight from the build's arrays: no patch object is made here.
+    table = as_table(built.patches)
+    n = len(table)
+    names, strategies = table.strategies()
+    bboxes = np.empty((n, 6))
+    rects = np.asarray(built.rects, dtype=np.float64).reshape(n, 4)
+    bboxes[:, [0, 1, 3, 4]] = rects
+    bboxes[:, 2], bboxes[:, 5] = table.z_ranges()
+    return {
+        "rects": rects,
+        "errors": table.errors(),
+        "bboxes": bboxes,
+        "levels": np.array(built.levels, dtype=np.int32),
+        "parents": np.array(built.parents, dtype=np.int64),
+        "child_start": np.array(built.child_start, dtype=np.int64),
+        "child_count": np.array(built.child_count, dtype=np.int64),
+        "strategies": strategies,
+        "strategy_names": names,
+        "patches": table,
+    }
 
 
 class ApproximationTree:
@@ -93,6 +118,9 @@ class ApproximationTree:
         self.params = params
         self._patches = patches
         self._source = source
+        #: Updates applied (``update``); the node maps of the last few, for Engines to follow.
+        self.version = 0
+        self._changes: list[np.ndarray] = []
         z0 = terrain.z_range[0]
         cx, cy = terrain.domain.center
         self.origin = np.array([cx, cy, z0], dtype=np.float64)
@@ -212,35 +240,41 @@ class ApproximationTree:
         policy_obj: StrategyPolicy,
     ) -> ApproximationTree:
         """The tree of the nodes of a build (``build``)."""
-        # Figures straight from the build's arrays: no patch object is made here.
-        table = as_table(built.patches)
-        n = len(table)
-        names, strategies = table.strategies()
-        bboxes = np.empty((n, 6))
-        rects = np.asarray(built.rects, dtype=np.float64).reshape(n, 4)
-        bboxes[:, [0, 1, 3, 4]] = rects
-        bboxes[:, 2], bboxes[:, 5] = table.z_ranges()
         tree = cls(
             terrain,
-            rects=rects,
-            errors=table.errors(),
-            bboxes=bboxes,
-            levels=np.array(built.levels, dtype=np.int32),
-            parents=np.array(built.parents, dtype=np.int64),
-            child_start=np.array(built.child_start, dtype=np.int64),
-            child_count=np.array(built.child_count, dtype=np.int64),
-            strategies=strategies,
-            strategy_names=names,
+            **_node_arrays(built),
             params={
                 "epsilon": float(epsilon),
                 "max_points": int(max_points),
                 "fanout": int(fanout),
                 "policy": policy_obj.name,
             },
-            patches=table,
         )
         tree.build_seconds = built.seconds
         return tree
+
+    def replace_nodes(self, built: BuiltLevels) -> None:
+        """Take the nodes of ``built`` (an update's levels) in place of the tree's own; the
+        origin stays (``tree.update``)."""
+        for name, value in _node_arrays(built).items():
+            setattr(self, "_patches" if name == "patches" else name, value)
+        # Every patch is held by the new table now: none is read from a saved tree any more.
+        self._source = None
+
+    def update(self, rect: Rect, heights: np.ndarray) -> TreeUpdate:
+        """Replace the terrain's cells in ``rect`` (world units, on the grid's cell edges) by
+        ``heights`` (rows, cols; north-up as the grid; NaN = no data) and rebuild the nodes
+        the window reaches, as a fresh build of the edited terrain would (``tree.update``).
+        The terrain (an in-memory Grid) is edited in place; returns what changed."""
+        report = update_tree(self, rect, heights)
+        self._changes = [*self._changes[-(KEPT_CHANGES - 1) :], report.old_to_new]
+        self.version += 1
+        return report
+
+    def changes_since(self, version: int) -> np.ndarray | None:
+        """(n_then,) int64 the id now of every node of the tree at ``version`` whose patch
+        is unchanged since (−1: rebuilt or gone); None when that version is too old."""
+        return compose_changes(self._changes, self.version - version)
 
     build_seconds: float = 0.0
 

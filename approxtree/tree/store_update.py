@@ -1,0 +1,104 @@
+"""``approxtree update STORE PATCH.tif``: a store's terrain edited by a raster, transactionally.
+
+The patch raster must lie on the terrain's cells (same cell size, corners on cell edges, same
+CRS) and inside it; its cells (no data included) replace the terrain's. The tree is loaded,
+updated in memory (``ApproximationTree.update``: only the nodes the window reaches are
+rebuilt) and written as a whole new store beside the old one, which is then swapped in with
+one atomic folder exchange (``io.atomic.atomic_directory``): a reader opening the store sees
+the old tree or the new one, never half of each; a writer killed at any point leaves the old
+store (and a temp folder the next write removes) or the new one.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+
+import numpy as np
+
+from approxtree.errors import InvalidParameterError, StoreError, TerrainFormatError
+from approxtree.geometry.grid import Grid
+from approxtree.geometry.rect import Rect
+from approxtree.tree.approximation_tree import ApproximationTree
+from approxtree.tree.update import TreeUpdate
+from approxtree.tree.zarr_store import is_url, is_zip
+
+
+def _same_crs(a: str | None, b: str | None) -> bool:
+    """Whether two CRS (EPSG codes or WKT) name the same system; a missing one matches any."""
+    if a is None or b is None or a == b:
+        return True
+    from rasterio.crs import CRS
+    from rasterio.errors import CRSError
+
+    try:
+        return CRS.from_user_input(a) == CRS.from_user_input(b)
+    except CRSError:
+        return False
+
+
+def patch_window(terrain: Grid, patch: Grid) -> Rect:
+    """The world rect of the patch raster's cells on the terrain's grid, or
+    InvalidParameterError when its CRS, cell size or corners do not match the terrain's."""
+    if not _same_crs(terrain.crs, patch.crs):
+        raise InvalidParameterError(
+            f"The patch's CRS ({patch.crs}) is not the terrain's ({terrain.crs}); reproject it "
+            "onto the terrain's grid first."
+        )
+    ta, pa = terrain.transform, patch.transform
+    if not (math.isclose(ta.a, pa.a, rel_tol=1e-9) and math.isclose(ta.e, pa.e, rel_tol=1e-9)):
+        raise InvalidParameterError(
+            f"The patch's cells ({abs(pa.a):g} × {abs(pa.e):g}) are not the terrain's "
+            f"({abs(ta.a):g} × {abs(ta.e):g}); resample it onto the terrain's grid first."
+        )
+    # The patch's own cell edges, in the patch's full-raster pixel corners.
+    r_off, c_off = patch.index_offset
+    x0, x1 = pa.c + c_off * pa.a, pa.c + (c_off + patch.width) * pa.a
+    y0, y1 = pa.f + r_off * pa.e, pa.f + (r_off + patch.height) * pa.e
+    return Rect(min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1))
+
+
+def update_store(path: str | os.PathLike, patch: Grid, verify: bool = True) -> TreeUpdate:
+    """Replace the cells of the store's terrain that ``patch`` covers and rewrite the store at
+    ``path`` atomically (module doc); returns what the update changed."""
+    text = str(path)
+    if is_url(text) or is_zip(text):
+        raise StoreError(
+            f"{text}: only a store folder on disk can be updated in place; convert it to a "
+            "folder store (NAME.zarr) first."
+        )
+    tree = ApproximationTree.load(path, verify=verify)
+    terrain = tree.terrain
+    if not isinstance(terrain, Grid):
+        raise TerrainFormatError(
+            f"{text} holds a tree over a {type(terrain).__name__}; only a grid's tree is updated."
+        )
+    # The terrain is read whole: the update edits its cells in memory, then the store is new.
+    grid = Grid(
+        np.array(terrain.heights_array("updating a store's terrain")),
+        terrain.transform,
+        terrain.crs,
+        terrain.nodata,
+        allow_empty=True,
+    )
+    grid.nodata_policy = terrain.nodata_policy
+    grid.filled_count = terrain.filled_count
+    tree.terrain = grid
+    rect = patch_window(grid, patch)
+    heights = np.asarray(patch.heights_array("updating a store's terrain"))
+    report = tree.update(rect, heights)
+    _hook("updated")
+    tree.save(path)
+    _hook("saved")
+    return report
+
+
+def _hook(stage: str) -> None:
+    """Test hook: APPROXTREE_UPDATE_KILL=stage kills this process here (a crash at a known
+    point of the transaction, for the tests that check the store survives it)."""
+    if os.environ.get("APPROXTREE_UPDATE_KILL") == stage:
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
+__all__ = ["patch_window", "update_store"]

@@ -1,0 +1,159 @@
+"""Large grid patches of an updated tree, re-measured only in the lattice cells an edit reaches.
+
+A node's grid patch error is a maximum over its data points; the few large nodes above an
+edit (the root, its children, ...) would cost a pass over most of the terrain each. The cache
+keeps, per large patch (keyed by its index (r0, r1, c0, c1, sr, sc), which does not depend
+on node ids), the figures of each lattice cell (``kernels.grid_cells``); an update measures
+again the cells owning edited points, and around an edited vertex the cells on both sides and
+one more each way (a point on a sampled line may use the neighbouring cell's triangle), and
+reduces the cells into
+the patch's figures, bit for bit those of a fresh build. Entries meeting a window that an
+update did not refresh (their node is gone) are forgotten, so none goes stale.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numba
+import numpy as np
+
+from approxtree.geometry.grid import Grid
+from approxtree.geometry.rect import Rect
+from approxtree.kernels.grid_cells import grid_patch_cells
+from approxtree.patches.grid import GridPatch, GridPatchArrays
+from approxtree.tree.policy import StrategyPolicy
+
+#: Data points from which a node's grid patch is measured per cell (1024² and more): the cells
+#: around an edit (one thread, ~25 ns a point) cost less than a whole re-measure by the
+#: build's kernel, and the first measure of every cell (once per node) stays affordable.
+LARGE_POINTS = 1 << 20
+
+#: Points of a re-measure below which it runs on one thread.
+SERIAL_POINTS = 1 << 20
+
+Index = tuple[int, int, int, int, int, int]
+
+
+@dataclass
+class CellCache:
+    """Per-cell figures of large grid patches: index → (error, zmin, zmax, count, zeros)
+    arrays of shape (nbr, nbc) (float64 ×3, int64 ×2; ``kernels.grid_cells``)."""
+
+    entries: dict[Index, tuple[np.ndarray, ...]] = field(default_factory=dict)
+    touched: set[Index] = field(default_factory=set)
+
+    def eligible(
+        self, grid: Grid, policy: StrategyPolicy, level: int, rects: np.ndarray, max_points: int
+    ) -> np.ndarray:
+        """(k,) bool: the nodes measured per cell (large, and grid patches by the policy)."""
+        ranges = grid.index_ranges(rects)
+        points = (ranges[:, 1] - ranges[:, 0] + 1) * (ranges[:, 3] - ranges[:, 2] + 1)
+        out = points >= LARGE_POINTS
+        for i in np.flatnonzero(out).tolist():
+            rect = Rect(*(float(v) for v in rects[i]))
+            out[i] = tuple(policy.candidates(grid, level, rect)) == ("grid",)
+        return out
+
+    def build(
+        self,
+        grid: Grid,
+        rects: np.ndarray,
+        max_points: int,
+        window: tuple[int, int, int, int],
+    ) -> GridPatchArrays:
+        """The grid patches of ``rects`` (k, 4), as ``GridPatch.build_level_arrays`` makes
+        them, from the cells (measured again where the window reaches them)."""
+        k = math.isqrt(max_points)
+        ranges = grid.index_ranges(rects)
+        spans = np.column_stack([ranges[:, 1] - ranges[:, 0], ranges[:, 3] - ranges[:, 2]])
+        steps = np.maximum(1, -(-spans // (k - 1))).astype(np.int64)
+        index = np.column_stack([ranges, steps])
+        n = len(rects)
+        error, zmin, zmax = np.empty(n), np.empty(n), np.empty(n)
+        count = np.empty(n, dtype=np.int64)
+        heights = grid.heights_array("measuring grid patches")
+        exact: list[int] = []
+        for i, idx in enumerate(index.tolist()):
+            e, lo, hi, c, zeros = self._cells(heights, tuple(idx), window)
+            error[i], count[i] = e.max(), c.sum()
+            lo_v, hi_v = lo.min(), hi.max()
+            if (lo_v == 0.0 or hi_v == 0.0) and np.bitwise_or.reduce(zeros, axis=None) == 3:
+                # Which signed zero is the extreme depends on the scan order: the kernel's own.
+                exact.append(i)
+            zmin[i] = lo_v if count[i] > 0 else np.nan
+            zmax[i] = hi_v if count[i] > 0 else np.nan
+        if exact:
+            ref = GridPatch.build_level_arrays(grid, rects[exact], max_points)
+            zmin[exact], zmax[exact] = ref.zmin, ref.zmax
+        return GridPatchArrays(
+            grid, np.asarray(rects, dtype=np.float64), index, error, zmin, zmax, count
+        )
+
+    def _cells(
+        self, heights: np.ndarray, index: Index, window: tuple[int, int, int, int]
+    ) -> tuple[np.ndarray, ...]:
+        """The per-cell figures of one patch, measured whole or again where the window is."""
+        r0, r1, c0, c1, sr, sc = index
+        rows = np.append(np.arange(r0, r1, sr), r1)
+        cols = np.append(np.arange(c0, c1, sc), c1)
+        lattice = np.ascontiguousarray(heights[np.ix_(rows, cols)])
+        nbr, nbc = len(rows) - 1, len(cols) - 1
+        entry = self.entries.get(index)
+        self.touched.add(index)
+        if entry is None:
+            entry = grid_patch_cells(heights, lattice, *index, 0, nbr - 1, 0, nbc - 1)
+            self.entries[index] = entry
+            return entry
+        # The cells owning edited points, and those around edited vertices (``_cell_span``).
+        k0, k1 = _cell_span(window[0], window[1], r0, r1, sr, nbr)
+        j0, j1 = _cell_span(window[2], window[3], c0, c1, sc, nbc)
+        if k0 <= k1 and j0 <= j1:
+            # A few cells: one thread (waking a pool costs more than the work on a busy host).
+            points = (min(r1, r0 + (k1 + 1) * sr) - r0 - k0 * sr + 1) * (
+                min(c1, c0 + (j1 + 1) * sc) - c0 - j0 * sc + 1
+            )
+            threads = numba.get_num_threads()
+            numba.set_num_threads(1 if points < SERIAL_POINTS else threads)
+            try:
+                part = grid_patch_cells(heights, lattice, *index, k0, k1, j0, j1)
+            finally:
+                numba.set_num_threads(threads)
+            for whole, fresh in zip(entry, part, strict=True):
+                whole[k0 : k1 + 1, j0 : j1 + 1] = fresh
+        return entry
+
+    def begin(self) -> None:
+        """Start an update: nothing refreshed yet."""
+        self.touched = set()
+
+    def end(self, window: tuple[int, int, int, int]) -> None:
+        """Forget the entries the window reaches that this update did not refresh."""
+        w0, w1, v0, v1 = window
+        for idx in list(self.entries):
+            r0, r1, c0, c1 = idx[:4]
+            if idx not in self.touched and r0 <= w1 and r1 >= w0 and c0 <= v1 and c1 >= v0:
+                del self.entries[idx]
+
+
+def _cell_span(w0: int, w1: int, lo: int, hi: int, step: int, cells: int) -> tuple[int, int]:
+    """First and last cell (of ``cells`` along one axis, lines lo..hi sampled every ``step``
+    and at hi) to measure again after lines w0..w1 changed; empty (0, −1) when apart.
+
+    The cells owning a changed line; and where a sampled line (a patch vertex) changed, the
+    cells on both sides of it and one more each way (a point on a sampled line may be
+    measured against the neighbouring cell's triangle, ``_lattice_edge_value``).
+    """
+    a, b = max(w0, lo), min(w1, hi)
+    if a > b:
+        return 0, -1
+    first = min((a - lo) // step, cells - 1)
+    last = min((b - lo) // step, cells - 1)
+    # Vertex lines inside a..b: indices m (line lo + m·step, and ``cells`` for hi).
+    m_first = -(-(a - lo) // step)
+    m_last = cells if b == hi else min((b - lo) // step, cells - 1)
+    if m_first <= m_last:
+        first = min(first, m_first - 1)
+        last = max(last, m_last + 1)
+    return max(0, first), min(cells - 1, last)
