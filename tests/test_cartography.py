@@ -28,7 +28,7 @@ import approxtree as at
 from approxtree import ApproximationTree
 from approxtree.cli import main as cli_main
 from approxtree.datasets import fractal_terrain, sample_terrain
-from approxtree.render import Camera, Engine, FrameState, Style, select
+from approxtree.render import Camera, Cut, Engine, FrameState, Style, select
 from approxtree.render.context import create_context
 from approxtree.render.frame_state import framing_camera
 from approxtree.render.style import WALL_COLOUR, Sun
@@ -315,11 +315,14 @@ def test_default_tint_spans_the_terrain_own_range(gl_context, hills_tree):
     tree = hills_tree
     c = tree.terrain.domain.center
     cam = Camera.look_at((c[0], c[1], 15000.0), (c[0], c[1] + 1.0, 0.0), fov=30)
+    # The unsimplified terrain: its lowest and highest points are drawn (a cut's coarser
+    # patches need not reach them).
+    whole = Cut(full_resolution=True)
     with Engine(tree, context=gl_context, offscreen=True) as eng:
-        frame = eng.render(cam, (300, 300), style=Style(lighting=False))
+        frame = eng.render(cam, (300, 300), whole, style=Style(lighting=False))
         eng.world_positions(frame)
         eng.set_palette("relief")
-        fixed = eng.render(cam, (300, 300), style=Style(lighting=False)).image
+        fixed = eng.render(cam, (300, 300), whole, style=Style(lighting=False)).image
     surface = frame.positions[..., 3] == 1
     z = frame.positions[surface][:, 2]
     rgb = frame.image[surface][:, :3].astype(float)
