@@ -219,6 +219,47 @@ def test_imagery_formats_and_coarse_zooms(gradient_pyramid, tmp_path):
     assert np.abs(rgba[opaque, 0].astype(int) - 127).max() <= 2
 
 
+def test_verify_checks_imagery_colours_against_their_pyramid(gradient_pyramid, tmp_path):
+    """Imagery PNG (geographic folder, every zoom down to the coarse ones that average
+    blocks), WEBP and JPEG (Web Mercator PMTiles) verify against the pyramid they were cut
+    from: every tile's pixels measured, within their format's tolerance; without the pyramid
+    the colours are listed as not checked."""
+    from approxtree.verify.map_tiles import COLOUR_TOLERANCE
+
+    for fmt, scheme, name in [
+        ("png", "geographic", "geo"),
+        ("webp", "webmercator", "wm.pmtiles"),
+        ("jpeg", "webmercator", "jpg.pmtiles"),
+    ]:
+        out = tmp_path / name
+        write_map_tiles(ImageryTiles(gradient_pyramid, SCHEMES[scheme], image_format=fmt), out)
+        report = verify(out, textures=gradient_pyramid.folder)
+        assert report.ok, report.offenders[:3]
+        tiles = report.figures["tiles"]
+        assert report.checks["colours"].items == tiles > 4
+        assert report.figures["pixels_measured"] == tiles * 256 * 256
+        assert report.figures["worst_colour_difference"] <= COLOUR_TOLERANCE[fmt][1]
+    assert report.figures["mean_colour_difference"] <= COLOUR_TOLERANCE["jpeg"][0]
+    assert any("imagery colours" in n for n in verify(tmp_path / "geo").not_checked)
+
+
+def test_verify_finds_an_imagery_pixel_off_its_pyramid(gradient_pyramid, tmp_path):
+    """A PNG tile whose opaque pixel is made 8 levels redder fails verify's colours check,
+    naming the tile and the pixel."""
+    out = tmp_path / "t"
+    source = ImageryTiles(gradient_pyramid, SCHEMES["webmercator"])
+    z = source.maxzoom
+    write_map_tiles(ImageryTiles(gradient_pyramid, SCHEMES["webmercator"], minzoom=z), out)
+    path = max(out.rglob("*.png"), key=lambda p: np.asarray(Image.open(p))[..., 3].sum())
+    rgba = np.asarray(Image.open(path)).copy()
+    r, c = np.argwhere(rgba[..., 3] == 255)[0]
+    rgba[r, c, 0] = (int(rgba[r, c, 0]) + 8) % 256
+    Image.fromarray(rgba).save(path)
+    report = verify(out, textures=gradient_pyramid.folder)
+    assert not report.ok and report.checks["colours"].failures == 1
+    assert f"pixel ({r}, {c}) channel R" in report.offenders[0].address
+
+
 def test_map_outputs_refused_before_any_work(nc, gradient_pyramid, tmp_path):
     """A geographic tiling cannot go into PMTiles; a lossy raster-dem, heights the encoding
     cannot hold and a foreign folder are refused with what to do."""

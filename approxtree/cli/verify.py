@@ -62,6 +62,13 @@ def _print(report) -> None:
     help="Texture pyramids: the bake is a plain hillshade at gdaldem's defaults; level 0 is "
     "compared with `gdaldem hillshade` of the source.",
 )
+@click.option(
+    "--textures",
+    type=click.Path(file_okay=False, exists=True),
+    default=None,
+    help="Imagery tiles: the texture pyramid they were cut from; every pixel is compared "
+    "with it resampled at the pixel's centre.",
+)
 @reader_options
 @json_option
 @_reports_errors
@@ -70,6 +77,7 @@ def verify(
     source: str | None,
     max_error: float | None,
     hillshade: bool,
+    textures: str | None,
     encoding,
     nodata_policy,
     ground_only,
@@ -85,7 +93,12 @@ def verify(
     if source is not None:
         terrain = common._open(source, encoding, nodata_policy, ground_only, height_scale)
     report = run_verify(
-        output, terrain, max_error=max_error, hillshade=hillshade, source_file=source
+        output,
+        terrain,
+        max_error=max_error,
+        hillshade=hillshade,
+        source_file=source,
+        textures=textures,
     )
     if as_json:
         click.echo(json.dumps(report.to_dict()))

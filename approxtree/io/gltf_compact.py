@@ -327,15 +327,18 @@ def oct_filter(normals: np.ndarray) -> np.ndarray:
 
 def _meshopt_order(parts: list[np.ndarray], n: int) -> tuple[np.ndarray, list[np.ndarray]]:
     """(remap (n,): new index of each vertex, each part's triangles (m, 3) in new indices):
-    each part's triangles ordered for the vertex cache, vertices in order of first use
-    (meshoptimizer)."""
+    each part's triangles in strip order, vertices in order of first use (meshoptimizer).
+
+    Strip order (what gltfpack uses for compressed output) rather than the vertex-cache
+    order: the index codec and the vertex deltas compress better and it is quicker (NC:
+    10.5 KB per tile against 11.6, 0.61 s against 0.64 for 341 tiles)."""
     import meshoptimizer
 
     cached = []
     for tris in parts:
         flat = np.ascontiguousarray(tris.ravel(), dtype=np.uint32)
         out = np.zeros_like(flat)
-        meshoptimizer.optimize_vertex_cache(out, flat, len(flat), n)
+        meshoptimizer.optimize_vertex_cache_strip(out, flat, len(flat), n)
         cached.append(out)
     every = np.concatenate(cached)
     remap = np.zeros(n, dtype=np.uint32)

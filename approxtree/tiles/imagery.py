@@ -152,14 +152,20 @@ class ImageryTiles:
             raise InvalidParameterError(
                 f"Tile {z}/{x}/{y} is outside the {self.scheme.name} tiling."
             )
-        rows, cols = self.scheme.pixel_span(z, x, y, size, self.footprint.bounds)
+        # Texels more than twice finer than the pixels (the pyramid ends before the zoom's
+        # pixel size) are averaged by blocks first, so a pixel is not one texel of many.
+        k, factor = self.level_for(z, x, y)
+        # The texture's edge fades over half a (block of) texel(s) beyond the footprint: the
+        # pixels that far out are sampled too (2 more for the texel size's change over the
+        # tile: it is measured at the pyramid's centre).
+        _, south, _, north = self.scheme.bounds(z, x, y)
+        pixel = self.scheme.pixel_metres(z, size, (south + north) / 2)
+        margin = 2 + math.ceil(self.texel_metres * 2**k * factor / pixel / 2)
+        rows, cols = self.scheme.pixel_span(z, x, y, size, self.footprint.bounds, margin)
         if rows.start >= rows.stop or cols.start >= cols.stop:
             return out
         lon, lat = self.scheme.pixel_centres(z, x, y, size, rows, cols)
         px, py = self._to_crs().transform(lon, lat)
-        # Texels more than twice finer than the pixels (the pyramid ends before the zoom's
-        # pixel size) are averaged by blocks first, so a pixel is not one texel of many.
-        k, factor = self.level_for(z, x, y)
         out[rows, cols] = self._sample(k, np.asarray(px), np.asarray(py), factor)
         return out
 
@@ -174,25 +180,31 @@ class ImageryTiles:
         result = np.zeros((*px.shape, 4), dtype=np.uint8)
         if not finite.any():
             return result
-        # The texels the points reach, one around them, within the level (beyond: transparent).
-        c0 = max(math.floor(fc[finite].min()), 0)
-        r0 = max(math.floor(fr[finite].min()), 0)
-        c1 = min(math.floor(fc[finite].max()) + 2, lv.width)
-        r1 = min(math.floor(fr[finite].max()) + 2, lv.height)
-        if c1 <= c0 or r1 <= r0:
-            return result
-        # Whole blocks of the reduction, aligned on the level's texel grid.
-        c0, r0 = c0 - c0 % factor, r0 - r0 % factor
-        c1 = min(c1 + (-c1) % factor, lv.width + (-lv.width) % factor)
-        r1 = min(r1 + (-r1) % factor, lv.height + (-lv.height) % factor)
-        window = self.pyramid.read(k, r0, c0, r1 - r0, c1 - c0)
+        # Coordinates on the grid of blocks (texels when factor is 1), block centres at
+        # integers: a point mixes the blocks floor(u) and floor(u) + 1.
+        u = (fc + 0.5) / factor - 0.5
+        v = (fr + 0.5) / factor - 0.5
+        # The blocks the points mix, within the level (beyond: transparent), at least its edge
+        # block: points past the edge still fade from it. (Bounds taken on texels instead cut
+        # a block off the window's low side, and points past the edge got nothing:
+        # ``approxtree verify`` found both.)
+        blocks_w, blocks_h = -(-lv.width // factor), -(-lv.height // factor)
+        b0 = min(max(math.floor(u[finite].min()), 0), blocks_w - 1)
+        a0 = min(max(math.floor(v[finite].min()), 0), blocks_h - 1)
+        b1 = max(min(math.floor(u[finite].max()) + 2, blocks_w), b0 + 1)
+        a1 = max(min(math.floor(v[finite].max()) + 2, blocks_h), a0 + 1)
+        # Whole blocks of the reduction, aligned on the level's texel grid (texels past the
+        # level's edge read as transparent).
+        window = self.pyramid.read(
+            k, a0 * factor, b0 * factor, (a1 - a0) * factor, (b1 - b0) * factor
+        )
         if factor > 1:
             window = _box_reduce(window, factor)
-        # One transparent texel around the window: points past it fade to nothing.
+        # One transparent block around the window: points past it fade to nothing.
         window = np.pad(window, ((1, 1), (1, 1), (0, 0)))
         h, w = window.shape[:2]
-        u = (fc + 0.5) / factor - 0.5 - c0 / factor + 1.0
-        v = (fr + 0.5) / factor - 0.5 - r0 / factor + 1.0
+        u = u - b0 + 1.0
+        v = v - a0 + 1.0
         u = np.where(finite, np.clip(u, 0.0, w - 1.0), 0.0)
         v = np.where(finite, np.clip(v, 0.0, h - 1.0), 0.0)
         iu = np.minimum(u.astype(np.int64), w - 2)

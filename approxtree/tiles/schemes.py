@@ -102,17 +102,23 @@ class TileScheme:
         )
 
     def pixel_span(
-        self, z: int, x: int, y: int, size: int, box: tuple[float, float, float, float]
+        self,
+        z: int,
+        x: int,
+        y: int,
+        size: int,
+        box: tuple[float, float, float, float],
+        margin: int = 1,
     ) -> tuple[slice, slice]:
         """(rows, cols) slices of the pixels of tile (z, x, y) whose centres may lie in the
-        lon/lat ``box`` (west, south, east, north), one pixel of margin on each side."""
+        lon/lat ``box`` (west, south, east, north), ``margin`` pixels more on each side."""
         nx, ny = self.count(z)
         west, south, east, north = box
-        c0 = math.floor((west + 180.0) / 360.0 * nx * size - x * size) - 1
-        c1 = math.ceil((east + 180.0) / 360.0 * nx * size - x * size) + 1
+        c0 = math.floor((west + 180.0) / 360.0 * nx * size - x * size) - margin
+        c1 = math.ceil((east + 180.0) / 360.0 * nx * size - x * size) + margin
         top = y if self.north_first else ny - 1 - y
-        r0 = math.floor(float(self.fraction_of_latitude(north)) * ny * size - top * size) - 1
-        r1 = math.ceil(float(self.fraction_of_latitude(south)) * ny * size - top * size) + 1
+        r0 = math.floor(float(self.fraction_of_latitude(north)) * ny * size - top * size) - margin
+        r1 = math.ceil(float(self.fraction_of_latitude(south)) * ny * size - top * size) + margin
         clip = lambda a: min(max(a, 0), size)  # noqa: E731
         return slice(clip(r0), clip(r1)), slice(clip(c0), clip(c1))
 

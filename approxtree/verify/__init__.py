@@ -18,7 +18,8 @@ measures), whether every claim it makes holds:
   source, matches its tile checksums;
 - raster-dem and imagery tiles, folder or PMTiles (``verify.map_tiles``): every tile listed
   exists and decodes, each raster-dem height within its encoding's step of h_T at the pixel's
-  centre.
+  centre, each imagery pixel within its format's tolerance of the texture pyramid (given as
+  ``textures``) resampled at its centre.
 
 The result is a ``VerifyReport`` (``ok``, checks, worst offenders, figures, what was not
 checked). Bad input (a missing or unrecognised output, an unreadable source) raises an
@@ -78,7 +79,7 @@ def _pyramid(output: Path, terrain: Any, report: VerifyReport, options: dict) ->
 def _map_tiles(output: Path, terrain: Any, report: VerifyReport, options: dict) -> None:
     from approxtree.verify.map_tiles import verify_map_tiles
 
-    verify_map_tiles(output, terrain, report)
+    verify_map_tiles(output, terrain, report, options.get("textures"))
 
 
 #: Kind of output → the verification of that kind.
@@ -100,6 +101,7 @@ def verify(
     max_error: float | None = None,
     hillshade: bool = False,
     source_file: str | os.PathLike | None = None,
+    textures: str | os.PathLike | None = None,
     **reader_options: Any,
 ) -> VerifyReport:
     """Check the approxtree output ``output`` against its source terrain (module docstring).
@@ -109,7 +111,8 @@ def verify(
     checksums, structure). max_error: the error a mesh file claims when it records none.
     hillshade: a texture pyramid is a plain hillshade bake at gdaldem's defaults (level 0 is
     then compared with ``gdaldem hillshade`` of the source file). source_file: the file a
-    GeometryData ``source`` was read from (named in the report, given to gdaldem).
+    GeometryData ``source`` was read from (named in the report, given to gdaldem). textures:
+    the texture pyramid folder imagery tiles were cut from (their colours are checked).
     """
     from approxtree.errors import InvalidParameterError
 
@@ -130,6 +133,7 @@ def verify(
         "max_error": max_error,
         "hillshade": hillshade,
         "source_path": None if source_file is None else str(source_file),
+        "textures": None if textures is None else Path(textures),
     }
     VERIFIERS[kind](path, terrain, report, options)
     return report

@@ -17,7 +17,9 @@ Checks:
   triangle of data points under it (each cell cut by its diagonal from the north-west data
   point). Pixels outside the domain or over nodata are left out and counted.
 
-Imagery colours are not recomputed (the texture pyramid is checked on its own).
+- ``colours`` (imagery with its texture pyramid, ``--textures``): every pixel against the
+  pyramid resampled at the pixel's centre as the imagery tiles' specification says, within
+  ``COLOUR_TOLERANCE`` of the tile's format (``_Colours``).
 """
 
 from __future__ import annotations
@@ -38,6 +40,15 @@ from approxtree.verify.report import VerifyReport
 #: Decoding of each raster-dem encoding: h = (R·65536 + G·256 + B) / scale − offset.
 DECODING = {"terrarium": (256.0, 32768.0), "terrain-rgb": (10.0, 10000.0)}
 PMTILES_MAGIC = b"PMTiles"
+#: Spherical radius of Web Mercator and of the tiles' pixel sizes (m).
+EARTH_RADIUS = 6378137.0
+#: Image format → (mean over a tile, worst) difference of its premultiplied channels (0..255)
+#: from the pyramid resampled: rounding (the tile's 8 bits, the pyramid's halvings, here
+#: recomputed in float; measured worst 1.7) for PNG; the codec's loss besides for WEBP and
+#: JPEG at quality 90, whose worst is ringing at the texture's edge against transparency or
+#: black (measured 11 and 77, means below 0.2): for them the mean is the check, the worst
+#: only catches a gross error.
+COLOUR_TOLERANCE = {"png": (0.5, 3.0), "webp": (2.0, 96.0), "jpeg": (2.0, 128.0)}
 
 
 def read_tilejson(output: Path) -> dict[str, Any]:
@@ -97,8 +108,11 @@ class _Tiles:
             self._file.close()
 
 
-def verify_map_tiles(output: Path, terrain: Any, report: VerifyReport) -> None:
-    """Run the checks of the module docstring on a tile folder or archive."""
+def verify_map_tiles(
+    output: Path, terrain: Any, report: VerifyReport, textures: Path | None = None
+) -> None:
+    """Run the checks of the module docstring on a tile folder or archive; ``textures``: the
+    texture pyramid folder imagery tiles were cut from."""
     from PIL import Image
 
     doc = read_tilejson(output)
@@ -111,11 +125,13 @@ def verify_map_tiles(output: Path, terrain: Any, report: VerifyReport) -> None:
     check.items = len(addresses)
     report.figures["tiles"] = len(addresses)
     report.figures["tiling"] = meta.get("tiling")
-    measure = None
+    measure: _Heights | _Colours | None = None
     if kind == "raster-dem" and terrain is not None:
         measure = _Heights(terrain, meta, report)
+    elif kind == "imagery" and textures is not None:
+        measure = _Colours(Path(textures), meta, report)
     elif kind == "imagery":
-        report.not_checked.append("imagery colours (the texture pyramid is verified on its own)")
+        report.not_checked.append("imagery colours: give the texture pyramid (--textures)")
     try:
         report.figures["unlisted_tiles"] = tiles.unlisted(addresses)
         for z, x, y in addresses:
@@ -179,19 +195,6 @@ class _Heights:
         self.left_out = 0
         self.worst = 0.0
 
-    def _centres(self, z: int, x: int, y: int, size: int) -> tuple[np.ndarray, np.ndarray]:
-        """(lon, lat) degrees (size, size) of the pixel centres, row 0 north."""
-        t = (np.arange(size) + 0.5) / size
-        if self.tiling == "geographic":
-            n = 2**z
-            lon = -180.0 + 180.0 * (x + t) / n
-            lat = -90.0 + 180.0 * (y + 1 - t) / n
-        else:
-            n = 2**z
-            lon = -180.0 + 360.0 * (x + t) / n
-            lat = np.degrees(np.arctan(np.sinh(math.pi * (1.0 - 2.0 * (y + t) / n))))
-        return np.meshgrid(lon, lat)
-
     def _h_t(self, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
         """h_T at lon/lat points (NaN outside the domain or in a triangle touching nodata)."""
         px, py = _transformer("EPSG:4326", self.grid.crs).transform(lon, lat)
@@ -223,7 +226,7 @@ class _Heights:
         size = pixels.shape[0]
         rgb = pixels.astype(np.float64)
         decoded = (rgb[..., 0] * 65536 + rgb[..., 1] * 256 + rgb[..., 2]) / self.scale - self.offset
-        h = self._h_t(*self._centres(z, x, y, size))
+        h = self._h_t(*pixel_centres(self.tiling, z, x, y, size))
         known = np.isfinite(h)
         self.left_out += int(size * size - known.sum())
         if not known.any():
@@ -244,3 +247,201 @@ class _Heights:
         self.report.figures["pixels_left_out"] = self.left_out
         self.report.figures["worst_height_error"] = self.worst
         self.report.figures["step"] = self.step
+
+
+def pixel_centres(tiling: str, z: int, x: int, y: int, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """(lon, lat) degrees (size, size) of the pixel centres of tile (z, x, y), row 0 north:
+    the geographic tiling (2 × 1 tiles at zoom 0, rows from the south) or Web Mercator XYZ."""
+    t = (np.arange(size) + 0.5) / size
+    n = 2**z
+    if tiling == "geographic":
+        lon = -180.0 + 180.0 * (x + t) / n
+        lat = -90.0 + 180.0 * (y + 1 - t) / n
+    else:
+        lon = -180.0 + 360.0 * (x + t) / n
+        lat = np.degrees(np.arctan(np.sinh(math.pi * (1.0 - 2.0 * (y + t) / n))))
+    return np.meshgrid(lon, lat)
+
+
+class _Colours:
+    """Imagery tiles' pixels against the texture pyramid they were cut from, resampled here
+    as the imagery tiles' specification says (docs/guide/publish.md):
+
+    1. the level: the coarsest whose level-0-relative texel (geodesic ground length of a
+       level-0 texel at the pyramid's centre, × 2^k) is no larger than the tile's pixel
+       (2πR·cos(lat) / 2^z / size for Web Mercator at the tile's middle latitude, πR / 2^z /
+       size for the geographic tiling; R = 6378137 m), 0 when none is; where that level's
+       texels are still more than twice finer than the pixel, blocks of f × f texels (f a
+       power of two) are first averaged, alpha-weighted;
+    2. bilinear at the pixel's centre (taken into the pyramid's CRS by pyproj) between the
+       four texel centres around it, colours premultiplied by alpha, texels beyond the level
+       transparent.
+
+    Compared premultiplied (what a client composites; JPEG has the texture over black), per
+    channel 0..255, the tolerance ``tolerance(format)``: rounding of the tile's pixels and of
+    the pyramid's own halvings for PNG, the codec's loss for WEBP and JPEG (a mean and a
+    worst). A pixel size within 1 % of a level's boundary may have gone either way: the tile
+    passes if either level matches.
+    """
+
+    def __init__(self, textures: Path, meta: dict[str, Any], report: VerifyReport) -> None:
+        try:
+            doc = json.loads((textures / "pyramid.json").read_text())
+            self.levels = list(doc["levels"])
+            self.bands = int(doc["bands"])
+            self.crs = doc["crs"]
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise StoreError(f"{textures}: not a readable texture pyramid ({exc}).") from exc
+        if not self.crs:
+            raise StoreError(f"{textures}: the texture pyramid has no CRS to place it with.")
+        self.folder = textures
+        self.tiling = meta.get("tiling", "webmercator")
+        self.format = meta.get("format", "png")
+        self.mean_limit, self.worst_limit = COLOUR_TOLERANCE[self.format]
+        t = self.levels[0]["transform"]
+        cx = t[2] + t[0] * int(self.levels[0]["width"]) / 2
+        cy = t[5] + t[4] * int(self.levels[0]["height"]) / 2
+        self.texel_metres = _texel_metres(self.crs, cx, cy, t[0], t[4])
+        self.report = report
+        self.check = report.check(
+            "colours",
+            f"every pixel, premultiplied, within {self.worst_limit} (mean within "
+            f"{self.mean_limit}) of the pyramid resampled at its centre",
+        )
+        self.measured = 0
+        self.worst = 0.0
+        self.mean_sum = 0.0
+        self._files: dict[int, Any] = {}
+
+    def _choices(self, z: int, y: int, size: int) -> list[tuple[int, int]]:
+        """(level, block factor) the tile may sample: the rule's, and its neighbour when the
+        pixel size lies within 1 % of a boundary."""
+        n = 2**z
+        if self.tiling == "geographic":
+            pixel = math.pi * EARTH_RADIUS / n / size
+        else:
+            north = math.atan(math.sinh(math.pi * (1 - 2 * y / n)))
+            south = math.atan(math.sinh(math.pi * (1 - 2 * (y + 1) / n)))
+            pixel = 2 * math.pi * EARTH_RADIUS * math.cos((north + south) / 2) / n / size
+        out = []
+        log = math.log2(pixel / self.texel_metres)
+        for shift in (0.0, -0.01, 0.01):
+            ratio = 2 ** (log + shift)
+            k = min(max(math.floor(math.log2(ratio)), 0), len(self.levels) - 1) if ratio >= 1 else 0
+            rest = ratio / 2**k
+            choice = (k, 2 ** math.floor(math.log2(rest)) if rest >= 2 else 1)
+            if choice not in out:
+                out.append(choice)
+        return out
+
+    def _level(self, k: int):
+        if k not in self._files:
+            import rasterio
+
+            self._files[k] = rasterio.open(self.folder / self.levels[k]["file"])
+        return self._files[k]
+
+    def expected(self, k: int, factor: int, px: np.ndarray, py: np.ndarray) -> np.ndarray:
+        """(r, c, 4) float64 premultiplied RGBA of level k (blocks of ``factor``) bilinear at
+        the CRS points (r, c) (the class docstring)."""
+        from rasterio.windows import Window
+
+        t = self.levels[k]["transform"]
+        width, height = int(self.levels[k]["width"]), int(self.levels[k]["height"])
+        # Texel coordinates of the (block-averaged) level, texel centres at integers.
+        u = ((px - t[2]) / t[0]) / factor - 0.5
+        v = ((py - t[5]) / t[4]) / factor - 0.5
+        out = np.zeros((*px.shape, 4))
+        ok = np.isfinite(u) & np.isfinite(v)
+        if not ok.any():
+            return out
+        bw, bh = -(-width // factor), -(-height // factor)
+        c0 = int(np.clip(np.floor(u[ok].min()), 0, bw - 1))
+        c1 = int(np.clip(np.floor(u[ok].max()) + 2, 1, bw))
+        r0 = int(np.clip(np.floor(v[ok].min()), 0, bh - 1))
+        r1 = int(np.clip(np.floor(v[ok].max()) + 2, 1, bh))
+        ds = self._level(k)
+        raw = ds.read(
+            window=Window(c0 * factor, r0 * factor, (c1 - c0) * factor, (r1 - r0) * factor),
+            boundless=True,
+            fill_value=0,
+        ).astype(np.float64)
+        rgba = _as_rgba(raw)
+        # Premultiplied; f × f blocks averaged (the alpha-weighted mean, premultiplied).
+        rgba[:3] *= rgba[3] / 255.0
+        if factor > 1:
+            b, h, w = rgba.shape
+            rgba = rgba.reshape(b, h // factor, factor, w // factor, factor).mean(axis=(2, 4))
+        # One transparent texel around: beyond the level, colours fade to nothing.
+        rgba = np.pad(rgba, ((0, 0), (1, 1), (1, 1)))
+        uu = u - c0 + 1.0
+        vv = v - r0 + 1.0
+        inside = ok & (uu >= 0) & (vv >= 0) & (uu <= rgba.shape[2] - 1) & (vv <= rgba.shape[1] - 1)
+        uu = np.where(inside, uu, 0.0)
+        vv = np.where(inside, vv, 0.0)
+        iu = np.minimum(np.floor(uu).astype(np.int64), rgba.shape[2] - 2)
+        iv = np.minimum(np.floor(vv).astype(np.int64), rgba.shape[1] - 2)
+        du, dv = uu - iu, vv - iv
+        for dr, dc, weight in ((0, 0, (1 - dv) * (1 - du)), (0, 1, (1 - dv) * du),
+                               (1, 0, dv * (1 - du)), (1, 1, dv * du)):  # fmt: skip
+            out += np.moveaxis(rgba[:, iv + dr, iu + dc], 0, -1) * weight[..., None]
+        out[~inside] = 0.0
+        return out
+
+    def tile(self, address: str, z: int, x: int, y: int, pixels: np.ndarray) -> None:
+        size = pixels.shape[0]
+        bands = pixels[None] if pixels.ndim == 2 else np.moveaxis(pixels, -1, 0)
+        got = np.moveaxis(_as_rgba(bands.astype(np.float64)), 0, -1)
+        got[..., :3] *= got[..., 3:] / 255.0
+        lon, lat = pixel_centres(self.tiling, z, x, y, size)
+        px, py = _transformer("EPSG:4326", self.crs).transform(lon, lat)
+        px, py = np.asarray(px), np.asarray(py)
+        # The smallest (worst, mean) difference over the levels the tile may sample.
+        found = []
+        for k, factor in self._choices(z, y, size):
+            want = self.expected(k, factor, px, py)
+            if self.format == "jpeg":
+                # No alpha in JPEG: the premultiplied colour is the texture over black.
+                want[..., 3] = got[..., 3]
+            diff = np.abs(got - want)
+            found.append((float(diff.max()), float(diff.mean()), k, diff))
+        worst, mean, _, diff = min(found, key=lambda f: f[:3])
+        self.check.items += 1
+        self.measured += size * size
+        self.worst = max(self.worst, worst)
+        self.mean_sum += mean * size * size
+        if worst > self.worst_limit or mean > self.mean_limit:
+            r, c, b = np.unravel_index(int(np.argmax(diff)), diff.shape)
+            where = f"tile {address} pixel ({r}, {c}) channel {'RGBA'[b]}"
+            self.check.fail(where, self.worst_limit, round(worst, 3), round(mean, 3))
+
+    def finish(self) -> None:
+        for ds in self._files.values():
+            ds.close()
+        self.report.figures["pixels_measured"] = self.measured
+        self.report.figures["worst_colour_difference"] = self.worst
+        self.report.figures["mean_colour_difference"] = self.mean_sum / max(self.measured, 1)
+
+
+def _as_rgba(bands: np.ndarray) -> np.ndarray:
+    """(4, h, w) RGBA of (b, h, w) grey (1), grey + alpha (2), RGB (3) or RGBA (4) bands."""
+    b = bands.shape[0]
+    grey = bands[0]
+    if b == 1:
+        return np.stack([grey, grey, grey, np.full_like(grey, 255.0)])
+    if b == 2:
+        return np.stack([grey, grey, grey, bands[1]])
+    if b == 3:
+        return np.concatenate([bands, np.full_like(grey, 255.0)[None]])
+    return bands[:4].copy()
+
+
+def _texel_metres(crs: str, x: float, y: float, dx: float, dy: float) -> float:
+    """Geodesic ground length (WGS84) of the shorter side of a texel (dx, dy) at (x, y)."""
+    from pyproj import Geod
+
+    lon, lat = _transformer(crs, "EPSG:4326").transform(
+        np.array([x, x + dx, x]), np.array([y, y, y + dy])
+    )
+    _, _, d = Geod(ellps="WGS84").inv(lon[[0, 0]], lat[[0, 0]], lon[[1, 2]], lat[[1, 2]])
+    return float(np.min(d))

@@ -10,6 +10,7 @@ URLs (``ROUTES``); every tile route answers GET and HEAD:
     /imagery/{layer}/webmercator/tilejson.json, .../webmercator/{z}/{x}/{y}.{ext} (XYZ)
     /terrarium/tilejson.json, /terrarium/{z}/{x}/{y}.{png|webp}
     /terrain-rgb/tilejson.json, /terrain-rgb/{z}/{x}/{y}.{png|webp}
+        (the imagery and raster-dem sets of PMTiles archives at the same URLs: ``archives``)
     /viewer/..., /cesium/...                    examples/web and CesiumJS's build, when present
 
 HTTP: a strong ETag per entity (``cache.Entry``), If-None-Match → 304; gzip to clients that
@@ -176,6 +177,7 @@ class TileApp:
             "status": "ok",
             "store": self.service.store,
             "layers": self.service.layers,
+            "archives": self.service.archive_urls,
             "cache": self.cache.stats(),
         }
         return Response(
@@ -245,23 +247,25 @@ class _Preflight:
 
 
 def create_app(
-    store: str,
+    store: str | None,
     textures: str | None = None,
     cache_bytes: int = 256 << 20,
     workers: int = 2,
     max_pending: int = 256,
+    archives: list[str] | None = None,
 ) -> Any:
     """The ASGI app serving the tiles of the tree store ``store`` (module docstring).
 
     textures: a texture pyramid folder or a folder of them (imagery layers); cache_bytes: the
     tile cache's bound; workers: threads making tiles; max_pending: tiles made or queued at
-    once before requests get 503.
+    once before requests get 503; archives: PMTiles files whose tiles are served as stored
+    (``serve/archives.py``); ``store`` may be None when they are given.
     """
     if not (isinstance(cache_bytes, int) and cache_bytes > 0):
         raise InvalidParameterError(f"cache_bytes must be an int > 0, got {cache_bytes!r}.")
     if not (isinstance(workers, int) and workers >= 1):
         raise InvalidParameterError(f"workers must be an int >= 1, got {workers!r}.")
-    service = TileService(store, textures)
+    service = TileService(store, textures, archives)
     executor = ThreadPoolExecutor(workers, thread_name_prefix="approxtree-tiles")
     cache = TileCache(cache_bytes, executor, max_pending)
     tiles = TileApp(service, cache, workers)
@@ -271,6 +275,7 @@ def create_app(
         yield
         # Shutdown: tiles not started are dropped, running ones finish on their threads.
         executor.shutdown(wait=False, cancel_futures=True)
+        service.close()
 
     async def http_error(request: Request, exc: Exception) -> Response:
         # Unknown paths (404) and methods (405) as JSON errors too.

@@ -53,7 +53,7 @@ def bind(host: str, port: int) -> socket.socket:
 
 
 def serve(
-    store: str,
+    store: str | None,
     textures: str | None = None,
     host: str = "127.0.0.1",
     port: int = 8000,
@@ -61,13 +61,14 @@ def serve(
     workers: int = 2,
     max_pending: int = 256,
     on_ready: Callable[[str], None] | None = None,
+    archives: list[str] | None = None,
 ) -> None:
     """Serve the tiles of ``store`` at http://host:port/ until SIGTERM or Ctrl-C (see
     ``app.create_app`` for the other arguments); ``on_ready(url)`` once it listens."""
     import uvicorn
 
     limit_malloc_arenas()
-    app = create_app(store, textures, cache_bytes, workers, max_pending)
+    app = create_app(store, textures, cache_bytes, workers, max_pending, archives)
     sock = bind(host, port)
     bound = sock.getsockname()[1]
     shown = f"[{host}]" if ":" in host else host

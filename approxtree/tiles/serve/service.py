@@ -7,12 +7,15 @@ so that a served tile equals the written file byte for byte:
 - 3D Tiles: ``tileset3d.tile_maker`` (``encode(node)`` per GLB; tileset.json from every node's
   content, ``tileset3d.tileset_document``: the first request walks the whole tree);
 - quantized-mesh: ``quantized_mesh.terrain_job`` + ``make_tile``, the store's ε as leaf error;
-- imagery: ``imagery.ImageryTiles`` per layer and tiling; raster-dem: ``raster_dem.DemTiles``.
+- imagery: ``imagery.ImageryTiles`` per layer and tiling; raster-dem: ``raster_dem.DemTiles``;
+- PMTiles archives (``archives``): their imagery or raster-dem tiles read as stored, at the
+  URLs of the same tiles made from a store (an archive's set wins over the store's).
 
 Each kind is opened on first use (a store without a CRS still serves 3D Tiles); a kind that
 cannot be served, or an address outside its tiles, raises ``NotServed`` (HTTP 404) with the
 reason. Layers: ``--textures DIR`` is one pyramid (a layer named after DIR) or a folder of
-pyramid folders (one layer each, by name); 3D Tiles embed the first layer's texture.
+pyramid folders (one layer each, by name); 3D Tiles embed the first layer's texture. Without
+a store (archives only) the store's kinds raise NotServed.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from typing import Any
 from approxtree.errors import ApproxTreeError, StoreError
 from approxtree.tiles.map_tiles import EXTENSIONS, MIME_TYPES, tile_plan, tilejson
 from approxtree.tiles.quantized_mesh import layer_json, make_tile, terrain_job
+from approxtree.tiles.serve.archives import Archive, Route, open_archives, url_prefix
 from approxtree.tiles.serve.cache import Entry, TileCache
 from approxtree.tiles.tileset3d import tile_maker, tile_uri, tileset_document
 from approxtree.tiles.web_maps import open_map_tiles, open_pyramid
@@ -70,19 +74,42 @@ def find_layers(textures: str | None) -> dict[str, Path]:
 
 
 class TileService:
-    """The tiles of one tree store (module docstring). ``cache``: where the tiles a
-    tileset.json walk makes are kept too."""
+    """The tiles of one tree store and of PMTiles archives (module docstring); ``store`` None
+    for archives only. ``cache``: where the tiles a tileset.json walk makes are kept too."""
 
-    def __init__(self, store: str, textures: str | None = None) -> None:
+    def __init__(
+        self, store: str | None, textures: str | None = None, archives: list[str] | None = None
+    ) -> None:
         from approxtree.tree.store import open_store
 
+        if store is None and not archives:
+            raise StoreError("Nothing to serve: give a tree store, PMTiles archives or both.")
         self.store = store
-        self.name = Path(str(store).rstrip("/")).name
+        self.name = Path(str(store).rstrip("/")).name if store is not None else "archives"
         #: The store's terrain (its heights read by windows as tiles ask for them).
-        self.terrain = open_store(store).terrain()
+        self.terrain = open_store(store).terrain() if store is not None else None
         self.layer_folders = find_layers(textures)
+        self.archives: dict[Route, Archive] = open_archives(list(archives or []))
+        clash = [r.layer for r in self.archives if r.layer in self.layer_folders]
+        if clash:
+            self.close()
+            raise StoreError(
+                f"Imagery layer {clash[0]!r} is both a texture pyramid and an archive; rename "
+                "one of them."
+            )
         self._lock = threading.RLock()
         self._opened: dict[Any, Any] = {}
+
+    def close(self) -> None:
+        """Release the archives' files."""
+        for archive in self.archives.values():
+            archive.close()
+
+    def _need_store(self, what: str) -> str:
+        """The store's path; NotServed when the server has none."""
+        if self.store is None:
+            raise NotServed(f"No {what}: the server was started with PMTiles archives only.")
+        return self.store
 
     def _open(self, key: Any, opener: Any) -> Any:
         """The object ``opener()`` makes, once per key (threads share it); an ApproxTreeError
@@ -107,7 +134,7 @@ class TileService:
         def opener():
             from approxtree.tree import load_tree
 
-            tree = load_tree(self.store, verify=False)
+            tree = load_tree(self._need_store("3D Tiles"), verify=False)
             first = next(iter(self.layer_folders.values()), None)
             writer, frame = tile_maker(tree, textures=first)
             return tree, writer, frame
@@ -156,7 +183,7 @@ class TileService:
             from approxtree.tiles.quantized_mesh import DEFAULT_LEAF_ERROR
             from approxtree.tree.loading import tree_epsilon
 
-            leaf = tree_epsilon(self.store) or DEFAULT_LEAF_ERROR
+            leaf = tree_epsilon(self._need_store("quantized-mesh terrain")) or DEFAULT_LEAF_ERROR
             job, plan = terrain_job(self.terrain, leaf_error=leaf)
             return job, {z: set(tiles) for z, tiles in plan.items()}, plan
 
@@ -180,6 +207,8 @@ class TileService:
         """(source, {zoom: set of (x, y)}) of a map tile set."""
 
         def opener():
+            if kind != "imagery":
+                self._need_store(f"{kind} tiles")
             if kind == "imagery":
                 if layer not in self.layer_folders:
                     names = ", ".join(self.layer_folders) or "none: start with --textures DIR"
@@ -197,6 +226,9 @@ class TileService:
         self, kind: str, layer: str | None, scheme: str, z: int, x: int, y: int, ext: str
     ) -> Entry:
         """An imagery or raster-dem tile; ``ext`` picks the image format (png, webp, jpg)."""
+        archive = self.archives.get(Route(kind, layer, scheme))
+        if archive is not None:
+            return self._archive_tile(archive, z, x, y, ext)
         fmt = {v: k for k, v in EXTENSIONS.items()}.get(ext)
         if fmt is None or (kind != "imagery" and fmt == "jpeg"):
             raise NotServed(f"No {kind} tiles as .{ext}.")
@@ -205,13 +237,33 @@ class TileService:
             raise NotServed(f"The {kind} set has no tile {z}/{x}/{y} (see its tilejson.json).")
         return Entry.made(MIME_TYPES[fmt], source.tile(z, x, y))
 
+    @staticmethod
+    def _archive_tile(archive: Archive, z: int, x: int, y: int, ext: str) -> Entry:
+        """A tile of an archive, as stored (its format is the archive's one)."""
+        if ext != archive.extension:
+            raise NotServed(f"{archive.path.name} holds .{archive.extension} tiles, not .{ext}.")
+        data = archive.tile(z, x, y)
+        if data is None:
+            raise NotServed(f"{archive.path.name} has no tile {z}/{x}/{y}.")
+        return Entry.made(archive.media_type, data, gzipped=archive.gzipped)
+
     def map_tilejson(self, kind: str, layer: str | None, scheme: str, base: str) -> bytes:
         """The TileJSON of a tile set, its ``tiles`` the absolute URL template under ``base``."""
+        archive = self.archives.get(Route(kind, layer, scheme))
+        if archive is not None:
+            doc = dict(archive.tilejson)
+            doc["tiles"] = [base + "{z}/{x}/{y}." + archive.extension]
+            return json.dumps(doc, indent=1).encode()
         source, available = self._map_source(kind, layer, scheme, "png")
         plan = {z: sorted(t) for z, t in available.items()}
         doc = tilejson(source, layer or kind, plan)
         doc["tiles"] = [base + doc["tiles"][0]]
         return json.dumps(doc, indent=1).encode()
+
+    @property
+    def archive_urls(self) -> dict[str, str]:
+        """Archive file name → the URL folder of its tiles."""
+        return {a.path.name: url_prefix(route) for route, a in self.archives.items()}
 
     @property
     def layers(self) -> list[str]:
