@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import data_file
 
 from approxtree.datasets import fractal_terrain
 from approxtree.errors import InvalidParameterError
@@ -13,7 +14,6 @@ from approxtree.io import read_grid
 from approxtree.tree import update as update_module
 from approxtree.tree import update_cells
 from approxtree.tree.approximation_tree import ApproximationTree
-from tests.conftest import data_file
 
 
 def cell_rect(grid: Grid, r0: int, c0: int, rows: int, cols: int) -> Rect:

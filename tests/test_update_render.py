@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 from scipy.ndimage import binary_erosion
+from test_update import cell_rect
 
 from approxtree import ApproximationTree
 from approxtree.datasets import fractal_terrain
@@ -14,7 +15,6 @@ from approxtree.geometry.grid import Grid
 from approxtree.render import Camera, Cut, Engine
 from approxtree.render.cache_keys import NODE, MeshKey
 from approxtree.render.context import create_context
-from tests.test_update import cell_rect
 
 PARAMS = {"epsilon": 0.5, "max_points": 17 * 17}
 SIZE = (360, 360)

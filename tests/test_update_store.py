@@ -14,12 +14,12 @@ import pytest
 import rasterio
 from affine import Affine
 from click.testing import CliRunner
+from conftest import data_file
 
 from approxtree.cli import main
 from approxtree.geometry.grid import Grid
 from approxtree.io import read_grid
 from approxtree.tree.approximation_tree import ApproximationTree
-from tests.conftest import data_file
 
 PARAMS = {"epsilon": 1.0, "max_points": 17 * 17}
 
