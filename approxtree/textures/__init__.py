@@ -18,6 +18,7 @@ from approxtree.textures.blend import BLEND_MODES, MultiTexture, blend
 _NAMES = {
     "TextureData": "base",
     "GLTopographicShading": "gl_bake",
+    "ImageTexture": "image",
     "PALETTES": "palettes",
     "Palette": "palettes",
     "get_palette": "palettes",
@@ -40,6 +41,7 @@ _NAMES = {
 if TYPE_CHECKING:
     from approxtree.textures.base import TextureData
     from approxtree.textures.gl_bake import GLTopographicShading
+    from approxtree.textures.image import ImageTexture
     from approxtree.textures.palettes import PALETTES, Palette, get_palette
     from approxtree.textures.patch import TexturePatch
     from approxtree.textures.pyramid import PyramidLevel, TexturePyramid
@@ -82,6 +84,7 @@ __all__ = [
     "ColourReliefFile",
     "GLTopographicShading",
     "GouraudShading",
+    "ImageTexture",
     "MultiTexture",
     "Palette",
     "PhongShading",
