@@ -296,3 +296,44 @@ def test_image_texture_api_errors(nc, rgba_4326):
         ImageTexture(rgba_4326, transform, shape, crs, resampling="sharpest")
     with pytest.raises(TerrainFormatError, match="does not exist"):
         ImageTexture(rgba_4326.with_name("none.tif"), transform, shape, crs)
+
+
+def _verify(pyramid: Path, image: Path, *extra: str) -> tuple[int, dict]:
+    """Exit code and JSON report of ``approxtree verify PYRAMID --image IMAGE``."""
+    import json
+
+    res = CliRunner().invoke(
+        cli_main, ["verify", str(pyramid), "--image", str(image), *extra, "--json"]
+    )
+    assert res.exit_code in (0, 1), res.output
+    return res.exit_code, json.loads(res.output)
+
+
+def test_verify_checks_every_level_against_the_image(nc, rgba_4326, tmp_path):
+    """verify --image passes a 4-level image pyramid (reprojected RGBA and paletted) with
+    every level within 1 of the box-filtered reprojection, and fails one baked from an image
+    with a patch repainted, naming the levels."""
+    terrain = at.open_terrain(nc["dem"])
+    bake(terrain, tmp_path / "rgba", shading=None, images=[rgba_4326], texel_size=5.0,
+         max_texture_size=512)  # fmt: skip
+    code, report = _verify(tmp_path / "rgba", rgba_4326)
+    checks = {c["name"]: c for c in report["checks"]}
+    assert code == 0 and checks["image"]["ok"], report
+    assert len(report["figures"]["image_max_difference"]) == 4
+    assert max(report["figures"]["image_max_difference"]) <= 1
+    bake(terrain, tmp_path / "palette", shading=None, images=[nc["landuse"]],
+         max_texture_size=512)  # fmt: skip
+    code, report = _verify(tmp_path / "palette", nc["landuse"])
+    assert code == 0, report
+    # The same pyramid against an image with a 100 × 100 pixel patch repainted magenta.
+    with rasterio.open(rgba_4326) as ds:
+        planes, profile = ds.read(), ds.profile
+    planes[:3, 500:600, 500:600] = np.array([255, 0, 255], dtype=np.uint8)[:, None, None]
+    other = tmp_path / "repainted.tif"
+    with rasterio.open(other, "w", **profile) as ds:
+        ds.write(planes)
+    code, report = _verify(tmp_path / "rgba", other)
+    checks = {c["name"]: c for c in report["checks"]}
+    assert code == 1 and not checks["image"]["ok"]
+    failed = {o["address"].split(" texel")[0] for o in checks["image"]["offenders"]}
+    assert {"level 0", "level 3"} <= failed, failed

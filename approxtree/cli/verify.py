@@ -62,6 +62,19 @@ def _print(report) -> None:
     help="Texture pyramids: the bake is a plain hillshade at gdaldem's defaults; level 0 is "
     "compared with `gdaldem hillshade` of the source.",
 )
+@click.option(
+    "--image",
+    type=click.Path(exists=True, dir_okay=False),
+    help="Texture pyramids: the image of a `bake --shading none --image FILE`; every level "
+    "is compared with its box-filtered reprojection (within 1 per channel).",
+)
+@click.option(
+    "--resampling",
+    type=click.Choice(["nearest", "bilinear", "cubic", "cubicspline", "lanczos", "average"]),
+    default="bilinear",
+    show_default=True,
+    help="The --resampling the image was baked with.",
+)
 @reader_options
 @json_option
 @_reports_errors
@@ -70,6 +83,8 @@ def verify(
     source: str | None,
     max_error: float | None,
     hillshade: bool,
+    image: str | None,
+    resampling: str,
     encoding,
     nodata_policy,
     ground_only,
@@ -85,7 +100,13 @@ def verify(
     if source is not None:
         terrain = common._open(source, encoding, nodata_policy, ground_only, height_scale)
     report = run_verify(
-        output, terrain, max_error=max_error, hillshade=hillshade, source_file=source
+        output,
+        terrain,
+        max_error=max_error,
+        hillshade=hillshade,
+        source_file=source,
+        image=image,
+        resampling=resampling,
     )
     if as_json:
         click.echo(json.dumps(report.to_dict()))
