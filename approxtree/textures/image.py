@@ -4,8 +4,9 @@ The image (anything GDAL reads: GeoTIFF/COG, JPEG or PNG with a world file, a VR
 warped by GDAL onto the texture lattice one strip of the lattice at a time
 (``rasterio.warp.reproject`` of the strip's window, ``band_strips``): GDAL reads only the
 source blocks under that strip, so an image larger than memory bakes with the memory of a
-strip. The warp's resampling scale is fixed once for the whole lattice (``_scale``), so the
-texels do not depend on where the strips are cut, and equal gdalwarp's within 1 level.
+strip (and ``CACHE_MB`` of GDAL's block cache). The warp's resampling scale is fixed once
+for the whole lattice (``_scale``), so the texels do not depend on where the strips are cut,
+and equal gdalwarp's within 1 level.
 
 Transparency: an alpha band is warped as alpha; otherwise a declared nodata value or a
 per-dataset mask (an internal or ``.msk`` mask) marks the texels GDAL leaves out, and the
@@ -28,6 +29,10 @@ from approxtree.geometry.rect import Rect
 from approxtree.io._common import reading
 from approxtree.io.gdal import no_side_files
 from approxtree.textures.base import TextureData
+
+#: GDAL's block cache while an image is warped (MB): a strip's source blocks are read once,
+#: so a larger cache only grows with the image (GDAL's default is 5 % of the RAM).
+CACHE_MB = 128
 
 #: Resampling names (gdalwarp's ``-r`` spellings) → rasterio's Resampling member names.
 RESAMPLINGS = {
@@ -153,7 +158,12 @@ class ImageTexture(TextureData):
         layout = self._layout
         method = Resampling.nearest if layout.kind == "palette" else self._method
         bands = len(layout.colour) + 1
-        with reading(self.path, "an image"), no_side_files(), rasterio.open(self.path) as ds:
+        with (
+            reading(self.path, "an image"),
+            no_side_files(),
+            rasterio.Env(GDAL_CACHEMAX=CACHE_MB),
+            rasterio.open(self.path) as ds,
+        ):
             options = {
                 "src_crs": self.source_crs,
                 "dst_crs": self.crs or self.source_crs,
