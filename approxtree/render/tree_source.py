@@ -43,6 +43,7 @@ from approxtree.render.texture_binding import TextureBinding, as_pyramid
 from approxtree.render.texture_sharing import texture_nodes
 from approxtree.render.traversal import Paging, plan_frame
 from approxtree.render.visual_error import texel_sizes
+from approxtree.textures.detail import DetailTextures
 from approxtree.textures.patch import patch_texel_sizes
 
 
@@ -146,8 +147,16 @@ class ApproximationTreeSource:
         if pyramid is None:
             self.binding, self.texels = None, self.data_texels
             return
-        self.binding = TextureBinding(pyramid, self.tree.origin, self._rect_of)
-        self.texels = patch_texel_sizes(pyramid, np.asarray(self.tree.rects, dtype=np.float64))
+        rects = np.asarray(self.tree.rects, dtype=np.float64)
+        self.binding = TextureBinding(pyramid, self.tree.origin, self._rect_of, self._level_of)
+        if isinstance(pyramid, DetailTextures):
+            # γ_N from the patch of the pyramid each node uses.
+            texels = patch_texel_sizes(pyramid.base, rects)
+            detail = pyramid.uses_detail(self.tree.levels, rects)
+            texels[detail] = patch_texel_sizes(pyramid.detail, rects[detail])
+            self.texels = texels
+        else:
+            self.texels = patch_texel_sizes(pyramid, rects)
 
     def set_skirts(self, skirts: bool) -> bool:
         """Hang skirts or not; True when that changes the meshes (the cached ones dropped)."""
@@ -238,6 +247,12 @@ class ApproximationTreeSource:
         if self.binding is not None:
             plan.groups = self.binding.groups(plan.meshes, owners)
             plan.texture_nodes, plan.texture_gammas = nodes, gammas
+
+    def _level_of(self, owner: MeshKey) -> int:
+        """The tree level of ``owner``: a node's; a full-resolution chunk is below every leaf."""
+        if owner.kind == CHUNK:
+            return int(self.tree.levels.max()) + 1
+        return int(self.tree.levels[owner.item])
 
     def _rect_of(self, owner: MeshKey) -> Rect:
         """The rectangle the texture patch of ``owner`` covers: a node's domain, a chunk's."""
