@@ -178,9 +178,9 @@ def test_rgb_nodata_and_grey_images(nc, tmp_path):
 
 
 def test_layers_stack_in_order(nc, rgba_4326, tmp_path):
-    """Images, thematic layer, shading and overlays stack in that order: the thematic layer
-    covers the image where it is valid, the shading blends with both ("shade" mode), and the
-    streamed blend equals the whole-array one."""
+    """Images, thematic layer and shading stack in that order (the layers bake reports): the
+    thematic layer covers the image where it is valid, the shading blends with both, and the
+    streamed blend of an image and a shading equals the whole-array one."""
     terrain = at.open_terrain(nc["dem"])
     transform, shape, crs = _dem_lattice(nc["dem"])
     image = ImageTexture(rgba_4326, transform, shape, crs)

@@ -18,6 +18,7 @@ from approxtree.textures.blend import BLEND_MODES, MultiTexture, blend
 _NAMES = {
     "TextureData": "base",
     "GLTopographicShading": "gl_bake",
+    "DetailTextures": "detail",
     "ImageTexture": "image",
     "PALETTES": "palettes",
     "Palette": "palettes",
@@ -40,6 +41,7 @@ _NAMES = {
 
 if TYPE_CHECKING:
     from approxtree.textures.base import TextureData
+    from approxtree.textures.detail import DetailTextures
     from approxtree.textures.gl_bake import GLTopographicShading
     from approxtree.textures.image import ImageTexture
     from approxtree.textures.palettes import PALETTES, Palette, get_palette
@@ -82,6 +84,7 @@ __all__ = [
     "ClassTable",
     "ColourRamp",
     "ColourReliefFile",
+    "DetailTextures",
     "GLTopographicShading",
     "GouraudShading",
     "ImageTexture",
