@@ -4,7 +4,7 @@ For each --sizes N: an N × N RGB COG in EPSG:4326 over the NC DEM (ZSTD: lossle
 GDAL of the gdalwarp command and rasterio's decode JPEG differently, by up to 9 levels) is
 generated block by block (a tiled GeoTIFF written 512² at a time, then GDAL's COG driver,
 which streams),
-then, each a fresh process timed with its own peak RSS (``os.wait4``):
+then, each a fresh process timed with its own peak RSS (GNU time's %M):
 
 - ours: ``approxtree bake elev_ned_30m.tif --image IMG --shading none`` (the texel: the
   image's cell in the DEM's CRS), the whole pyramid (level 0 and its halvings, ZSTD tiles,
@@ -99,17 +99,20 @@ def make_image(path: Path, size: int) -> dict:
 
 
 def timed(cmd: list[str]) -> dict:
-    """Run ``cmd`` in a fresh process: its seconds and peak RSS (MB)."""
-    t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(proc.pid, 0)
-    seconds = time.perf_counter() - t0
-    out, err = proc.stdout.read(), proc.stderr.read()
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    if proc.returncode:
-        raise RuntimeError(f"{cmd[:3]} failed ({proc.returncode}): {err.decode()[-2000:]}")
-    return {"seconds": round(seconds, 2), "peak_rss_mb": round(usage.ru_maxrss / 1024, 1),
-            "stdout": out.decode()}  # fmt: skip
+    """Run ``cmd`` in a fresh process: its seconds and peak RSS (MB, GNU time's %M). Not
+    ``os.wait4`` of a child of this process: Linux carries the forked parent's peak RSS (this
+    one's, after generating the image) into the child's across exec."""
+    with tempfile.NamedTemporaryFile(suffix=".rss") as rss:
+        t0 = time.perf_counter()
+        run = subprocess.run(
+            ["/usr/bin/time", "-f", "%M", "-o", rss.name, *cmd], capture_output=True, text=True
+        )
+        seconds = time.perf_counter() - t0
+        if run.returncode:
+            raise RuntimeError(f"{cmd[:3]} failed ({run.returncode}): {run.stderr[-2000:]}")
+        peak_kb = int(Path(rss.name).read_text().split()[-1])
+    return {"seconds": round(seconds, 2), "peak_rss_mb": round(peak_kb / 1024, 1),
+            "stdout": run.stdout}  # fmt: skip
 
 
 def compare(pyramid: Path, warped: Path, windows: int = 16) -> list[int]:
