@@ -44,6 +44,21 @@ def _takes_windowed(path: str, encoding: str | None) -> bool:
 )
 @click.option("--combined", is_flag=True, help="Topographic: gdaldem -combined.")
 @click.option("--multidirectional", is_flag=True, help="Topographic: gdaldem -multidirectional.")
+@click.option(
+    "--image",
+    "images",
+    multiple=True,
+    type=click.Path(exists=True, dir_okay=False),
+    help="Image draped (RGB, RGBA, grey or paletted raster in any CRS; repeatable, the first "
+    "at the bottom).",
+)
+@click.option(
+    "--resampling",
+    type=click.Choice(["nearest", "bilinear", "cubic", "cubicspline", "lanczos", "average"]),
+    default="bilinear",
+    show_default=True,
+    help="How --image rasters are warped onto the texture (gdalwarp -r).",
+)
 @click.option("--thematic", type=click.Path(exists=True, dir_okay=False), help="Thematic raster.")
 @click.option(
     "--palette",
@@ -83,7 +98,8 @@ def _takes_windowed(path: str, encoding: str | None) -> bool:
     type=click.Choice(["shade", "multiply", "overlay", "soft-light", "over"]),
     default="shade",
     show_default=True,
-    help="How shading combines with the thematic layer (shade: legend colour on flat ground).",
+    help="How shading combines with the images and thematic layer (shade: their colour on flat "
+    "ground).",
 )
 @click.option("--texel", type=float, default=None, help="Texel size in world units.")
 @click.option(
@@ -113,6 +129,8 @@ def bake_command(
     alg: str | None,
     combined: bool,
     multidirectional: bool,
+    images: tuple[str, ...],
+    resampling: str,
     thematic: str | None,
     palette: str | None,
     lines: tuple[str, ...],
@@ -135,6 +153,9 @@ def bake_command(
 
     A point cloud or TIN is shaded from its heights sampled on a lattice (--texel, default its
     mean point spacing).
+
+    --image rasters are warped onto the texture by GDAL strip by strip (any size), thematic
+    layers drawn over them, the shading blended with both (--blend), --roads on top.
 
     The folder holds pyramid.json and one georeferenced GeoTIFF per level, level0.tif the
     finest: tiled, ZSTD-compressed, the last band alpha; grey + alpha for pure shading, RGBA
@@ -161,6 +182,7 @@ def bake_command(
             and not gl
             and shading == "topographic"
             and thematic is None
+            and not images
             and texel is None
             and _takes_windowed(source, encoding)
         ):
@@ -190,6 +212,8 @@ def bake_command(
             shading=None if shading == "none" else shading,
             shading_options=options if shading != "none" else None,
             thematic=thematic,
+            images=list(images),
+            resampling=resampling,
             palette=palette,
             overlays=list(lines),
             overlay_colour=_rgba(overlay_colour),

@@ -378,7 +378,7 @@ def _render_to_png(
     gamma: float,
     wireframe: bool = False,
     full_resolution: bool = False,
-    textures: str | None = None,
+    textures: Any = None,
     lighting: bool | str = "auto",
     max_triangles: int | None = None,
     style: dict[str, Any] | None = None,
@@ -388,8 +388,9 @@ def _render_to_png(
 
     Without ``eye``: the terrain fitted to the frame (``framing_camera``, from the south).
     Without ``target``: the centre of the tree's root box. textures: folder of a texture
-    pyramid; lighting: "auto", "on"/True or "off"/False (decal). style: exaggeration, sun,
-    palette, background, lighting (``cartographic_options``; its lighting wins).
+    pyramid or a DetailTextures; lighting: "auto", "on"/True or "off"/False (decal). style:
+    exaggeration, sun, palette, background, lighting (``cartographic_options``; its lighting
+    wins).
     """
     from approxtree.render import Camera, Cut, Engine, Style, Sun, framing_camera
     from approxtree.render.frame import EmptyFrameWarning

@@ -69,6 +69,19 @@ def _print(report) -> None:
     help="Imagery tiles: the texture pyramid they were cut from; every pixel is compared "
     "with it resampled at the pixel's centre.",
 )
+@click.option(
+    "--image",
+    type=click.Path(exists=True, dir_okay=False),
+    help="Texture pyramids: the image of a `bake --shading none --image FILE`; every level "
+    "is compared with its box-filtered reprojection (within 1 per channel).",
+)
+@click.option(
+    "--resampling",
+    type=click.Choice(["nearest", "bilinear", "cubic", "cubicspline", "lanczos", "average"]),
+    default="bilinear",
+    show_default=True,
+    help="The --resampling the image was baked with.",
+)
 @reader_options
 @json_option
 @_reports_errors
@@ -78,6 +91,8 @@ def verify(
     max_error: float | None,
     hillshade: bool,
     textures: str | None,
+    image: str | None,
+    resampling: str,
     encoding,
     nodata_policy,
     ground_only,
@@ -99,6 +114,8 @@ def verify(
         hillshade=hillshade,
         source_file=source,
         textures=textures,
+        image=image,
+        resampling=resampling,
     )
     if as_json:
         click.echo(json.dumps(report.to_dict()))

@@ -47,15 +47,17 @@ _new_mesh_key = partial(tuple.__new__, MeshKey)
 
 
 class TextureKey(NamedTuple):
-    """One texture patch: the window (col0, row0, width, height) texels of pyramid ``level``."""
+    """One texture patch: the window (col0, row0, width, height) texels of pyramid ``level``;
+    ``source`` 0 for the base pyramid, 1 for a detail pyramid (textures/detail.py)."""
 
     level: int
     col0: int
     row0: int
     width: int
     height: int
+    source: int = 0
 
     @classmethod
-    def of(cls, patch: Any) -> TextureKey:
-        """The key of a TexturePatch (textures/patch.py)."""
-        return cls(patch.level, patch.col0, patch.row0, patch.width, patch.height)
+    def of(cls, patch: Any, source: int = 0) -> TextureKey:
+        """The key of a TexturePatch (textures/patch.py) of pyramid ``source``."""
+        return cls(patch.level, patch.col0, patch.row0, patch.width, patch.height, source)

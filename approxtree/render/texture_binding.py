@@ -12,8 +12,12 @@ of the pyramid covering that rectangle within the maximum texture size (core pap
   an interactive frame, draws a patch not loaded yet with the root's (``page``);
 - gives the uv transform of a patch (local x, y → texture coordinates) and its texels.
 
+With a ``DetailTextures`` (a base pyramid refined by a detail pyramid, textures/detail.py) an
+owner at or below the detail level and inside the detail's footprint takes its patch from the
+detail pyramid (its key's ``source`` 1), every other owner from the base.
+
 ``as_pyramid`` checks what a caller passes as textures: a TexturePyramid or its folder, in the
-terrain's CRS and overlapping its domain.
+terrain's CRS and overlapping its domain (a DetailTextures: both of its pyramids).
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from approxtree.errors import InvalidParameterError
 from approxtree.geometry.rect import Rect
 from approxtree.render.cache_keys import NODE, MeshKey, TextureKey
 from approxtree.render.frame import Groups
+from approxtree.textures.detail import DetailTextures
 from approxtree.textures.patch import TexturePatch
 from approxtree.textures.pyramid import TexturePyramid
 
@@ -40,30 +45,57 @@ ROOT = MeshKey(NODE, 0)
 class TextureBinding:
     """The texture patches of one pyramid for one tree (see the module docstring).
 
-    origin: (3,) the tree's local origin (uv works on local coordinates); rect_of(owner) ->
-    Rect: the rectangle an owner's patch covers (a node's domain, a chunk's box).
+    pyramid: a TexturePyramid, or a DetailTextures with ``level_of(owner)`` -> the owner's tree
+    level; origin: (3,) the tree's local origin (uv works on local coordinates);
+    rect_of(owner) -> Rect: the rectangle an owner's patch covers (a node's domain, a chunk's
+    box).
     """
 
     def __init__(
-        self, pyramid: TexturePyramid, origin: np.ndarray, rect_of: Callable[[MeshKey], Rect]
+        self,
+        pyramid: TexturePyramid | DetailTextures,
+        origin: np.ndarray,
+        rect_of: Callable[[MeshKey], Rect],
+        level_of: Callable[[MeshKey], int] | None = None,
     ) -> None:
-        self.pyramid = pyramid
+        self.detail = pyramid if isinstance(pyramid, DetailTextures) else None
+        #: The base pyramid, and the pyramid of each key source (0: base, 1: detail).
+        self.pyramid = pyramid.base if isinstance(pyramid, DetailTextures) else pyramid
+        self.pyramids = [self.pyramid] + ([self.detail.detail] if self.detail else [])
         self.origin = origin
         self.rect_of = rect_of
+        self.level_of = level_of
         #: The pyramid holds grey shading: the renderer shades the palette with it.
-        self.shading = is_shading(pyramid)
-        self._patches: dict[MeshKey, TexturePatch] = {}
+        self.shading = is_shading(self.pyramid)
+        self._patches: dict[MeshKey, tuple[TexturePatch, int]] = {}
+
+    def source_of(self, owner: MeshKey) -> int:
+        """0 when ``owner`` takes its patch from the base pyramid, 1 from the detail one."""
+        if self.detail is None or self.level_of is None:
+            return 0
+        rect = np.array([self.rect_of(owner).as_tuple()])
+        return int(self.detail.uses_detail(np.array([self.level_of(owner)]), rect)[0])
 
     def patch(self, owner: MeshKey) -> TexturePatch:
         """The TexturePatch of ``owner`` (made on first use; references the pyramid's data)."""
-        patch = self._patches.get(owner)
-        if patch is None:
+        return self._patch(owner)[0]
+
+    def _patch(self, owner: MeshKey) -> tuple[TexturePatch, int]:
+        """The TexturePatch of ``owner`` and the source of its pyramid."""
+        held = self._patches.get(owner)
+        if held is None:
             # Bounded like the caches, however many nodes a fly-over visits.
             if len(self._patches) >= TEXTURE_PATCH_MEMO:
                 self._patches.clear()
-            patch = TexturePatch.for_rect(self.pyramid, self.rect_of(owner))
-            self._patches[owner] = patch
-        return patch
+            source = self.source_of(owner)
+            patch = TexturePatch.for_rect(self.pyramids[source], self.rect_of(owner))
+            held = self._patches[owner] = (patch, source)
+        return held
+
+    def key(self, owner: MeshKey) -> TextureKey:
+        """The TextureKey of ``owner``'s patch."""
+        patch, source = self._patch(owner)
+        return TextureKey.of(patch, source)
 
     def forget(self) -> None:
         """Forget the owners' patches (their nodes were renumbered by a tree update)."""
@@ -74,7 +106,7 @@ class TextureBinding:
         ``owners`` (one owner per mesh), in first-seen order."""
         groups: dict[TextureKey, list[MeshKey]] = {}
         for key, owner in zip(meshes, owners, strict=True):
-            groups.setdefault(TextureKey.of(self.patch(owner)), []).append(key)
+            groups.setdefault(self.key(owner), []).append(key)
         return list(groups.items())
 
     def page(self, groups: Groups, loaded: Callable[[TextureKey], bool]) -> tuple[Groups, list]:
@@ -84,7 +116,7 @@ class TextureBinding:
 
         Returns (groups, texture keys to request).
         """
-        root = TextureKey.of(self.patch(ROOT))
+        root = self.key(ROOT)
         merged: dict[TextureKey, list[MeshKey]] = {}
         requests: list[Hashable] = []
         for tex_key, keys in groups:
@@ -98,8 +130,8 @@ class TextureBinding:
     def uv(self, key: TextureKey) -> tuple[float, float, float, float]:
         """uv = local.xy * t[:2] + t[2:] of a texture window (u along columns, v along rows,
         texel row 0 at v = 0)."""
-        level, c0, r0, w, h = key
-        t = self.pyramid.levels[level].transform
+        level, c0, r0, w, h, source = key
+        t = self.pyramids[source].levels[level].transform
         ox, oy, _ = self.origin
         # col = (x − c) / a and row = (y − f) / e for a north-up level, x = local x + ox.
         return (
@@ -111,19 +143,26 @@ class TextureBinding:
 
     def texels(self, key: TextureKey) -> np.ndarray:
         """(h, w, 4) uint8 texels of a texture window (read from the pyramid's tiles)."""
-        texels = TexturePatch(self.pyramid, *key).texels()
+        level, c0, r0, w, h, source = key
+        texels = TexturePatch(self.pyramids[source], level, c0, r0, w, h).texels()
         return np.ascontiguousarray(texels, dtype=np.uint8)
 
 
-def as_pyramid(textures: Any, terrain: Any) -> TexturePyramid | None:
-    """``textures`` as a TexturePyramid matching ``terrain`` (opened from a folder), or None."""
+def as_pyramid(textures: Any, terrain: Any) -> TexturePyramid | DetailTextures | None:
+    """``textures`` as a TexturePyramid matching ``terrain`` (opened from a folder), a
+    DetailTextures whose pyramids both match it, or None."""
+    if isinstance(textures, DetailTextures):
+        check_pyramid_matches(textures.base, terrain)
+        check_pyramid_matches(textures.detail, terrain)
+        return textures
     if textures is None or isinstance(textures, TexturePyramid):
         pyramid = textures
     elif isinstance(textures, str | os.PathLike):
         pyramid = TexturePyramid(textures)
     else:
         raise InvalidParameterError(
-            "textures must be a TexturePyramid, the folder of one, or None; got a "
+            "textures must be a TexturePyramid, the folder of one, a DetailTextures or None; "
+            "got a "
             f"{type(textures).__name__}."
         )
     if pyramid is not None:

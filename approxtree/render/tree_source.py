@@ -47,6 +47,7 @@ from approxtree.render.skirts import add_skirts, patches_reach_rect, skirt_base,
 from approxtree.render.texture_binding import TextureBinding, as_pyramid
 from approxtree.render.texture_sharing import texture_nodes
 from approxtree.render.traversal import Paging, plan_frame
+from approxtree.textures.detail import DetailTextures
 from approxtree.textures.patch import patch_texel_sizes
 
 
@@ -89,9 +90,7 @@ class ApproximationTreeSource:
         self.texels = self.shading_texels
         self.finer = np.zeros(len(tree), dtype=bool)
         if self.binding is not None:
-            self.texels = patch_texel_sizes(
-                self.binding.pyramid, np.asarray(tree.rects, dtype=np.float64)
-            )
+            self.texels = self._texture_texels(self.binding.detail or self.binding.pyramid)
             self.finer = finer_below(tree, self.texels)
         # Skirts: infinite errors stand in by the node's z extent; walls on node borders only.
         extents = tree.bboxes[:, 5] - tree.bboxes[:, 2]
@@ -164,9 +163,21 @@ class ApproximationTreeSource:
             self.binding, self.texels = None, self.shading_texels
             self.finer = np.zeros(len(self.tree), dtype=bool)
             return
-        self.binding = TextureBinding(pyramid, self.tree.origin, self._rect_of)
-        self.texels = patch_texel_sizes(pyramid, np.asarray(self.tree.rects, dtype=np.float64))
+        self.binding = TextureBinding(pyramid, self.tree.origin, self._rect_of, self._level_of)
+        self.texels = self._texture_texels(pyramid)
         self.finer = finer_below(self.tree, self.texels)
+
+    def _texture_texels(self, pyramid: Any) -> np.ndarray:
+        """(n, 2) texel of each node's texture patch, in the pyramid the node uses (``pyramid``:
+        a TexturePyramid or DetailTextures)."""
+        rects = np.asarray(self.tree.rects, dtype=np.float64)
+        if not isinstance(pyramid, DetailTextures):
+            return patch_texel_sizes(pyramid, rects)
+        # γ_N from the patch of the pyramid each node uses.
+        texels = patch_texel_sizes(pyramid.base, rects)
+        detail = pyramid.uses_detail(self.tree.levels, rects)
+        texels[detail] = patch_texel_sizes(pyramid.detail, rects[detail])
+        return texels
 
     def set_shading_side(self, side: int) -> None:
         """The normal map's largest side (the context's texture limit): untextured texels
@@ -298,6 +309,12 @@ class ApproximationTreeSource:
         if self.binding is not None:
             plan.groups = self.binding.groups(plan.meshes, owners)
             plan.texture_nodes, plan.texture_gammas = nodes, gammas
+
+    def _level_of(self, owner: MeshKey) -> int:
+        """The tree level of ``owner``: a node's; a full-resolution chunk is below every leaf."""
+        if owner.kind == CHUNK:
+            return int(self.tree.levels.max()) + 1
+        return int(self.tree.levels[owner.item])
 
     def _rect_of(self, owner: MeshKey) -> Rect:
         """The rectangle the texture patch of ``owner`` covers: a node's domain, a chunk's."""

@@ -18,6 +18,8 @@ from approxtree.textures.blend import BLEND_MODES, MultiTexture, blend
 _NAMES = {
     "TextureData": "base",
     "GLTopographicShading": "gl_bake",
+    "DetailTextures": "detail",
+    "ImageTexture": "image",
     "PALETTES": "palettes",
     "Palette": "palettes",
     "get_palette": "palettes",
@@ -39,7 +41,9 @@ _NAMES = {
 
 if TYPE_CHECKING:
     from approxtree.textures.base import TextureData
+    from approxtree.textures.detail import DetailTextures
     from approxtree.textures.gl_bake import GLTopographicShading
+    from approxtree.textures.image import ImageTexture
     from approxtree.textures.palettes import PALETTES, Palette, get_palette
     from approxtree.textures.patch import TexturePatch
     from approxtree.textures.pyramid import PyramidLevel, TexturePyramid
@@ -80,8 +84,10 @@ __all__ = [
     "ClassTable",
     "ColourRamp",
     "ColourReliefFile",
+    "DetailTextures",
     "GLTopographicShading",
     "GouraudShading",
+    "ImageTexture",
     "MultiTexture",
     "Palette",
     "PhongShading",

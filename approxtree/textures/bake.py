@@ -3,9 +3,11 @@
 The texture lattice covers the terrain's grid at the chosen texel size (by default the finest
 of the DEM's cell and the thematic raster's cell). Shading at a finer texel size than the DEM
 is computed from h_T resampled onto the texture lattice, so the shading has the geometry
-resolution the texture needs (core paper, 5.3). Thematic rasters are resampled onto the
-lattice (nearest for class tables, bilinear for continuous fields), vector layers rasterized,
-and the layers blended in the order thematic · shading, then overlays on top.
+resolution the texture needs (core paper, 5.3). Images (RGB, grey, paletted, in any CRS) are
+warped onto the lattice by GDAL strip by strip (``image``), thematic rasters resampled onto it
+(nearest for class tables, bilinear for continuous fields), vector layers rasterized, and the
+layers blended in the order images (the first at the bottom, each over the one before) ·
+thematic (over the images) · shading (with the blend mode), then overlays on top.
 
 Topographic shading is baked offscreen with OpenGL (``gl_bake``, tiled, section 5.3) on the
 context the caller passes (``approxtree.render.context.create_context``; the CLI makes one),
@@ -36,6 +38,7 @@ from approxtree.progress import ProgressCallback
 from approxtree.textures.bake_budget import check_bake_size
 from approxtree.textures.base import TextureData
 from approxtree.textures.blend import BLEND_MODES, MultiTexture
+from approxtree.textures.image import ImageTexture, image_resolution
 from approxtree.textures.pyramid import TexturePyramid, check_pyramid_target
 from approxtree.textures.shading import GouraudShading, PhongShading, TopographicShading
 from approxtree.textures.thematic import (
@@ -183,6 +186,8 @@ def bake(
     min_overlay_texels: float = MIN_OVERLAY_TEXELS,
     water: list[str | os.PathLike] | None = None,
     progress: ProgressCallback | None = None,
+    images: list[str | os.PathLike] | None = None,
+    resampling: str = "bilinear",
 ) -> BakeResult:
     """Bake the terrain's textures into a pyramid in ``folder`` and return what was written.
 
@@ -195,8 +200,11 @@ def bake(
     top, overlay_colour RGB(A) 0..255, overlay_width world units (None: none asked), at least
     ``min_overlay_texels`` texels wide so that they survive the hardware mipmaps of an
     overview; the water classes of the thematic layer and the ``water`` polygon layers are
-    drawn over them (a stream does not cross a lake). blend: how shading combines with the
-    thematic layer ("shade" keeps the legend colour on flat ground).
+    drawn over them (a stream does not cross a lake). images: rasters GDAL reads (RGB, RGBA,
+    grey, grey + alpha, paletted; any CRS) warped onto the lattice with ``resampling`` (a
+    name of ``image.RESAMPLINGS``), the first at the bottom, each drawn over the one before,
+    the thematic layer over them. blend: how shading combines with the images and thematic
+    layer below it ("shade" keeps their colour on flat ground).
     gl: bake topographic shading with OpenGL on ``context`` (a moderngl Context, e.g.
     ``approxtree.render.context.create_context()``; None: numpy; tile_size: forced tile
     side, see ``gl_hillshade``); False always uses numpy. progress(done, total): texel rows
@@ -216,8 +224,11 @@ def bake(
         raise InvalidParameterError(
             f"Unknown blend mode {blend!r}; choose one of {list(BLEND_MODES)}."
         )
-    if shading is None and thematic is None:
-        raise InvalidParameterError("Nothing to bake: give a shading, a thematic raster or both.")
+    image_paths = [Path(p) for p in images or []]
+    if shading is None and thematic is None and not image_paths:
+        raise InvalidParameterError(
+            "Nothing to bake: give a shading, a thematic raster or an image."
+        )
     if texel_size is not None and not (np.isfinite(texel_size) and texel_size > 0):
         raise InvalidParameterError(
             f"texel_size must be a positive number of world units, got {texel_size!r}."
@@ -227,6 +238,9 @@ def bake(
     thematic_path = Path(thematic) if thematic is not None else None
     if thematic_path is not None and not thematic_path.is_file():
         raise TerrainFormatError(f"Thematic raster {thematic_path} does not exist.")
+    for image in image_paths:
+        if not image.is_file():
+            raise TerrainFormatError(f"Image {image} does not exist.")
     # Texel size: as asked, else the finest of the DEM cell and the thematic cell.
     texel = texel_size or min(terrain.cell_size)
     if texel_size is None and thematic_path is not None:
@@ -238,6 +252,9 @@ def bake(
             rasterio.open(thematic_path) as ds,
         ):
             texel = min(texel, *ds.res)
+    if texel_size is None:
+        for image in image_paths:
+            texel = min(texel, image_resolution(image, terrain.crs))
     transform, shape = texture_lattice(terrain, texel)
     # Refuse at once what this machine cannot bake (a texel far below the DEM's cell).
     same = shape == terrain.shape and transform.almost_equals(terrain.transform)
@@ -246,8 +263,9 @@ def bake(
         shape,
         texel,
         min(terrain.cell_size),
-        _budget_layers(terrain, same, shading, gl, thematic_path, vectors),
-        2 if thematic_path is None and not vectors else 4,
+        _budget_layers(terrain, same, shading, gl, thematic_path, vectors)
+        + ["image"] * len(image_paths),
+        2 if thematic_path is None and not vectors and not image_paths else 4,
         max_texture_size,
         folder,
     )
@@ -255,10 +273,17 @@ def bake(
     layers: list[TextureData] = []
     names: list[str] = []
     thematic_layer = None
+    # Images first (each opened and checked now, warped strip by strip while the pyramid is
+    # written), the thematic layer over them.
+    for image in image_paths:
+        layers.append(ImageTexture(image, transform, shape, terrain.crs, resampling))
+        names.append(f"image:{image.name}")
     if thematic_path is not None:
         thematic_layer = _thematic_on_lattice(thematic_path, palette, transform, shape, terrain.crs)
         layers.append(thematic_layer)
         names.append(f"thematic:{thematic_path.name}")
+    # The shading blends with the colour layers below it (images, thematic), if any.
+    colour_layers = len(layers)
     if shading is not None:
         on_lattice = (
             terrain
@@ -286,8 +311,9 @@ def bake(
     for path in water or []:
         layers.append(rasterize_lines(path, transform, shape, terrain.crs, WATER_COLOUR, 0.0))
         names.append(f"water:{Path(path).name}")
-    modes = [blend] if len(layers) > 1 and thematic_path is not None and shading else []
-    modes += ["over"] * (len(layers) - 1 - len(modes))
+    modes = ["over"] * (len(layers) - 1)
+    if shading is not None and colour_layers:
+        modes[colour_layers - 1] = blend
     texture = layers[0] if len(layers) == 1 else MultiTexture(layers, modes)
     # Coarser levels redraw the overlays at their own texel size (least width kept there).
     redraw = None

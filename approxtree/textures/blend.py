@@ -12,7 +12,7 @@ every colour by the flat-ground shade and lets saturated legends drown the relie
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 
@@ -99,3 +99,14 @@ class MultiTexture(TextureData):
         for layer, mode in zip(self.layers[1:], self.modes, strict=True):
             out = blend(out, layer.rgba(), mode)
         return out
+
+    def band_strips(self, rows: int) -> Iterator[np.ndarray]:
+        """(4, ≤ rows, cols) uint8 strips, each the blend of the layers' strips: layers that
+        stream (an image, a shading's grey levels) are never whole in memory as RGBA."""
+        streams = [layer.band_strips(rows) for layer in self.layers]
+        # Each layer's strip is valid until its next is asked for: blended before that.
+        for strips in zip(*streams, strict=True):
+            out = np.moveaxis(strips[0], 0, -1)
+            for strip, mode in zip(strips[1:], self.modes, strict=True):
+                out = blend(out, np.moveaxis(strip, 0, -1), mode)
+            yield np.ascontiguousarray(np.moveaxis(out, -1, 0))

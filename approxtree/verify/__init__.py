@@ -72,7 +72,13 @@ def _pyramid(output: Path, terrain: Any, report: VerifyReport, options: dict) ->
     from approxtree.verify.pyramid import verify_pyramid
 
     verify_pyramid(
-        output, terrain, report, options.get("hillshade", False), options.get("source_path")
+        output,
+        terrain,
+        report,
+        options.get("hillshade", False),
+        options.get("source_path"),
+        options.get("image"),
+        options.get("resampling", "bilinear"),
     )
 
 
@@ -102,6 +108,8 @@ def verify(
     hillshade: bool = False,
     source_file: str | os.PathLike | None = None,
     textures: str | os.PathLike | None = None,
+    image: str | os.PathLike | None = None,
+    resampling: str = "bilinear",
     **reader_options: Any,
 ) -> VerifyReport:
     """Check the approxtree output ``output`` against its source terrain (module docstring).
@@ -112,12 +120,25 @@ def verify(
     hillshade: a texture pyramid is a plain hillshade bake at gdaldem's defaults (level 0 is
     then compared with ``gdaldem hillshade`` of the source file). source_file: the file a
     GeometryData ``source`` was read from (named in the report, given to gdaldem). textures:
-    the texture pyramid folder imagery tiles were cut from (their colours are checked).
+    the texture pyramid folder imagery tiles were cut from (their colours are checked). image: a
+    texture pyramid is a bake of this image alone (``--shading none --image``), warped with
+    ``resampling`` (gdalwarp's -r name): every level is compared with the image's
+    box-filtered reprojection.
     """
     from approxtree.errors import InvalidParameterError
 
     if max_error is not None and not (max_error >= 0):
         raise InvalidParameterError(f"max_error must be a number >= 0, got {max_error!r}.")
+    if image is not None and not Path(image).is_file():
+        from approxtree.errors import TerrainFormatError
+
+        raise TerrainFormatError(f"Image {image} does not exist.")
+    from approxtree.verify.pyramid_image import RESAMPLINGS
+
+    if resampling not in RESAMPLINGS:
+        raise InvalidParameterError(
+            f"Unknown resampling {resampling!r}; choose one of {', '.join(RESAMPLINGS)}."
+        )
     path = Path(output)
     kind = detect_kind(path)
     terrain = _open_source(source, reader_options)
@@ -134,6 +155,8 @@ def verify(
         "hillshade": hillshade,
         "source_path": None if source_file is None else str(source_file),
         "textures": None if textures is None else Path(textures),
+        "image": None if image is None else str(image),
+        "resampling": resampling,
     }
     VERIFIERS[kind](path, terrain, report, options)
     return report

@@ -12,8 +12,10 @@ few tiles whatever the pyramid's size. Checks:
   filter of the finer one (odd sizes repeat the last row or column), recomputed here in numpy;
 - ``coverage``: level 0 covers the source's domain, in the source's CRS;
 - ``hillshade`` (when asked: a plain hillshade bake at gdaldem's defaults): level 0 equals
-  ``gdaldem hillshade`` of the source within 1, nodata transparent. pyramid.json records no
-  bake parameters, so without it level 0's content is not checked.
+  ``gdaldem hillshade`` of the source within 1, nodata transparent;
+- ``image`` (when given the image of a ``bake --shading none --image FILE``): every level is
+  the box-filtered reprojection of the image within 1 (``verify.pyramid_image``).
+  pyramid.json records no bake parameters, so without either level 0's content is not checked.
 """
 
 from __future__ import annotations
@@ -41,7 +43,13 @@ def _open(path: Path):
 
 
 def verify_pyramid(
-    output: Path, terrain: Any, report: VerifyReport, hillshade: bool, source_path: str | None
+    output: Path,
+    terrain: Any,
+    report: VerifyReport,
+    hillshade: bool,
+    source_path: str | None,
+    image: str | None = None,
+    resampling: str = "bilinear",
 ) -> None:
     meta_path = output / "pyramid.json"
     try:
@@ -58,10 +66,15 @@ def verify_pyramid(
         _check_coverage(entries[0], meta.get("crs"), terrain, report)
         if hillshade:
             _check_hillshade(output / entries[0]["file"], entries[0], terrain, source_path, report)
-    if not hillshade:
+    if image is not None and good and all(good):
+        from approxtree.verify.pyramid_image import check_image
+
+        check_image(output, entries, meta.get("crs"), Path(image), resampling, report)
+    if not hillshade and image is None:
         report.not_checked.append(
             "level 0's texels against the source: pyramid.json records no bake parameters "
-            "(give --hillshade for a plain hillshade bake at gdaldem's defaults)"
+            "(give --hillshade for a plain hillshade bake at gdaldem's defaults, --image for "
+            "an image bake)"
         )
     if "tile_crc32c" not in (entries[0] if entries else {}):
         report.not_checked.append("tile checksums: this pyramid (format < 4) lists none")
