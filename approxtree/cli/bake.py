@@ -10,6 +10,7 @@ from approxtree.cli.common import _emit, _is_tree, _reports_errors, _terrain_of
 from approxtree.cli.options import (
     json_option,
     overwrite_option,
+    parse_rgba,
     quiet_option,
     reader_options,
     replaceable,
@@ -216,7 +217,7 @@ def bake_command(
             resampling=resampling,
             palette=palette,
             overlays=list(lines),
-            overlay_colour=_rgba(overlay_colour),
+            overlay_colour=parse_rgba(overlay_colour),
             overlay_width=overlay_width,
             water=list(water),
             blend=blend,
@@ -230,22 +231,3 @@ def bake_command(
     from approxtree import cli
 
     cli.end_without_teardown()
-
-
-def _rgba(text: str) -> tuple[int, int, int, int]:
-    """ "#rrggbb" (or a Background colour name) as an opaque RGBA tuple 0..255."""
-    # "#rrggbb" (the default) without importing the renderer, a tenth of bake's import time.
-    if len(text) == 7 and text[0] == "#":
-        try:
-            return (int(text[1:3], 16), int(text[3:5], 16), int(text[5:7], 16), 255)
-        except ValueError:
-            pass
-    from approxtree.render.style import Background
-
-    bg = Background.parse(text)
-    if bg.kind != "colour":
-        from approxtree.errors import InvalidParameterError
-
-        raise InvalidParameterError(f"Expected a colour (#rrggbb or a name), got {text!r}.")
-    r, g, b = (round(v * 255) for v in bg.colour)
-    return (r, g, b, 255)
