@@ -54,10 +54,13 @@ SHARED_INPUTS: dict[str, tuple[str, list[str]]] = {
     "ASCII grid": ("edge/hugo_site.asc", []),
     "scape STM": ("scape/crater.stm", []),
     "PGM": ("scape/crater.pgm", []),
-    "numpy npz": ("edge/jacksboro_fault_dem.npz", ["--cell-size", "90"]),
+    "numpy npz": ("edge/jacksboro_fault_dem.npz", []),
     "LAZ": ("lidar/autzen_trim.laz", []),
     "quantized-mesh tile": ("tin/9_533_383.terrain", []),
 }
+
+#: Inputs that are grids with a CRS (quantized-mesh tiles need one).
+GLOBE_GRIDS = {"GeoTIFF float32", "GeoTIFF int16", "GeoTIFF NaN sea", "SRTM hgt.zip", "USGS DEM"}
 
 
 def _png_inputs(work: Path) -> dict[str, tuple[Path, list[str]]]:
@@ -144,18 +147,16 @@ def commands(kind: str, path: Path, opts: list[str], work: Path) -> list[tuple[s
         )
     cmds.append(("verify mesh", ["verify", str(out / "tin.ply"), "--source", *src]))
     cmds.append(("verify store", ["verify", store]))
-    cmds.append(
-        (
-            "tiles quantized-mesh",
-            ["tiles", store, "--format", "quantized-mesh", "--out", str(out / "qm"), *ow],
-        )
-    )
+    # Cesium's tiles need a grid placed on the globe (a CRS); rd a complete grid window.
+    if kind in GLOBE_GRIDS:
+        qm = ["tiles", store, "--format", "quantized-mesh", "--out", str(out / "qm"), *ow]
+        cmds.append(("tiles quantized-mesh", qm))
     if kind == "GeoTIFF float32":
         for fmt in ("3dtiles", "3dtiles-terrain", "terrarium", "imagery"):
             textures = ["--textures", str(out / "tex")] if fmt == "imagery" else []
             argv = ["tiles", store, "--format", fmt, "--out", str(out / fmt), *textures, *ow]
             cmds.append((f"tiles {fmt}", argv))
-    if kind not in ("LAZ", "quantized-mesh tile"):
+    if kind not in ("LAZ", "quantized-mesh tile", "GeoTIFF NaN sea"):
         cmds.append(("rd", ["rd", *src, "--size", "65", "-q"]))
     return cmds
 
