@@ -260,6 +260,21 @@ def bench(
     return rows
 
 
+def markdown(result: dict) -> str:
+    """The rows as a Markdown table: input, command, first and second run, cache files."""
+    lines = [
+        "| input | command | first run (s) | second run (s) | cache files written (first run) |",
+        "|---|---|---:|---:|---:|",
+    ]
+    for r in result["rows"]:
+        note = f" (exit {r['rc']})" if r["rc"] else ""
+        lines.append(
+            f"| {r['input']} | {r['command']}{note} | {r['first_s']:.1f} | "
+            f"{r['second_s']:.1f} | {r['first_cache_files_written']} |"
+        )
+    return "\n".join(lines)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--approxtree", default=f"{sys.executable} -m approxtree")
@@ -269,8 +284,12 @@ def main() -> None:
     ap.add_argument("--probe", type=Path, help="write the kernels each command compiles")
     ap.add_argument("--work", type=Path)
     ap.add_argument("--kinds", nargs="+", help="inputs to run (default: all; '-': no input)")
+    ap.add_argument("--markdown", type=Path, help="print the table of this JSON result")
     ap.add_argument("--out", type=Path, default=HERE / "first_run.json")
     opts = ap.parse_args()
+    if opts.markdown:
+        print(markdown(json.loads(opts.markdown.read_text())))
+        return
     work = opts.work or Path(tempfile.mkdtemp(prefix="first_run_"))
     work.mkdir(parents=True, exist_ok=True)
     if opts.probe:
