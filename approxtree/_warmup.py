@@ -175,17 +175,19 @@ def _cli(*argv: str) -> None:
                 raise RuntimeError(f"approxtree {' '.join(argv)}: {text.getvalue()}") from None
 
 
-def _terrain_commands(work: Path, source: Path, grid: bool) -> None:
-    """What the commands run on one terrain file: info, build and render of its tree, the
-    point quadtree (points), bake, mesh with each strategy, verify, tiles, rd (grids)."""
+def _terrain_commands(work: Path, source: Path, kind: str) -> None:
+    """What the commands run on one terrain file (``kind``: grid, points or tin): info, build
+    and render of its tree, the point quadtree (points, TIN), bake, mesh with each strategy
+    (grids; TIN otherwise), verify; quantized-mesh tiles and rd (grids)."""
     out = work / source.stem
     out.mkdir()
-    src, store = str(source), str(out / "tree.zarr")
+    src, store, grid = str(source), str(out / "tree.zarr"), kind == "grid"
     _cli("info", src)
     _cli("build", src, "--out", store, "-q")
     _cli("render", store, "--out", str(out / "r.png"), "--size", "160x90")
-    if not grid:
+    if kind == "points":
         _cli("info", src, "--ground-only")
+    if not grid:
         pq = str(out / "pq.zarr")
         _cli("build", src, "--kind", "point-quadtree", "--out", pq, "-q")
         _cli("render", pq, "--out", str(out / "pq.png"), "--size", "160x90")
@@ -195,33 +197,41 @@ def _terrain_commands(work: Path, source: Path, grid: bool) -> None:
         _cli("mesh", src, "--strategy", strategy, "--max-error", "1", "--out", mesh, "-q")
     _cli("verify", str(out / "tin.ply"), "--source", src)
     _cli("verify", store)
-    _cli("tiles", store, "--format", "quantized-mesh", "--out", str(out / "qm"), "--maxzoom", "9")
     if grid:
+        _cli("tiles", store, "--format", "quantized-mesh", "--out", str(out / "qm"))
+        _cli("verify", str(out / "qm"))
         _cli("rd", src, "--size", "33", "-q")
 
 
 def float32_step(work: Path) -> None:
-    """The commands on float32 heights with a NaN hole (GeoTIFF, SRTM, USGS DEM, STM, PNG),
-    then every tile format of its tree and verify of each output; fractal."""
-    _terrain_commands(work, _geotiff(work / "f32.tif", "float32", holes=True), grid=True)
-    store, out = str(work / "f32" / "tree.zarr"), work / "f32"
+    """The commands on float32 heights with a NaN hole (GeoTIFF, SRTM, USGS DEM, STM, PNG);
+    fractal."""
+    _terrain_commands(work, _geotiff(work / "f32.tif", "float32", holes=True), "grid")
+    _cli("fractal", str(work / "fractal.tif"), "--size", "65")
+
+
+def tile_formats_step(work: Path) -> None:
+    """Every other tile format of a float32 grid's tree, and verify of each, of its texture
+    pyramid too."""
+    source = _geotiff(work / "tiled.tif", "float32", holes=False)
+    store, out = str(work / "tiled.zarr"), work / "tiled"
+    _cli("build", str(source), "--out", store, "-q")
+    _cli("bake", str(source), "--out", str(out / "tex"), "-q", "--max-texture-size", "64")
+    _cli("verify", str(out / "tex"))
     for fmt in ("3dtiles", "3dtiles-terrain", "terrarium", "imagery"):
         extra = ["--textures", str(out / "tex")] if fmt == "imagery" else []
         _cli("tiles", store, "--format", fmt, "--out", str(out / fmt), *extra)
         _cli("verify", str(out / fmt))
-    _cli("verify", str(out / "qm"))
-    _cli("verify", str(out / "tex"))
-    _cli("fractal", str(work / "fractal.tif"), "--size", "65")
 
 
 def float64_step(work: Path) -> None:
     """The commands on float64 heights (32-bit integer rasters, ASCII grids)."""
-    _terrain_commands(work, _geotiff(work / "i32.tif", "int32", holes=False), grid=True)
+    _terrain_commands(work, _geotiff(work / "i32.tif", "int32", holes=False), "grid")
 
 
 def points_step(work: Path) -> None:
     """The commands on scattered points (LAS/LAZ), the point quadtree's among them."""
-    _terrain_commands(work, _las(work / "points.las"), grid=False)
+    _terrain_commands(work, _las(work / "points.las"), "points")
 
 
 def tin_step(work: Path) -> None:
@@ -229,7 +239,7 @@ def tin_step(work: Path) -> None:
     from approxtree.tiles import write_quantized_mesh
 
     write_quantized_mesh(_terrain(), work / "qm_tiles")
-    _terrain_commands(work, sorted((work / "qm_tiles").rglob("*.terrain"))[-1], grid=False)
+    _terrain_commands(work, sorted((work / "qm_tiles").rglob("*.terrain"))[-1], "tin")
 
 
 STEPS: dict[str, Callable[[Path], None]] = {
@@ -238,6 +248,7 @@ STEPS: dict[str, Callable[[Path], None]] = {
     "mesh": mesh_step,
     "tiles": tiles_step,
     "float32": float32_step,
+    "tile_formats": tile_formats_step,
     "float64": float64_step,
     "points": points_step,
     "tin": tin_step,
