@@ -215,6 +215,7 @@ def tile_formats_step(work: Path) -> None:
     pyramid too."""
     source = _geotiff(work / "tiled.tif", "float32", holes=False)
     store, out = str(work / "tiled.zarr"), work / "tiled"
+    out.mkdir()
     _cli("build", str(source), "--out", store, "-q")
     _cli("bake", str(source), "--out", str(out / "tex"), "-q", "--max-texture-size", "64")
     _cli("verify", str(out / "tex"))
