@@ -216,11 +216,14 @@ def _entries(cache: Path | None) -> int:
     return len(list(cache.rglob("*.nbi"))) + len(list(cache.rglob("*.nbc"))) if cache else 0
 
 
-def _timed(cmd: list[str], argv: list[str], env: dict[str, str], cache: Path | None) -> dict:
-    """One fresh process: wall seconds, exit status, cache files written."""
+def _timed(
+    cmd: list[str], argv: list[str], env: dict[str, str], cache: Path | None, cwd: Path
+) -> dict:
+    """One fresh process in ``cwd`` (not a source tree: ``python -m`` would import it):
+    wall seconds, exit status, cache files written."""
     before = _entries(cache)
     t0 = time.perf_counter()
-    run = subprocess.run([*cmd, *argv], env=env, capture_output=True, text=True)
+    run = subprocess.run([*cmd, *argv], env=env, cwd=cwd, capture_output=True, text=True)
     wall = time.perf_counter() - t0
     return {
         "s": round(wall, 2),
@@ -242,8 +245,8 @@ def bench(
         if cold:
             first_cache = Path(tempfile.mkdtemp(prefix="cold_", dir=work))
             first_env = dict(env, APPROXTREE_KERNEL_CACHE=str(first_cache))
-        first = _timed(cmd, argv, first_env, first_cache)
-        later = [_timed(cmd, argv, first_env, first_cache) for _ in range(repeat)]
+        first = _timed(cmd, argv, first_env, first_cache, work)
+        later = [_timed(cmd, argv, first_env, first_cache, work) for _ in range(repeat)]
         row = {
             "input": kind,
             "command": label,
