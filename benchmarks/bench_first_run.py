@@ -156,8 +156,8 @@ def commands(kind: str, path: Path, opts: list[str], work: Path) -> list[tuple[s
             textures = ["--textures", str(out / "tex")] if fmt == "imagery" else []
             argv = ["tiles", store, "--format", fmt, "--out", str(out / fmt), *textures, *ow]
             cmds.append((f"tiles {fmt}", argv))
-    if kind not in ("LAZ", "quantized-mesh tile", "GeoTIFF NaN sea"):
-        cmds.append(("rd", ["rd", *src, "--size", "65", "-q"]))
+    if kind not in ("LAZ", "quantized-mesh tile", "GeoTIFF NaN sea", "GeoTIFF int16"):
+        cmds.append(("rd", ["rd", *src, "--size", "33", "-q"]))
     return cmds
 
 
