@@ -227,6 +227,49 @@ def tile_formats_step(work: Path) -> None:
         _cli("verify", str(out / fmt))
 
 
+def shading_step(work: Path) -> None:
+    """The cartographic hillshade of the Python API and the viewer (slope and curvature
+    weights, cast shadows, both gdaldem gradients), its grey texture strips."""
+    from approxtree.textures.shading import TopographicShading
+
+    for algorithm in ("horn", "zevenbergen-thorne"):
+        for terrain in (_terrain(), _geotiff_grid(work, "float64")):
+            shading = TopographicShading(
+                terrain, algorithm, slope_weight=0.5, curvature_weight=0.5, shadows=True
+            )
+            shading.hillshade()
+            shading.shade()
+            shading.rgba()
+            for _ in shading.band_strips(8):
+                pass
+            for _ in shading.level_strips(8):
+                pass
+            shading.slope()
+            shading.curvature()
+            shading.shadow_mask()
+
+
+def _geotiff_grid(work: Path, dtype: str):
+    """The Grid of a 65² GeoTIFF of ``dtype`` heights, read as the commands read it."""
+    from approxtree.io import read_grid
+
+    return read_grid(_geotiff(work / f"shading_{dtype}.tif", dtype, holes=False))
+
+
+def extras_step(work: Path) -> None:
+    """Options of the commands that reach more kernels: a blocked build, a textured render,
+    a GLB mesh (its stored-vertex errors), verify of a store against its source."""
+    source = _geotiff(work / "extras.tif", "float32", holes=False)
+    out, src = work / "extras", str(source)
+    out.mkdir()
+    store = str(out / "tree.zarr")
+    _cli("build", src, "--out", store, "--block-size", "64", "-q")
+    _cli("bake", src, "--out", str(out / "tex"), "-q", "--max-texture-size", "64")
+    _cli("render", store, "--textures", str(out / "tex"), "--out", str(out / "r.png"))
+    _cli("mesh", src, "--strategy", "tin", "--max-error", "1", "--out", str(out / "m.glb"))
+    _cli("verify", store, "--source", src)
+
+
 def float64_step(work: Path) -> None:
     """The commands on float64 heights (32-bit integer rasters, ASCII grids)."""
     _terrain_commands(work, _geotiff(work / "i32.tif", "int32", holes=False), "grid")
@@ -252,6 +295,8 @@ STEPS: dict[str, Callable[[Path], None]] = {
     "tiles": tiles_step,
     "float32": float32_step,
     "tile_formats": tile_formats_step,
+    "shading": shading_step,
+    "extras": extras_step,
     "float64": float64_step,
     "points": points_step,
     "tin": tin_step,
