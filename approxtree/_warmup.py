@@ -122,18 +122,18 @@ def tiles_step(work: Path) -> None:
     write_quantized_mesh(_terrain(), work / "tiles")
 
 
-def _geotiff(path: Path, dtype: str, holes: bool) -> Path:
-    """A 65² GeoTIFF of ``dtype`` heights (int32 reads as float64 heights, float32 as float32;
+def _geotiff(path: Path, dtype: str, holes: bool, size: int = 65) -> Path:
+    """A size² GeoTIFF of ``dtype`` heights (int32 reads as float64 heights, float32 as float32;
     ``holes``: a NaN patch, as over a sea), 30 m cells in UTM."""
     import rasterio
     from affine import Affine
 
     from approxtree.datasets import fractal_heights
 
-    z = fractal_heights(65, 65, seed=3, relief=300.0) + 100.0
+    z = fractal_heights(size, size, seed=3, relief=300.0) + 100.0
     if holes:
         z[54:, :10] = np.nan
-    profile = {"driver": "GTiff", "width": 65, "height": 65, "count": 1, "dtype": dtype}
+    profile = {"driver": "GTiff", "width": size, "height": size, "count": 1, "dtype": dtype}
     with rasterio.open(
         path, "w", **profile, crs="EPSG:32617", transform=Affine(30, 0, 500000, 0, -30, 4e6)
     ) as f:
@@ -238,6 +238,7 @@ def shading_step(work: Path) -> None:
                 terrain, algorithm, slope_weight=0.5, curvature_weight=0.5, shadows=True
             )
             shading.hillshade()
+            shading._plain_grey()
             shading.shade()
             shading.rgba()
             for _ in shading.band_strips(8):
@@ -259,11 +260,16 @@ def _geotiff_grid(work: Path, dtype: str):
 def extras_step(work: Path) -> None:
     """Options of the commands that reach more kernels: a blocked build, a textured render,
     a GLB mesh (its stored-vertex errors), verify of a store against its source."""
-    source = _geotiff(work / "extras.tif", "float32", holes=False)
+    # 129²: a blocked build of 64² blocks has several.
+    source = _geotiff(work / "extras.tif", "float32", holes=False, size=129)
     out, src = work / "extras", str(source)
     out.mkdir()
     store = str(out / "tree.zarr")
     _cli("build", src, "--out", store, "--block-size", "64", "-q")
+    for policy in ("nonregular", "tin"):
+        other = str(out / f"{policy}.zarr")
+        _cli("build", src, "--out", other, "--policy", policy, "-q")
+        _cli("verify", other, "--source", src)
     _cli("bake", src, "--out", str(out / "tex"), "-q", "--max-texture-size", "64")
     _cli("render", store, "--textures", str(out / "tex"), "--out", str(out / "r.png"))
     _cli("mesh", src, "--strategy", "tin", "--max-error", "1", "--out", str(out / "m.glb"))
