@@ -44,7 +44,11 @@ from approxtree.cli import main
 report = {}
 for command in json.loads(sys.argv[1]):
     compiled.clear()
-    main(command, standalone_mode=False)
+    try:
+        main(command, standalone_mode=False)
+    except SystemExit as stop:  # verify exits with its verdict
+        if stop.code:
+            raise
     report[" ".join(command)] = list(compiled)
 print("REPORT" + json.dumps(report))
 """
