@@ -19,6 +19,7 @@ from collections.abc import MutableMapping
 
 import click
 
+from approxtree.cli import compile_notice
 from approxtree.cli.common import _is_tree
 
 __all__ = ["_is_tree", "main", "run"]
@@ -114,6 +115,9 @@ def main() -> None:
     """approxtree: approximation trees for real-time terrain visualization."""
     # GDAL reads CPL_LOG when it prints its first message: set before any command's work.
     os.environ.setdefault("CPL_LOG", os.devnull)
+    # A first run after an editable install or an upgrade compiles kernels: say so.
+    compile_notice.install()
+    click.get_current_context().call_on_close(compile_notice.close)
 
 
 #: Set by a command whose process may end without the interpreter's teardown (see ``run``).
