@@ -256,6 +256,17 @@ def _geotiff_grid(work: Path, dtype: str):
     return read_grid(_geotiff(work / f"shading_{dtype}.tif", dtype, holes=False))
 
 
+def update_step(work: Path) -> None:
+    """The per-cell figures of large grid patches that ``update`` keeps (patches of 2048²
+    points and more, which no tiny file reaches): the kernel itself, in both height dtypes."""
+    from approxtree.kernels.grid_cells import grid_patch_cells
+
+    for dtype in (np.float32, np.float64):
+        heights = np.arange(81, dtype=dtype).reshape(9, 9)
+        lattice = np.ascontiguousarray(heights[::4, ::4])
+        grid_patch_cells(heights, lattice, 0, 8, 0, 8, 4, 4, 0, 1, 0, 1)
+
+
 def extras_step(work: Path) -> None:
     """Options of the commands that reach more kernels: a blocked build, a textured render,
     a GLB mesh (its stored-vertex errors), verify of a store against its source."""
@@ -316,6 +327,7 @@ STEPS: dict[str, Callable[[Path], None]] = {
     "tile_formats": tile_formats_step,
     "shading": shading_step,
     "extras": extras_step,
+    "update": update_step,
     "float64": float64_step,
     "points": points_step,
     "tin": tin_step,
