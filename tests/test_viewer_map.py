@@ -193,7 +193,12 @@ def test_cursor_readout_reports_the_terrain_elevation(session, key, action):
     pixel = script[key]["actions"][action]["cursor"]
     expected = _picked(tree, s, pixel)
     z = r["z_drawn"] if key == 6 else r["elevation"]
-    assert abs(z - r["elevation"]) <= EPSILON + 1e-6
+    # The drawn point is h_T's within the cut's α: seen by the frame, the drawn surface and
+    # h_T under the cursor lie within α = 1 px (from above a node's vertical error is seen
+    # end-on, so coarser patches than the leaves may be drawn there).
+    points = np.array([[r["x"], r["y"], z], [r["x"], r["y"], r["elevation"]]])
+    drawn, true = _frame_state(tree, s).world_to_pixels(points)[0]
+    assert np.linalg.norm(drawn - true) <= 1.0 + 1e-6
     assert r["elevation"] == pytest.approx(
         float(tree.terrain.height_at(np.array([r["x"]]), np.array([r["y"]]))[0])
     )
