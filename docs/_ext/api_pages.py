@@ -79,6 +79,8 @@ EXTRAS = {
         "approxtree.tree.policy.LevelPolicy",
         "approxtree.tree.patch_table.PatchTable",
         "approxtree.tree.store.TreeSource",
+        "approxtree.tree.builder.BuiltLevels",
+        "approxtree.tree.update.TreeUpdate",
     ),
     "approxtree.render": (
         "approxtree.render.lod_cut.LODCut",
