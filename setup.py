@@ -8,9 +8,14 @@ ships. The build environment holds numba, numpy and the few packages the warm-up
 ([build-system] requires); when their versions differ from the installed ones the cache
 simply misses (its stamp holds the versions) and kernels compile on first use, as before.
 
+An editable install (``pip install -e``) runs the same warm-up on the source tree itself: its
+git-ignored approxtree/_kernel_cache is the cache the editable package reads, so the first
+command after an editable install (or a reinstall after ``git pull``) compiles nothing either.
+Entries already there are kept: a warm-up over a full cache only loads them (about half a
+minute), and an entry whose kernel sources changed misses and is recompiled.
+
 The hook never fails the build: on any error it prints a warning and the package installs
-without the cache. Skipped for editable installs (``pip install -e``: the cache fills on first
-use, in the source tree's git-ignored approxtree/_kernel_cache) and when APPROXTREE_NO_AOT=1.
+without the cache. APPROXTREE_NO_AOT=1 skips it (the kernels then compile on first use).
 """
 
 from __future__ import annotations
@@ -30,10 +35,12 @@ def _warn(message: str) -> None:
     print(f"WARNING: approxtree: {message}", file=sys.stderr, flush=True)
 
 
-def compile_kernels(build_lib: Path) -> None:
-    """Run the warm-up on the package copied into build_lib (raises on failure)."""
+def compile_kernels(build_lib: Path, fresh: bool = True) -> None:
+    """Run the warm-up on the package below build_lib (raises on failure); ``fresh``: start
+    from an empty cache (a built copy), else keep the entries there (the source tree)."""
     cache = build_lib / "approxtree" / "_kernel_cache"
-    shutil.rmtree(cache, ignore_errors=True)
+    if fresh:
+        shutil.rmtree(cache, ignore_errors=True)
     env = dict(os.environ)
     # The built copy first on the path; numba's and our cache-folder overrides off.
     env["PYTHONPATH"] = os.pathsep.join([str(build_lib), env.get("PYTHONPATH", "")]).rstrip(
@@ -61,14 +68,19 @@ def compile_kernels(build_lib: Path) -> None:
 
 
 class BuildPyWithKernels(build_py):
-    """build_py, then the kernels compiled into the built package (never fails the build)."""
+    """build_py, then the kernels compiled into the built package, or into the source tree for
+    an editable install (never fails the build)."""
 
     def run(self) -> None:
         super().run()
-        if getattr(self, "editable_mode", False) or os.environ.get("APPROXTREE_NO_AOT") == "1":
+        if os.environ.get("APPROXTREE_NO_AOT") == "1":
             return
         try:
-            compile_kernels(Path(self.build_lib).resolve())
+            # Editable: the package is the source tree next to this file, not a copy.
+            if getattr(self, "editable_mode", False):
+                compile_kernels(Path(__file__).resolve().parent, fresh=False)
+            else:
+                compile_kernels(Path(self.build_lib).resolve())
         except Exception as error:
             _warn(f"kernels not compiled at install ({error!r}); they compile on first use.")
 

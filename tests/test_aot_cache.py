@@ -342,10 +342,31 @@ def test_build_hook_never_fails_the_build(tmp_path, monkeypatch, capsys, failure
     command.editable_mode = False
     command.run()
     assert "WARNING: approxtree:" in capsys.readouterr().err
-    # Editable installs skip the compile step altogether.
+
+
+def test_editable_install_compiles_into_the_source_tree(tmp_path, monkeypatch):
+    """An editable install runs the warm-up on the source tree itself (the cache the editable
+    package reads), keeping the entries already there; APPROXTREE_NO_AOT=1 skips it."""
+    from setuptools import Distribution
+    from setuptools.command.build_py import build_py
+
+    setup = _setup_module(monkeypatch)
+    monkeypatch.setattr(build_py, "run", lambda self: None)
+    calls: list[tuple[Path, bool]] = []
+    setup["compile_kernels"] = lambda root, fresh=True: calls.append((root, fresh))
+    command = setup["BuildPyWithKernels"](Distribution())
+    command.build_lib = str(tmp_path / "lib")
     command.editable_mode = True
     command.run()
-    assert capsys.readouterr().err == ""
+    assert calls == [(Path(__file__).resolve().parents[1], False)]
+    # A wheel build compiles into its own fresh copy.
+    command.editable_mode = False
+    command.run()
+    assert calls[1] == ((tmp_path / "lib").resolve(), True)
+    monkeypatch.setenv("APPROXTREE_NO_AOT", "1")
+    command.editable_mode = True
+    command.run()
+    assert len(calls) == 2
 
 
 # Runs the bake's kernels (shading a strip, halving it) in one process and prints whether
