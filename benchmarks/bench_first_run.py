@@ -23,7 +23,10 @@ Inputs: ../shared/data (its README), one file of each kind: GeoTIFF (float32, in
 nodata), SRTM .hgt.zip, USGS ASCII DEM, ESRI ASCII grid, scape .stm and .pgm, numpy .npz,
 LAZ point cloud, a quantized-mesh tile, and two PNGs written here (16-bit grayscale and
 Terrarium). Timings are wall seconds of the whole process (interpreter start and imports
-included); on a shared machine they are noisy: report medians.
+included); on a shared machine they are noisy: report medians. Commands per input: info,
+build, render, bake, mesh (each strategy the input takes), verify, convert, view (5 frames in
+a window of a private Xvfb display), tiles and rd where the input allows; on the float32
+GeoTIFF also ``update`` (a 64² patch) and ``serve`` (timed until its first tile comes back).
 """
 
 from __future__ import annotations
@@ -147,6 +150,12 @@ def commands(kind: str, path: Path, opts: list[str], work: Path) -> list[tuple[s
         )
     cmds.append(("verify mesh", ["verify", str(out / "tin.ply"), "--source", *src]))
     cmds.append(("verify store", ["verify", store]))
+    cmds.append(("convert", ["convert", store, str(out / "tree.zarr.zip"), *ow]))
+    # The viewer: a few frames in a window of the virtual display (bench() starts Xvfb).
+    cmds.append(("view", ["view", store, "--frames", "5", "--size", "640x360"]))
+    if kind == "GeoTIFF float32":
+        cmds.append(("update", ["update", store, str(_patch(path, out))]))
+        cmds.append(("serve", [SERVE, store]))
     # Cesium's tiles need a grid placed on the globe (a CRS); rd a complete grid window.
     if kind in GLOBE_GRIDS:
         qm = ["tiles", store, "--format", "quantized-mesh", "--out", str(out / "qm"), *ow]
@@ -159,6 +168,28 @@ def commands(kind: str, path: Path, opts: list[str], work: Path) -> list[tuple[s
     if kind not in ("LAZ", "quantized-mesh tile", "GeoTIFF NaN sea", "GeoTIFF int16"):
         cmds.append(("rd", ["rd", *src, "--size", "33", "-q"]))
     return cmds
+
+
+#: argv[0] of the rows that run ``approxtree serve`` until a first tile comes back.
+SERVE = "serve"
+
+
+def _patch(dem: Path, out: Path) -> Path:
+    """A 64² window of ``dem`` raised by 5 (a GeoTIFF aligned with its cells), for ``update``."""
+    import rasterio
+    from rasterio.windows import Window
+
+    patch = out / "patch.tif"
+    with rasterio.open(dem) as src:
+        window = Window(32, 32, 64, 64)
+        z = src.read(1, window=window) + 5
+        profile = dict(src.profile, width=64, height=64, transform=src.window_transform(window))
+    profile.pop("blockxsize", None)
+    profile.pop("blockysize", None)
+    profile["tiled"] = False
+    with rasterio.open(patch, "w", **profile) as dst:
+        dst.write(z, 1)
+    return patch
 
 
 def matrix(work: Path, kinds: list[str] | None = None) -> list[tuple[str, str, list[str]]]:
@@ -223,7 +254,10 @@ def _timed(
     wall seconds, exit status, cache files written."""
     before = _entries(cache)
     t0 = time.perf_counter()
-    run = subprocess.run([*cmd, *argv], env=env, cwd=cwd, capture_output=True, text=True)
+    if argv[0] == SERVE:
+        run = _served(cmd, argv, env, cwd)
+    else:
+        run = subprocess.run([*cmd, *argv], env=env, cwd=cwd, capture_output=True, text=True)
     wall = time.perf_counter() - t0
     return {
         "s": round(wall, 2),
@@ -231,6 +265,42 @@ def _timed(
         "written": _entries(cache) - before,
         "err": run.stderr.strip().splitlines()[-1][:200] if run.returncode else "",
     }
+
+
+def _served(
+    cmd: list[str], argv: list[str], env: dict[str, str], cwd: Path
+) -> subprocess.CompletedProcess:
+    """``approxtree serve`` until its first quantized-mesh tile comes back, then SIGTERM:
+    the time a user waits for the first tile (the row's seconds)."""
+    import socket
+    import urllib.request
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.Popen(
+        [*cmd, *argv, "--port", str(port)],
+        env=env,
+        cwd=cwd,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    url = f"http://127.0.0.1:{port}/terrain/0/0/0.terrain"
+    status = 1
+    deadline = time.monotonic() + 300
+    # Poll until the server answers (its start-up is part of what the user waits for).
+    while proc.poll() is None and time.monotonic() < deadline:
+        try:
+            with urllib.request.urlopen(url, timeout=60) as response:
+                response.read()
+                status = 0
+            break
+        except OSError:
+            time.sleep(0.05)
+    proc.terminate()
+    _, err = proc.communicate(timeout=60)
+    return subprocess.CompletedProcess(argv, status, "", err if status else "")
 
 
 def bench(
@@ -298,7 +368,13 @@ def main() -> None:
     if opts.probe:
         probe(work, opts.probe, opts.kinds)
         return
-    rows = bench(shlex.split(opts.approxtree), work, opts.repeat, opts.cold, opts.cache, opts.kinds)
+    from approxtree.viewer.xvfb import virtual_display
+
+    with virtual_display() as display:
+        os.environ["DISPLAY"] = display
+        rows = bench(
+            shlex.split(opts.approxtree), work, opts.repeat, opts.cold, opts.cache, opts.kinds
+        )
     result = {
         "machine": f"{os.cpu_count()} cores, load {os.getloadavg()[0]:.1f} at the end",
         "mode": "cold (empty kernel cache per command)" if opts.cold else "fresh install",
