@@ -48,7 +48,17 @@ class ShaderError(ApproxTreeError):
 
 def shader_dir() -> Path:
     """The folder holding the .glsl files (inside the installed package)."""
-    return Path(str(resources.files("approxtree.shaders")))
+    try:
+        return Path(str(resources.files("approxtree.shaders")))
+    except ModuleNotFoundError:
+        # A source checkout imported through PYTHONPATH, without an install mapping shaders/
+        # to approxtree.shaders (the editable install's own warm-up runs that way).
+        source = Path(__file__).resolve().parent.parent / "shaders"
+        if source.is_dir():
+            return source
+        raise ShaderError(
+            "approxtree's shaders are missing: reinstall approxtree (pip install .)"
+        ) from None
 
 
 @dataclass(frozen=True)

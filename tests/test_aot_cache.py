@@ -432,3 +432,19 @@ def test_entries_naming_refresh_only_symbols_take_numbas_path():
     assert _cache._needs_full_refresh((("lib", "bitcode", b"BC"), "fndesc"))
     assert _cache._needs_full_refresh(None)
     assert _cache.LIGHT_LOAD
+
+
+def test_a_source_checkout_on_the_path_finds_its_shaders(monkeypatch):
+    """Without an install mapping shaders/ to approxtree.shaders (the editable install's own
+    warm-up imports the source tree through PYTHONPATH), the shaders come from the checkout."""
+    from importlib import resources
+
+    from approxtree import glsl
+
+    def missing(package):
+        raise ModuleNotFoundError(f"No module named {package!r}")
+
+    monkeypatch.setattr(resources, "files", missing)
+    folder = glsl.shader_dir()
+    assert folder == Path(glsl.__file__).resolve().parent.parent / "shaders"
+    assert glsl.load_source("terrain").stages
