@@ -52,12 +52,16 @@ def _frame(tree) -> None:
     from approxtree.render.frame_state import FrameState
     from approxtree.render.skirts import skirt_depths
     from approxtree.render.texture_sharing import texture_nodes
+    from approxtree.render.visual_error import texel_sizes, visual_errors
 
     scale = display_scale(tree.terrain)
     camera = overview_camera(tree.bboxes[0], scale)
     fs = FrameState.from_camera(camera, (800, 600), tree.bboxes[0], tree.origin, scale)
     sel = select(tree, fs, alpha=0.5, gamma=2.0)
     texture_nodes(tree.parents, sel, 2.0)
+    # The visual errors of a drawn cut (render's and the viewer's stats while patches page in).
+    drawn = np.asarray(sel.nodes, dtype=np.int64)
+    visual_errors(tree.bboxes[drawn], tree.errors[drawn], texel_sizes(tree)[drawn], fs)
     skirt_depths(tree.errors, tree.terrain.z_range, None, tree.bboxes[:, [0, 1, 3, 4]])
     for i in sel.nodes:
         tree.patch(int(i)).vertices  # noqa: B018 (the mesh is built on first access)
@@ -313,8 +317,6 @@ NOT_WARMED: dict[str, str] = {
     "approxtree.kernels.mesh_errors.mesh_point_errors": "microstructure patches; mesh files "
     "whose stored coordinates round the mesh's (large float32 coordinates)",
     "approxtree.kernels.bintree_rd.split_closure": "BinTree.splitting_domain, Python API only",
-    "approxtree.render.visual_error._visual_errors_many": "paged rendering of trees larger than "
-    "the GPU budget (the viewer's paging)",
 }
 
 
