@@ -330,12 +330,24 @@ def bake(
                 out = np.where(rgba[..., 3:] > 0, rgba, out)
             return out
 
+    # What a re-bake (``rebake``) repeats: the layers and the shading with its options.
+    recipe = {
+        "layers": names,
+        "shading": shading,
+        "shading_options": {
+            k: v.item() if isinstance(v, np.generic) else v
+            for k, v in (shading_options or {}).items()
+        },
+        "texel_size": float(texel),
+        "gl": used_gl,
+    }
     pyramid = TexturePyramid.build(
         texture,
         folder,
         max_texture_size=max_texture_size,
         level_overlay=redraw,
         progress=progress,
+        recipe=recipe,
     )
     return BakeResult(pyramid, time.perf_counter() - t0, names, used_gl)
 

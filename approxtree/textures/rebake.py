@@ -1,0 +1,289 @@
+"""Re-baking: the texture pyramid follows an edit of the terrain, or a new light.
+
+``rebake(folder, terrain, rect)`` re-bakes only the pyramid tiles that an edit of the terrain's
+cells inside ``rect`` reaches, on every level, to the texels a fresh ``bake`` of the edited
+terrain writes:
+
+1. Level 0 (``reached_texels``): the texels whose height sample reads an edited cell (the cell
+   itself on the DEM's own lattice; a resampled lattice interpolates h_T bilinearly, so within
+   one cell of it), grown by one texel for the shading kernel's 3 × 3 gradient window. The
+   512² tiles they meet are shaded again (``_shade_region``) from a window of h_T with one more
+   texel of context on every side: the kernel's nodata border ring falls in the context, and
+   on the terrain's own border it is the terrain's, as in the bake.
+2. Level k + 1: the texels whose 2 × 2 footprint meets the changed texels of level k (the
+   changed rectangle halved, rounding outwards); the tiles they meet are halved again from
+   level k as just rewritten, with the bake's own filter (``halve_bands``).
+3. All or nothing: every level file is copied into a temp folder beside the pyramid, the tiles
+   are rewritten in the copies (GDAL updates a tiled GeoTIFF in place), pyramid.json gets the
+   new tile checksums, byte counts and a new build id, and the folder is swapped in
+   (``atomic_directory``): a reader sees the old pyramid or the new one.
+
+What is re-baked whole, through ``bake`` with the pyramid's recipe: a new light (or any other
+``shading_options``), and the shadings whose texels depend on far cells (cast shadows, the
+curvature weight's spread over the whole grid, Phong and Gouraud on their own lattice).
+Pyramids with thematic layers, images or overlays are refused: bake them again.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from affine import Affine
+
+from approxtree.errors import InvalidParameterError, StoreError
+from approxtree.geometry.grid import Grid
+from approxtree.geometry.rect import Rect
+from approxtree.io.atomic import atomic_directory
+from approxtree.io.gdal import checked_write, no_side_files
+from approxtree.kernels.rgba import halve_bands
+from approxtree.textures.bake import bake, texture_lattice
+from approxtree.textures.pyramid import (
+    _TAG_BUILD,
+    _TAG_LEVEL,
+    _TILE,
+    TexturePyramid,
+    _dump_meta,
+    tile_row_checksums,
+)
+from approxtree.textures.shading import TopographicShading
+
+#: Texel rectangle (r0, r1, c0, c1), half-open, in a level's own rows and columns.
+TexelRect = tuple[int, int, int, int]
+
+
+@dataclass
+class Rebake:
+    """What a re-bake wrote.
+
+    pyramid: the pyramid as it is now. tiles: per level, the tiles written; tiles_total: per
+    level, the level's tiles. whole: True when the pyramid was baked whole (a new light, a
+    shading that is not local). seconds: wall time.
+    """
+
+    pyramid: TexturePyramid
+    tiles: list[int]
+    tiles_total: list[int]
+    whole: bool
+    seconds: float
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready figures (``approxtree update --textures --json``)."""
+        return {
+            "tiles": sum(self.tiles),
+            "tiles_total": sum(self.tiles_total),
+            "tiles_per_level": self.tiles,
+            "whole": self.whole,
+            "seconds": round(self.seconds, 6),
+        }
+
+
+def rebake(
+    pyramid: TexturePyramid | str | os.PathLike,
+    terrain: Grid,
+    rect: Rect | None = None,
+    shading_options: dict[str, Any] | None = None,
+    context: Any = None,
+) -> Rebake:
+    """Re-bake the pyramid baked from ``terrain`` after its cells inside ``rect`` changed.
+
+    pyramid: a TexturePyramid or its folder, baked by ``bake`` (its recipe is in pyramid.json).
+    terrain: the edited terrain (same lattice as when baked). rect: the world rectangle of the
+    edited cells (on cell edges), or None for the whole pyramid. shading_options: options to
+    change (e.g. ``{"azimuth": 200.0}``): the pyramid is re-baked whole with them and the
+    recipe keeps them. context: a moderngl context for a pyramid whose shading was baked with
+    OpenGL (None: numpy, within ±1 grey level of it).
+    """
+    t0 = time.perf_counter()
+    if not isinstance(pyramid, TexturePyramid):
+        pyramid = TexturePyramid(pyramid)
+    recipe = _recipe(pyramid)
+    options = {**recipe["shading_options"], **(shading_options or {})}
+    transform, shape = texture_lattice(terrain, float(recipe["texel_size"]))
+    level0 = pyramid.levels[0]
+    if shape != (level0.height, level0.width) or not transform.almost_equals(level0.transform):
+        raise InvalidParameterError(
+            f"{pyramid.folder} was not baked from this terrain: its level 0 is "
+            f"{level0.width} × {level0.height} texels at {tuple(level0.transform)[:6]}, the "
+            f"terrain's lattice {shape[1]} × {shape[0]} at {tuple(transform)[:6]}."
+        )
+    totals = [_tiles_of(lv.height, lv.width) for lv in pyramid.levels]
+    # A new light, or a shading that reads far cells: the whole pyramid, as a bake makes it.
+    if rect is None or shading_options or not _is_local(recipe["shading"], options):
+        result = bake(
+            terrain,
+            pyramid.folder,
+            shading=recipe["shading"],
+            shading_options=options,
+            texel_size=float(recipe["texel_size"]),
+            max_texture_size=pyramid.max_texture_size,
+            gl=bool(recipe["gl"]),
+            context=context,
+        )
+        return Rebake(result.pyramid, totals, totals, True, time.perf_counter() - t0)
+    same = shape == terrain.shape and transform.almost_equals(terrain.transform)
+    reached = reached_texels(terrain, rect, transform, shape, same)
+    tiles = [0] * len(pyramid.levels)
+    if reached is None:
+        return Rebake(pyramid, tiles, totals, False, time.perf_counter() - t0)
+    folder = pyramid.folder
+    meta = json.loads((folder / "pyramid.json").read_text())
+    meta["build"] = uuid.uuid4().hex
+    with atomic_directory(folder) as tmp:
+        changed = reached
+        for k, lv in enumerate(pyramid.levels):
+            path = tmp / lv.path.name
+            shutil.copyfile(lv.path, path)
+            region = _tile_region(changed, lv.height, lv.width)
+            if k == 0:
+                block = _shade_region(terrain, options, transform, shape, same, region)
+            else:
+                block = _halve_region(tmp / pyramid.levels[k - 1].path.name, region)
+            _write_tiles(path, block, region, meta["build"], meta["levels"][k])
+            tiles[k] = _tiles_of(region[1] - region[0], region[3] - region[2])
+            # The next level's changed texels: those whose 2 × 2 footprint meets these.
+            r0, r1, c0, c1 = changed
+            changed = (r0 // 2, -(-r1 // 2), c0 // 2, -(-c1 // 2))
+        (tmp / "pyramid.json").write_text(_dump_meta(meta))
+    return Rebake(TexturePyramid(folder), tiles, totals, False, time.perf_counter() - t0)
+
+
+def reached_texels(
+    terrain: Grid, rect: Rect, transform: Affine, shape: tuple[int, int], same: bool
+) -> TexelRect | None:
+    """Level-0 texels (r0, r1, c0, c1), half-open, whose shading reads a cell inside ``rect``
+    (module doc, step 1); None when the rect misses the lattice."""
+    t = terrain.transform
+    # The edited cells, half-open, from the rect's corners (on cell edges).
+    cols = sorted(((rect.xmin - t.c) / t.a, (rect.xmax - t.c) / t.a))
+    rows = sorted(((rect.ymin - t.f) / t.e, (rect.ymax - t.f) / t.e))
+    r0, r1 = round(rows[0]), round(rows[1])
+    c0, c1 = round(cols[0]), round(cols[1])
+    if not same:
+        # A texel's height is interpolated from the four data points around its centre: it
+        # reads an edited cell when its centre lies within one cell of one (one more cell of
+        # slack against round-off), then the 3 × 3 window adds one texel.
+        x0, y0 = t @ (c0 - 2, r0 - 2)
+        x1, y1 = t @ (c1 + 2, r1 + 2)
+        inv = ~transform
+        (ca, ra), (cb, rb) = inv @ (x0, y0), inv @ (x1, y1)
+        r0, r1 = int(np.floor(min(ra, rb))), int(np.ceil(max(ra, rb)))
+        c0, c1 = int(np.floor(min(ca, cb))), int(np.ceil(max(ca, cb)))
+    # The 3 × 3 gradient window: one texel more on every side.
+    r0, r1 = max(r0 - 1, 0), min(r1 + 1, shape[0])
+    c0, c1 = max(c0 - 1, 0), min(c1 + 1, shape[1])
+    if r0 >= r1 or c0 >= c1:
+        return None
+    return r0, r1, c0, c1
+
+
+def _recipe(pyramid: TexturePyramid) -> dict[str, Any]:
+    """The pyramid's recipe, checked to be one a re-bake can repeat (a shading only)."""
+    recipe = pyramid.recipe
+    if recipe is None:
+        raise StoreError(
+            f"{pyramid.folder} records no bake recipe (baked before re-bakes existed, or "
+            "from an array): bake it again (approxtree bake) to let it follow updates."
+        )
+    others = [name for name in recipe["layers"] if not name.startswith("shading:")]
+    if others or recipe["shading"] is None:
+        raise InvalidParameterError(
+            f"{pyramid.folder} holds layers a re-bake does not repeat ({', '.join(others)}); "
+            "only shading pyramids follow updates: bake it again (approxtree bake)."
+        )
+    return recipe
+
+
+def _is_local(shading: str, options: dict[str, Any]) -> bool:
+    """Whether a texel of this shading reads only the 3 × 3 heights around it."""
+    return (
+        shading == "topographic"
+        and not options.get("shadows", False)
+        and not options.get("curvature_weight", 0.0)
+    )
+
+
+def _tiles_of(rows: int, cols: int) -> int:
+    """Tiles of a rows × cols block starting on a tile edge."""
+    return -(-rows // _TILE) * -(-cols // _TILE)
+
+
+def _tile_region(texels: TexelRect, rows: int, cols: int) -> TexelRect:
+    """The whole tiles (clipped to the level's rows × cols) that ``texels`` meets."""
+    r0, r1, c0, c1 = texels
+    return (
+        r0 // _TILE * _TILE,
+        min(-(-r1 // _TILE) * _TILE, rows),
+        c0 // _TILE * _TILE,
+        min(-(-c1 // _TILE) * _TILE, cols),
+    )
+
+
+def _shade_region(
+    terrain: Grid,
+    options: dict[str, Any],
+    transform: Affine,
+    shape: tuple[int, int],
+    same: bool,
+    region: TexelRect,
+) -> np.ndarray:
+    """(2, rows, cols) uint8 grey and alpha of the level-0 texels of ``region``, as the bake
+    shades them: from h_T on the lattice with one texel of context on every side."""
+    r0, r1, c0, c1 = region
+    a, b = max(r0 - 1, 0), min(r1 + 1, shape[0])
+    c, d = max(c0 - 1, 0), min(c1 + 1, shape[1])
+    if same:
+        z = np.asarray(terrain.heights[a:b, c:d])
+    else:
+        # The very texel centres the bake samples (the same floats: sliced, not recomputed).
+        xs = transform.c + (np.arange(shape[1]) + 0.5) * transform.a
+        ys = transform.f + (np.arange(shape[0]) + 0.5) * transform.e
+        z = terrain.height_at(xs[None, c:d], ys[a:b, None]).astype(np.float32)
+    window = Grid(z, transform @ Affine.translation(c, a), terrain.crs, allow_empty=True)
+    strips = TopographicShading(window, **options).level_strips(512)
+    block = np.concatenate([s.copy() for s in strips], axis=1)
+    return np.ascontiguousarray(block[:, r0 - a : r1 - a, c0 - c : c1 - c])
+
+
+def _halve_region(finer: Path, region: TexelRect) -> np.ndarray:
+    """(bands, rows, cols) uint8 texels of ``region`` of a level, halved from the finer
+    level's file as rewritten (its odd last row or column repeated, as the bake does)."""
+    import rasterio
+    from rasterio.windows import Window
+
+    r0, r1, c0, c1 = region
+    with no_side_files(), rasterio.open(finer) as ds:
+        rows, cols = min(2 * r1, ds.height) - 2 * r0, min(2 * c1, ds.width) - 2 * c0
+        src = ds.read(window=Window(2 * c0, 2 * r0, cols, rows))
+    out = np.empty((src.shape[0], r1 - r0, c1 - c0), dtype=np.uint8)
+    halve_bands(np.ascontiguousarray(src), out)
+    return out
+
+
+def _write_tiles(path: Path, block: np.ndarray, region: TexelRect, build: str, entry: dict) -> None:
+    """Write the (bands, rows, cols) texels of ``region`` (whole tiles) into the level file
+    ``path`` in place, tag it with the new build id, and update its pyramid.json ``entry``
+    (tile checksums, bytes)."""
+    import rasterio
+    from rasterio.windows import Window
+
+    r0, r1, c0, c1 = region
+    with checked_write(path), no_side_files(), rasterio.open(path, "r+") as ds:
+        level = ds.tags().get(_TAG_LEVEL)
+        ds.write(block, window=Window(c0, r0, c1 - c0, r1 - r0))
+        ds.update_tags(**{_TAG_BUILD: build, _TAG_LEVEL: level})
+    # The tiles' checksums, as the bake computes them: decoded texels, tile by tile.
+    for i, start in enumerate(range(0, r1 - r0, _TILE)):
+        sums = tile_row_checksums(block[:, start : start + _TILE])
+        entry["tile_crc32c"][r0 // _TILE + i][c0 // _TILE : c0 // _TILE + len(sums)] = sums
+    entry["bytes"] = path.stat().st_size
+
+
+__all__ = ["Rebake", "reached_texels", "rebake"]
