@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rasterio
 from click.testing import CliRunner
 from conftest import data_file
 from test_update_store import write_patch
@@ -45,16 +46,31 @@ def cells_rect(grid: Grid, r0: int, c0: int, rows: int, cols: int) -> Rect:
     return Rect(min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1))
 
 
-def expected_tiles(window: tuple[int, int, int, int], pyramid: TexturePyramid) -> list[int]:
-    """Tiles per level that the cells r0..r1, c0..c1 (half-open, level-0 texels) reach: one
-    texel more for the 3 × 3 gradient, then halved outwards level by level."""
+def reached_tiles(window: tuple[int, int, int, int], pyramid: TexturePyramid) -> list[set]:
+    """Per level, the (row, col) tiles that the cells r0..r1, c0..c1 (half-open, level-0
+    texels) reach: one texel more for the 3 × 3 gradient, then halved outwards level by level."""
     r0, r1, c0, c1 = window
     lv0 = pyramid.levels[0]
-    r0, r1, c0, c1 = max(r0 - 1, 0), min(r1 + 1, lv0.height), max(c0 - 1, 0), min(c1 + 1, lv0.width)
+    r0, r1 = max(r0 - 1, 0), min(r1 + 1, lv0.height)
+    c0, c1 = max(c0 - 1, 0), min(c1 + 1, lv0.width)
     out = []
     for _ in pyramid.levels:
-        out.append((-(-r1 // TILE) - r0 // TILE) * (-(-c1 // TILE) - c0 // TILE))
+        rows = range(r0 // TILE, -(-r1 // TILE))
+        out.append({(i, j) for i in rows for j in range(c0 // TILE, -(-c1 // TILE))})
         r0, r1, c0, c1 = r0 // 2, -(-r1 // 2), c0 // 2, -(-c1 // 2)
+    return out
+
+
+def raw_tiles(path: Path) -> dict[tuple[int, int, int], bytes]:
+    """The compressed bytes of every tile of every band of a level file, by (band, row, col)."""
+    data = path.read_bytes()
+    out = {}
+    with rasterio.open(path) as ds:
+        for band in ds.indexes:
+            for (i, j), _ in ds.block_windows(band):
+                offset = int(ds.get_tag_item(f"BLOCK_OFFSET_{j}_{i}", "TIFF", bidx=band))
+                size = int(ds.get_tag_item(f"BLOCK_SIZE_{j}_{i}", "TIFF", bidx=band))
+                out[band, i, j] = data[offset : offset + size]
     return out
 
 
@@ -110,7 +126,7 @@ def test_nc_random_windows_equal_fresh_bakes(nc, tmp_path) -> None:
     for (r0, c0, patch), result in zip(edits, done, strict=True):
         window = (r0, r0 + patch.shape[0], c0, c0 + patch.shape[1])
         assert not result.whole
-        assert result.tiles == expected_tiles(window, pyramid)
+        assert result.tiles == [len(t) for t in reached_tiles(window, pyramid)]
 
 
 def test_fractal_with_holes_rewrites_only_reached_tiles(tmp_path) -> None:
@@ -127,13 +143,23 @@ def test_fractal_with_holes_rewrites_only_reached_tiles(tmp_path) -> None:
         (1150, 1030, np.array(z[1150:1200, 1030:1100]) - 50.0),  # the south-east corner
         (290, 690, np.full((20, 30), np.nan)),  # more nodata beside the hole
     ]
+    bake(grid, tmp_path / "before", gl=False, max_texture_size=128)
     done = edit_and_compare(tmp_path, grid, edits, max_texture_size=128)
     pyramid = TexturePyramid(tmp_path / "pyramid")
+    reached = [set() for _ in pyramid.levels]
     for (r0, c0, patch), result in zip(edits, done, strict=True):
         window = (r0, r0 + patch.shape[0], c0, c0 + patch.shape[1])
-        assert result.tiles == expected_tiles(window, pyramid)
+        tiles = reached_tiles(window, pyramid)
+        assert result.tiles == [len(t) for t in tiles]
         assert sum(result.tiles) < sum(result.tiles_total)
+        reached = [a | b for a, b in zip(reached, tiles, strict=True)]
     assert done[0].tiles[0] == 4 and done[1].tiles[0] == 1
+    # Every tile no edit reached keeps its very bytes in the level files.
+    for k, lv in enumerate(pyramid.levels):
+        old, new = raw_tiles(tmp_path / "before" / lv.path.name), raw_tiles(lv.path)
+        kept = [key for key in old if key[1:] not in reached[k]]
+        assert all(old[key] == new[key] for key in kept), k
+        assert kept or k > 0
 
 
 def test_resampled_lattice_equals_fresh_bake(nc, tmp_path) -> None:

@@ -31,6 +31,7 @@ import os
 import shutil
 import time
 import uuid
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -46,6 +47,7 @@ from approxtree.io.gdal import checked_write, no_side_files
 from approxtree.kernels.rgba import halve_bands
 from approxtree.textures.bake import bake, texture_lattice
 from approxtree.textures.pyramid import (
+    _LEVEL_OPTIONS,
     _TAG_BUILD,
     _TAG_LEVEL,
     _TILE,
@@ -73,6 +75,7 @@ class Rebake:
     tiles_total: list[int]
     whole: bool
     seconds: float
+    copy_seconds: float = 0.0
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready figures (``approxtree update --textures --json``)."""
@@ -82,6 +85,7 @@ class Rebake:
             "tiles_per_level": self.tiles,
             "whole": self.whole,
             "seconds": round(self.seconds, 6),
+            "copy_seconds": round(self.copy_seconds, 6),
         }
 
 
@@ -130,29 +134,43 @@ def rebake(
         return Rebake(result.pyramid, totals, totals, True, time.perf_counter() - t0)
     same = shape == terrain.shape and transform.almost_equals(terrain.transform)
     reached = reached_texels(terrain, rect, transform, shape, same)
-    tiles = [0] * len(pyramid.levels)
+    levels = pyramid.levels
+    tiles = [0] * len(levels)
     if reached is None:
         return Rebake(pyramid, tiles, totals, False, time.perf_counter() - t0)
     folder = pyramid.folder
     meta = json.loads((folder / "pyramid.json").read_text())
     meta["build"] = uuid.uuid4().hex
-    with atomic_directory(folder) as tmp:
-        changed = reached
-        for k, lv in enumerate(pyramid.levels):
-            path = tmp / lv.path.name
-            shutil.copyfile(lv.path, path)
-            region = _tile_region(changed, lv.height, lv.width)
-            if k == 0:
-                block = _shade_region(terrain, options, transform, shape, same, region)
-            else:
-                block = _halve_region(tmp / pyramid.levels[k - 1].path.name, region)
-            _write_tiles(path, block, region, meta["build"], meta["levels"][k])
+    waited = 0.0
+    # Each level's changed texels: those whose 2 × 2 footprint meets the finer level's.
+    changed = [reached]
+    for _ in levels[1:]:
+        r0, r1, c0, c1 = changed[-1]
+        changed.append((r0 // 2, -(-r1 // 2), c0 // 2, -(-c1 // 2)))
+    with atomic_directory(folder) as tmp, ThreadPoolExecutor(1) as copier:
+        # The level files are copied on a thread (sendfile, without the GIL), the smallest
+        # first, while the new texels are made and the old tiles read; each level waits for
+        # its own copy only, so the coarse levels are written while level 0 is copied.
+        order = range(len(levels) - 1, -1, -1)
+        copies = {
+            k: copier.submit(shutil.copyfile, levels[k].path, tmp / levels[k].path.name)
+            for k in order
+        }
+        blocks = _level_blocks(terrain, options, transform, shape, same, reached, len(levels))
+        for k in order:
+            lv, (rect, block) = levels[k], blocks[k]
+            # The whole tiles the changed texels meet: the old texels, the new ones over them.
+            region = _tile_region(changed[k], lv.height, lv.width)
+            texels = _read_region(lv.path, region)
+            _paste(texels, region, block, rect)
+            t1 = time.perf_counter()
+            copies[k].result()
+            waited += time.perf_counter() - t1
+            _write_tiles(tmp / lv.path.name, texels, region, meta["build"], meta["levels"][k])
             tiles[k] = _tiles_of(region[1] - region[0], region[3] - region[2])
-            # The next level's changed texels: those whose 2 × 2 footprint meets these.
-            r0, r1, c0, c1 = changed
-            changed = (r0 // 2, -(-r1 // 2), c0 // 2, -(-c1 // 2))
         (tmp / "pyramid.json").write_text(_dump_meta(meta))
-    return Rebake(TexturePyramid(folder), tiles, totals, False, time.perf_counter() - t0)
+    seconds = time.perf_counter() - t0
+    return Rebake(TexturePyramid(folder), tiles, totals, False, seconds, waited)
 
 
 def reached_texels(
@@ -252,19 +270,57 @@ def _shade_region(
     return np.ascontiguousarray(block[:, r0 - a : r1 - a, c0 - c : c1 - c])
 
 
-def _halve_region(finer: Path, region: TexelRect) -> np.ndarray:
-    """(bands, rows, cols) uint8 texels of ``region`` of a level, halved from the finer
-    level's file as rewritten (its odd last row or column repeated, as the bake does)."""
+def _level_blocks(
+    terrain: Grid,
+    options: dict[str, Any],
+    transform: Affine,
+    shape: tuple[int, int],
+    same: bool,
+    reached: TexelRect,
+    levels: int,
+) -> list[tuple[TexelRect, np.ndarray]]:
+    """Per level, a texel rect holding the changed texels and its (bands, rows, cols) new
+    texels: level 0 shaded over the reached texels widened to multiples of 2^(levels − 1),
+    each next level its halving in memory (the bake's filter; the widening keeps every
+    halving on even rows and columns, or on the level's odd last one, as the bake pairs them)."""
+    step = 1 << (levels - 1)
+    r0, r1, c0, c1 = reached
+    rect = (
+        r0 // step * step,
+        min(-(-r1 // step) * step, shape[0]),
+        c0 // step * step,
+        min(-(-c1 // step) * step, shape[1]),
+    )
+    block = _shade_region(terrain, options, transform, shape, same, rect)
+    out = [(rect, block)]
+    for _ in range(levels - 1):
+        r0, r1, c0, c1 = rect
+        rect = (r0 // 2, -(-r1 // 2), c0 // 2, -(-c1 // 2))
+        half = np.empty((block.shape[0], rect[1] - rect[0], rect[3] - rect[2]), dtype=np.uint8)
+        halve_bands(block, half)
+        out.append((rect, half))
+        block = half
+    return out
+
+
+def _read_region(path: Path, region: TexelRect) -> np.ndarray:
+    """(bands, rows, cols) uint8 texels of a level file's ``region`` (whole tiles)."""
     import rasterio
     from rasterio.windows import Window
 
     r0, r1, c0, c1 = region
-    with no_side_files(), rasterio.open(finer) as ds:
-        rows, cols = min(2 * r1, ds.height) - 2 * r0, min(2 * c1, ds.width) - 2 * c0
-        src = ds.read(window=Window(2 * c0, 2 * r0, cols, rows))
-    out = np.empty((src.shape[0], r1 - r0, c1 - c0), dtype=np.uint8)
-    halve_bands(np.ascontiguousarray(src), out)
-    return out
+    with no_side_files(), rasterio.open(path) as ds:
+        return ds.read(window=Window(c0, r0, c1 - c0, r1 - r0))
+
+
+def _paste(texels: np.ndarray, region: TexelRect, block: np.ndarray, rect: TexelRect) -> None:
+    """Copy the part of ``block`` (the texels of ``rect``) inside ``region`` into ``texels``
+    (the texels of ``region``)."""
+    r0, r1 = max(region[0], rect[0]), min(region[1], rect[1])
+    c0, c1 = max(region[2], rect[2]), min(region[3], rect[3])
+    texels[:, r0 - region[0] : r1 - region[0], c0 - region[2] : c1 - region[2]] = block[
+        :, r0 - rect[0] : r1 - rect[0], c0 - rect[2] : c1 - rect[2]
+    ]
 
 
 def _write_tiles(path: Path, block: np.ndarray, region: TexelRect, build: str, entry: dict) -> None:
@@ -275,7 +331,9 @@ def _write_tiles(path: Path, block: np.ndarray, region: TexelRect, build: str, e
     from rasterio.windows import Window
 
     r0, r1, c0, c1 = region
-    with checked_write(path), no_side_files(), rasterio.open(path, "r+") as ds:
+    # Compressed at the bake's ZSTD level (an update takes it from the environment).
+    level_env = rasterio.Env(ZSTD_LEVEL=str(_LEVEL_OPTIONS["zstd_level"]))
+    with checked_write(path), no_side_files(), level_env, rasterio.open(path, "r+") as ds:
         level = ds.tags().get(_TAG_LEVEL)
         ds.write(block, window=Window(c0, r0, c1 - c0, r1 - r0))
         ds.update_tags(**{_TAG_BUILD: build, _TAG_LEVEL: level})
