@@ -198,7 +198,7 @@ def test_refuses_other_layers_and_other_terrains(nc, data_dir, tmp_path) -> None
     """A thematic pyramid, an array-built one and another terrain's are refused with a reason."""
     landuse = data_file(data_dir, "nc/landuse_r.tif")
     bake(nc, tmp_path / "thematic", gl=False, thematic=landuse, max_texture_size=256)
-    with pytest.raises(InvalidParameterError, match="only shading pyramids"):
+    with pytest.raises(InvalidParameterError, match="only pyramids of a shading"):
         rebake(tmp_path / "thematic", nc, cells_rect(nc, 0, 0, 2, 2))
     rgba = np.zeros((8, 8, 4), dtype=np.uint8)
     TexturePyramid.build(rgba, tmp_path / "array", transform=nc.transform)
@@ -302,3 +302,27 @@ def test_killed_between_store_and_textures(stored) -> None:
     result = CliRunner().invoke(main, ["update", str(store), "--textures", str(textures)])
     assert result.exit_code == 0, result.output
     same_pyramid(textures, fresh)
+
+
+def test_rising_water_level_equals_fresh_bakes(nc, tmp_path) -> None:
+    """A flood (water layer under the shading) rising step by step, with a terrain edit in
+    between: each re-bake equals a fresh bake with that level, tile for tile."""
+    levels = [60.0, 75.0, 75.5, 90.0]
+    bake(nc, tmp_path / "p", gl=False, max_texture_size=256, texel_size=10.0, water_level=50.0)
+    heights = np.array(nc.heights, dtype=np.float64)
+    for i, level in enumerate(levels):
+        if i == 2:
+            heights[200:260, 100:180] -= 40.0
+        grid = Grid(heights.astype(np.float32), nc.transform, nc.crs)
+        rect = cells_rect(nc, 200, 100, 60, 80) if i == 2 else None
+        result = rebake(tmp_path / "p", grid, rect, water_level=level)
+        assert not result.whole and sum(result.tiles) <= sum(result.tiles_total)
+        fresh = tmp_path / f"fresh{i}"
+        bake(grid, fresh, gl=False, max_texture_size=256, texel_size=10.0, water_level=level)
+        same_pyramid(tmp_path / "p", fresh)
+        assert TexturePyramid(tmp_path / "p").recipe["water_level"] == level
+    # Drained below every height (55 m at least), then lowered again: that changes no texel,
+    # nothing is written, and the level is kept.
+    rebake(tmp_path / "p", grid, water_level=50.0)
+    result = rebake(tmp_path / "p", grid, water_level=40.0)
+    assert sum(result.tiles) == 0 and TexturePyramid(tmp_path / "p").recipe["water_level"] == 40.0

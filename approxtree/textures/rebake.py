@@ -42,10 +42,12 @@ from affine import Affine
 from approxtree.errors import InvalidParameterError, StoreError
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
-from approxtree.io.atomic import atomic_directory
+from approxtree.io.atomic import atomic_directory, atomic_write
 from approxtree.io.gdal import checked_write, no_side_files
 from approxtree.kernels.rgba import halve_bands
-from approxtree.textures.bake import bake, texture_lattice
+from approxtree.textures.bake import WATER_COLOUR, bake, texture_lattice
+from approxtree.textures.base import TextureData
+from approxtree.textures.blend import MultiTexture
 from approxtree.textures.pyramid import (
     _LEVEL_OPTIONS,
     _TAG_BUILD,
@@ -56,6 +58,7 @@ from approxtree.textures.pyramid import (
     tile_row_checksums,
 )
 from approxtree.textures.shading import TopographicShading
+from approxtree.textures.water import WaterLevel, wet
 
 #: Texel rectangle (r0, r1, c0, c1), half-open, in a level's own rows and columns.
 TexelRect = tuple[int, int, int, int]
@@ -95,6 +98,7 @@ def rebake(
     rect: Rect | None = None,
     shading_options: dict[str, Any] | None = None,
     context: Any = None,
+    water_level: float | None = None,
 ) -> Rebake:
     """Re-bake the pyramid baked from ``terrain`` after its cells inside ``rect`` changed.
 
@@ -103,13 +107,21 @@ def rebake(
     edited cells (on cell edges), or None for the whole pyramid. shading_options: options to
     change (e.g. ``{"azimuth": 200.0}``): the pyramid is re-baked whole with them and the
     recipe keeps them. context: a moderngl context for a pyramid whose shading was baked with
-    OpenGL (None: numpy, within ±1 grey level of it).
+    OpenGL (None: numpy, within ±1 grey level of it). water_level: a new level for a pyramid
+    baked with one (``bake(water_level=…)``): the tiles between the old and the new shore line
+    are re-baked, and the recipe keeps the level.
     """
     t0 = time.perf_counter()
     if not isinstance(pyramid, TexturePyramid):
         pyramid = TexturePyramid(pyramid)
     recipe = _recipe(pyramid)
     options = {**recipe["shading_options"], **(shading_options or {})}
+    old_level = recipe.get("water_level")
+    if water_level is not None and old_level is None:
+        raise InvalidParameterError(
+            f"{pyramid.folder} was baked without a water level; bake it with one first."
+        )
+    level = old_level if water_level is None else float(water_level)
     transform, shape = texture_lattice(terrain, float(recipe["texel_size"]))
     level0 = pyramid.levels[0]
     if shape != (level0.height, level0.width) or not transform.almost_equals(level0.transform):
@@ -120,7 +132,12 @@ def rebake(
         )
     totals = [_tiles_of(lv.height, lv.width) for lv in pyramid.levels]
     # A new light, or a shading that reads far cells: the whole pyramid, as a bake makes it.
-    if rect is None or shading_options or not _is_local(recipe["shading"], options):
+    flood = water_level is not None and level != old_level
+    if (
+        (rect is None and water_level is None)
+        or shading_options
+        or not _is_local(recipe["shading"], options)
+    ):
         result = bake(
             terrain,
             pyramid.folder,
@@ -130,16 +147,31 @@ def rebake(
             max_texture_size=pyramid.max_texture_size,
             gl=bool(recipe["gl"]),
             context=context,
+            water_level=level,
+            blend=recipe.get("blend", "shade"),
         )
         return Rebake(result.pyramid, totals, totals, True, time.perf_counter() - t0)
     same = shape == terrain.shape and transform.almost_equals(terrain.transform)
-    reached = reached_texels(terrain, rect, transform, shape, same)
+    reached = None if rect is None else reached_texels(terrain, rect, transform, shape, same)
+    if flood:
+        shore = _shore_texels(terrain, transform, shape, same, old_level, level)
+        reached = _union(reached, shore)
     levels = pyramid.levels
     tiles = [0] * len(levels)
-    if reached is None:
-        return Rebake(pyramid, tiles, totals, False, time.perf_counter() - t0)
     folder = pyramid.folder
     meta = json.loads((folder / "pyramid.json").read_text())
+    if flood:
+        meta["recipe"]["water_level"] = level
+        meta["recipe"]["layers"] = [
+            f"water-level:{level:g}" if name.startswith("water-level:") else name
+            for name in meta["recipe"]["layers"]
+        ]
+    if reached is None:
+        # No texel changed: only a new water level to remember.
+        if flood:
+            with atomic_write(folder / "pyramid.json") as f:
+                f.write(_dump_meta(meta).encode())
+        return Rebake(TexturePyramid(folder), tiles, totals, False, time.perf_counter() - t0)
     meta["build"] = uuid.uuid4().hex
     waited = 0.0
     # Each level's changed texels: those whose 2 × 2 footprint meets the finer level's.
@@ -156,13 +188,14 @@ def rebake(
             k: copier.submit(shutil.copyfile, levels[k].path, tmp / levels[k].path.name)
             for k in order
         }
-        blocks = _level_blocks(terrain, options, transform, shape, same, reached, len(levels))
+        make = _Texels(terrain, options, level, recipe.get("blend", "shade"), transform, same)
+        blocks = _level_blocks(make, shape, reached, len(levels))
         for k in order:
-            lv, (rect, block) = levels[k], blocks[k]
+            lv, (where, block) = levels[k], blocks[k]
             # The whole tiles the changed texels meet: the old texels, the new ones over them.
             region = _tile_region(changed[k], lv.height, lv.width)
             texels = _read_region(lv.path, region)
-            _paste(texels, region, block, rect)
+            _paste(texels, region, block, where)
             t1 = time.perf_counter()
             copies[k].result()
             waited += time.perf_counter() - t1
@@ -210,11 +243,14 @@ def _recipe(pyramid: TexturePyramid) -> dict[str, Any]:
             f"{pyramid.folder} records no bake recipe (baked before re-bakes existed, or "
             "from an array): bake it again (approxtree bake) to let it follow updates."
         )
-    others = [name for name in recipe["layers"] if not name.startswith("shading:")]
+    others = [
+        name for name in recipe["layers"] if not name.startswith(("shading:", "water-level:"))
+    ]
     if others or recipe["shading"] is None:
         raise InvalidParameterError(
             f"{pyramid.folder} holds layers a re-bake does not repeat ({', '.join(others)}); "
-            "only shading pyramids follow updates: bake it again (approxtree bake)."
+            "only pyramids of a shading (and a water level) follow updates: bake it again "
+            "(approxtree bake)."
         )
     return recipe
 
@@ -244,40 +280,88 @@ def _tile_region(texels: TexelRect, rows: int, cols: int) -> TexelRect:
     )
 
 
-def _shade_region(
+class _Texels:
+    """The level-0 texels of a rect as the bake makes them: h_T on the lattice over the rect
+    and one texel of context on every side, the water layer if any, the shading blended over
+    it (``bake``'s layers, on a window of the lattice)."""
+
+    def __init__(
+        self,
+        terrain: Grid,
+        options: dict[str, Any],
+        level: float | None,
+        blend: str,
+        transform: Affine,
+        same: bool,
+    ) -> None:
+        self.terrain, self.options, self.level, self.blend = terrain, options, level, blend
+        self.transform, self.same = transform, same
+
+    def __call__(self, region: TexelRect, shape: tuple[int, int]) -> np.ndarray:
+        """(bands, rows, cols) uint8 texels of ``region`` (half-open rows and columns)."""
+        r0, r1, c0, c1 = region
+        a, b = max(r0 - 1, 0), min(r1 + 1, shape[0])
+        c, d = max(c0 - 1, 0), min(c1 + 1, shape[1])
+        z = _lattice_heights(self.terrain, self.transform, shape, self.same, (a, b, c, d))
+        t = self.transform @ Affine.translation(c, a)
+        window = Grid(z, t, self.terrain.crs, allow_empty=True)
+        texture: TextureData = TopographicShading(window, **self.options)
+        if self.level is not None:
+            water = WaterLevel(window, self.level, WATER_COLOUR)
+            texture = MultiTexture([water, texture], [self.blend])
+        block = np.concatenate([s.copy() for s in texture.level_strips(512)], axis=1)
+        return np.ascontiguousarray(block[:, r0 - a : r1 - a, c0 - c : c1 - c])
+
+
+def _lattice_heights(
+    terrain: Grid, transform: Affine, shape: tuple[int, int], same: bool, rect: TexelRect
+) -> np.ndarray:
+    """(rows, cols) h_T at the texel centres of ``rect`` of the lattice, as the bake samples
+    them: the grid's own heights, or interpolated at the very same centres (sliced from the
+    whole lattice's coordinates, not recomputed) as float32."""
+    a, b, c, d = rect
+    if same:
+        return np.asarray(terrain.heights[a:b, c:d])
+    xs = transform.c + (np.arange(shape[1]) + 0.5) * transform.a
+    ys = transform.f + (np.arange(shape[0]) + 0.5) * transform.e
+    return terrain.height_at(xs[None, c:d], ys[a:b, None]).astype(np.float32)
+
+
+def _shore_texels(
     terrain: Grid,
-    options: dict[str, Any],
     transform: Affine,
     shape: tuple[int, int],
     same: bool,
-    region: TexelRect,
-) -> np.ndarray:
-    """(2, rows, cols) uint8 grey and alpha of the level-0 texels of ``region``, as the bake
-    shades them: from h_T on the lattice with one texel of context on every side."""
-    r0, r1, c0, c1 = region
-    a, b = max(r0 - 1, 0), min(r1 + 1, shape[0])
-    c, d = max(c0 - 1, 0), min(c1 + 1, shape[1])
-    if same:
-        z = np.asarray(terrain.heights[a:b, c:d])
-    else:
-        # The very texel centres the bake samples (the same floats: sliced, not recomputed).
-        xs = transform.c + (np.arange(shape[1]) + 0.5) * transform.a
-        ys = transform.f + (np.arange(shape[0]) + 0.5) * transform.e
-        z = terrain.height_at(xs[None, c:d], ys[a:b, None]).astype(np.float32)
-    window = Grid(z, transform @ Affine.translation(c, a), terrain.crs, allow_empty=True)
-    strips = TopographicShading(window, **options).level_strips(512)
-    block = np.concatenate([s.copy() for s in strips], axis=1)
-    return np.ascontiguousarray(block[:, r0 - a : r1 - a, c0 - c : c1 - c])
+    old: float,
+    new: float,
+) -> TexelRect | None:
+    """Level-0 texels (r0, r1, c0, c1) bounding those that are wet under one water level and
+    dry under the other (a pass over the lattice's heights, strip by strip); None if none."""
+    rows: list[int] = []
+    cols = np.zeros(shape[1], dtype=bool)
+    for r0 in range(0, shape[0], 512):
+        r1 = min(r0 + 512, shape[0])
+        z = _lattice_heights(terrain, transform, shape, same, (r0, r1, 0, shape[1]))
+        changed = wet(z, old) != wet(z, new)
+        hit = np.flatnonzero(changed.any(axis=1))
+        if hit.size:
+            rows += [r0 + int(hit[0]), r0 + int(hit[-1])]
+            cols |= changed.any(axis=0)
+    if not rows:
+        return None
+    hit = np.flatnonzero(cols)
+    return min(rows), max(rows) + 1, int(hit[0]), int(hit[-1]) + 1
+
+
+def _union(a: TexelRect | None, b: TexelRect | None) -> TexelRect | None:
+    """The bounding rect of two texel rects (either may be None)."""
+    if a is None or b is None:
+        return a or b
+    return min(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), max(a[3], b[3])
 
 
 def _level_blocks(
-    terrain: Grid,
-    options: dict[str, Any],
-    transform: Affine,
-    shape: tuple[int, int],
-    same: bool,
-    reached: TexelRect,
-    levels: int,
+    make: _Texels, shape: tuple[int, int], reached: TexelRect, levels: int
 ) -> list[tuple[TexelRect, np.ndarray]]:
     """Per level, a texel rect holding the changed texels and its (bands, rows, cols) new
     texels: level 0 shaded over the reached texels widened to multiples of 2^(levels − 1),
@@ -291,7 +375,7 @@ def _level_blocks(
         c0 // step * step,
         min(-(-c1 // step) * step, shape[1]),
     )
-    block = _shade_region(terrain, options, transform, shape, same, rect)
+    block = make(rect, shape)
     out = [(rect, block)]
     for _ in range(levels - 1):
         r0, r1, c0, c1 = rect
