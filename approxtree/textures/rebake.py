@@ -49,7 +49,6 @@ from approxtree.textures.bake import WATER_COLOUR, bake, texture_lattice
 from approxtree.textures.base import TextureData
 from approxtree.textures.blend import MultiTexture
 from approxtree.textures.pyramid import (
-    _LEVEL_OPTIONS,
     _TAG_BUILD,
     _TAG_LEVEL,
     _TILE,
@@ -415,9 +414,7 @@ def _write_tiles(path: Path, block: np.ndarray, region: TexelRect, build: str, e
     from rasterio.windows import Window
 
     r0, r1, c0, c1 = region
-    # Compressed at the bake's ZSTD level (an update takes it from the environment).
-    level_env = rasterio.Env(ZSTD_LEVEL=str(_LEVEL_OPTIONS["zstd_level"]))
-    with checked_write(path), no_side_files(), level_env, rasterio.open(path, "r+") as ds:
+    with checked_write(path), no_side_files(), rasterio.open(path, "r+") as ds:
         level = ds.tags().get(_TAG_LEVEL)
         ds.write(block, window=Window(c0, r0, c1 - c0, r1 - r0))
         ds.update_tags(**{_TAG_BUILD: build, _TAG_LEVEL: level})
