@@ -20,6 +20,12 @@ terrain size).
     python benchmarks/bench_update.py [--size 8192] [--edits 64 128 256 512 1024 2048]
         [--repeats 3] [--epsilon 1.0] [--warmup 96]
     python benchmarks/bench_update.py --pyramid [--sizes 2048 4096 8192] [--edits ...]
+    python benchmarks/bench_update.py --store [--size 8192]
+
+--store times ``approxtree update``'s work on a folder store (``store_update.update_store``:
+load, update, write the new store, swap) for a 256² patch, against a full build + save of the
+edited terrain, with the unchanged height chunks hard-linked (the default) and with the whole
+store written (``reuse`` off); results in benchmarks/results/update_store_<size>.json.
 """
 
 from __future__ import annotations
@@ -55,9 +61,13 @@ def main() -> None:
     parser.add_argument("--pyramid", action="store_true", help="time pyramid re-bakes instead")
     parser.add_argument("--sizes", type=int, nargs="+", default=[2048, 4096, 8192])
     parser.add_argument("--work", type=Path, default=None, help="folder for the pyramids")
+    parser.add_argument("--store", action="store_true", help="time store updates instead")
     args = parser.parse_args()
     if args.pyramid:
         pyramid_main(args)
+        return
+    if args.store:
+        store_main(args)
         return
 
     from approxtree.datasets import fractal_terrain
@@ -199,6 +209,57 @@ def pyramid_main(args: argparse.Namespace) -> None:
     path = RESULTS / "rebake.json"
     path.write_text(json.dumps(out, indent=2))
     plot_rebake(out, path.with_suffix(".png"))
+    print(f"wrote {path}")
+
+
+def store_main(args: argparse.Namespace) -> None:
+    """A store update of a 256² patch against a full build + save (module doc)."""
+    import tempfile
+
+    from approxtree.datasets import fractal_terrain
+    from approxtree.geometry.grid import Grid
+    from approxtree.tree import store_update
+    from approxtree.tree.approximation_tree import ApproximationTree
+
+    work = Path(tempfile.mkdtemp(dir=args.work))
+    grid = fractal_terrain(args.size, args.size, seed=1)
+    t0 = time.perf_counter()
+    tree = ApproximationTree.build(grid, epsilon=args.epsilon)
+    build_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    tree.save(work / "full.zarr")
+    save_s = time.perf_counter() - t0
+    print(f"full build {build_s:.2f} s + save {save_s:.2f} s", flush=True)
+    rows = []
+    rng = np.random.default_rng(0)
+    for linked in (True, False, True, False):
+        store = work / ("linked.zarr" if linked else "whole.zarr")
+        if not store.exists():
+            tree.save(store)
+        r0, c0 = (int(v) for v in rng.integers(0, args.size - 256 + 1, 2))
+        pit = np.array(grid.heights[r0 : r0 + 256, c0 : c0 + 256]) - 20.0
+        window = Grid(pit, grid.transform, index_offset=(r0, c0), allow_empty=True)
+        saved = store_update.ChunkReuse
+        if not linked:
+            # The whole store written: a reuse that links nothing.
+            store_update.ChunkReuse = lambda old, changed: None  # type: ignore[assignment]
+        try:
+            t0 = time.perf_counter()
+            report = store_update.update_store(store, window, verify=False)
+            seconds = time.perf_counter() - t0
+        finally:
+            store_update.ChunkReuse = saved
+        rows.append({"linked": linked, "seconds": seconds, "tree_update_seconds": report.seconds})
+        print(
+            f"store update ({'linked' if linked else 'whole'}): {seconds:.2f} s "
+            f"(tree update {report.seconds:.2f} s), "
+            f"{100 * seconds / (build_s + save_s):.1f} % of build + save",
+            flush=True,
+        )
+    out = {"size": args.size, "build_seconds": build_s, "save_seconds": save_s, "updates": rows}
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    path = RESULTS / f"update_store_{args.size}.json"
+    path.write_text(json.dumps(out, indent=2))
     print(f"wrote {path}")
 
 

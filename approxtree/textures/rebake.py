@@ -7,21 +7,27 @@ terrain writes:
 1. Level 0 (``reached_texels``): the texels whose height sample reads an edited cell (the cell
    itself on the DEM's own lattice; a resampled lattice interpolates h_T bilinearly, so within
    one cell of it), grown by one texel for the shading kernel's 3 × 3 gradient window. The
-   512² tiles they meet are shaded again (``_shade_region``) from a window of h_T with one more
+   512² tiles they meet are shaded again (``_Texels``) from a window of h_T with one more
    texel of context on every side: the kernel's nodata border ring falls in the context, and
    on the terrain's own border it is the terrain's, as in the bake.
 2. Level k + 1: the texels whose 2 × 2 footprint meets the changed texels of level k (the
-   changed rectangle halved, rounding outwards); the tiles they meet are halved again from
-   level k as just rewritten, with the bake's own filter (``halve_bands``).
+   changed rectangle halved, rounding outwards); their values are halved in memory from the
+   new texels of level k with the bake's own filter (``halve_bands``): level 0 is made over
+   the reached texels widened to a multiple of 2^(levels − 1), so every halving pairs the rows
+   and columns the bake pairs (``_level_blocks``). The tiles they meet are rewritten: their
+   old texels with the new ones pasted over them.
 3. All or nothing: every level file is copied into a temp folder beside the pyramid, the tiles
    are rewritten in the copies (GDAL updates a tiled GeoTIFF in place), pyramid.json gets the
    new tile checksums, byte counts and a new build id, and the folder is swapped in
    (``atomic_directory``): a reader sees the old pyramid or the new one.
 
+A new water level (``water.WaterLevel``, a flood drawn under the shading) re-bakes the tiles
+the texels between the old and the new shore line meet, by the same steps.
+
 What is re-baked whole, through ``bake`` with the pyramid's recipe: a new light (or any other
 ``shading_options``), and the shadings whose texels depend on far cells (cast shadows, the
 curvature weight's spread over the whole grid, Phong and Gouraud on their own lattice).
-Pyramids with thematic layers, images or overlays are refused: bake them again.
+Pyramids with thematic rasters, images or overlays are refused: bake them again.
 """
 
 from __future__ import annotations
@@ -69,7 +75,9 @@ class Rebake:
 
     pyramid: the pyramid as it is now. tiles: per level, the tiles written; tiles_total: per
     level, the level's tiles. whole: True when the pyramid was baked whole (a new light, a
-    shading that is not local). seconds: wall time.
+    shading that is not local). seconds: wall time; copy_seconds: the part of it spent
+    waiting for the copies of the level files (the price of the atomic swap; the rest of the
+    copying overlaps the re-bake's own work).
     """
 
     pyramid: TexturePyramid
@@ -105,8 +113,9 @@ def rebake(
     terrain: the edited terrain (same lattice as when baked). rect: the world rectangle of the
     edited cells (on cell edges), or None for the whole pyramid. shading_options: options to
     change (e.g. ``{"azimuth": 200.0}``): the pyramid is re-baked whole with them and the
-    recipe keeps them. context: a moderngl context for a pyramid whose shading was baked with
-    OpenGL (None: numpy, within ±1 grey level of it). water_level: a new level for a pyramid
+    recipe keeps them. context: a moderngl context for a whole re-bake of a pyramid whose
+    shading was baked with OpenGL (None: numpy, within ±1 grey level of it; tiles re-baked on
+    their own are always shaded with numpy). water_level: a new level for a pyramid
     baked with one (``bake(water_level=…)``): the tiles between the old and the new shore line
     are re-baked, and the recipe keeps the level.
     """
