@@ -326,3 +326,58 @@ def test_rising_water_level_equals_fresh_bakes(nc, tmp_path) -> None:
     rebake(tmp_path / "p", grid, water_level=50.0)
     result = rebake(tmp_path / "p", grid, water_level=40.0)
     assert sum(result.tiles) == 0 and TexturePyramid(tmp_path / "p").recipe["water_level"] == 40.0
+
+
+KILL_MID_REBAKE = """
+import os, signal, sys
+import approxtree.textures.rebake as rebake
+calls = [0]
+original = rebake._write_tiles
+def write_tiles(*args, **kwargs):
+    calls[0] += 1
+    if calls[0] == 2:
+        os.kill(os.getpid(), signal.SIGKILL)
+    return original(*args, **kwargs)
+rebake._write_tiles = write_tiles
+from approxtree.cli import main
+main(sys.argv[1:])
+"""
+
+
+def test_killed_rebake_leaves_old_pyramid(stored) -> None:
+    """SIGKILL between two level writes of a re-bake (after the store swap) leaves the old
+    pyramid whole (every tile checks); the next update re-bakes it and removes the killed
+    writer's temp folder."""
+    store, textures, patch, fresh = stored
+    before = TexturePyramid(textures)
+    old = [before.level(k) for k in range(len(before))]
+    result = CliRunner().invoke(main, ["update", str(store), str(patch)])
+    assert result.exit_code == 0, result.output
+    env = dict(os.environ)
+    root = str(Path(__file__).resolve().parents[1])
+    env["PYTHONPATH"] = root + os.pathsep + env.get("PYTHONPATH", "")
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            KILL_MID_REBAKE,
+            "update",
+            str(store),
+            str(patch),
+            "--textures",
+            str(textures),
+        ],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert proc.returncode == -signal.SIGKILL, proc.stderr
+    after = TexturePyramid(textures)
+    for k, texels in enumerate(old):
+        np.testing.assert_array_equal(after.level(k), texels)
+    assert [p for p in textures.parent.iterdir() if p.name.startswith(".textures.")]
+    result = CliRunner().invoke(main, ["update", str(store), "--textures", str(textures)])
+    assert result.exit_code == 0, result.output
+    same_pyramid(textures, fresh)
+    assert not [p for p in textures.parent.iterdir() if p.name.startswith(".textures.")]
