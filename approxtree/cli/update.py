@@ -49,7 +49,8 @@ def update(
     re-bakes them whole). Without PATCH, --textures re-bakes the pyramid whole from STORE's
     terrain, with the new light of --azimuth / --altitude if given.
     """
-    from approxtree.errors import InvalidParameterError
+    from approxtree.errors import InvalidParameterError, TerrainFormatError
+    from approxtree.geometry.grid import Grid
     from approxtree.io import read_grid
     from approxtree.render.context import hardware_gl, optional_context
     from approxtree.textures.pyramid import TexturePyramid
@@ -74,12 +75,17 @@ def update(
             r0, r1, c0, c1 = report.window
             figures["window"] = f"rows {r0}..{r1}, columns {c0}..{c1}"
     if pyramid is not None:
-        tree = ApproximationTree.load(store, verify=patch is None and not no_verify)
+        terrain = ApproximationTree.load(store, verify=patch is None and not no_verify).terrain
+        if not isinstance(terrain, Grid):
+            raise TerrainFormatError(
+                f"{store} holds a tree over a {type(terrain).__name__}; only a grid's pyramid "
+                "is re-baked."
+            )
         if patch is not None:
-            rect = patch_window(tree.terrain, patch_grid)
+            rect = patch_window(terrain, patch_grid)
         recipe = pyramid.recipe or {}
         with optional_context(bool(recipe.get("gl")) and hardware_gl()) as context:
-            done = rebake(pyramid, tree.terrain, rect, light or None, context=context)
+            done = rebake(pyramid, terrain, rect, light or None, context=context)
         figures["textures"] = done.as_dict() if as_json else _tiles_line(done.as_dict())
     _emit(figures, as_json)
 

@@ -161,7 +161,7 @@ def rebake(
         return Rebake(result.pyramid, totals, totals, True, time.perf_counter() - t0)
     same = shape == terrain.shape and transform.almost_equals(terrain.transform)
     reached = None if rect is None else reached_texels(terrain, rect, transform, shape, same)
-    if flood:
+    if flood and old_level is not None and level is not None:
         shore = _shore_texels(terrain, transform, shape, same, old_level, level)
         reached = _union(reached, shore)
     levels = pyramid.levels
