@@ -381,3 +381,30 @@ def test_killed_rebake_leaves_old_pyramid(stored) -> None:
     assert result.exit_code == 0, result.output
     same_pyramid(textures, fresh)
     assert not [p for p in textures.parent.iterdir() if p.name.startswith(".textures.")]
+
+
+def test_cli_bake_and_update_water_level(nc, tmp_path) -> None:
+    """``bake --water-level`` then ``update STORE --textures DIR --water-level Z`` leave the
+    pyramid a fresh bake with level Z writes, re-baking fewer tiles than the pyramid holds."""
+    store = tmp_path / "dem.zarr"
+    ApproximationTree.build(nc, epsilon=2.0, max_points=33 * 33).save(store)
+    textures = tmp_path / "flood"
+    args = ["bake", str(store), "--out", str(textures), "--texel", "10", "--no-gl"]
+    args += ["--max-texture-size", "256", "--water-level", "60", "--quiet"]
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 0, result.output
+    args = ["update", str(store), "--textures", str(textures), "--water-level", "66", "--json"]
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 0, result.output
+    figures = json.loads(result.output)["textures"]
+    assert not figures["whole"] and 0 < figures["tiles"] < figures["tiles_total"]
+    terrain = ApproximationTree.load(store).terrain
+    bake(
+        terrain,
+        tmp_path / "fresh",
+        gl=False,
+        max_texture_size=256,
+        texel_size=10.0,
+        water_level=66.0,
+    )
+    same_pyramid(textures, tmp_path / "fresh")

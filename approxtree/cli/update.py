@@ -23,6 +23,13 @@ from approxtree.cli.options import json_option
 @click.option("--azimuth", type=float, default=None, help="New light for --textures, degrees.")
 @click.option("--altitude", type=float, default=None, help="New light for --textures, degrees.")
 @click.option(
+    "--water-level",
+    type=float,
+    default=None,
+    help="New flood level for --textures (a pyramid baked with --water-level): the tiles "
+    "between the old and the new shore line are re-baked.",
+)
+@click.option(
     "--no-verify",
     is_flag=True,
     help="Skip checking every patch checksum of the store before the update.",
@@ -35,6 +42,7 @@ def update(
     textures: str | None,
     azimuth: float | None,
     altitude: float | None,
+    water_level: float | None,
     no_verify: bool,
     as_json: bool,
 ) -> None:
@@ -47,7 +55,8 @@ def update(
     and swaps the pyramid in one atomic step too (after the store: a kill between the two
     leaves the new tree under the old textures; `approxtree update STORE --textures DIR`
     re-bakes them whole). Without PATCH, --textures re-bakes the pyramid whole from STORE's
-    terrain, with the new light of --azimuth / --altitude if given.
+    terrain, with the new light of --azimuth / --altitude if given; --water-level moves a
+    flood (only the tiles between the two shore lines are re-baked).
     """
     from approxtree.errors import InvalidParameterError, TerrainFormatError
     from approxtree.geometry.grid import Grid
@@ -61,8 +70,10 @@ def update(
     light = {k: v for k, v in (("azimuth", azimuth), ("altitude", altitude)) if v is not None}
     if patch is None and textures is None:
         raise InvalidParameterError("Nothing to update: give a PATCH raster, --textures, or both.")
-    if light and textures is None:
-        raise InvalidParameterError("--azimuth and --altitude re-bake --textures; give it.")
+    if (light or water_level is not None) and textures is None:
+        raise InvalidParameterError(
+            "--azimuth, --altitude and --water-level re-bake --textures; give it."
+        )
     # The pyramid is opened (and its recipe checked) before the store changes.
     pyramid = TexturePyramid(textures) if textures is not None else None
     figures: dict[str, Any] = {"store": store}
@@ -85,7 +96,9 @@ def update(
             rect = patch_window(terrain, patch_grid)
         recipe = pyramid.recipe or {}
         with optional_context(bool(recipe.get("gl")) and hardware_gl()) as context:
-            done = rebake(pyramid, terrain, rect, light or None, context=context)
+            done = rebake(
+                pyramid, terrain, rect, light or None, context=context, water_level=water_level
+            )
         figures["textures"] = done.as_dict() if as_json else _tiles_line(done.as_dict())
     _emit(figures, as_json)
 

@@ -11,7 +11,9 @@ The same as, for each step::
 
     approxtree update nc.zarr pit_step.tif --textures nc_tex --json
 
-(the flood has no command: it is ``rebake(pyramid, terrain, water_level=…)``).
+and, for the flood (baked with ``approxtree bake … --water-level 58``), for each level::
+
+    approxtree update nc.zarr --textures nc_tex --water-level 66 --json
 """
 
 # %%
