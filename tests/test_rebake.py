@@ -408,3 +408,24 @@ def test_cli_bake_and_update_water_level(nc, tmp_path) -> None:
         water_level=66.0,
     )
     same_pyramid(textures, tmp_path / "fresh")
+
+
+def test_level_files_stay_compact_over_many_rebakes(nc, tmp_path) -> None:
+    """Rewritten tiles are appended to a level file; after many re-bakes each file stays within
+    GROWTH times its size when last written whole, and the pyramid is still a fresh bake's."""
+    from approxtree.textures.rebake import GROWTH
+
+    folder = tmp_path / "p"
+    bake(nc, folder, gl=False, max_texture_size=256, texel_size=10.0)
+    heights = np.array(nc.heights, dtype=np.float64)
+    first = TexturePyramid(folder).levels[0].path.stat().st_size
+    for _ in range(8):
+        heights[200:300, 150:300] -= 3.0
+        grid = Grid(heights.astype(np.float32), nc.transform, nc.crs)
+        rebake(folder, grid, cells_rect(nc, 200, 150, 100, 150))
+    entries = json.loads((folder / "pyramid.json").read_text())["levels"]
+    for entry in entries:
+        assert entry["bytes"] <= GROWTH * entry["compact_bytes"]
+    assert entries[0]["compact_bytes"] != first  # level 0 was written whole again at least once
+    bake(grid, tmp_path / "fresh", gl=False, max_texture_size=256, texel_size=10.0)
+    same_pyramid(folder, tmp_path / "fresh")

@@ -55,6 +55,7 @@ from approxtree.textures.bake import WATER_COLOUR, bake, texture_lattice
 from approxtree.textures.base import TextureData
 from approxtree.textures.blend import MultiTexture
 from approxtree.textures.pyramid import (
+    _LEVEL_OPTIONS,
     _TAG_BUILD,
     _TAG_LEVEL,
     _TILE,
@@ -67,6 +68,9 @@ from approxtree.textures.water import WaterLevel, wet
 
 #: Texel rectangle (r0, r1, c0, c1), half-open, in a level's own rows and columns.
 TexelRect = tuple[int, int, int, int]
+#: A level file rewritten tile by tile is written whole again once it passes this many times
+#: its size when it was last written whole (``compact_bytes`` in its pyramid.json entry).
+GROWTH = 2.0
 
 
 @dataclass
@@ -431,7 +435,29 @@ def _write_tiles(path: Path, block: np.ndarray, region: TexelRect, build: str, e
     for i, start in enumerate(range(0, r1 - r0, _TILE)):
         sums = tile_row_checksums(block[:, start : start + _TILE])
         entry["tile_crc32c"][r0 // _TILE + i][c0 // _TILE : c0 // _TILE + len(sums)] = sums
-    entry["bytes"] = path.stat().st_size
+    # A rewritten tile is appended to the file (the old one stays as dead bytes): past
+    # GROWTH × its size when last written whole, the level is written whole again.
+    compact = int(entry.setdefault("compact_bytes", entry["bytes"]))
+    size = path.stat().st_size
+    if size > GROWTH * compact:
+        size = _compact(path)
+        entry["compact_bytes"] = size
+    entry["bytes"] = size
+
+
+def _compact(path: Path) -> int:
+    """Write the level file ``path`` whole again (same texels, tags and creation options,
+    without the dead bytes of rewritten tiles) and return its new size."""
+    import rasterio
+    import rasterio.shutil
+
+    fresh = path.with_name(f".{path.name}.compact")
+    with no_side_files(), rasterio.open(path) as ds:
+        photometric = "RGB" if ds.count == 4 else "MINISBLACK"
+    with checked_write(fresh, path), no_side_files():
+        rasterio.shutil.copy(path, fresh, driver="GTiff", photometric=photometric, **_LEVEL_OPTIONS)
+    os.replace(fresh, path)
+    return path.stat().st_size
 
 
 __all__ = ["Rebake", "reached_texels", "rebake"]
