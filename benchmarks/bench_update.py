@@ -9,8 +9,23 @@ it whole, see tree/update_cells.py) and --warmup 256² edits at random places (a
 every large node holds its per-cell figures) are reported on their own. Results in
 benchmarks/results/update_<size>.json and .png (cost against edit size).
 
+--pyramid measures the texture pyramid instead (``textures.rebake``): for each terrain side of
+--sizes a fractal's hillshade pyramid is baked whole (numpy, --repeats times, the median is the
+full bake), then square windows of each edit size are edited at random places and the pyramid
+re-baked (only the tiles the edit reaches, on every level, swapped in atomically); the ratio
+re-bake / full bake is the issue's figure (target ≤ 5 % for a 256² edit of an 8192² terrain).
+Results in benchmarks/results/rebake.json and .png (cost against edit size, one line per
+terrain size).
+
     python benchmarks/bench_update.py [--size 8192] [--edits 64 128 256 512 1024 2048]
         [--repeats 3] [--epsilon 1.0] [--warmup 96]
+    python benchmarks/bench_update.py --pyramid [--sizes 2048 4096 8192] [--edits ...]
+    python benchmarks/bench_update.py --store [--size 8192]
+
+--store times ``approxtree update``'s work on a folder store (``store_update.update_store``:
+load, update, write the new store, swap) for a 256² patch, against a full build + save of the
+edited terrain, with the unchanged height chunks hard-linked (the default) and with the whole
+store written (``reuse`` off); results in benchmarks/results/update_store_<size>.json.
 """
 
 from __future__ import annotations
@@ -43,7 +58,17 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--epsilon", type=float, default=1.0)
     parser.add_argument("--warmup", type=int, default=96, help="untimed 256² edits first")
+    parser.add_argument("--pyramid", action="store_true", help="time pyramid re-bakes instead")
+    parser.add_argument("--sizes", type=int, nargs="+", default=[2048, 4096, 8192])
+    parser.add_argument("--work", type=Path, default=None, help="folder for the pyramids")
+    parser.add_argument("--store", action="store_true", help="time store updates instead")
     args = parser.parse_args()
+    if args.pyramid:
+        pyramid_main(args)
+        return
+    if args.store:
+        store_main(args)
+        return
 
     from approxtree.datasets import fractal_terrain
     from approxtree.tree.approximation_tree import ApproximationTree
@@ -118,6 +143,165 @@ def main() -> None:
     path.write_text(json.dumps(out, indent=2))
     plot(out, path.with_suffix(".png"))
     print(f"wrote {path}")
+
+
+def pyramid_main(args: argparse.Namespace) -> None:
+    """Full bake against re-bakes of each edit size, for each terrain size (module doc)."""
+    import tempfile
+
+    from approxtree.datasets import fractal_terrain
+    from approxtree.textures.bake import bake
+    from approxtree.textures.rebake import rebake
+
+    work = Path(tempfile.mkdtemp(dir=args.work))
+    # Warm-up: compile the shading and halving kernels on a small terrain first.
+    small = fractal_terrain(1025, 1025, seed=2)
+    bake(small, work / "warm", gl=False)
+    rebake(work / "warm", small, cell_rect(small, 5, 5, 4, 4))
+    rng = np.random.default_rng(0)
+    terrains = []
+    for size in args.sizes:
+        grid = fractal_terrain(size, size, seed=1)
+        folder = work / f"pyramid{size}"
+        bakes = []
+        for _ in range(args.repeats):
+            t0 = time.perf_counter()
+            bake(grid, folder, gl=False)
+            bakes.append(time.perf_counter() - t0)
+        bake_s = statistics.median(bakes)
+        print(f"full bake {size}²: {bake_s:.2f} s (median)", flush=True)
+        z = grid.heights
+        rows = []
+        for edit in args.edits:
+            if edit > size:
+                continue
+            times, tiles, copies = [], [], []
+            for _ in range(args.repeats):
+                r0, c0 = (int(v) for v in rng.integers(0, size - edit + 1, 2))
+                z[r0 : r0 + edit, c0 : c0 + edit] -= 20.0
+                result = rebake(folder, grid, cell_rect(grid, r0, c0, edit, edit))
+                times.append(result.seconds)
+                copies.append(result.copy_seconds)
+                tiles.append(sum(result.tiles))
+            median = statistics.median(times)
+            rows.append(
+                {
+                    "edit": edit,
+                    "seconds": median,
+                    "all_seconds": times,
+                    "ratio": median / bake_s,
+                    "copy_seconds": statistics.median(copies),
+                    "tiles": int(statistics.median(tiles)),
+                    "tiles_total": sum(result.tiles_total),
+                }
+            )
+            print(
+                f"  edit {edit}²: {median * 1e3:.1f} ms ({100 * median / bake_s:.2f} % of the "
+                f"bake; copying the levels {statistics.median(copies) * 1e3:.1f} ms), "
+                f"{rows[-1]['tiles']} of {rows[-1]['tiles_total']} tiles",
+                flush=True,
+            )
+        terrains.append(
+            {"size": size, "bake_seconds": bake_s, "bake_all_seconds": bakes, "edits": rows}
+        )
+    out = {"shading": "topographic (numpy)", "terrains": terrains}
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    path = RESULTS / "rebake.json"
+    path.write_text(json.dumps(out, indent=2))
+    plot_rebake(out, path.with_suffix(".png"))
+    print(f"wrote {path}")
+
+
+def store_main(args: argparse.Namespace) -> None:
+    """A store update of a 256² patch against a full build + save (module doc)."""
+    import tempfile
+
+    from approxtree.datasets import fractal_terrain
+    from approxtree.geometry.grid import Grid
+    from approxtree.tree import store_update
+    from approxtree.tree.approximation_tree import ApproximationTree
+
+    work = Path(tempfile.mkdtemp(dir=args.work))
+    grid = fractal_terrain(args.size, args.size, seed=1)
+    t0 = time.perf_counter()
+    tree = ApproximationTree.build(grid, epsilon=args.epsilon)
+    build_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    tree.save(work / "full.zarr")
+    save_s = time.perf_counter() - t0
+    print(f"full build {build_s:.2f} s + save {save_s:.2f} s", flush=True)
+    rows = []
+    rng = np.random.default_rng(0)
+    # The store write inside each update is timed on its own.
+    writes: list[float] = []
+    plain_save, plain_reuse = store_update.save_tree, store_update.ChunkReuse
+
+    def timed_save(*a: object) -> int:
+        t = time.perf_counter()
+        try:
+            return plain_save(*a)  # type: ignore[arg-type]
+        finally:
+            writes.append(time.perf_counter() - t)
+
+    store_update.save_tree = timed_save  # type: ignore[assignment]
+    try:
+        for linked in (True, False, True, False):
+            store = work / ("linked.zarr" if linked else "whole.zarr")
+            if not store.exists():
+                tree.save(store)
+            r0, c0 = (int(v) for v in rng.integers(0, args.size - 256 + 1, 2))
+            pit = np.array(grid.heights[r0 : r0 + 256, c0 : c0 + 256]) - 20.0
+            window = Grid(pit, grid.transform, index_offset=(r0, c0), allow_empty=True)
+            # The whole store written: a reuse that links nothing.
+            store_update.ChunkReuse = (
+                plain_reuse if linked else (lambda old, changed: None)  # type: ignore[assignment]
+            )
+            t0 = time.perf_counter()
+            report = store_update.update_store(store, window, verify=False)
+            seconds = time.perf_counter() - t0
+            rows.append(
+                {
+                    "linked": linked,
+                    "seconds": seconds,
+                    "tree_update_seconds": report.seconds,
+                    "write_seconds": writes[-1],
+                }
+            )
+            print(
+                f"store update ({'linked' if linked else 'whole'}): {seconds:.2f} s "
+                f"(tree update {report.seconds:.2f} s, store write {writes[-1]:.2f} s), "
+                f"{100 * seconds / (build_s + save_s):.1f} % of build + save",
+                flush=True,
+            )
+    finally:
+        store_update.save_tree, store_update.ChunkReuse = plain_save, plain_reuse
+    out = {"size": args.size, "build_seconds": build_s, "save_seconds": save_s, "updates": rows}
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    path = RESULTS / f"update_store_{args.size}.json"
+    path.write_text(json.dumps(out, indent=2))
+    print(f"wrote {path}")
+
+
+def plot_rebake(out: dict, path: Path) -> None:
+    """Re-bake time as a share of the full bake against edit side, one line per terrain."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for terrain in out["terrains"]:
+        edits = [r["edit"] for r in terrain["edits"]]
+        shares = [100 * r["ratio"] for r in terrain["edits"]]
+        ax.loglog(edits, shares, "o-", label=f"{terrain['size']}² terrain")
+    ax.axhline(5.0, color="r", ls=":", label="5 % of a full bake")
+    ax.set_xscale("log", base=2)
+    ax.set_xlabel("edit side (cells)")
+    ax.set_ylabel("re-bake / full bake (%)")
+    ax.set_title("pyramid re-bake of the tiles an edit reaches")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
 
 
 def plot(out: dict, path: Path) -> None:

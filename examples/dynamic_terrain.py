@@ -1,17 +1,20 @@
-"""A pit excavated step by step: the tree and the frames follow each edit of the terrain.
+"""A pit excavated step by step, then a rising flood: the tree, the textures and the frames
+follow each change of the terrain and of the water.
 
-    python examples/dynamic_terrain.py [DEM] [--steps 8] [--out dynamic_frames]
+    python examples/dynamic_terrain.py [DEM] [--steps 8] [--flood 6] [--out dynamic_frames]
+    python examples/dynamic_terrain.py ../shared/data/nc/elev_ned_30m.tif
 
 A simulation developer's loop: every step digs the pit deeper (and heaps the spoil beside
-it), ``tree.update`` rebuilds only the nodes over the changed window, and the same Engine
-renders the next frame — its caches keep every unchanged node's mesh. Writes one PNG per step
-and prints each step's update and frame times.
+it), ``tree.update`` rebuilds only the nodes over the changed window, ``rebake`` re-bakes only
+the texture pyramid tiles the edit reaches, and the same Engine renders the next frame — its
+caches keep every unchanged node's mesh. Then the water rises: the pyramid's water layer (a
+thematic layer, texels below the level in the water colour) is re-baked where the shore line
+moved. Writes one PNG per step and prints each step's update, re-bake and frame times.
 """
 
 from __future__ import annotations
 
 import argparse
-import math
 import time
 from pathlib import Path
 
@@ -22,6 +25,8 @@ import approxtree as at
 from approxtree.datasets import sample_terrain
 from approxtree.geometry.rect import Rect
 from approxtree.render import Cut, overview_camera
+from approxtree.textures.bake import bake
+from approxtree.textures.rebake import Rebake, rebake
 
 
 def window_rect(grid: at.Grid, r0: int, c0: int, rows: int, cols: int) -> Rect:
@@ -36,6 +41,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("dem", nargs="?", help="terrain file (default: matplotlib's sample DEM)")
     parser.add_argument("--steps", type=int, default=8, help="excavation steps")
+    parser.add_argument("--flood", type=int, default=6, help="steps of the rising water")
     parser.add_argument("--out", default="dynamic_frames", help="folder of the PNG frames")
     args = parser.parse_args()
 
@@ -46,6 +52,12 @@ def main() -> None:
     )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    # The textures: a hillshade over a water layer, a pond 2 % of the relief deep at first.
+    low, high = grid.z_range
+    level = low + 0.02 * (high - low)
+    t0 = time.perf_counter()
+    pyramid = bake(grid, out / "textures", gl=False, water_level=level).pyramid
+    print(f"bake {time.perf_counter() - t0:.2f} s, {len(pyramid)} levels")
 
     # The pit: flat-bottomed, steep-walled, in the middle third of the terrain, deepened each
     # step; its spoil heaped east of it.
@@ -59,26 +71,38 @@ def main() -> None:
     ground = np.array(grid.heights[r0 : r0 + rows, c0 : c0 + cols], dtype=np.float64)
     rect = window_rect(grid, r0, c0, rows, cols)
 
-    with at.Engine(tree, exaggeration=4.0) as engine:
+    with at.Engine(tree, textures=pyramid, exaggeration=4.0) as engine:
         camera = overview_camera(tree.bboxes[0], engine.scale, fov=40.0, elevation=35.0)
-        cut = Cut(alpha=1.0, gamma=math.inf)
-        for step in range(args.steps + 1):
-            if step:
-                depth = 0.15 * relief * step
-                report = tree.update(rect, ground - depth * bowl + 0.5 * depth * heap)
-                update_ms = report.seconds * 1e3
-                changed = f"{len(report.rebuilt)} nodes rebuilt of {report.nodes_after}"
+        cut = Cut(alpha=1.0, gamma=2.0)
+
+        def frame(name: str, update: str, textures: Rebake | None) -> None:
+            """Draw with the pyramid as re-baked, write the PNG, print the step's times."""
+            if textures is not None:
+                engine.set_textures(textures.pyramid)
+                baked = f"{sum(textures.tiles)}/{sum(textures.tiles_total)} tiles re-baked "
+                baked += f"in {textures.seconds * 1e3:.0f} ms"
             else:
-                update_ms, changed = 0.0, "the terrain as read"
+                baked = "textures as baked"
             t0 = time.perf_counter()
-            frame = engine.render(camera, (960, 540), cut)
+            image = engine.render(camera, (960, 540), cut).image
             frame_ms = (time.perf_counter() - t0) * 1e3
-            Image.fromarray(frame.image).save(out / f"step_{step:02d}.png")
-            dropped = engine.update_figures.get("gpu_dropped", 0) if step else 0
-            print(
-                f"step {step}: update {update_ms:7.1f} ms ({changed}), frame {frame_ms:6.1f} ms, "
-                f"{dropped} meshes dropped from the GPU"
-            )
+            Image.fromarray(image).save(out / f"{name}.png")
+            print(f"{name}: {update}, {baked}, frame {frame_ms:6.1f} ms")
+
+        frame("step_00", "the terrain as read", None)
+        for step in range(1, args.steps + 1):
+            depth = 0.15 * relief * step
+            report = tree.update(rect, ground - depth * bowl + 0.5 * depth * heap)
+            changed = f"{len(report.rebuilt)} nodes rebuilt of {report.nodes_after}"
+            update = f"update {report.seconds * 1e3:7.1f} ms ({changed})"
+            frame(f"step_{step:02d}", update, rebake(pyramid.folder, tree.terrain, rect))
+            dropped = engine.update_figures.get("gpu_dropped", 0)
+            print(f"         {dropped} meshes dropped from the GPU")
+        # The flood: the water rises to a third of the relief, step by step.
+        rising = np.linspace(level, low + (high - low) / 3, args.flood + 1)[1:]
+        for step, height in enumerate(rising, start=1):
+            textures = rebake(pyramid.folder, tree.terrain, water_level=float(height))
+            frame(f"flood_{step:02d}", f"water at {height:.1f}", textures)
     print(f"frames in {out}/")
 
 

@@ -95,6 +95,13 @@ def _takes_windowed(path: str, encoding: str | None) -> bool:
     help="Water polygon layer drawn over the --lines overlay (repeatable).",
 )
 @click.option(
+    "--water-level",
+    type=float,
+    default=None,
+    help="A flood: texels of the terrain below this height drawn as water under the shading "
+    "(approxtree update --textures --water-level moves it).",
+)
+@click.option(
     "--blend",
     type=click.Choice(["shade", "multiply", "overlay", "soft-light", "over"]),
     default="shade",
@@ -138,6 +145,7 @@ def bake_command(
     overlay_colour: str,
     overlay_width: float | None,
     water: tuple[str, ...],
+    water_level: float | None,
     blend: str,
     texel: float | None,
     max_texture_size: int,
@@ -183,6 +191,7 @@ def bake_command(
             and not gl
             and shading == "topographic"
             and thematic is None
+            and water_level is None
             and not images
             and texel is None
             and _takes_windowed(source, encoding)
@@ -220,6 +229,7 @@ def bake_command(
             overlay_colour=parse_rgba(overlay_colour),
             overlay_width=overlay_width,
             water=list(water),
+            water_level=water_level,
             blend=blend,
             texel_size=texel,
             max_texture_size=max_texture_size,

@@ -26,6 +26,7 @@ _NAMES = {
     "TexturePatch": "patch",
     "PyramidLevel": "pyramid",
     "TexturePyramid": "pyramid",
+    "Rebake": "rebake",
     "GouraudShading": "shading",
     "PhongShading": "shading",
     "ShadingTexture": "shading",
@@ -37,6 +38,7 @@ _NAMES = {
     "ThematicTexture": "thematic",
     "rasterize_lines": "thematic",
     "soften": "thematic",
+    "WaterLevel": "water",
 }
 
 if TYPE_CHECKING:
@@ -47,6 +49,7 @@ if TYPE_CHECKING:
     from approxtree.textures.palettes import PALETTES, Palette, get_palette
     from approxtree.textures.patch import TexturePatch
     from approxtree.textures.pyramid import PyramidLevel, TexturePyramid
+    from approxtree.textures.rebake import Rebake
     from approxtree.textures.shading import (
         GouraudShading,
         PhongShading,
@@ -62,6 +65,7 @@ if TYPE_CHECKING:
         rasterize_lines,
         soften,
     )
+    from approxtree.textures.water import WaterLevel
 
 
 def __getattr__(name: str):
@@ -92,12 +96,14 @@ __all__ = [
     "Palette",
     "PhongShading",
     "PyramidLevel",
+    "Rebake",
     "ShadingTexture",
     "TextureData",
     "TexturePatch",
     "TexturePyramid",
     "ThematicTexture",
     "TopographicShading",
+    "WaterLevel",
     "blend",
     "get_palette",
     "rasterize_lines",

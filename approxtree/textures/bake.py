@@ -50,6 +50,7 @@ from approxtree.textures.thematic import (
     ThematicTexture,
     rasterize_lines,
 )
+from approxtree.textures.water import WaterLevel
 
 #: Overlay lines (streams, roads) by default: a clear blue, and their least width in texels.
 OVERLAY_COLOUR = (40, 100, 200, 255)
@@ -188,6 +189,7 @@ def bake(
     progress: ProgressCallback | None = None,
     images: list[str | os.PathLike] | None = None,
     resampling: str = "bilinear",
+    water_level: float | None = None,
 ) -> BakeResult:
     """Bake the terrain's textures into a pyramid in ``folder`` and return what was written.
 
@@ -203,8 +205,11 @@ def bake(
     drawn over them (a stream does not cross a lake). images: rasters GDAL reads (RGB, RGBA,
     grey, grey + alpha, paletted; any CRS) warped onto the lattice with ``resampling`` (a
     name of ``image.RESAMPLINGS``), the first at the bottom, each drawn over the one before,
-    the thematic layer over them. blend: how shading combines with the images and thematic
-    layer below it ("shade" keeps their colour on flat ground).
+    the thematic layer over them. water_level: a flood, the texels of h_T below it in the
+    water colour over the thematic layer (``water.WaterLevel``). blend: how shading combines
+    with the images, thematic layer and water below it ("shade" keeps their colour on flat
+    ground). The layers, shading options, texel size and water level are kept in
+    pyramid.json (``TexturePyramid.recipe``) for ``rebake``.
     gl: bake topographic shading with OpenGL on ``context`` (a moderngl Context, e.g.
     ``approxtree.render.context.create_context()``; None: numpy; tile_size: forced tile
     side, see ``gl_hillshade``); False always uses numpy. progress(done, total): texel rows
@@ -225,7 +230,7 @@ def bake(
             f"Unknown blend mode {blend!r}; choose one of {list(BLEND_MODES)}."
         )
     image_paths = [Path(p) for p in images or []]
-    if shading is None and thematic is None and not image_paths:
+    if shading is None and thematic is None and not image_paths and water_level is None:
         raise InvalidParameterError(
             "Nothing to bake: give a shading, a thematic raster or an image."
         )
@@ -264,8 +269,11 @@ def bake(
         texel,
         min(terrain.cell_size),
         _budget_layers(terrain, same, shading, gl, thematic_path, vectors)
-        + ["image"] * len(image_paths),
-        2 if thematic_path is None and not vectors and not image_paths else 4,
+        + ["image"] * len(image_paths)
+        + ["thematic"] * (water_level is not None),
+        2
+        if thematic_path is None and not vectors and not image_paths and water_level is None
+        else 4,
         max_texture_size,
         folder,
     )
@@ -282,14 +290,16 @@ def bake(
         thematic_layer = _thematic_on_lattice(thematic_path, palette, transform, shape, terrain.crs)
         layers.append(thematic_layer)
         names.append(f"thematic:{thematic_path.name}")
-    # The shading blends with the colour layers below it (images, thematic), if any.
+    # h_T on the texture lattice: shaded, and compared with the water level.
+    on_lattice = None
+    if shading is not None or water_level is not None:
+        on_lattice = terrain if same else _resample_heights(terrain, transform, shape)
+    if water_level is not None and on_lattice is not None:
+        layers.append(WaterLevel(on_lattice, water_level, WATER_COLOUR))
+        names.append(f"water-level:{water_level:g}")
+    # The shading blends with the colour layers below it (images, thematic, water), if any.
     colour_layers = len(layers)
-    if shading is not None:
-        on_lattice = (
-            terrain
-            if shape == terrain.shape and transform.almost_equals(terrain.transform)
-            else _resample_heights(terrain, transform, shape)
-        )
+    if shading is not None and on_lattice is not None:
         options = shading_options or {}
         texture = SHADINGS[shading](on_lattice, **options)
         if gl and shading == "topographic":
@@ -330,12 +340,26 @@ def bake(
                 out = np.where(rgba[..., 3:] > 0, rgba, out)
             return out
 
+    # What a re-bake (``rebake``) repeats: the layers and the shading with its options.
+    recipe = {
+        "layers": names,
+        "shading": shading,
+        "shading_options": {
+            k: v.item() if isinstance(v, np.generic) else v
+            for k, v in (shading_options or {}).items()
+        },
+        "texel_size": float(texel),
+        "gl": used_gl,
+        "water_level": None if water_level is None else float(water_level),
+        "blend": blend,
+    }
     pyramid = TexturePyramid.build(
         texture,
         folder,
         max_texture_size=max_texture_size,
         level_overlay=redraw,
         progress=progress,
+        recipe=recipe,
     )
     return BakeResult(pyramid, time.perf_counter() - t0, names, used_gl)
 

@@ -459,6 +459,9 @@ class TexturePyramid:
             self.max_texture_size: int = int(meta["max_texture_size"])
             #: Bands of every level: 4 (RGBA) or 2 (grey and alpha).
             self.bands: int = int(meta["bands"])
+            #: How the pyramid was baked (``bake``'s layers, shading and its options, texel
+            #: size), which a re-bake repeats; None for a pyramid built from an array.
+            self.recipe: dict | None = meta.get("recipe")
             if self.bands not in (2, 4):
                 raise ValueError(f"bands is {self.bands}, not 2 or 4")
             entries = meta["levels"]
@@ -530,6 +533,7 @@ class TexturePyramid:
         crs: str | None = None,
         level_overlay: LevelOverlay | None = None,
         progress: ProgressCallback | None = None,
+        recipe: dict | None = None,
     ) -> TexturePyramid:
         """Write level 0 from ``texture`` and halve it until a level fits; return the pyramid.
 
@@ -538,7 +542,8 @@ class TexturePyramid:
         drawn over every level after the first (alpha over) before it is written and halved:
         vector overlays redrawn at each level's texel size keep a least width there instead
         of fading in the averages. progress(done, total): texel rows written, all levels
-        together, after each strip (``approxtree.progress``).
+        together, after each strip (``approxtree.progress``). recipe: JSON-ready bake
+        parameters kept in pyramid.json (``TexturePyramid.recipe``) for re-bakes.
         """
         if max_texture_size < 1 or max_texture_size & (max_texture_size - 1):
             raise InvalidParameterError(
@@ -646,6 +651,8 @@ class TexturePyramid:
                 "bands": bands,
                 "levels": levels,
             }
+            if recipe is not None:
+                meta["recipe"] = recipe
             # Indented, but each level's tile_crc32c rows one per line (a level has thousands).
             (tmp / "pyramid.json").write_text(_dump_meta(meta))
         return cls(folder)

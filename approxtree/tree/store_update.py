@@ -3,7 +3,9 @@
 The patch raster must lie on the terrain's cells (same cell size, corners on cell edges, same
 CRS) and inside it; its cells (no data included) replace the terrain's. The tree is loaded,
 updated in memory (``ApproximationTree.update``: only the nodes the window reaches are
-rebuilt) and written as a whole new store beside the old one, which is then swapped in with
+rebuilt) and written as a new store beside the old one — its terrain height chunks that the
+window misses are hard links to the old store's chunk files (``zarr_store.ChunkReuse``), the
+rest written anew — which is then swapped in with
 one atomic folder exchange (``io.atomic.atomic_directory``): a reader opening the store sees
 the old tree or the new one, never half of each; a writer killed at any point leaves the old
 store (and a temp folder the next write removes) or the new one.
@@ -14,6 +16,7 @@ from __future__ import annotations
 import math
 import os
 import signal
+from pathlib import Path
 
 import numpy as np
 
@@ -21,8 +24,9 @@ from approxtree.errors import InvalidParameterError, StoreError, TerrainFormatEr
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
 from approxtree.tree.approximation_tree import ApproximationTree
+from approxtree.tree.tree_store import save_tree
 from approxtree.tree.update import TreeUpdate
-from approxtree.tree.zarr_store import is_url, is_zip
+from approxtree.tree.zarr_store import ChunkReuse, is_url, is_zip
 
 
 def _same_crs(a: str | None, b: str | None) -> bool:
@@ -89,7 +93,10 @@ def update_store(path: str | os.PathLike, patch: Grid, verify: bool = True) -> T
     heights = np.asarray(patch.heights_array("updating a store's terrain"))
     report = tree.update(rect, heights)
     _hook("updated")
-    tree.save(path)
+    # The new store links the height chunks the window misses to the old store's files.
+    r0, r1, c0, c1 = report.window
+    reuse = ChunkReuse(Path(path) / "terrain" / "heights", (r0, r1, c0, c1))
+    save_tree(tree, path, reuse)
     _hook("saved")
     return report
 

@@ -47,6 +47,7 @@ from approxtree.patches.records import Batch, take
 from approxtree.tree.patch_table import PatchTable
 from approxtree.tree.zarr_store import (
     HEIGHT_CHUNK,
+    ChunkReuse,
     StoreReader,
     ZarrHeightSource,
     is_url,
@@ -101,8 +102,11 @@ def storage_order(levels: np.ndarray, parents: np.ndarray, level: int) -> np.nda
 # -- terrain -----------------------------------------------------------------------------------
 
 
-def _write_terrain(root: Any, terrain: GeometryData, tap: Any = None) -> None:
-    """The terrain group; ``tap(r0, r1, c0, c1, values)`` sees every slab of the heights.
+def _write_terrain(
+    root: Any, terrain: GeometryData, tap: Any = None, reuse: ChunkReuse | None = None
+) -> None:
+    """The terrain group; ``tap(r0, r1, c0, c1, values)`` sees every slab of the heights;
+    ``reuse`` links the unchanged height chunks to an old store's.
 
     A grid larger than its overview also gets ``overview`` (the Engine's normal map samples,
     ``Grid.strided_heights``), picked from the same slabs: no second read of the band.
@@ -122,7 +126,12 @@ def _write_terrain(root: Any, terrain: GeometryData, tap: Any = None) -> None:
     for name, a in arrays.items():
         if name == "heights":
             write_array(
-                group, name, a, chunks=(HEIGHT_CHUNK, HEIGHT_CHUNK), tap=both if taps else None
+                group,
+                name,
+                a,
+                chunks=(HEIGHT_CHUNK, HEIGHT_CHUNK),
+                tap=both if taps else None,
+                reuse=reuse,
             )
         else:
             write_array(group, name, np.asarray(a))
@@ -259,8 +268,14 @@ def _write_batch(group: Any, batch: Batch) -> dict[str, int | None]:
     return fields
 
 
-def save_tree(tree: ApproximationTree, path: str | os.PathLike) -> int:
-    """Write ``tree`` as a tree store at ``path`` atomically; returns the stored bytes."""
+def save_tree(
+    tree: ApproximationTree, path: str | os.PathLike, reuse: ChunkReuse | None = None
+) -> int:
+    """Write ``tree`` as a tree store at ``path`` atomically; returns the stored bytes.
+
+    reuse: the terrain height chunks to take from an old folder store by hard link (the
+    unchanged ones of an update, ``store_update``); the rest is written.
+    """
     n = len(tree)
     level = ancestor_level(tree.levels)
     order = storage_order(tree.levels, tree.parents, level)
@@ -276,7 +291,7 @@ def save_tree(tree: ApproximationTree, path: str | os.PathLike) -> int:
     slot = np.empty(n, dtype=np.int64)
     tap = _lattice_tap(tree)
     with writing(path, meta) as root:
-        _write_terrain(root, tree.terrain, tap)
+        _write_terrain(root, tree.terrain, tap, reuse)
         if tap is not None:
             tap.finish()
         patches = root.create_group("patches")

@@ -121,18 +121,72 @@ def _row_chunks(shape: tuple[int, ...], itemsize: int) -> tuple[int, ...]:
     return (rows, *shape[1:]) if len(shape) else ()
 
 
+class ChunkReuse:
+    """The chunks of a 2-D array that a new folder store takes from an old one by hard link.
+
+    old: the old store's array folder (e.g. STORE/terrain/heights); changed: (r0, r1, c0, c1)
+    inclusive elements that differ from the old array. A chunk that meets them is written; any
+    other is linked (``os.link``) to the old chunk file, which both stores then share: the
+    old store is never written through such a link (a later write makes a new store beside
+    it). Nothing is linked when the old array's metadata (shape, chunks, dtype, codecs)
+    differs from the new one's, or across file systems.
+    """
+
+    def __init__(self, old: str | os.PathLike, changed: tuple[int, int, int, int]) -> None:
+        self.old = Path(old)
+        self.changed = changed
+        #: Chunks linked by the last write.
+        self.linked = 0
+
+    def linker(self, arr: Any, chunks: tuple[int, ...]) -> Any:
+        """fn(i, j) -> bool: link chunk (i, j) of the new ``arr`` and say so, or False for a
+        chunk to write; None when nothing can be linked."""
+        root = getattr(arr.store, "root", None)
+        if root is None:
+            return None
+        new = Path(root) / arr.path
+        try:
+            same = (self.old / "zarr.json").read_bytes() == (new / "zarr.json").read_bytes()
+        except OSError:
+            return None
+        if not same:
+            return None
+        r0, r1, c0, c1 = self.changed
+        lock = threading.Lock()
+
+        def link(i: int, j: int) -> bool:
+            if i * chunks[0] <= r1 and r0 < (i + 1) * chunks[0]:
+                if j * chunks[1] <= c1 and c0 < (j + 1) * chunks[1]:
+                    return False
+            source = self.old / "c" / str(i) / str(j)
+            target = new / "c" / str(i) / str(j)
+            try:
+                target.parent.mkdir(parents=True, exist_ok=True)
+                os.link(source, target)
+            except OSError:
+                return False
+            with lock:
+                self.linked += 1
+            return True
+
+        return link
+
+
 def write_array(
     group: Any,
     name: str,
     data: Any,
     chunks: tuple[int, ...] | None = None,
     tap: Any = None,
+    reuse: ChunkReuse | None = None,
 ) -> Any:
     """Create ``group/name`` and fill it from ``data`` (an ndarray, or any 2-D array-like with
     ``shape``, ``dtype`` and slicing when ``chunks`` is given: then written block by block).
 
     tap: called as ``tap(r0, r1, c0, c1, values)`` with every 2-D slab written (half-open
-    ranges), for a caller that wants to see the data once as it streams past.
+    ranges), for a caller that wants to see the data once as it streams past. reuse: the
+    chunks of a 2-D array that are hard links to an old store's chunk files instead of being
+    written (``ChunkReuse``; a folder store only).
     """
     shape = tuple(int(s) for s in data.shape)
     dtype = np.dtype(data.dtype).newbyteorder("<")
@@ -150,9 +204,10 @@ def write_array(
     )
     if not math.prod(shape):
         return arr
-    if (isinstance(data, np.ndarray) and tap is None) or len(shape) != 2:
+    if (isinstance(data, np.ndarray) and tap is None and reuse is None) or len(shape) != 2:
         arr[...] = np.asarray(data)
         return arr
+    linker = reuse.linker(arr, chunks) if reuse is not None else None
     # Block by block: the source may be a lazy windowed array that never holds the band.
     rows, cols = shape
     rstep = chunks[0]
@@ -168,7 +223,15 @@ def write_array(
         values = np.asarray(data[r0:r1, c0:c1])
         if tap is not None:
             tap(r0, r1, c0, c1, values)
-        arr[r0:r1, c0:c1] = values
+        if linker is None:
+            arr[r0:r1, c0:c1] = values
+            return
+        # Chunk by chunk: an unchanged chunk is a hard link to the old store's file.
+        for a in range(r0, r1, chunks[0]):
+            for b in range(c0, c1, chunks[1]):
+                if not linker(a // chunks[0], b // chunks[1]):
+                    block = values[a - r0 : a - r0 + chunks[0], b - c0 : b - c0 + chunks[1]]
+                    arr[a : a + block.shape[0], b : b + block.shape[1]] = block
 
     # Slabs cover whole, disjoint chunks, so they are read (a raster decoded) and compressed
     # on a thread per core; at most two slabs per thread are in flight, bounding memory.

@@ -1,0 +1,463 @@
+"""Re-baking: the texture pyramid follows an edit of the terrain, or a new light.
+
+``rebake(folder, terrain, rect)`` re-bakes only the pyramid tiles that an edit of the terrain's
+cells inside ``rect`` reaches, on every level, to the texels a fresh ``bake`` of the edited
+terrain writes:
+
+1. Level 0 (``reached_texels``): the texels whose height sample reads an edited cell (the cell
+   itself on the DEM's own lattice; a resampled lattice interpolates h_T bilinearly, so within
+   one cell of it), grown by one texel for the shading kernel's 3 × 3 gradient window. The
+   512² tiles they meet are shaded again (``_Texels``) from a window of h_T with one more
+   texel of context on every side: the kernel's nodata border ring falls in the context, and
+   on the terrain's own border it is the terrain's, as in the bake.
+2. Level k + 1: the texels whose 2 × 2 footprint meets the changed texels of level k (the
+   changed rectangle halved, rounding outwards); their values are halved in memory from the
+   new texels of level k with the bake's own filter (``halve_bands``): level 0 is made over
+   the reached texels widened to a multiple of 2^(levels − 1), so every halving pairs the rows
+   and columns the bake pairs (``_level_blocks``). The tiles they meet are rewritten: their
+   old texels with the new ones pasted over them.
+3. All or nothing: every level file is copied into a temp folder beside the pyramid, the tiles
+   are rewritten in the copies (GDAL updates a tiled GeoTIFF in place), pyramid.json gets the
+   new tile checksums, byte counts and a new build id, and the folder is swapped in
+   (``atomic_directory``): a reader sees the old pyramid or the new one.
+
+A new water level (``water.WaterLevel``, a flood drawn under the shading) re-bakes the tiles
+the texels between the old and the new shore line meet, by the same steps.
+
+What is re-baked whole, through ``bake`` with the pyramid's recipe: a new light (or any other
+``shading_options``), and the shadings whose texels depend on far cells (cast shadows, the
+curvature weight's spread over the whole grid, Phong and Gouraud on their own lattice).
+Pyramids with thematic rasters, images or overlays are refused: bake them again.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+import uuid
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from affine import Affine
+
+from approxtree.errors import InvalidParameterError, StoreError
+from approxtree.geometry.grid import Grid
+from approxtree.geometry.rect import Rect
+from approxtree.io.atomic import atomic_directory, atomic_write
+from approxtree.io.gdal import checked_write, no_side_files
+from approxtree.kernels.rgba import halve_bands
+from approxtree.textures.bake import WATER_COLOUR, bake, texture_lattice
+from approxtree.textures.base import TextureData
+from approxtree.textures.blend import MultiTexture
+from approxtree.textures.pyramid import (
+    _LEVEL_OPTIONS,
+    _TAG_BUILD,
+    _TAG_LEVEL,
+    _TILE,
+    TexturePyramid,
+    _dump_meta,
+    tile_row_checksums,
+)
+from approxtree.textures.shading import TopographicShading
+from approxtree.textures.water import WaterLevel, wet
+
+#: Texel rectangle (r0, r1, c0, c1), half-open, in a level's own rows and columns.
+TexelRect = tuple[int, int, int, int]
+#: A level file rewritten tile by tile is written whole again once it passes this many times
+#: its size when it was last written whole (``compact_bytes`` in its pyramid.json entry).
+GROWTH = 2.0
+
+
+@dataclass
+class Rebake:
+    """What a re-bake wrote.
+
+    pyramid: the pyramid as it is now. tiles: per level, the tiles written; tiles_total: per
+    level, the level's tiles. whole: True when the pyramid was baked whole (a new light, a
+    shading that is not local). seconds: wall time; copy_seconds: the part of it spent
+    waiting for the copies of the level files (the price of the atomic swap; the rest of the
+    copying overlaps the re-bake's own work).
+    """
+
+    pyramid: TexturePyramid
+    tiles: list[int]
+    tiles_total: list[int]
+    whole: bool
+    seconds: float
+    copy_seconds: float = 0.0
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready figures (``approxtree update --textures --json``)."""
+        return {
+            "tiles": sum(self.tiles),
+            "tiles_total": sum(self.tiles_total),
+            "tiles_per_level": self.tiles,
+            "whole": self.whole,
+            "seconds": round(self.seconds, 6),
+            "copy_seconds": round(self.copy_seconds, 6),
+        }
+
+
+def rebake(
+    pyramid: TexturePyramid | str | os.PathLike,
+    terrain: Grid,
+    rect: Rect | None = None,
+    shading_options: dict[str, Any] | None = None,
+    context: Any = None,
+    water_level: float | None = None,
+) -> Rebake:
+    """Re-bake the pyramid baked from ``terrain`` after its cells inside ``rect`` changed.
+
+    pyramid: a TexturePyramid or its folder, baked by ``bake`` (its recipe is in pyramid.json).
+    terrain: the edited terrain (same lattice as when baked). rect: the world rectangle of the
+    edited cells (on cell edges), or None for the whole pyramid. shading_options: options to
+    change (e.g. ``{"azimuth": 200.0}``): the pyramid is re-baked whole with them and the
+    recipe keeps them. context: a moderngl context for a whole re-bake of a pyramid whose
+    shading was baked with OpenGL (None: numpy, within ±1 grey level of it; tiles re-baked on
+    their own are always shaded with numpy). water_level: a new level for a pyramid
+    baked with one (``bake(water_level=…)``): the tiles between the old and the new shore line
+    are re-baked, and the recipe keeps the level.
+    """
+    t0 = time.perf_counter()
+    if not isinstance(pyramid, TexturePyramid):
+        pyramid = TexturePyramid(pyramid)
+    recipe = _recipe(pyramid)
+    options = {**recipe["shading_options"], **(shading_options or {})}
+    old_level = recipe.get("water_level")
+    if water_level is not None and old_level is None:
+        raise InvalidParameterError(
+            f"{pyramid.folder} was baked without a water level; bake it with one first."
+        )
+    level = old_level if water_level is None else float(water_level)
+    transform, shape = texture_lattice(terrain, float(recipe["texel_size"]))
+    level0 = pyramid.levels[0]
+    if shape != (level0.height, level0.width) or not transform.almost_equals(level0.transform):
+        raise InvalidParameterError(
+            f"{pyramid.folder} was not baked from this terrain: its level 0 is "
+            f"{level0.width} × {level0.height} texels at {tuple(level0.transform)[:6]}, the "
+            f"terrain's lattice {shape[1]} × {shape[0]} at {tuple(transform)[:6]}."
+        )
+    totals = [_tiles_of(lv.height, lv.width) for lv in pyramid.levels]
+    # A new light, or a shading that reads far cells: the whole pyramid, as a bake makes it.
+    flood = water_level is not None and level != old_level
+    if (
+        (rect is None and water_level is None)
+        or shading_options
+        or not _is_local(recipe["shading"], options)
+    ):
+        result = bake(
+            terrain,
+            pyramid.folder,
+            shading=recipe["shading"],
+            shading_options=options,
+            texel_size=float(recipe["texel_size"]),
+            max_texture_size=pyramid.max_texture_size,
+            gl=bool(recipe["gl"]),
+            context=context,
+            water_level=level,
+            blend=recipe.get("blend", "shade"),
+        )
+        return Rebake(result.pyramid, totals, totals, True, time.perf_counter() - t0)
+    same = shape == terrain.shape and transform.almost_equals(terrain.transform)
+    reached = None if rect is None else reached_texels(terrain, rect, transform, shape, same)
+    if flood and old_level is not None and level is not None:
+        shore = _shore_texels(terrain, transform, shape, same, old_level, level)
+        reached = _union(reached, shore)
+    levels = pyramid.levels
+    tiles = [0] * len(levels)
+    folder = pyramid.folder
+    meta = json.loads((folder / "pyramid.json").read_text())
+    if flood:
+        meta["recipe"]["water_level"] = level
+        meta["recipe"]["layers"] = [
+            f"water-level:{level:g}" if name.startswith("water-level:") else name
+            for name in meta["recipe"]["layers"]
+        ]
+    if reached is None:
+        # No texel changed: only a new water level to remember.
+        if flood:
+            with atomic_write(folder / "pyramid.json") as f:
+                f.write(_dump_meta(meta).encode())
+        return Rebake(TexturePyramid(folder), tiles, totals, False, time.perf_counter() - t0)
+    meta["build"] = uuid.uuid4().hex
+    waited = 0.0
+    # Each level's changed texels: those whose 2 × 2 footprint meets the finer level's.
+    changed = [reached]
+    for _ in levels[1:]:
+        r0, r1, c0, c1 = changed[-1]
+        changed.append((r0 // 2, -(-r1 // 2), c0 // 2, -(-c1 // 2)))
+    with atomic_directory(folder) as tmp, ThreadPoolExecutor(1) as copier:
+        # The level files are copied on a thread (sendfile, without the GIL), the smallest
+        # first, while the new texels are made and the old tiles read; each level waits for
+        # its own copy only, so the coarse levels are written while level 0 is copied.
+        order = range(len(levels) - 1, -1, -1)
+        copies = {
+            k: copier.submit(shutil.copyfile, levels[k].path, tmp / levels[k].path.name)
+            for k in order
+        }
+        make = _Texels(terrain, options, level, recipe.get("blend", "shade"), transform, same)
+        blocks = _level_blocks(make, shape, reached, len(levels))
+        for k in order:
+            lv, (where, block) = levels[k], blocks[k]
+            # The whole tiles the changed texels meet: the old texels, the new ones over them.
+            region = _tile_region(changed[k], lv.height, lv.width)
+            texels = _read_region(lv.path, region)
+            _paste(texels, region, block, where)
+            t1 = time.perf_counter()
+            copies[k].result()
+            waited += time.perf_counter() - t1
+            _write_tiles(tmp / lv.path.name, texels, region, meta["build"], meta["levels"][k])
+            tiles[k] = _tiles_of(region[1] - region[0], region[3] - region[2])
+        (tmp / "pyramid.json").write_text(_dump_meta(meta))
+    seconds = time.perf_counter() - t0
+    return Rebake(TexturePyramid(folder), tiles, totals, False, seconds, waited)
+
+
+def reached_texels(
+    terrain: Grid, rect: Rect, transform: Affine, shape: tuple[int, int], same: bool
+) -> TexelRect | None:
+    """Level-0 texels (r0, r1, c0, c1), half-open, whose shading reads a cell inside ``rect``
+    (module doc, step 1); None when the rect misses the lattice."""
+    t = terrain.transform
+    # The edited cells, half-open, from the rect's corners (on cell edges).
+    cols = sorted(((rect.xmin - t.c) / t.a, (rect.xmax - t.c) / t.a))
+    rows = sorted(((rect.ymin - t.f) / t.e, (rect.ymax - t.f) / t.e))
+    r0, r1 = round(rows[0]), round(rows[1])
+    c0, c1 = round(cols[0]), round(cols[1])
+    if not same:
+        # A texel's height is interpolated from the four data points around its centre: it
+        # reads an edited cell when its centre lies within one cell of one (one more cell of
+        # slack against round-off), then the 3 × 3 window adds one texel.
+        x0, y0 = t @ (c0 - 2, r0 - 2)
+        x1, y1 = t @ (c1 + 2, r1 + 2)
+        inv = ~transform
+        (ca, ra), (cb, rb) = inv @ (x0, y0), inv @ (x1, y1)
+        r0, r1 = int(np.floor(min(ra, rb))), int(np.ceil(max(ra, rb)))
+        c0, c1 = int(np.floor(min(ca, cb))), int(np.ceil(max(ca, cb)))
+    # The 3 × 3 gradient window: one texel more on every side.
+    r0, r1 = max(r0 - 1, 0), min(r1 + 1, shape[0])
+    c0, c1 = max(c0 - 1, 0), min(c1 + 1, shape[1])
+    if r0 >= r1 or c0 >= c1:
+        return None
+    return r0, r1, c0, c1
+
+
+def _recipe(pyramid: TexturePyramid) -> dict[str, Any]:
+    """The pyramid's recipe, checked to be one a re-bake can repeat (a shading only)."""
+    recipe = pyramid.recipe
+    if recipe is None:
+        raise StoreError(
+            f"{pyramid.folder} records no bake recipe (baked before re-bakes existed, or "
+            "from an array): bake it again (approxtree bake) to let it follow updates."
+        )
+    others = [
+        name for name in recipe["layers"] if not name.startswith(("shading:", "water-level:"))
+    ]
+    if others or recipe["shading"] is None:
+        raise InvalidParameterError(
+            f"{pyramid.folder} holds layers a re-bake does not repeat ({', '.join(others)}); "
+            "only pyramids of a shading (and a water level) follow updates: bake it again "
+            "(approxtree bake)."
+        )
+    return recipe
+
+
+def _is_local(shading: str, options: dict[str, Any]) -> bool:
+    """Whether a texel of this shading reads only the 3 × 3 heights around it."""
+    return (
+        shading == "topographic"
+        and not options.get("shadows", False)
+        and not options.get("curvature_weight", 0.0)
+    )
+
+
+def _tiles_of(rows: int, cols: int) -> int:
+    """Tiles of a rows × cols block starting on a tile edge."""
+    return -(-rows // _TILE) * -(-cols // _TILE)
+
+
+def _tile_region(texels: TexelRect, rows: int, cols: int) -> TexelRect:
+    """The whole tiles (clipped to the level's rows × cols) that ``texels`` meets."""
+    r0, r1, c0, c1 = texels
+    return (
+        r0 // _TILE * _TILE,
+        min(-(-r1 // _TILE) * _TILE, rows),
+        c0 // _TILE * _TILE,
+        min(-(-c1 // _TILE) * _TILE, cols),
+    )
+
+
+class _Texels:
+    """The level-0 texels of a rect as the bake makes them: h_T on the lattice over the rect
+    and one texel of context on every side, the water layer if any, the shading blended over
+    it (``bake``'s layers, on a window of the lattice)."""
+
+    def __init__(
+        self,
+        terrain: Grid,
+        options: dict[str, Any],
+        level: float | None,
+        blend: str,
+        transform: Affine,
+        same: bool,
+    ) -> None:
+        self.terrain, self.options, self.level, self.blend = terrain, options, level, blend
+        self.transform, self.same = transform, same
+
+    def __call__(self, region: TexelRect, shape: tuple[int, int]) -> np.ndarray:
+        """(bands, rows, cols) uint8 texels of ``region`` (half-open rows and columns)."""
+        r0, r1, c0, c1 = region
+        a, b = max(r0 - 1, 0), min(r1 + 1, shape[0])
+        c, d = max(c0 - 1, 0), min(c1 + 1, shape[1])
+        z = _lattice_heights(self.terrain, self.transform, shape, self.same, (a, b, c, d))
+        t = self.transform @ Affine.translation(c, a)
+        window = Grid(z, t, self.terrain.crs, allow_empty=True)
+        texture: TextureData = TopographicShading(window, **self.options)
+        if self.level is not None:
+            water = WaterLevel(window, self.level, WATER_COLOUR)
+            texture = MultiTexture([water, texture], [self.blend])
+        block = np.concatenate([s.copy() for s in texture.level_strips(512)], axis=1)
+        return np.ascontiguousarray(block[:, r0 - a : r1 - a, c0 - c : c1 - c])
+
+
+def _lattice_heights(
+    terrain: Grid, transform: Affine, shape: tuple[int, int], same: bool, rect: TexelRect
+) -> np.ndarray:
+    """(rows, cols) h_T at the texel centres of ``rect`` of the lattice, as the bake samples
+    them: the grid's own heights, or interpolated at the very same centres (sliced from the
+    whole lattice's coordinates, not recomputed) as float32."""
+    a, b, c, d = rect
+    if same:
+        return np.asarray(terrain.heights[a:b, c:d])
+    xs = transform.c + (np.arange(shape[1]) + 0.5) * transform.a
+    ys = transform.f + (np.arange(shape[0]) + 0.5) * transform.e
+    return terrain.height_at(xs[None, c:d], ys[a:b, None]).astype(np.float32)
+
+
+def _shore_texels(
+    terrain: Grid,
+    transform: Affine,
+    shape: tuple[int, int],
+    same: bool,
+    old: float,
+    new: float,
+) -> TexelRect | None:
+    """Level-0 texels (r0, r1, c0, c1) bounding those that are wet under one water level and
+    dry under the other (a pass over the lattice's heights, strip by strip); None if none."""
+    rows: list[int] = []
+    cols = np.zeros(shape[1], dtype=bool)
+    for r0 in range(0, shape[0], 512):
+        r1 = min(r0 + 512, shape[0])
+        z = _lattice_heights(terrain, transform, shape, same, (r0, r1, 0, shape[1]))
+        changed = wet(z, old) != wet(z, new)
+        hit = np.flatnonzero(changed.any(axis=1))
+        if hit.size:
+            rows += [r0 + int(hit[0]), r0 + int(hit[-1])]
+            cols |= changed.any(axis=0)
+    if not rows:
+        return None
+    hit = np.flatnonzero(cols)
+    return min(rows), max(rows) + 1, int(hit[0]), int(hit[-1]) + 1
+
+
+def _union(a: TexelRect | None, b: TexelRect | None) -> TexelRect | None:
+    """The bounding rect of two texel rects (either may be None)."""
+    if a is None or b is None:
+        return a or b
+    return min(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), max(a[3], b[3])
+
+
+def _level_blocks(
+    make: _Texels, shape: tuple[int, int], reached: TexelRect, levels: int
+) -> list[tuple[TexelRect, np.ndarray]]:
+    """Per level, a texel rect holding the changed texels and its (bands, rows, cols) new
+    texels: level 0 shaded over the reached texels widened to multiples of 2^(levels − 1),
+    each next level its halving in memory (the bake's filter; the widening keeps every
+    halving on even rows and columns, or on the level's odd last one, as the bake pairs them)."""
+    step = 1 << (levels - 1)
+    r0, r1, c0, c1 = reached
+    rect = (
+        r0 // step * step,
+        min(-(-r1 // step) * step, shape[0]),
+        c0 // step * step,
+        min(-(-c1 // step) * step, shape[1]),
+    )
+    block = make(rect, shape)
+    out = [(rect, block)]
+    for _ in range(levels - 1):
+        r0, r1, c0, c1 = rect
+        rect = (r0 // 2, -(-r1 // 2), c0 // 2, -(-c1 // 2))
+        half = np.empty((block.shape[0], rect[1] - rect[0], rect[3] - rect[2]), dtype=np.uint8)
+        halve_bands(block, half)
+        out.append((rect, half))
+        block = half
+    return out
+
+
+def _read_region(path: Path, region: TexelRect) -> np.ndarray:
+    """(bands, rows, cols) uint8 texels of a level file's ``region`` (whole tiles)."""
+    import rasterio
+    from rasterio.windows import Window
+
+    r0, r1, c0, c1 = region
+    with no_side_files(), rasterio.open(path) as ds:
+        return ds.read(window=Window(c0, r0, c1 - c0, r1 - r0))
+
+
+def _paste(texels: np.ndarray, region: TexelRect, block: np.ndarray, rect: TexelRect) -> None:
+    """Copy the part of ``block`` (the texels of ``rect``) inside ``region`` into ``texels``
+    (the texels of ``region``)."""
+    r0, r1 = max(region[0], rect[0]), min(region[1], rect[1])
+    c0, c1 = max(region[2], rect[2]), min(region[3], rect[3])
+    texels[:, r0 - region[0] : r1 - region[0], c0 - region[2] : c1 - region[2]] = block[
+        :, r0 - rect[0] : r1 - rect[0], c0 - rect[2] : c1 - rect[2]
+    ]
+
+
+def _write_tiles(path: Path, block: np.ndarray, region: TexelRect, build: str, entry: dict) -> None:
+    """Write the (bands, rows, cols) texels of ``region`` (whole tiles) into the level file
+    ``path`` in place, tag it with the new build id, and update its pyramid.json ``entry``
+    (tile checksums, bytes)."""
+    import rasterio
+    from rasterio.windows import Window
+
+    r0, r1, c0, c1 = region
+    with checked_write(path), no_side_files(), rasterio.open(path, "r+") as ds:
+        level = ds.tags().get(_TAG_LEVEL)
+        ds.write(block, window=Window(c0, r0, c1 - c0, r1 - r0))
+        ds.update_tags(**{_TAG_BUILD: build, _TAG_LEVEL: level})
+    # The tiles' checksums, as the bake computes them: decoded texels, tile by tile.
+    for i, start in enumerate(range(0, r1 - r0, _TILE)):
+        sums = tile_row_checksums(block[:, start : start + _TILE])
+        entry["tile_crc32c"][r0 // _TILE + i][c0 // _TILE : c0 // _TILE + len(sums)] = sums
+    # A rewritten tile is appended to the file (the old one stays as dead bytes): past
+    # GROWTH × its size when last written whole, the level is written whole again.
+    compact = int(entry.setdefault("compact_bytes", entry["bytes"]))
+    size = path.stat().st_size
+    if size > GROWTH * compact:
+        size = _compact(path)
+        entry["compact_bytes"] = size
+    entry["bytes"] = size
+
+
+def _compact(path: Path) -> int:
+    """Write the level file ``path`` whole again (same texels, tags and creation options,
+    without the dead bytes of rewritten tiles) and return its new size."""
+    import rasterio
+    import rasterio.shutil
+
+    fresh = path.with_name(f".{path.name}.compact")
+    with no_side_files(), rasterio.open(path) as ds:
+        photometric = "RGB" if ds.count == 4 else "MINISBLACK"
+    with checked_write(fresh, path), no_side_files():
+        rasterio.shutil.copy(path, fresh, driver="GTiff", photometric=photometric, **_LEVEL_OPTIONS)
+    os.replace(fresh, path)
+    return path.stat().st_size
+
+
+__all__ = ["Rebake", "reached_texels", "rebake"]
