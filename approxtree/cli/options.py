@@ -351,3 +351,30 @@ def parse_rgba(text: str) -> tuple[int, int, int, int]:
         raise InvalidParameterError(f"Expected a colour (#rrggbb or a name), got {text!r}.")
     r, g, b = (round(v * 255) for v in bg.colour)
     return (r, g, b, 255)
+
+
+def textures_option(help: str, most: int | None = 1) -> Callable[..., Any]:
+    """--textures FOLDER [--textures DETAIL@LEVEL] ..., the same on render, view and tiles: the
+    command receives ``textures``, a list of drapes (``textures.detail.parse_textures``: a
+    pyramid's folder, or a DetailTextures where DETAIL@LEVEL follows its base), at most
+    ``most`` of them (None: any number). A bad spelling is one ``Error:`` line (exit 2)."""
+
+    def drapes(ctx: click.Context, param: click.Parameter, value: tuple[str, ...]) -> list[Any]:
+        from approxtree.errors import ApproxTreeError, InvalidParameterError
+        from approxtree.textures.detail import parse_textures
+
+        try:
+            parsed = parse_textures(value)
+            if most is not None and len(parsed) > most:
+                raise InvalidParameterError(
+                    f"{ctx.info_name} drapes one texture pyramid: give one --textures FOLDER, "
+                    "optionally followed by --textures DETAIL@LEVEL."
+                )
+        except ApproxTreeError as exc:
+            # As _reports_errors says it: one line, exit 2 (click's own usage errors exit 2).
+            error = click.ClickException(str(exc))
+            error.exit_code = 2
+            raise error from exc
+        return parsed
+
+    return click.option("--textures", "textures", multiple=True, callback=drapes, help=help)
