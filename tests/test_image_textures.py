@@ -530,3 +530,14 @@ def test_imagery_tiles_show_the_image_at_known_points(quadrants, tmp_path):
         for z in range(8, maxzoom + 1):
             pixel = pixel_at(out, lon, lat, z)
             assert pixel is not None and pixel[3] == 255 and _close(pixel, q), (q, z, pixel)
+
+
+def test_bake_and_verify_offer_the_same_resamplings():
+    """bake --resampling and verify --resampling offer exactly image.RESAMPLINGS (one list)."""
+    from approxtree.cli.bake import bake_command
+    from approxtree.cli.verify import verify as verify_command
+    from approxtree.textures.image import RESAMPLINGS
+
+    for command in (bake_command, verify_command):
+        (option,) = [p for p in command.params if p.name == "resampling"]
+        assert list(option.type.choices) == list(RESAMPLINGS)
