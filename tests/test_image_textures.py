@@ -541,3 +541,30 @@ def test_bake_and_verify_offer_the_same_resamplings():
     for command in (bake_command, verify_command):
         (option,) = [p for p in command.params if p.name == "resampling"]
         assert list(option.type.choices) == list(RESAMPLINGS)
+
+
+def test_windows_of_any_size_write_the_same_pyramid_files(nc, rgba_4326, tmp_path, monkeypatch):
+    """An image baked in the smallest windows (strips of 2 rows, one tile wide) and in the
+    default ones writes byte-identical level files and pyramid.json (one build id for both)."""
+    import uuid
+
+    import approxtree.textures.pyramid as pyramid_module
+
+    fixed = uuid.UUID(int=30)
+    monkeypatch.setattr(pyramid_module.uuid, "uuid4", lambda: fixed)
+    with rasterio.open(nc["dem"]) as ds:
+        t = ds.transform
+        shape = (round(ds.height * 3), round(ds.width * 3))
+        lattice = Affine(t.a / 3, 0, t.c, 0, t.e / 3, t.f)
+        crs = ds.crs.to_string()
+    image = ImageTexture(rgba_4326, lattice, shape, crs)
+    small = TexturePyramid.build(image, tmp_path / "small", 256, window_bytes=1)
+    default = TexturePyramid.build(image, tmp_path / "default", 256)
+    assert len(small) == 4 and small.levels[0].width > 1024
+    names = sorted(p.name for p in (tmp_path / "default").iterdir())
+    assert names == sorted(p.name for p in (tmp_path / "small").iterdir())
+    assert "level3.tif" in names and not any(n.endswith(".raw") for n in names)
+    for name in names:
+        a, b = ((tmp_path / d / name).read_bytes() for d in ("small", "default"))
+        assert a == b, name
+    assert default.level(0)[..., 3].any()
