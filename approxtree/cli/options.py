@@ -353,28 +353,33 @@ def parse_rgba(text: str) -> tuple[int, int, int, int]:
     return (r, g, b, 255)
 
 
+class _OneLineError(click.ClickException):
+    """An ApproxTreeError met while click parses an option: one ``Error:`` line on stderr and
+    exit 2, as ``_reports_errors`` says the errors met inside a command."""
+
+    exit_code = 2
+
+
 def textures_option(help: str, most: int | None = 1) -> Callable[..., Any]:
     """--textures FOLDER [--textures DETAIL@LEVEL] ..., the same on render, view and tiles: the
-    command receives ``textures``, a list of drapes (``textures.detail.parse_textures``: a
-    pyramid's folder, or a DetailTextures where DETAIL@LEVEL follows its base), at most
+    command receives ``textures``, a list of drapes (``textures.detail.parse_textures``: an
+    opened TexturePyramid, or a DetailTextures where DETAIL@LEVEL follows its base), at most
     ``most`` of them (None: any number). A bad spelling is one ``Error:`` line (exit 2)."""
 
     def drapes(ctx: click.Context, param: click.Parameter, value: tuple[str, ...]) -> list[Any]:
         from approxtree.errors import ApproxTreeError, InvalidParameterError
-        from approxtree.textures.detail import parse_textures
+        from approxtree.textures.detail import open_drape, parse_textures
 
         try:
-            parsed = parse_textures(value)
+            # Opened here: a missing or broken pyramid fails before any work.
+            parsed = [open_drape(drape) for drape in parse_textures(value)]
             if most is not None and len(parsed) > most:
                 raise InvalidParameterError(
                     f"{ctx.info_name} drapes one texture pyramid: give one --textures FOLDER, "
                     "optionally followed by --textures DETAIL@LEVEL."
                 )
         except ApproxTreeError as exc:
-            # As _reports_errors says it: one line, exit 2 (click's own usage errors exit 2).
-            error = click.ClickException(str(exc))
-            error.exit_code = 2
-            raise error from exc
+            raise _OneLineError(str(exc)) from exc
         return parsed
 
     return click.option("--textures", "textures", multiple=True, callback=drapes, help=help)

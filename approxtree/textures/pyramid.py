@@ -184,7 +184,7 @@ class _Spool:
     writes are positional), so it does not count in the process's memory either. Written by
     one thread, read by another (``tile_rows`` waits for each tile row)."""
 
-    def __init__(self, path: Path, shape: tuple[int, int], bands: int) -> None:
+    def __init__(self, path: Path, shape: tuple[int, ...], bands: int) -> None:
         self.path = path
         self.rows, self.cols = shape
         self.bands = bands
@@ -248,7 +248,7 @@ class _Spool:
 
 def _pwrite_all(fd: int, data: np.ndarray, offset: int) -> None:
     """Write all of a 1-D uint8 array at ``offset`` (os.pwrite may write less at once)."""
-    view = memoryview(data)
+    view = data.data
     while len(view):
         done = os.pwrite(fd, view, offset)
         view, offset = view[done:], offset + done
@@ -256,7 +256,7 @@ def _pwrite_all(fd: int, data: np.ndarray, offset: int) -> None:
 
 def _pread_all(fd: int, out: np.ndarray, offset: int) -> None:
     """Fill a 1-D uint8 array from ``offset`` (os.preadv may read less at once)."""
-    view = memoryview(out)
+    view = out.data
     while len(view):
         done = os.preadv(fd, [view], offset)
         if done == 0:
