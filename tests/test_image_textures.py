@@ -544,8 +544,9 @@ def test_bake_and_verify_offer_the_same_resamplings():
 
 
 def test_windows_of_any_size_write_the_same_pyramid_files(nc, rgba_4326, tmp_path, monkeypatch):
-    """An image baked in the smallest windows (strips of 2 rows, one tile wide) and in the
-    default ones writes byte-identical level files and pyramid.json (one build id for both)."""
+    """An image baked in the smallest windows (strips of 2 rows, one tile wide), in windows of
+    3 tiles and in the default ones writes byte-identical level files and pyramid.json (one
+    build id for all)."""
     import uuid
 
     import approxtree.textures.pyramid as pyramid_module
@@ -559,12 +560,13 @@ def test_windows_of_any_size_write_the_same_pyramid_files(nc, rgba_4326, tmp_pat
         crs = ds.crs.to_string()
     image = ImageTexture(rgba_4326, lattice, shape, crs)
     small = TexturePyramid.build(image, tmp_path / "small", 256, window_bytes=1)
+    TexturePyramid.build(image, tmp_path / "three", 256, window_bytes=3 * 512 * 512 * 4)
     default = TexturePyramid.build(image, tmp_path / "default", 256)
     assert len(small) == 4 and small.levels[0].width > 1024
     names = sorted(p.name for p in (tmp_path / "default").iterdir())
     assert names == sorted(p.name for p in (tmp_path / "small").iterdir())
     assert "level3.tif" in names and not any(n.endswith(".raw") for n in names)
     for name in names:
-        a, b = ((tmp_path / d / name).read_bytes() for d in ("small", "default"))
-        assert a == b, name
+        a, b, c = ((tmp_path / d / name).read_bytes() for d in ("small", "three", "default"))
+        assert a == b == c, name
     assert default.level(0)[..., 3].any()

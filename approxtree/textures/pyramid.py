@@ -615,7 +615,7 @@ class TexturePyramid:
                     path = tmp / f"level{k}.tif"
                     tile_sums[k] = _write_level(
                         path, spools[k], (rows, cols), bands, t, crs, build, k, sink,
-                        overlay, on_rows, max(_TILE, block_cols >> k),
+                        overlay, on_rows, max(1, block_cols // _TILE >> k) * _TILE,
                     )  # fmt: skip
                 finally:
                     if sink is not None:
