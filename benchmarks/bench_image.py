@@ -13,7 +13,8 @@ then, each a fresh process timed with its own peak RSS (GNU time's %M):
   0's, read from pyramid.json), tiled ZSTD GeoTIFF: level 0 only, no pyramid.
 
 Level 0 of both is then compared on sampled 512² windows (max difference per channel). Results
-in benchmarks/results/image.json (one entry per size). Sizes run smallest first; memory is flat
+in benchmarks/results/image.json (one entry per size) and a plot beside it (image.png: peak
+RSS and seconds of both against level 0's width). Sizes run smallest first; memory is flat
 when the peak RSS of ours does not grow with N.
 
     python benchmarks/bench_image.py [--sizes 4096 8192 16384 32768] [--keep DIR]
@@ -174,6 +175,30 @@ def run(size: int, work: Path) -> dict:
     return entry
 
 
+def plot(results: dict, path: Path) -> None:
+    """Peak RSS and seconds of ours and gdalwarp against level 0's width (texels)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    runs = results["runs"]
+    widths = [r["lattice"][0] for r in runs]
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
+    for side, label in (("ours", "approxtree bake --image (pyramid)"), ("gdalwarp", "gdalwarp")):
+        a.plot(widths, [r[side]["peak_rss_mb"] for r in runs], "o-", label=label)
+        b.plot(widths, [r[side]["seconds"] for r in runs], "o-", label=label)
+    for ax, what in ((a, "peak RSS (MB)"), (b, "seconds")):
+        ax.set_xscale("log", base=2)
+        ax.set_xlabel("level 0 width (texels)")
+        ax.set_ylabel(what)
+        ax.legend()
+    a.set_ylim(bottom=0)
+    fig.suptitle("Image bake (N × N RGB COG, EPSG:4326 → 32119) vs gdalwarp")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[4096, 8192, 16384, 32768])
@@ -191,6 +216,7 @@ def main() -> None:
         results["runs"].append(run(size, work))
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(results, indent=2) + "\n")
+        plot(results, args.out.with_suffix(".png"))
     if args.keep is None:
         shutil.rmtree(work, ignore_errors=True)
     print(f"wrote {args.out}")

@@ -3,6 +3,10 @@ level inside its footprint, the base pyramid elsewhere (issue 30, item 3)."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 import rasterio
@@ -120,6 +124,27 @@ def test_cli_textures_detail_spelling(nc, tmp_path):
         DetailTextures(nc["base"], nc["detail"], -2)
 
 
+def test_shared_texture_patches_stay_in_their_pyramid(gl_context, nc):
+    """With texture sharing on (the default cut), a selected node that uses the detail is
+    textured by a node that uses it too, though the base's root patch meets γ."""
+    from approxtree.render import Camera, Cut, Engine, Style
+
+    tree = nc["tree"]
+    detail = DetailTextures(nc["base"], nc["detail"], 3)
+    x0, y0, x1, y1 = DETAIL_BOX
+    x, y = (x0 + x1) / 2, (y0 + y1) / 2
+    cam = Camera.look_at((x, y - 1500, 2000), (x, y, 0), fov=60)
+    with Engine(tree, textures=detail, context=gl_context, offscreen=True) as eng:
+        frame = eng.render(cam, (320, 240), Cut(alpha=0.3, gamma=2.0), style=Style(lighting=False))
+    rects = np.asarray(tree.rects, dtype=np.float64)
+    selected = np.asarray(frame.selection.nodes)
+    owners = np.asarray(frame.texture_nodes)
+    used = detail.uses_detail(tree.levels[selected], rects[selected])
+    assert used.any() and (owners != selected).any()
+    assert (detail.uses_detail(tree.levels[owners], rects[owners]) == used).all()
+    assert _magenta(frame.image).mean() > 0.05
+
+
 @pytest.fixture(scope="module")
 def gl_context():
     """One headless EGL context for this module's render test."""
@@ -148,3 +173,121 @@ def test_node_keys_name_their_pyramid(nc):
         key = binding.key(MeshKey(NODE, node))
         assert key.source == int(used[node])
         assert binding.texels(key).shape == (key.height, key.width, 4)
+
+
+def _magenta(rgba: np.ndarray) -> np.ndarray:
+    """(...) bool: which of (..., 3+) uint8 pixels are the detail's magenta (opaque)."""
+    near = np.abs(rgba[..., :3].astype(np.int64) - MAGENTA).max(axis=-1) <= 3
+    return near & (rgba[..., 3] > 250) if rgba.shape[-1] == 4 else near
+
+
+@pytest.fixture(scope="module")
+def nc_store(nc) -> str:
+    """The NC tree saved as a store, for the commands."""
+    path = nc["work"] / "nc.zarr"
+    nc["tree"].save(path)
+    return str(path)
+
+
+def test_cli_3dtiles_detail_only_in_deep_tiles_inside(nc, nc_store, tmp_path):
+    """tiles --format 3dtiles --textures BASE --textures DETAIL@3: the texture of a tile whose
+    node uses the detail (level >= 3, inside the magenta box) is magenta, every other's holds
+    none; both kinds are written."""
+    import io
+
+    from PIL import Image
+    from tiles3d_checks import read_glb
+
+    out = tmp_path / "tileset"
+    base, city = str(nc["base"].folder), str(nc["detail"].folder)
+    args = ["tiles", nc_store, "--format", "3dtiles", "--out", str(out), "--compression", "none"]
+    res = CliRunner().invoke(cli_main, [*args, "--textures", base, "--textures", f"{city}@3"])
+    assert res.exit_code == 0, res.output
+    tree = nc["tree"]
+    detail = DetailTextures(nc["base"], nc["detail"], 3)
+    used = detail.uses_detail(tree.levels, np.asarray(tree.rects, dtype=np.float64))
+    seen = {True: 0, False: 0}
+    for path in out.rglob("*.glb"):
+        glb = read_glb(path)
+        node = int(glb["extras"]["node"])
+        image = np.asarray(Image.open(io.BytesIO(glb["image"])).convert("RGBA"))
+        share = _magenta(image).mean()
+        assert share > 0.95 if used[node] else share == 0.0, (node, tree.levels[node], share)
+        seen[bool(used[node])] += 1
+    assert seen[True] > 10 and seen[False] > 10
+
+
+def test_cli_imagery_detail_only_from_its_zoom(nc, nc_store, tmp_path):
+    """tiles --format imagery --textures BASE --textures DETAIL@Z: the magenta box's centre is
+    magenta in the tiles of zoom >= Z and not above; a point outside the box never is."""
+    import json
+
+    from map_checks import pixel_at
+    from pyproj import Transformer
+
+    out = tmp_path / "imagery"
+    base, city = str(nc["base"].folder), str(nc["detail"].folder)
+    args = ["tiles", nc_store, "--format", "imagery", "--out", str(out), "--textures", base]
+    res = CliRunner().invoke(cli_main, [*args, "--textures", f"{city}@10", "--minzoom", "7"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads((out / "tilejson.json").read_text())
+    assert doc["maxzoom"] >= 11
+    to_lonlat = Transformer.from_crs("EPSG:32119", "EPSG:4326", always_xy=True)
+    x0, y0, x1, y1 = DETAIL_BOX
+    inside = to_lonlat.transform((x0 + x1) / 2, (y0 + y1) / 2)
+    outside = to_lonlat.transform(642000.0, 226000.0)
+    for z in range(7, doc["maxzoom"] + 1):
+        centre, away = pixel_at(out, *inside, z), pixel_at(out, *outside, z)
+        assert centre is not None and away is not None
+        assert bool(_magenta(centre)) == (z >= 10), z
+        assert not _magenta(away) and away[3] == 255, z
+
+
+def test_cli_detail_refused_where_no_texture_is_draped(nc, nc_store, tmp_path):
+    """tiles --format terrarium with a detail pyramid, and tiles with two base pyramids, are
+    one Error line each (exit 2)."""
+    base, city = str(nc["base"].folder), str(nc["detail"].folder)
+    runner = CliRunner()
+    for fmt, specs in (("terrarium", [base, f"{city}@3"]), ("3dtiles", [base, base])):
+        flags = [x for spec in specs for x in ("--textures", spec)]
+        args = ["tiles", nc_store, "--format", fmt, "--out", str(tmp_path / fmt), *flags]
+        res = runner.invoke(cli_main, args)
+        assert res.exit_code == 2, res.output
+        assert res.output.strip().startswith("Error: ") and "\n" not in res.output.strip()
+        assert not (tmp_path / fmt).exists()
+
+
+def test_cli_view_opens_with_a_detail_pyramid(nc, nc_store, tmp_path):
+    """view --textures BASE --textures DETAIL@3 opens (Xvfb) and its keyframes show magenta
+    looking straight down inside the box, the land use outside it."""
+    import json
+    import shutil
+
+    from PIL import Image
+
+    from approxtree.viewer.xvfb import virtual_display
+
+    if shutil.which("Xvfb") is None:
+        pytest.skip("Xvfb is not installed (Debian/Ubuntu: apt-get install -y xvfb)")
+    x0, y0, x1, y1 = DETAIL_BOX
+    points = [((x0 + x1) / 2, (y0 + y1) / 2), (642000.0, 226000.0)]
+    script = [{"eye": [x, y - 1.0, 1500.0], "target": [x, y, 0.0], "frames": 3} for x, y in points]
+    (tmp_path / "path.json").write_text(json.dumps(script))
+    base, city = str(nc["base"].folder), str(nc["detail"].folder)
+    args = ["view", nc_store, "--textures", base, "--textures", f"{city}@3"]
+    args += ["--script", "path.json", "--screenshots", "shots", "--size", "160x120"]
+    args += ["--max-uploads", "0", "--lighting", "off"]
+    with virtual_display("640x480x24") as display:
+        result = subprocess.run(
+            [sys.executable, "-m", "approxtree", *args],
+            cwd=tmp_path,
+            env=dict(os.environ, DISPLAY=display),
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+    assert result.returncode == 0, result.stderr
+    shots = [np.asarray(Image.open(tmp_path / "shots" / f"keyframe_{i:03d}.png")) for i in (0, 1)]
+    centre = [shot[55:65, 75:85] for shot in shots]
+    assert _magenta(centre[0]).all()
+    assert not _magenta(centre[1]).any()

@@ -337,3 +337,236 @@ def test_verify_checks_every_level_against_the_image(nc, rgba_4326, tmp_path):
     assert code == 1 and not checks["image"]["ok"]
     failed = {o["address"].split(" texel")[0] for o in checks["image"]["offenders"]}
     assert {"level 0", "level 3"} <= failed, failed
+
+
+#: The quadrant image's colours, by quadrant (east of the DEM's centre, north of it).
+QUADRANTS = {
+    (0, 0): (220, 30, 30),
+    (1, 0): (30, 200, 60),
+    (0, 1): (40, 60, 220),
+    (1, 1): (230, 210, 40),
+}
+#: Points this near (degrees, ~300 m) to a quadrant border are left out of the comparisons.
+BORDER = 0.003
+
+
+class Quadrants:
+    """An RGB image in EPSG:4326 over the NC DEM, one colour per quadrant (split at the DEM's
+    centre in longitude and latitude), baked with ``bake --image``; the NC tree as a store."""
+
+    def __init__(self, dem: Path, work: Path) -> None:
+        from pyproj import Transformer
+
+        self.terrain = at.open_terrain(dem)
+        d = self.terrain.domain
+        self.to_lonlat = Transformer.from_crs("EPSG:32119", "EPSG:4326", always_xy=True)
+        lon, lat = self.to_lonlat.transform(
+            [d.xmin, d.xmax, d.xmin, d.xmax], [d.ymin, d.ymin, d.ymax, d.ymax]
+        )
+        self.centre = self.to_lonlat.transform(*d.center)
+        west, east = min(lon) - 0.01, max(lon) + 0.01
+        south, north = min(lat) - 0.01, max(lat) + 0.01
+        n = 400
+        transform = Affine((east - west) / n, 0, west, 0, -(north - south) / n, north)
+        lons = west + (np.arange(n) + 0.5) * transform.a
+        lats = north + (np.arange(n) + 0.5) * transform.e
+        quadrant = (lons[None, :] >= self.centre[0]) + 2 * (lats[:, None] >= self.centre[1])
+        rgb = np.array(list(QUADRANTS.values()), dtype=np.uint8)[quadrant]
+        image = _write(
+            work / "quadrants.tif", np.moveaxis(rgb, -1, 0), transform, "EPSG:4326",
+            photometric="RGB",
+        )  # fmt: skip
+        self.pyramid = work / "tex"
+        res = CliRunner().invoke(
+            cli_main,
+            [
+                *("bake", str(dem), "--image", str(image), "--shading", "none"),
+                *("--max-texture-size", "512", "--out", str(self.pyramid), "--quiet"),
+            ],
+        )
+        assert res.exit_code == 0, res.output
+        self.tree = ApproximationTree.build(self.terrain, epsilon=1.0, progress=False)
+        self.store = work / "nc.zarr"
+        self.tree.save(self.store)
+        # A known point per quadrant: half-way between the domain's centre and its corner.
+        cx, cy = d.center
+        self.points = {
+            q: ((d.xmin + cx) / 2 if q[0] == 0 else (cx + d.xmax) / 2,
+                (d.ymin + cy) / 2 if q[1] == 0 else (cy + d.ymax) / 2)
+            for q in QUADRANTS
+        }  # fmt: skip
+
+    def quadrant_of(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """(n,) int index into QUADRANTS of world points (n,) x, y; −1 near a border."""
+        lon, lat = self.to_lonlat.transform(np.asarray(x), np.asarray(y))
+        lon, lat = np.asarray(lon) - self.centre[0], np.asarray(lat) - self.centre[1]
+        index = (lon >= 0) + 2 * (lat >= 0)
+        return np.where((np.abs(lon) > BORDER) & (np.abs(lat) > BORDER), index, -1)
+
+
+@pytest.fixture(scope="module")
+def quadrants(nc, tmp_path_factory) -> Quadrants:
+    """The quadrant image baked over the NC DEM (``Quadrants``)."""
+    return Quadrants(nc["dem"], tmp_path_factory.mktemp("quadrants"))
+
+
+def _close(rgb: np.ndarray, quadrant) -> np.ndarray:
+    """(...) bool: which of (..., 3+) pixels are within 3 of the quadrant's colour."""
+    return np.abs(rgb[..., :3].astype(np.int64) - QUADRANTS[quadrant]).max(axis=-1) <= 3
+
+
+def test_viewer_frames_show_the_image_at_known_points(quadrants, tmp_path):
+    """view --textures of a bake --image pyramid (Xvfb, decal): looking straight down on each
+    quadrant's known point, the frame's centre has that quadrant's colour."""
+    import json
+    import os
+    import sys
+
+    from PIL import Image
+
+    from approxtree.viewer.xvfb import virtual_display
+
+    if shutil.which("Xvfb") is None:
+        pytest.skip("Xvfb is not installed (Debian/Ubuntu: apt-get install -y xvfb)")
+    script = [
+        {"eye": [x, y - 1.0, 2000.0], "target": [x, y, 0.0], "frames": 3}
+        for x, y in quadrants.points.values()
+    ]
+    (tmp_path / "path.json").write_text(json.dumps(script))
+    args = ["view", str(quadrants.store), "--textures", str(quadrants.pyramid)]
+    args += ["--script", "path.json", "--screenshots", "shots", "--size", "160x120"]
+    args += ["--max-uploads", "0", "--lighting", "off"]
+    with virtual_display("640x480x24") as display:
+        result = subprocess.run(
+            [sys.executable, "-m", "approxtree", *args],
+            cwd=tmp_path,
+            env=dict(os.environ, DISPLAY=display),
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+    assert result.returncode == 0, result.stderr
+    for i, q in enumerate(QUADRANTS):
+        shot = np.asarray(Image.open(tmp_path / "shots" / f"keyframe_{i:03d}.png"))
+        assert _close(shot[50:70, 70:90], q).all(), (q, shot[60, 80])
+
+
+def _hue_quadrant(rgb: np.ndarray) -> np.ndarray:
+    """(n,) index into QUADRANTS of the colour nearest in hue (direction in RGB, so shading
+    that scales a colour keeps it) to each of (n, 3) pixels."""
+    colours = np.array(list(QUADRANTS.values()), dtype=np.float64)
+    colours /= np.linalg.norm(colours, axis=1, keepdims=True)
+    rgb = rgb.astype(np.float64)
+    rgb /= np.maximum(np.linalg.norm(rgb, axis=1, keepdims=True), 1e-9)
+    return np.argmax(rgb @ colours.T, axis=1)
+
+
+def test_notebook_widget_frame_shows_the_image(quadrants):
+    """TerrainWidget(textures=the bake --image pyramid) draws each pixel of terrain (lit) in
+    the hue of the image's quadrant under it, all four quadrants seen."""
+    pytest.importorskip("jupyter_rfb")
+    from approxtree.notebook import TerrainWidget
+
+    widget = TerrainWidget(quadrants.tree, size=(320, 180), textures=str(quadrants.pyramid))
+    try:
+        image = widget.get_frame()
+        positions = widget.view.engine.world_positions(widget.view.last_frame)
+    finally:
+        widget.close()
+    surface = positions[..., 3] == 1
+    xy = positions[surface][:, :2]
+    want = quadrants.quadrant_of(xy[:, 0], xy[:, 1])
+    keep = want >= 0
+    got = _hue_quadrant(image[surface][keep, :3])
+    assert keep.sum() > 10_000 and set(want[keep]) == {0, 1, 2, 3}
+    assert (got == want[keep]).mean() > 0.99
+
+
+def test_3dtiles_textures_show_the_image(quadrants, tmp_path):
+    """tiles --format 3dtiles --textures (a bake --image pyramid): the texture of every tile
+    whose node lies in one quadrant (away from its borders) is that quadrant's colour."""
+    import io
+
+    from PIL import Image
+    from tiles3d_checks import read_glb
+
+    out = tmp_path / "tileset"
+    args = ["tiles", str(quadrants.store), "--format", "3dtiles", "--out", str(out)]
+    args += ["--compression", "none"]
+    res = CliRunner().invoke(cli_main, [*args, "--textures", str(quadrants.pyramid)])
+    assert res.exit_code == 0, res.output
+    rects = np.asarray(quadrants.tree.rects, dtype=np.float64)
+    checked = set()
+    for path in out.rglob("*.glb"):
+        glb = read_glb(path)
+        r = rects[int(glb["extras"]["node"])]
+        corners = quadrants.quadrant_of(r[[0, 2, 0, 2]], r[[1, 1, 3, 3]])
+        if corners[0] < 0 or (corners != corners[0]).any():
+            continue
+        q = list(QUADRANTS)[corners[0]]
+        image = np.asarray(Image.open(io.BytesIO(glb["image"])).convert("RGB"))
+        assert _close(image, q).mean() > 0.95, (path.name, q)
+        checked.add(q)
+    assert checked == set(QUADRANTS)
+
+
+def test_imagery_tiles_show_the_image_at_known_points(quadrants, tmp_path):
+    """tiles --format imagery --textures (a bake --image pyramid): at every zoom the pixel at
+    each quadrant's known point is opaque and that quadrant's colour."""
+    import json
+
+    from map_checks import pixel_at
+
+    out = tmp_path / "imagery"
+    args = ["tiles", str(quadrants.store), "--format", "imagery", "--out", str(out)]
+    res = CliRunner().invoke(
+        cli_main, [*args, "--textures", str(quadrants.pyramid), "--minzoom", "8"]
+    )
+    assert res.exit_code == 0, res.output
+    maxzoom = json.loads((out / "tilejson.json").read_text())["maxzoom"]
+    assert maxzoom >= 11
+    for q, (x, y) in quadrants.points.items():
+        lon, lat = quadrants.to_lonlat.transform(x, y)
+        for z in range(8, maxzoom + 1):
+            pixel = pixel_at(out, lon, lat, z)
+            assert pixel is not None and pixel[3] == 255 and _close(pixel, q), (q, z, pixel)
+
+
+def test_bake_and_verify_offer_the_same_resamplings():
+    """bake --resampling and verify --resampling offer exactly image.RESAMPLINGS (one list)."""
+    from approxtree.cli.bake import bake_command
+    from approxtree.cli.verify import verify as verify_command
+    from approxtree.textures.image import RESAMPLINGS
+
+    for command in (bake_command, verify_command):
+        (option,) = [p for p in command.params if p.name == "resampling"]
+        assert list(option.type.choices) == list(RESAMPLINGS)
+
+
+def test_windows_of_any_size_write_the_same_pyramid_files(nc, rgba_4326, tmp_path, monkeypatch):
+    """An image baked in the smallest windows (strips of 2 rows, one tile wide), in windows of
+    3 tiles and in the default ones writes byte-identical level files and pyramid.json (one
+    build id for all)."""
+    import uuid
+
+    import approxtree.textures.pyramid as pyramid_module
+
+    fixed = uuid.UUID(int=30)
+    monkeypatch.setattr(pyramid_module.uuid, "uuid4", lambda: fixed)
+    with rasterio.open(nc["dem"]) as ds:
+        t = ds.transform
+        shape = (round(ds.height * 3), round(ds.width * 3))
+        lattice = Affine(t.a / 3, 0, t.c, 0, t.e / 3, t.f)
+        crs = ds.crs.to_string()
+    image = ImageTexture(rgba_4326, lattice, shape, crs)
+    small = TexturePyramid.build(image, tmp_path / "small", 256, window_bytes=1)
+    TexturePyramid.build(image, tmp_path / "three", 256, window_bytes=3 * 512 * 512 * 4)
+    default = TexturePyramid.build(image, tmp_path / "default", 256)
+    assert len(small) == 4 and small.levels[0].width > 1024
+    names = sorted(p.name for p in (tmp_path / "default").iterdir())
+    assert names == sorted(p.name for p in (tmp_path / "small").iterdir())
+    assert "level3.tif" in names and not any(n.endswith(".raw") for n in names)
+    for name in names:
+        a, b, c = ((tmp_path / d / name).read_bytes() for d in ("small", "three", "default"))
+        assert a == b == c, name
+    assert default.level(0)[..., 3].any()

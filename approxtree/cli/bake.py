@@ -15,6 +15,7 @@ from approxtree.cli.options import (
     reader_options,
     replaceable,
 )
+from approxtree.textures.image import RESAMPLINGS
 
 
 def _takes_windowed(path: str, encoding: str | None) -> bool:
@@ -55,7 +56,7 @@ def _takes_windowed(path: str, encoding: str | None) -> bool:
 )
 @click.option(
     "--resampling",
-    type=click.Choice(["nearest", "bilinear", "cubic", "cubicspline", "lanczos", "average"]),
+    type=click.Choice(list(RESAMPLINGS)),
     default="bilinear",
     show_default=True,
     help="How --image rasters are warped onto the texture (gdalwarp -r).",

@@ -351,3 +351,35 @@ def parse_rgba(text: str) -> tuple[int, int, int, int]:
         raise InvalidParameterError(f"Expected a colour (#rrggbb or a name), got {text!r}.")
     r, g, b = (round(v * 255) for v in bg.colour)
     return (r, g, b, 255)
+
+
+class _OneLineError(click.ClickException):
+    """An ApproxTreeError met while click parses an option: one ``Error:`` line on stderr and
+    exit 2, as ``_reports_errors`` says the errors met inside a command."""
+
+    exit_code = 2
+
+
+def textures_option(help: str, most: int | None = 1) -> Callable[..., Any]:
+    """--textures FOLDER [--textures DETAIL@LEVEL] ..., the same on render, view and tiles: the
+    command receives ``textures``, a list of drapes (``textures.detail.parse_textures``: an
+    opened TexturePyramid, or a DetailTextures where DETAIL@LEVEL follows its base), at most
+    ``most`` of them (None: any number). A bad spelling is one ``Error:`` line (exit 2)."""
+
+    def drapes(ctx: click.Context, param: click.Parameter, value: tuple[str, ...]) -> list[Any]:
+        from approxtree.errors import ApproxTreeError, InvalidParameterError
+        from approxtree.textures.detail import open_drape, parse_textures
+
+        try:
+            # Opened here: a missing or broken pyramid fails before any work.
+            parsed = [open_drape(drape) for drape in parse_textures(value)]
+            if most is not None and len(parsed) > most:
+                raise InvalidParameterError(
+                    f"{ctx.info_name} drapes one texture pyramid: give one --textures FOLDER, "
+                    "optionally followed by --textures DETAIL@LEVEL."
+                )
+        except ApproxTreeError as exc:
+            raise _OneLineError(str(exc)) from exc
+        return parsed
+
+    return click.option("--textures", "textures", multiple=True, callback=drapes, help=help)

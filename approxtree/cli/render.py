@@ -21,6 +21,7 @@ from approxtree.cli.options import (
     quiet_option,
     reader_options,
     replaceable,
+    textures_option,
     threshold_options,
 )
 
@@ -70,12 +71,10 @@ def _xyz(ctx: click.Context, param: click.Parameter, value: str | None):
     type=click.Path(dir_okay=False),
     help="Image to write: .png (RGBA) or .jpg (RGB, composited on the background).",
 )
-@click.option(
-    "--textures",
-    multiple=True,
-    help="Folder of a texture pyramid (approxtree bake) to texture the terrain with; a second "
+@textures_option(
+    "Folder of a texture pyramid (approxtree bake) to texture the terrain with; a second "
     "--textures DETAIL@LEVEL refines it with the pyramid DETAIL for nodes at tree level >= "
-    "LEVEL inside DETAIL's footprint.",
+    "LEVEL inside DETAIL's footprint."
 )
 @click.option("--no-lighting", is_flag=True, help="Same as --lighting off (decal mode).")
 @cartographic_options
@@ -98,7 +97,7 @@ def render(
     full_resolution: bool,
     max_triangles: int | None,
     out: str,
-    textures: tuple[str, ...],
+    textures: list[Any],
     no_lighting: bool,
     encoding,
     nodata_policy,
@@ -118,15 +117,6 @@ def render(
     check_output_file(out, "image")
     image_format(out)
     replaceable(out, "image")
-    from approxtree.errors import InvalidParameterError
-    from approxtree.textures.detail import parse_textures
-
-    drapes = parse_textures(textures)
-    if len(drapes) > 1:
-        raise InvalidParameterError(
-            "render drapes one texture pyramid: give one --textures FOLDER, optionally "
-            "followed by --textures DETAIL@LEVEL."
-        )
     tree = _tree_of(tree_file, build, encoding, nodata_policy, ground_only, height_scale)
     stats = _render_to_png(
         tree,
@@ -139,7 +129,7 @@ def render(
         gamma,
         wireframe,
         full_resolution,
-        textures=drapes[0] if drapes else None,
+        textures=textures[0] if textures else None,
         max_triangles=max_triangles,
         style={**style, "lighting": "off" if no_lighting else style["lighting"]},
     )

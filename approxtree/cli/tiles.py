@@ -15,6 +15,7 @@ from approxtree.cli.options import (
     overwrite_option,
     quiet_option,
     reader_options,
+    textures_option,
 )
 
 
@@ -72,12 +73,11 @@ from approxtree.cli.options import (
     type=click.Path(dir_okay=False),
     help="quantized-mesh: land/water raster (nonzero = water) for the water-mask extension.",
 )
-@click.option(
-    "--textures",
-    type=click.Path(file_okay=False),
-    default=None,
-    help="3dtiles, imagery: texture pyramid folder (approxtree bake); 3dtiles embed each "
-    "node's texture patch in its GLB.",
+@textures_option(
+    "3dtiles, imagery: texture pyramid folder (approxtree bake); 3dtiles embed each node's "
+    "texture patch in its GLB. A second --textures DETAIL@LEVEL refines it with the pyramid "
+    "DETAIL inside DETAIL's footprint: 3dtiles for the nodes at tree level >= LEVEL, imagery "
+    "for the tiles of zoom >= LEVEL."
 )
 @click.option(
     "--texture-format",
@@ -146,7 +146,7 @@ def tiles(
     maxzoom: int | None,
     max_error: float | None,
     water_mask: str | None,
-    textures: str | None,
+    textures: list[Any],
     texture_format: str,
     origin: tuple[float, float],
     no_skirts: bool,
@@ -167,6 +167,8 @@ def tiles(
     its tree in memory with --epsilon, ...) as web tiles into the folder --out, replaced as a
     whole when done. That build shows a bar on a terminal (-q: none)."""
 
+    drape = textures[0] if textures else None
+    web_tiles.check_drape(drape, tile_format)
     reader = {
         "encoding": encoding,
         "nodata_policy": nodata_policy,
@@ -176,13 +178,13 @@ def tiles(
     if tile_format == "3dtiles":
         content = {"compression": compression, "implicit": implicit, "origin": origin}
         content.update(skirts=not no_skirts, image_format=texture_format)
-        web_tiles.tiles_3d(tree, out, textures, content, workers, scheduler, reader, build, as_json)
+        web_tiles.tiles_3d(tree, out, drape, content, workers, scheduler, reader, build, as_json)
         return
     # The other formats sample the terrain itself, not a tree: no tree is built.
     web_tiles.refuse_build_options(build, tile_format)
     if tile_format in web_tiles.MAP_FORMATS:
         size = int(tile_size) if tile_size else None
-        given = (tile_format, out, textures, scheme, size, texture_format, minzoom, maxzoom)
+        given = (tile_format, out, drape, scheme, size, texture_format, minzoom, maxzoom)
         web_tiles.map_tiles(tree, *given, workers, scheduler, reader, as_json)
         return
     options: dict[str, Any] = {"samples": int(samples), "maxzoom": maxzoom}

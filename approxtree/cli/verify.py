@@ -15,6 +15,7 @@ import click
 from approxtree.cli import common
 from approxtree.cli.common import _reports_errors
 from approxtree.cli.options import json_option, reader_options
+from approxtree.textures.image import RESAMPLINGS
 
 
 def _shown(value: Any) -> str:
@@ -77,7 +78,7 @@ def _print(report) -> None:
 )
 @click.option(
     "--resampling",
-    type=click.Choice(["nearest", "bilinear", "cubic", "cubicspline", "lanczos", "average"]),
+    type=click.Choice(list(RESAMPLINGS)),
     default="bilinear",
     show_default=True,
     help="The --resampling the image was baked with.",

@@ -19,18 +19,18 @@ from approxtree.cli.options import (
     ground_surface_option,
     quiet_option,
     reader_options,
+    textures_option,
     threshold_options,
 )
 
 
 @click.command()
 @click.argument("source", type=click.Path())
-@click.option(
-    "--textures",
-    "textures",
-    multiple=True,
-    type=click.Path(exists=True, file_okay=False),
-    help="Baked texture pyramid folder (repeat for several; TAB cycles, T toggles).",
+@textures_option(
+    "Baked texture pyramid folder (repeat for several; TAB cycles, T toggles); "
+    "--textures DETAIL@LEVEL after one refines it with the pyramid DETAIL for nodes at tree "
+    "level >= LEVEL inside DETAIL's footprint.",
+    most=None,
 )
 @click.option(
     "--size", callback=_size, default="1280x720", show_default=True, help="Window size WxH."
@@ -107,7 +107,7 @@ from approxtree.cli.options import (
 @_reports_errors
 def view(
     source: str,
-    textures: tuple[str, ...],
+    textures: list[Any],
     size: tuple[int, int],
     alpha: float,
     gamma: float,
@@ -161,7 +161,7 @@ def view(
     tree = _tree_of(source, build, **reader)
     with Viewer(
         tree,
-        textures=list(textures),
+        textures=textures,
         size=size,
         alpha=alpha,
         gamma=gamma,

@@ -26,10 +26,24 @@ def refuse_build_options(build: BuildChoices, tile_format: str) -> None:
         )
 
 
+def check_drape(drape: Any, tile_format: str) -> None:
+    """InvalidParameterError when a detail pyramid comes with a format that drapes no
+    texture (only 3dtiles and imagery do)."""
+    from approxtree.textures.detail import DetailTextures
+
+    if isinstance(drape, DetailTextures) and tile_format not in ("3dtiles", "imagery"):
+        from approxtree.errors import InvalidParameterError
+
+        raise InvalidParameterError(
+            f"--format {tile_format} drapes no texture, so it has no use for the detail "
+            f"pyramid {drape.detail.folder}@{drape.level}; only 3dtiles and imagery do."
+        )
+
+
 def tiles_3d(
     tree_path: str,
     out: str,
-    textures: str | None,
+    textures: Any,
     content: dict[str, Any],
     workers: int,
     scheduler: str | None,
@@ -66,7 +80,7 @@ def map_tiles(
     tree_path: str,
     tile_format: str,
     out: str,
-    textures: str | None,
+    textures: Any,
     scheme: str,
     size: int | None,
     texture_format: str,

@@ -89,8 +89,10 @@ class ApproximationTreeSource:
         self.shading_texels = shading_texels(tree.terrain, len(tree), self._shading_side)
         self.texels = self.shading_texels
         self.finer = np.zeros(len(tree), dtype=bool)
+        self.sources = np.zeros(len(tree), dtype=np.int64)
         if self.binding is not None:
-            self.texels = self._texture_texels(self.binding.detail or self.binding.pyramid)
+            pyramid = self.binding.detail or self.binding.pyramid
+            self.texels, self.sources = self._texture_texels(pyramid)
             self.finer = finer_below(tree, self.texels)
         # Skirts: infinite errors stand in by the node's z extent; walls on node borders only.
         extents = tree.bboxes[:, 5] - tree.bboxes[:, 2]
@@ -132,7 +134,7 @@ class ApproximationTreeSource:
         plan = FramePlan(drawn, meshes, [(None, meshes)], figures)
         if self.binding is not None:
             tex_nodes, tex_gammas = texture_nodes(
-                self.tree.parents, drawn, cut.gamma, cut.share_textures
+                self.tree.parents, drawn, cut.gamma, cut.share_textures, self.sources
             )
             self._texture(plan, node_keys(tex_nodes), tex_nodes, tex_gammas)
             if interactive:
@@ -162,22 +164,24 @@ class ApproximationTreeSource:
         if pyramid is None:
             self.binding, self.texels = None, self.shading_texels
             self.finer = np.zeros(len(self.tree), dtype=bool)
+            self.sources = np.zeros(len(self.tree), dtype=np.int64)
             return
         self.binding = TextureBinding(pyramid, self.tree.origin, self._rect_of, self._level_of)
-        self.texels = self._texture_texels(pyramid)
+        self.texels, self.sources = self._texture_texels(pyramid)
         self.finer = finer_below(self.tree, self.texels)
 
-    def _texture_texels(self, pyramid: Any) -> np.ndarray:
+    def _texture_texels(self, pyramid: Any) -> tuple[np.ndarray, np.ndarray]:
         """(n, 2) texel of each node's texture patch, in the pyramid the node uses (``pyramid``:
-        a TexturePyramid or DetailTextures)."""
+        a TexturePyramid or DetailTextures), and (n,) int64 that pyramid (TextureKey.source:
+        0 base, 1 detail)."""
         rects = np.asarray(self.tree.rects, dtype=np.float64)
         if not isinstance(pyramid, DetailTextures):
-            return patch_texel_sizes(pyramid, rects)
+            return patch_texel_sizes(pyramid, rects), np.zeros(len(rects), dtype=np.int64)
         # γ_N from the patch of the pyramid each node uses.
         texels = patch_texel_sizes(pyramid.base, rects)
         detail = pyramid.uses_detail(self.tree.levels, rects)
         texels[detail] = patch_texel_sizes(pyramid.detail, rects[detail])
-        return texels
+        return texels, detail.astype(np.int64)
 
     def set_shading_side(self, side: int) -> None:
         """The normal map's largest side (the context's texture limit): untextured texels

@@ -96,8 +96,31 @@ class DetailTextures:
         rects: (n, 4) float64 domains (xmin, ymin, xmax, ymax)."""
         return (np.asarray(levels) >= self.level) & self.inside(rects)
 
+    def pyramid_for(self, level: int, rect: Rect) -> TexturePyramid:
+        """The pyramid a node at tree ``level`` over the domain ``rect`` is textured with."""
+        box = np.array([[rect.xmin, rect.ymin, rect.xmax, rect.ymax]], dtype=np.float64)
+        return self.detail if self.uses_detail(np.array([level]), box)[0] else self.base
+
     def __repr__(self) -> str:
         return f"DetailTextures({self.base.folder}, {self.detail.folder}@{self.level})"
+
+
+def open_drape(textures: Any, terrain: Any = None) -> TexturePyramid | DetailTextures:
+    """``textures`` (a TexturePyramid, its folder, or a DetailTextures) ready to drape: a folder
+    is opened, and each pyramid's CRS must be the terrain's when both have one."""
+    drape = textures if isinstance(textures, DetailTextures) else _pyramid(textures)
+    pyramids = (drape.base, drape.detail) if isinstance(drape, DetailTextures) else (drape,)
+    crs = getattr(terrain, "crs", None)
+    for pyramid in pyramids:
+        if pyramid.crs and crs:
+            from pyproj import CRS
+
+            if not CRS.from_user_input(pyramid.crs).equals(CRS.from_user_input(crs)):
+                raise InvalidParameterError(
+                    f"The texture pyramid's CRS ({pyramid.crs}) differs from the terrain's "
+                    f"({crs}); bake the texture in the terrain's CRS."
+                )
+    return drape
 
 
 def parse_textures(specs: Sequence[str]) -> list[Any]:

@@ -5,8 +5,8 @@ warped by GDAL onto the texture lattice one strip of the lattice at a time
 (``rasterio.warp.reproject`` of the strip's window, ``band_strips``): GDAL reads only the
 source blocks under that strip, so an image larger than memory bakes with the memory of a
 strip (and ``CACHE_MB`` of GDAL's block cache). The warp's resampling scale is fixed once
-for the whole lattice (``_scale``), so the texels do not depend on where the strips are cut,
-and equal gdalwarp's within 1 level.
+for the whole lattice (``io.warp.warp_scale``), so the texels do not depend on where the
+strips are cut, and equal gdalwarp's within 1 level.
 
 Transparency: an alpha band is warped as alpha; otherwise a declared nodata value or a
 per-dataset mask (an internal or ``.msk`` mask) marks the texels GDAL leaves out, and the
@@ -28,13 +28,15 @@ from approxtree.errors import InvalidParameterError, TerrainFormatError
 from approxtree.geometry.rect import Rect
 from approxtree.io._common import reading
 from approxtree.io.gdal import no_side_files
+from approxtree.io.warp import warp_scale
 from approxtree.textures.base import TextureData
 
 #: GDAL's block cache while an image is warped (MB): a strip's source blocks are read once,
 #: so a larger cache only grows with the image (GDAL's default is 5 % of the RAM).
 CACHE_MB = 128
 
-#: Resampling names (gdalwarp's ``-r`` spellings) → rasterio's Resampling member names.
+#: Resampling names (gdalwarp's ``-r`` spellings) → rasterio's Resampling member names: the
+#: choices of ``bake --resampling`` and ``verify --resampling``.
 RESAMPLINGS = {
     "nearest": "nearest",
     "bilinear": "bilinear",
@@ -170,7 +172,7 @@ class ImageTexture(TextureData):
                 "resampling": method,
                 "dst_alpha": bands,
                 "init_dest_nodata": False,
-                **_scale(ds, self.source_crs, self.crs, self.transform, self.shape),
+                **warp_scale(ds, self.source_crs, self.crs, self.transform, self.shape),
             }
             if layout.alpha is not None:
                 source = rasterio.band(ds, [*layout.colour, layout.alpha])
@@ -189,35 +191,6 @@ class ImageTexture(TextureData):
                     **options,
                 )
                 yield _to_rgba(planes, layout)
-
-
-def _scale(ds, source_crs, crs: str | None, transform: Affine, shape: tuple[int, int]) -> dict:
-    """GDAL's warp options XSCALE and YSCALE (lattice texels per image pixel along each lattice
-    axis), measured once across the lattice: GDAL otherwise derives them from each warped
-    chunk's source window, so a strip's texels would depend on where the strips are cut. {}
-    when they cannot be measured (the lattice's middle does not project into the image's CRS).
-    """
-    from rasterio.warp import transform as transform_points
-
-    rows, cols = shape
-    x0, y0 = transform @ (0, rows / 2)
-    x1, y1 = transform @ (cols, rows / 2)
-    x2, y2 = transform @ (cols / 2, 0)
-    x3, y3 = transform @ (cols / 2, rows)
-    xs, ys = [x0, x1, x2, x3], [y0, y1, y2, y3]
-    if crs is not None:
-        try:
-            xs, ys = transform_points(crs, source_crs, xs, ys)
-        except Exception:
-            return {}
-    inv = ~ds.transform
-    p = [inv @ (x, y) for x, y in zip(xs, ys, strict=True)]
-    # Source pixels spanned by the lattice's middle row and column (both image axes).
-    across = abs(p[1][0] - p[0][0]) + abs(p[1][1] - p[0][1])
-    down = abs(p[3][0] - p[2][0]) + abs(p[3][1] - p[2][1])
-    if not (np.isfinite(across) and np.isfinite(down) and across > 0 and down > 0):
-        return {}
-    return {"XSCALE": repr(cols / across), "YSCALE": repr(rows / down)}
 
 
 def _to_rgba(planes: np.ndarray, layout: _Layout) -> np.ndarray:

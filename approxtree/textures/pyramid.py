@@ -7,11 +7,18 @@ its last band marked as alpha (the Cloud Optimized GeoTIFF conventions) covering
 level 0 (odd sizes add at most one texel at the east and south edges). A grey texture
 (shading: R = G = B) is stored as 2 bands, grey and alpha; any other as 4, RGBA. Reading a
 texture patch decodes only the tiles of its window (``TexturePyramid.read``) and gives RGBA
-either way, so pyramids larger than memory work. ``pyramid.json`` lists the levels. A build
-streams: the texture arrives in band-order strips (``TextureData.level_strips``), each written
-and halved at once (uint8 kernels, ``kernels.rgba``), and each halving goes straight on to the
-next level's writer (its own thread), so no level is ever whole in memory and the coarser
-levels are written while level 0 is made.
+either way, so pyramids larger than memory work. ``pyramid.json`` lists the levels.
+
+A build streams in windows of ``WINDOW_BYTES`` whatever the texture's width, so its memory
+stays flat as the texture widens: the texture arrives in band-order strips as high as the
+window allows across its width (``TextureData.level_strips``, ``window_shape``), stored in
+level 0's spool on disk (``_Spool``: raw texels, written and read back by position, never
+mapped); each level's writer (its own thread) takes a tile row of its spool as soon as it is
+whole, in windows of whole tiles, writes each tile with all its bands, west to east, and
+halves the window (uint8 kernels, ``kernels.rgba``) into the next level's spool. So no level,
+nor a tile row of a wide one, is ever whole in memory, the coarser levels are written while
+level 0 is made, and the files do not depend on the window size (tests bake one image in the
+smallest windows and the default ones and compare the bytes).
 
 A pyramid is written all or nothing: built in a temp folder beside its folder, then swapped in
 (``atomic_directory``). Each build has an id, stored in pyramid.json and in every level's
@@ -22,7 +29,7 @@ bake, a missing, extra or truncated level is refused instead of draped.
 Every tile carries a checksum: each level entry of pyramid.json has ``tile_crc32c``, rows of
 512 × 512 tiles (row-major lists), each the CRC-32C of the tile's *decoded* uint8 texels in
 band-sequential C order (bands, rows, cols), edge tiles clipped to the level's size. The
-writer computes them from the strips it writes (one tile row at a time); a read decodes the
+writer computes them from the tiles it writes; a read decodes the
 whole tiles its window touches and checks each (``_TileCache`` keeps the checked ones), so a
 damaged tile is a StoreError, never texels drawn silently. A decode error (ZSTD, TIFF) is a
 StoreError too.
@@ -32,13 +39,12 @@ from __future__ import annotations
 
 import json
 import os
-import queue
 import re
 import threading
 import uuid
-from collections import OrderedDict, deque
+from collections import OrderedDict
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -52,8 +58,9 @@ from approxtree.kernels.rgba import bands_into_rgba, halve_bands
 from approxtree.progress import ProgressCallback, no_progress
 from approxtree.textures.base import TextureData
 
-#: Rows handled at once while halving a level, bounding memory for huge textures.
-_CHUNK_ROWS = 512
+#: Bytes of the windows a build works in (``window_shape``): the texture's strips and the
+#: level writers' windows, whatever the texture's width.
+WINDOW_BYTES = 8 << 20
 
 #: pyramid.json format: 2 added the build id, the level tags and the level byte counts; 3
 #: tiled, compressed levels (no longer memory-mapped) and grey + alpha levels for shadings;
@@ -61,8 +68,6 @@ _CHUNK_ROWS = 512
 PYRAMID_FORMAT = 4
 #: Tile side of the level GeoTIFFs (texels), as COGs use.
 _TILE = 512
-#: Strips queued for the writer thread before the producer waits (each a copy of a strip).
-_WRITE_AHEAD = 3
 #: Decoded, checked tiles a pyramid keeps for reads of neighbouring windows (bytes).
 TILE_CACHE_BYTES = 32 << 20
 
@@ -103,23 +108,30 @@ class PyramidLevel:
 
 def _write_level(
     path: Path,
-    strips: Iterable[np.ndarray],
+    spool: _Spool,
     shape: tuple[int, int],
     bands: int,
     transform: Affine,
     crs: str | None,
     build: str,
     level: int,
-    halved: list[np.ndarray] | _Handoff | None,
+    halved: _Spool | None,
+    overlay: np.ndarray | None = None,
     on_rows: Callable[[int], None] | None = None,
+    block_cols: int = _TILE,
 ) -> list[list[int]]:
-    """Write the (bands, rows, cols) uint8 band-order strips of a level (RGBA, or grey and
-    alpha), top to bottom, as a tiled compressed GeoTIFF tagged with the pyramid's build id and
-    the level number (into the pyramid's temp folder); when ``halved`` is given (a list, or
-    the next level's ``_Handoff``), append to it the strips of the level's halving, made while
-    each strip is at hand (strips of even height); ``on_rows(n)`` after each strip of n rows
-    is written. Returns the level's ``tile_crc32c`` (rows of tiles, ``_TileChecksums``)."""
+    """Write a level from its spool as a tiled compressed GeoTIFF tagged with the pyramid's
+    build id and the level number (into the pyramid's temp folder), one tile row as soon as
+    the spool holds it, in windows of that tile row ``block_cols`` texels wide (whole tiles);
+    each window gets ``overlay`` (rows, cols, 4) drawn over it (alpha over), its tiles
+    written west to east, all bands of a tile at once (so the file's bytes do not depend on
+    the window width), and its halving written to ``halved`` (the next level's spool), told
+    when a tile row's halving is whole. ``on_rows(n)`` after each tile row of n rows. Returns
+    the level's ``tile_crc32c`` (rows of tiles, each the CRC-32C of the tile's texels in
+    band-sequential C order)."""
+    import crc32c
     import rasterio
+    from rasterio.windows import Window
 
     rows, cols = shape
     profile = {
@@ -133,189 +145,177 @@ def _write_level(
         "photometric": "RGB" if bands == 4 else "MINISBLACK",
         **_LEVEL_OPTIONS,
     }
-    r0 = 0
-    # GDAL writes (and compresses) a strip and halves it on a writer thread, without the GIL,
-    # while this thread makes the next ones; up to _WRITE_AHEAD strips wait in its queue.
-    pending: deque[Future] = deque()
-    ring: list[np.ndarray | None] = [None] * (_WRITE_AHEAD + 1)
-    sums = _TileChecksums(shape, bands)
+    sums: list[list[int]] = []
     # checked_write: GDAL's write errors (a full disk) become a StoreError once it closes.
-    with (
-        checked_write(path),
-        rasterio.open(path, "w", **profile) as ds,
-        ThreadPoolExecutor(1) as writer,
-    ):
+    with checked_write(path), rasterio.open(path, "w", **profile) as ds:
         ds.update_tags(**{_TAG_BUILD: build, _TAG_LEVEL: str(level)})
-        for index, strip in enumerate(strips):
-            n = strip.shape[1] if strip.ndim == 3 else 0
-            if strip.ndim != 3 or strip.shape[::2] != (bands, cols) or strip.dtype != np.uint8:
-                raise InvalidParameterError(
-                    f"A texture must be ({rows}, {cols}, {bands}) uint8, got a strip of "
-                    f"{strip.shape} {strip.dtype} (bands first)."
-                )
-            if r0 + n > rows or (n % 2 and r0 + n < rows):
-                raise InvalidParameterError(
-                    f"Texture strips must have an even number of rows and cover {rows} rows."
-                )
-            if len(pending) == _WRITE_AHEAD:
-                pending.popleft().result()
-            # A strip is valid until the next is asked for: the writer gets its own copy, in
-            # a ring of _WRITE_AHEAD + 1 buffers (reused rather than faulted in afresh; the
-            # slot's last strip was written when the oldest pending write was waited for).
-            slot = index % len(ring)
-            buffer = ring[slot]
-            if buffer is None or buffer.shape != strip.shape:
-                buffer = ring[slot] = np.empty(strip.shape, dtype=np.uint8)
-            np.copyto(buffer, strip)
-            pending.append(writer.submit(_write_and_halve, ds, buffer, r0, halved, sums))
+        for r0, n in spool.tile_rows():
+            row_sums: list[int] = []
+            for c0 in range(0, cols, block_cols):
+                m = min(block_cols, cols - c0)
+                block = spool.read(r0, n, c0, m)
+                if overlay is not None:
+                    block = _over(block, overlay[r0 : r0 + n, c0 : c0 + m])
+                for t0 in range(0, m, _TILE):
+                    tile = np.ascontiguousarray(block[:, :, t0 : t0 + _TILE])
+                    ds.write(tile, window=Window(c0 + t0, r0, tile.shape[2], n))
+                    row_sums.append(crc32c.crc32c(tile.data))
+                if halved is not None:
+                    half = np.empty((bands, (n + 1) // 2, (m + 1) // 2), dtype=np.uint8)
+                    halve_bands(block, half)
+                    halved.write(r0 // 2, c0 // 2, half)
+            sums.append(row_sums)
+            if halved is not None:
+                halved.completed((r0 + n + 1) // 2)
             if on_rows is not None:
                 on_rows(n)
-            r0 += n
-        while pending:
-            pending.popleft().result()
+    if len(sums) != -(-rows // _TILE):
+        raise InvalidParameterError(
+            f"The texture's strips cover {min(len(sums) * _TILE, rows)} of its {rows} rows."
+        )
+    return sums
+
+
+class _Spool:
+    """A level's texels on disk while the pyramid is built: a raw (rows, cols, bands) uint8
+    file in the temp folder, written by rows or windows (``write``), read back by windows
+    (``read``) once its writer said which rows are whole (``completed``). Memory then holds a
+    window, never a row of the level's whole width; the file is never mapped (reads and
+    writes are positional), so it does not count in the process's memory either. Written by
+    one thread, read by another (``tile_rows`` waits for each tile row)."""
+
+    def __init__(self, path: Path, shape: tuple[int, ...], bands: int) -> None:
+        self.path = path
+        self.rows, self.cols = shape
+        self.bands = bands
+        self._row_bytes = self.cols * bands
+        self._fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_TRUNC, 0o600)
+        self._done = 0
+        self._closed = False
+        self._changed = threading.Condition()
+
+    def write(self, r0: int, c0: int, block: np.ndarray) -> None:
+        """Store a (bands, n, m) uint8 window whose top-left texel is (r0, c0)."""
+        pixels = np.ascontiguousarray(np.moveaxis(block, 0, -1))
+        n, m = pixels.shape[:2]
+        at = r0 * self._row_bytes + c0 * self.bands
+        if m == self.cols:
+            _pwrite_all(self._fd, pixels.reshape(-1), at)
+            return
+        for i in range(n):
+            _pwrite_all(self._fd, pixels[i].reshape(-1), at + i * self._row_bytes)
+
+    def read(self, r0: int, n: int, c0: int, m: int) -> np.ndarray:
+        """(bands, n, m) uint8: the window of n rows and m columns at (r0, c0)."""
+        pixels = np.empty((n, m, self.bands), dtype=np.uint8)
+        at = r0 * self._row_bytes + c0 * self.bands
+        if m == self.cols:
+            _pread_all(self._fd, pixels.reshape(-1), at)
+        else:
+            for i in range(n):
+                _pread_all(self._fd, pixels[i].reshape(-1), at + i * self._row_bytes)
+        return np.ascontiguousarray(np.moveaxis(pixels, -1, 0))
+
+    def completed(self, rows: int) -> None:
+        """The rows above ``rows`` are whole: their tile rows may be read."""
+        with self._changed:
+            self._done = max(self._done, rows)
+            self._changed.notify_all()
+
+    def close(self) -> None:
+        """No more rows come (done, or the writer failed)."""
+        with self._changed:
+            self._closed = True
+            self._changed.notify_all()
+
+    def tile_rows(self) -> Iterator[tuple[int, int]]:
+        """(r0, n) of each tile row, top to bottom, as soon as it is whole; ends early when
+        the spool is closed before (the level's writer then reports the missing rows)."""
+        for r0 in range(0, self.rows, _TILE):
+            n = min(_TILE, self.rows - r0)
+            with self._changed:
+                while self._done < r0 + n and not self._closed:
+                    self._changed.wait()
+                if self._done < r0 + n:
+                    return
+            yield r0, n
+
+    def remove(self) -> None:
+        """Close and delete the file."""
+        os.close(self._fd)
+        self.path.unlink(missing_ok=True)
+
+
+def _pwrite_all(fd: int, data: np.ndarray, offset: int) -> None:
+    """Write all of a 1-D uint8 array at ``offset`` (os.pwrite may write less at once)."""
+    view = data.data
+    while len(view):
+        done = os.pwrite(fd, view, offset)
+        view, offset = view[done:], offset + done
+
+
+def _pread_all(fd: int, out: np.ndarray, offset: int) -> None:
+    """Fill a 1-D uint8 array from ``offset`` (os.preadv may read less at once)."""
+    view = out.data
+    while len(view):
+        done = os.preadv(fd, [view], offset)
+        if done == 0:
+            raise StoreError("A texture level's spool ended early; rebake the pyramid.")
+        view, offset = view[done:], offset + done
+
+
+def _spool_strips(strips: Iterable[np.ndarray], spool: _Spool) -> None:
+    """Store a level's (bands, rows, cols) uint8 band-order strips, top to bottom, in its
+    spool, telling its writer after each; InvalidParameterError for a strip of another shape
+    or dtype, or strips that do not cover the level (each of an even number of rows but the
+    last, so that halvings pair rows within a strip)."""
+    rows, cols, bands = spool.rows, spool.cols, spool.bands
+    r0 = 0
+    for strip in strips:
+        n = strip.shape[1] if strip.ndim == 3 else 0
+        if strip.ndim != 3 or strip.shape[::2] != (bands, cols) or strip.dtype != np.uint8:
+            raise InvalidParameterError(
+                f"A texture must be ({rows}, {cols}, {bands}) uint8, got a strip of "
+                f"{strip.shape} {strip.dtype} (bands first)."
+            )
+        if r0 + n > rows or (n % 2 and r0 + n < rows):
+            raise InvalidParameterError(
+                f"Texture strips must have an even number of rows and cover {rows} rows."
+            )
+        spool.write(r0, 0, strip)
+        r0 += n
+        spool.completed(r0)
     if r0 != rows:
         raise InvalidParameterError(f"The texture's strips cover {r0} of its {rows} rows.")
-    return sums.rows
-
-
-class _TileChecksums:
-    """The ``tile_crc32c`` of a level, from its band-order strips as they are written.
-
-    A tile's checksum covers its (bands, h, w) texels in C order, so it needs the tile's whole
-    height at once: a strip that is a whole tile row (the usual case: levels are written in
-    512-row strips) is summed as it is; other strips are gathered in one tile-row buffer
-    first. Called on the level's writer thread only, in row order.
-    """
-
-    def __init__(self, shape: tuple[int, int], bands: int) -> None:
-        self.height, self.width = shape
-        self.bands = bands
-        #: Finished tile rows: one list of crc32c per tile row, west to east.
-        self.rows: list[list[int]] = []
-        self._buffer: np.ndarray | None = None
-        self._filled = 0
-
-    def add(self, strip: np.ndarray, r0: int) -> None:
-        """Take the (bands, n, cols) strip written at row ``r0``."""
-        n = strip.shape[1]
-        if not self._filled and (n == _TILE or r0 + n == self.height) and n <= _TILE:
-            self.rows.append(tile_row_checksums(strip))
-            return
-        at = 0
-        while at < n:
-            if self._buffer is None:
-                self._buffer = np.empty((self.bands, _TILE, self.width), dtype=np.uint8)
-            take = min(n - at, _TILE - self._filled)
-            self._buffer[:, self._filled : self._filled + take] = strip[:, at : at + take]
-            self._filled += take
-            at += take
-            if self._filled == _TILE or r0 + at == self.height:
-                self.rows.append(tile_row_checksums(self._buffer[:, : self._filled]))
-                self._filled = 0
-
-
-def tile_row_checksums(block: np.ndarray) -> list[int]:
-    """CRC-32C of each tile of a (bands, h ≤ 512, cols) uint8 tile row, west to east (the last
-    clipped to ``cols``): the tile's texels in band-sequential C order."""
-    import crc32c
-
-    cols = block.shape[2]
-    return [
-        crc32c.crc32c(np.ascontiguousarray(block[:, :, c0 : c0 + _TILE]).data)
-        for c0 in range(0, cols, _TILE)
-    ]
-
-
-def _write_and_halve(
-    ds,
-    strip: np.ndarray,
-    r0: int,
-    halved: list[np.ndarray] | _Handoff | None,
-    sums: _TileChecksums,
-) -> None:
-    """Write a (bands, n, cols) strip at row ``r0`` of ``ds``, add it to the level's tile
-    checksums and, if ``halved`` is given, append its (bands, ⌈n/2⌉, ⌈cols/2⌉) halving to it
-    (it depends on that strip only: its rows pair up). All run on the level's writer thread
-    (one, so strips and halvings come in order; GDAL and the kernel without the GIL), while
-    the next strip is made; the next level gets each halving at once."""
-    from rasterio.windows import Window
-
-    bands, n, cols = strip.shape
-    ds.write(strip, window=Window(0, r0, cols, n))
-    sums.add(strip, r0)
-    if halved is None:
-        return
-    half = np.empty((bands, (n + 1) // 2, (cols + 1) // 2), dtype=np.uint8)
-    halve_bands(strip, half)
-    halved.append(half)
 
 
 #: fn(level, transform, (rows, cols)) -> (rows, cols, 4) uint8 drawn over that level, or None.
 LevelOverlay = Callable[[int, Affine, tuple[int, int]], "np.ndarray | None"]
 
 
-def _over(strips: Iterable[np.ndarray], rgba: np.ndarray | None) -> Iterator[np.ndarray]:
-    """Band-order strips (4, n, cols) of a level with ``rgba`` (rows, cols, 4) drawn over
-    them (alpha over, straight alpha), one by one; the strips unchanged without an overlay."""
-    r0 = 0
-    for strip in strips:
-        if rgba is None:
-            yield strip
-            continue
-        n = strip.shape[1]
-        top = np.moveaxis(rgba[r0 : r0 + n], -1, 0).astype(np.float32)
-        a = top[3:] / 255.0
-        mixed = top * a + strip.astype(np.float32) * (1.0 - a)
-        mixed[3:] = np.maximum(strip[3:], top[3:])
-        yield np.clip(np.rint(mixed), 0, 255).astype(np.uint8)
-        r0 += n
+def _over(block: np.ndarray, rgba: np.ndarray) -> np.ndarray:
+    """A (4, n, m) band-order window with the (n, m, 4) window ``rgba`` drawn over it (alpha
+    over, straight alpha)."""
+    top = np.moveaxis(rgba, -1, 0).astype(np.float32)
+    a = top[3:] / 255.0
+    mixed = top * a + block.astype(np.float32) * (1.0 - a)
+    mixed[3:] = np.maximum(block[3:], top[3:])
+    return np.clip(np.rint(mixed), 0, 255).astype(np.uint8)
 
 
-def _whole_tile_rows(strips: Iterable[np.ndarray]) -> Iterator[np.ndarray]:
-    """Band-order strips regrouped into strips of ``_TILE`` rows (the last may be shorter):
-    each write then fills whole tiles. A part of a tile written while other levels are
-    written too may be flushed (compressed) before the rest of it comes, then read back,
-    completed and stored again: more work, and a larger file."""
-    held: list[np.ndarray] = []
-    rows = 0
-    for strip in strips:
-        held.append(strip)
-        rows += strip.shape[1]
-        if rows >= _TILE:
-            block = np.concatenate(held, axis=1)
-            for r0 in range(0, rows - rows % _TILE, _TILE):
-                yield block[:, r0 : r0 + _TILE]
-            held = [block[:, rows - rows % _TILE :]] if rows % _TILE else []
-            rows %= _TILE
-    if rows:
-        yield np.concatenate(held, axis=1)
+def _strips(rgba: np.ndarray, rows: int) -> Iterator[np.ndarray]:
+    """A (rows, cols, 4) array as band-order strips of ``rows`` rows (``_spool_strips``)."""
+    for r0 in range(0, rgba.shape[0], rows):
+        yield np.ascontiguousarray(np.moveaxis(rgba[r0 : r0 + rows], -1, 0))
 
 
-class _Handoff:
-    """The strips of a level, from the writer of the level before to its own writer: the
-    finer writer ``append``s each halving, and ``close``s when done (or failed); iterating
-    yields them in order until then."""
-
-    _END = object()
-
-    def __init__(self) -> None:
-        self._queue: queue.SimpleQueue = queue.SimpleQueue()
-
-    def append(self, strip: np.ndarray) -> None:
-        self._queue.put(strip)
-
-    def close(self) -> None:
-        self._queue.put(self._END)
-
-    def __iter__(self) -> Iterator[np.ndarray]:
-        while (strip := self._queue.get()) is not self._END:
-            yield strip
-
-
-def _strips(rgba: np.ndarray) -> Iterator[np.ndarray]:
-    """A (rows, cols, 4) array as band-order strips of ``_CHUNK_ROWS`` rows (``_write_level``)."""
-    for r0 in range(0, rgba.shape[0], _CHUNK_ROWS):
-        yield np.ascontiguousarray(np.moveaxis(rgba[r0 : r0 + _CHUNK_ROWS], -1, 0))
+def window_shape(cols: int, bands: int, window_bytes: int) -> tuple[int, int]:
+    """(strip rows, window cols) of a level ``cols`` texels wide within ``window_bytes``: the
+    texture's strips span the width in an even number of rows (2 to a tile's 512), the
+    writers' windows span a tile row in whole tiles (one at least)."""
+    rows = min(_TILE, max(2, window_bytes // max(1, cols * bands) // 2 * 2))
+    tiles = max(1, window_bytes // (_TILE * _TILE * bands))
+    return rows, tiles * _TILE
 
 
 def _pyramid_rows(shape: tuple[int, ...], max_texture_size: int) -> int:
@@ -534,6 +534,7 @@ class TexturePyramid:
         level_overlay: LevelOverlay | None = None,
         progress: ProgressCallback | None = None,
         recipe: dict | None = None,
+        window_bytes: int = WINDOW_BYTES,
     ) -> TexturePyramid:
         """Write level 0 from ``texture`` and halve it until a level fits; return the pyramid.
 
@@ -542,21 +543,25 @@ class TexturePyramid:
         drawn over every level after the first (alpha over) before it is written and halved:
         vector overlays redrawn at each level's texel size keep a least width there instead
         of fading in the averages. progress(done, total): texel rows written, all levels
-        together, after each strip (``approxtree.progress``). recipe: JSON-ready bake
+        together, after each tile row (``approxtree.progress``). recipe: JSON-ready bake
         parameters kept in pyramid.json (``TexturePyramid.recipe``) for re-bakes.
+        window_bytes: the size of the windows the build works in (``window_shape``); any size
+        writes the same files.
         """
         if max_texture_size < 1 or max_texture_size & (max_texture_size - 1):
             raise InvalidParameterError(
                 f"max_texture_size must be a power of two, got {max_texture_size}."
             )
-        # The texture arrives in strips, so level 0 is never whole in memory; each level is
-        # halved strip by strip as it is written, and only the coarser levels (a third of
-        # level 0 at most) are held.
+        if window_bytes < 1:
+            raise InvalidParameterError(f"window_bytes must be >= 1, got {window_bytes}.")
+        # The texture arrives in strips as high as the window allows for its width, so no
+        # level is ever whole in memory, nor a tile row of a wide one (module docstring).
         if isinstance(texture, TextureData):
             transform, crs = texture.transform, texture.crs
             shape = tuple(texture.shape)
             bands = texture.bands
-            strips: Iterable[np.ndarray] = texture.level_strips(_CHUNK_ROWS)
+            strip_rows, block_cols = window_shape(shape[1], bands, window_bytes)
+            strips: Iterable[np.ndarray] = texture.level_strips(strip_rows)
         else:
             rgba = texture
             if transform is None:
@@ -567,7 +572,8 @@ class TexturePyramid:
                 )
             shape = rgba.shape[:2]
             bands = 4
-            strips = _strips(rgba)
+            strip_rows, block_cols = window_shape(shape[1], bands, window_bytes)
+            strips = _strips(rgba, strip_rows)
         folder = Path(folder)
         check_pyramid_target(folder)
         folder.absolute().parent.mkdir(parents=True, exist_ok=True)
@@ -594,41 +600,51 @@ class TexturePyramid:
             plan.append(((-(-rows // 2), -(-cols // 2)), t @ Affine.scale(2.0)))
         # All or nothing: the levels and pyramid.json go to a temp folder swapped in at the end.
         with atomic_directory(folder) as tmp:
-            # Levels stream: level k's writer halves each strip it writes and hands the halving
-            # at once to level k + 1, written on its own thread, so the coarser levels are
-            # written (and compressed) while level 0 is still being made, not after it, and
-            # no level is ever held whole. Level 0 is written on this thread (it runs the
-            # texture's kernels).
-            handoffs = [_Handoff() for _ in plan[1:]]
+            # Levels stream through spools on disk: this thread stores the texture's strips in
+            # level 0's; level k's writer (its own thread) writes each tile row of its spool
+            # as soon as it is whole, window by window, and stores the windows' halvings in
+            # level k + 1's spool. So the coarser levels are written (and compressed) while
+            # level 0 is still being made, and memory holds windows, never a level's width:
+            # level k's windows are half as wide as level k - 1's (one tile at least), so all
+            # levels together hold two windows' worth however many there are.
+            spools = [
+                _Spool(tmp / f"level{k}.raw", lv_shape, bands)
+                for k, (lv_shape, _) in enumerate(plan)
+            ]
             tile_sums: dict[int, list[list[int]]] = {}
 
             def write(k: int) -> None:
                 (rows, cols), t = plan[k]
-                level_strips = strips if k == 0 else _whole_tile_rows(handoffs[k - 1])
-                if k and level_overlay is not None:
-                    level_strips = _over(level_strips, level_overlay(k, t, (rows, cols)))
-                sink = handoffs[k] if k < len(handoffs) else None
+                overlay = level_overlay(k, t, (rows, cols)) if k and level_overlay else None
+                sink = spools[k + 1] if k + 1 < len(spools) else None
                 try:
                     path = tmp / f"level{k}.tif"
                     tile_sums[k] = _write_level(
-                        path, level_strips, (rows, cols), bands, t, crs, build, k, sink, on_rows
-                    )
+                        path, spools[k], (rows, cols), bands, t, crs, build, k, sink,
+                        overlay, on_rows, max(1, block_cols // _TILE >> k) * _TILE,
+                    )  # fmt: skip
                 finally:
                     if sink is not None:
                         sink.close()
 
-            with ThreadPoolExecutor(max(1, len(handoffs))) as coarser:
-                futures = [coarser.submit(write, k) for k in range(1, len(plan))]
-                errors: list[BaseException] = []
-                try:
-                    write(0)
-                except BaseException as exc:
-                    errors.append(exc)
-                for future in futures:
+            try:
+                with ThreadPoolExecutor(len(plan)) as writers:
+                    futures = [writers.submit(write, k) for k in range(len(plan))]
+                    errors: list[BaseException] = []
                     try:
-                        future.result()
+                        _spool_strips(strips, spools[0])
                     except BaseException as exc:
                         errors.append(exc)
+                    finally:
+                        spools[0].close()
+                    for future in futures:
+                        try:
+                            future.result()
+                        except BaseException as exc:
+                            errors.append(exc)
+            finally:
+                for spool in spools:
+                    spool.remove()
             # A finer level's failure starves the coarser ones: the first is the cause.
             if errors:
                 raise errors[0]

@@ -13,7 +13,11 @@ Leaflet) as PNG, WEBP or JPEG:
    transparent, so its edge fades over half a texel); where the level's texels are still more
    than twice finer than a pixel (the coarsest zooms), its window is first halved k times
    as the pyramid halves its levels (``_box_reduce``);
-4. PNG and WEBP keep the alpha; JPEG has none and gets the texture over black.
+4. given a ``DetailTextures`` (``--textures BASE --textures DETAIL@ZOOM``), the tiles of zoom
+   ZOOM and deeper lay the detail pyramid's pixels (made by steps 1-3) over the base's, alpha
+   over alpha: the detail shows inside its footprint and the base around it; map tiles have
+   no tree, so the detail's level counts zooms here;
+5. PNG and WEBP keep the alpha; JPEG has none and gets the texture over black.
 
 The tile depends on (z, x, y) and the pyramid alone, so a written folder and the server agree
 byte for byte. The default deepest zoom is the first whose pixels are no larger than level 0's
@@ -31,6 +35,7 @@ import numpy as np
 
 from approxtree.errors import InvalidParameterError
 from approxtree.kernels.rgba import halve_bands
+from approxtree.textures.detail import DetailTextures, open_drape
 from approxtree.tiles.map_tiles import EXTENSIONS, check_zooms, encode_image
 from approxtree.tiles.schemes import TileScheme, ground_metres
 
@@ -62,9 +67,9 @@ def texture_footprint(pyramid: Any):
 class ImageryTiles:
     """Imagery tiles of one texture pyramid (a ``map_tiles.MapTiles`` source).
 
-    pyramid: a TexturePyramid with a CRS; scheme: a ``schemes.TileScheme``; tile_size: pixels
-    of a tile side; image_format: png, webp or jpeg; minzoom, maxzoom (None: the zoom of level
-    0's texels).
+    pyramid: a TexturePyramid with a CRS, or a DetailTextures (module docstring, 4.);
+    scheme: a ``schemes.TileScheme``; tile_size: pixels of a tile side; image_format: png,
+    webp or jpeg; minzoom, maxzoom (None: the zoom of level 0's texels, the finer pyramid's).
     """
 
     def __init__(
@@ -76,6 +81,9 @@ class ImageryTiles:
         minzoom: int = 0,
         maxzoom: int | None = None,
     ) -> None:
+        detail = pyramid if isinstance(pyramid, DetailTextures) else None
+        if detail is not None:
+            pyramid = detail.base
         if not pyramid.crs:
             raise InvalidParameterError(
                 f"The texture pyramid {pyramid.folder} has no CRS, so it cannot be placed on "
@@ -102,6 +110,14 @@ class ImageryTiles:
             if maxzoom is not None
             else max(scheme.zoom_for(self.texel_metres, tile_size, self.latitude), minzoom)
         )
+        #: The detail pyramid's tiles and the zoom from which they cover the base's, or None.
+        self.detail: ImageryTiles | None = None
+        self.detail_zoom = 0
+        if detail is not None:
+            given = (scheme, tile_size, image_format, minzoom, maxzoom)
+            self.detail, self.detail_zoom = ImageryTiles(detail.detail, *given), detail.level
+            # By default the zooms go on to the finer pyramid's texels.
+            self.maxzoom = max(self.maxzoom, self.detail.maxzoom)
         check_zooms(self.minzoom, self.maxzoom)
         self._local = threading.local()
 
@@ -117,10 +133,14 @@ class ImageryTiles:
 
     @cached_property
     def footprint(self):
-        return texture_footprint(self.pyramid)
+        if self.detail is None:
+            return texture_footprint(self.pyramid)
+        return texture_footprint(self.pyramid).union(self.detail.footprint)
 
     def describe(self) -> dict[str, Any]:
-        return {"kind": "imagery", "levels": len(self.pyramid)}
+        if self.detail is None:
+            return {"kind": "imagery", "levels": len(self.pyramid)}
+        return {"kind": "imagery", "levels": len(self.pyramid), "detail_zoom": self.detail_zoom}
 
     def _to_crs(self):
         """This thread's pyproj transformer lon/lat → the pyramid's CRS."""
@@ -146,6 +166,14 @@ class ImageryTiles:
 
     def pixels(self, z: int, x: int, y: int) -> np.ndarray:
         """(size, size, 4) uint8 straight-alpha RGBA of tile (z, x, y) (module docstring)."""
+        out = self._own_pixels(z, x, y)
+        if self.detail is None or z < self.detail_zoom:
+            return out
+        return over(self.detail.pixels(z, x, y), out)
+
+    def _own_pixels(self, z: int, x: int, y: int) -> np.ndarray:
+        """(size, size, 4) uint8 straight-alpha RGBA of tile (z, x, y) of this pyramid alone
+        (module docstring, 1.-3.)."""
         size = self.tile_size
         out = np.zeros((size, size, 4), dtype=np.uint8)
         if not self.scheme.exists(z, x, y):
@@ -253,6 +281,20 @@ def _box_reduce(rgba: np.ndarray, factor: int) -> np.ndarray:
     return np.ascontiguousarray(np.moveaxis(bands, 0, -1))
 
 
+def over(top: np.ndarray, bottom: np.ndarray) -> np.ndarray:
+    """(h, w, 4) uint8 straight-alpha RGBA: ``top`` laid over ``bottom`` (both (h, w, 4) uint8
+    straight alpha, Porter-Duff over); an opaque top pixel stays exactly as it is."""
+    ta = top[..., 3:].astype(np.float32) / 255.0
+    ba = bottom[..., 3:].astype(np.float32) / 255.0
+    alpha = ta + ba * (1.0 - ta)
+    rgb = top[..., :3] * ta + bottom[..., :3] * (ba * (1.0 - ta))
+    rgb = np.where(alpha > 0, rgb / np.maximum(alpha, 1e-6), 0.0)
+    out = np.empty_like(top)
+    out[..., :3] = np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
+    out[..., 3] = np.clip(np.rint(alpha[..., 0] * 255.0), 0, 255).astype(np.uint8)
+    return out
+
+
 def open_imagery(
     textures: Any,
     scheme: TileScheme,
@@ -261,8 +303,6 @@ def open_imagery(
     minzoom: int = 0,
     maxzoom: int | None = None,
 ) -> ImageryTiles:
-    """ImageryTiles of a texture pyramid folder (or an open TexturePyramid)."""
-    from approxtree.textures.pyramid import TexturePyramid
-
-    pyramid = textures if isinstance(textures, TexturePyramid) else TexturePyramid(textures)
+    """ImageryTiles of a texture pyramid folder (or an open TexturePyramid or DetailTextures)."""
+    pyramid = open_drape(textures)
     return ImageryTiles(pyramid, scheme, tile_size, image_format, minzoom, maxzoom)

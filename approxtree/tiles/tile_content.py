@@ -3,7 +3,8 @@
 ``NodeWriter.write(i)`` reads node i's patch (``read_patch``: the tree is never loaded whole),
 hangs its skirts (patches/skirts.py, as the renderer does), takes the vertices to the tileset
 frame (tiles/earth.py), computes surface normals (a skirt vertex takes its top vertex's) and,
-with a texture pyramid, the node's texture patch and coordinates, then stores the positions
+with a texture pyramid, the node's texture patch and coordinates (a ``DetailTextures``: of
+the pyramid the node uses), then stores the positions
 as the compression asks:
 
 - ``none``: float32 positions relative to the tile's centre (io/gltf.py); what they add to
@@ -30,6 +31,7 @@ from approxtree.geometry.rect import Rect
 from approxtree.io.gltf import face_normals, glb_bytes, vertex_normals, y_up
 from approxtree.io.gltf_compact import MAX_BITS, compact_glb
 from approxtree.patches.skirts import add_skirts, patches_reach_rect, skirt_base, skirt_depths
+from approxtree.textures.detail import DetailTextures
 from approxtree.textures.embed import embedded_texture
 from approxtree.tiles.earth import WGS84_A, WGS84_B, EarthFrame, geodetic_to_ecef
 from approxtree.tiles.lattice import Y_UP, Lattice, bound_factor, fit_lattice, local_axes, verticals
@@ -177,7 +179,11 @@ class NodeWriter:
         mime = "image/png"
         if self.pyramid is not None:
             rect = Rect(*map(float, self.tree.rects[i]))
-            uvs, image, mime = embedded_texture(self.pyramid, rect, verts, self.image_format)
+            # A detail pyramid textures the nodes at or below its level inside its footprint.
+            pyramid = self.pyramid
+            if isinstance(pyramid, DetailTextures):
+                pyramid = pyramid.pyramid_for(int(self.tree.levels[i]), rect)
+            uvs, image, mime = embedded_texture(pyramid, rect, verts, self.image_format)
         extras: dict[str, Any] = {"node": int(i), "error": json_float(self.tree.errors[i])}
         # Implicit tiles share one transform: their content carries its centre itself.
         offset = None if self.addresses is None else center

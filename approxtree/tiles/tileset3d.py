@@ -14,7 +14,8 @@ screen-space error exactly as the paging renderer refines by α:
   terrain is on screen.
 - Content (tiles/tile_content.py): the node's patch with its skirts, as the renderer draws it,
   relative to the tile's centre in the tileset frame, in glTF's y-up axes, with normals and,
-  given a pyramid, the node's texture patch; ``compression`` ``draco`` (default:
+  given a pyramid, the node's texture patch (of the detail pyramid for the nodes a
+  ``DetailTextures`` gives it); ``compression`` ``draco`` (default:
   KHR_draco_mesh_compression), ``meshopt`` (EXT_meshopt_compression + KHR_mesh_quantization)
   or ``none`` (float32). Explicit tiling: ``{level}/{node}.glb``, each tile's ``transform``
   its centre relative to its parent's. Implicit tiling (``implicit``, tiles/implicit.py): the
@@ -53,6 +54,7 @@ from approxtree.io.atomic import atomic_directory
 from approxtree.io.gltf_compact import COMPRESSIONS
 from approxtree.io.output_path import check_output_folder
 from approxtree.io.own_output import check_replaceable
+from approxtree.textures.detail import open_drape
 from approxtree.textures.embed import IMAGE_FORMATS
 from approxtree.tiles.earth import EarthFrame
 from approxtree.tiles.implicit import (
@@ -96,22 +98,9 @@ def _check_target(out: Path) -> None:
 
 
 def _open_pyramid(textures: Any, terrain: Any) -> Any:
-    """The TexturePyramid of ``textures`` (a folder or a pyramid), checked against the terrain's
+    """The TexturePyramid (or DetailTextures) of ``textures``, checked against the terrain's
     CRS, or None."""
-    if textures is None:
-        return None
-    from approxtree.textures.pyramid import TexturePyramid
-
-    pyramid = textures if isinstance(textures, TexturePyramid) else TexturePyramid(textures)
-    if pyramid.crs and terrain.crs:
-        from pyproj import CRS
-
-        if not CRS.from_user_input(pyramid.crs).equals(CRS.from_user_input(terrain.crs)):
-            raise InvalidParameterError(
-                f"The texture pyramid's CRS ({pyramid.crs}) differs from the terrain's "
-                f"({terrain.crs}); bake the texture in the terrain's CRS."
-            )
-    return pyramid
+    return None if textures is None else open_drape(textures, terrain)
 
 
 def _write_nodes(writer: NodeWriter, nodes: Sequence[int]) -> list[TileContent | None]:

@@ -12,6 +12,7 @@ import os
 from typing import Any
 
 from approxtree.errors import InvalidParameterError
+from approxtree.textures.detail import open_drape
 from approxtree.tiles.imagery import ImageryTiles
 from approxtree.tiles.map_tiles import is_archive, write_map_tiles
 from approxtree.tiles.raster_dem import DemTiles
@@ -19,23 +20,6 @@ from approxtree.tiles.schemes import scheme_named
 
 #: Map tile formats → default tile side (pixels).
 MAP_FORMATS = {"imagery": 256, "terrarium": 512, "terrain-rgb": 512}
-
-
-def open_pyramid(textures: Any, terrain: Any = None) -> Any:
-    """The TexturePyramid of a folder (or a pyramid as it is), its CRS checked against the
-    terrain's when both have one."""
-    from approxtree.textures.pyramid import TexturePyramid
-
-    pyramid = textures if isinstance(textures, TexturePyramid) else TexturePyramid(textures)
-    if terrain is not None and pyramid.crs and terrain.crs:
-        from pyproj import CRS
-
-        if not CRS.from_user_input(pyramid.crs).equals(CRS.from_user_input(terrain.crs)):
-            raise InvalidParameterError(
-                f"The texture pyramid's CRS ({pyramid.crs}) differs from the terrain's "
-                f"({terrain.crs}); bake the texture in the terrain's CRS."
-            )
-    return pyramid
 
 
 def open_map_tiles(
@@ -61,7 +45,7 @@ def open_map_tiles(
                 "Imagery tiles are made from a texture pyramid: give it with --textures "
                 "(approxtree bake TERRAIN --out DIR makes one)."
             )
-        pyramid = open_pyramid(textures, terrain)
+        pyramid = open_drape(textures, terrain)
         return ImageryTiles(pyramid, scheme_named(scheme), size, image_format, minzoom, maxzoom)
     return DemTiles(terrain, kind, size, image_format, minzoom, maxzoom)
 

@@ -133,7 +133,7 @@ def verify(
         from approxtree.errors import TerrainFormatError
 
         raise TerrainFormatError(f"Image {image} does not exist.")
-    from approxtree.verify.pyramid_image import RESAMPLINGS
+    from approxtree.textures.image import RESAMPLINGS
 
     if resampling not in RESAMPLINGS:
         raise InvalidParameterError(

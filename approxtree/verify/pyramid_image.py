@@ -3,7 +3,8 @@
 Every level's texels are compared with a reference recomputed here from the image, independently
 of the bake's code: GDAL's reprojection of the image onto level 0's grid
 (``rasterio.warp.reproject`` in strips of ``STRIP`` rows, at one resampling scale measured
-across the grid: the middle row and column of level 0 over the image pixels they span), then,
+across the grid: the middle row and column of level 0 over the image pixels they span,
+``io.warp.warp_scale``, as the bake does), then,
 for level k, the alpha-weighted 2^k × 2^k box filter of that reprojection (odd sizes repeating
 the last row or column at every halving, as the pyramid does), in float without rounding.
 Each texel must be within 1 level per channel: alpha everywhere, colour where both alphas are
@@ -20,37 +21,13 @@ from typing import Any
 import numpy as np
 
 from approxtree.errors import TerrainFormatError
+from approxtree.io.warp import warp_scale
+from approxtree.textures.image import RESAMPLINGS
 
 #: Rows of level 0 reprojected at once (a strip of float32 RGBA: 16 bytes a texel).
 STRIP = 128
 #: Largest difference per channel allowed between a level and its reference.
 TOLERANCE = 1
-#: gdalwarp's -r names → rasterio's Resampling member names.
-RESAMPLINGS = {
-    "nearest": "nearest",
-    "bilinear": "bilinear",
-    "cubic": "cubic",
-    "cubicspline": "cubic_spline",
-    "lanczos": "lanczos",
-    "average": "average",
-}
-
-
-def _scale_options(ds, src_crs, crs, transform, rows: int, cols: int) -> dict[str, str]:
-    """XSCALE/YSCALE: level-0 texels per image pixel along level 0's middle row and column."""
-    from rasterio.warp import transform as transform_points
-
-    xs = [transform.c + transform.a * c for c in (0, cols, cols / 2, cols / 2)]
-    ys = [transform.f + transform.e * r for r in (rows / 2, rows / 2, 0, rows)]
-    if crs is not None and src_crs is not None:
-        xs, ys = transform_points(crs, src_crs, xs, ys)
-    inv = ~ds.transform
-    p = [inv @ (x, y) for x, y in zip(xs, ys, strict=True)]
-    across = abs(p[1][0] - p[0][0]) + abs(p[1][1] - p[0][1])
-    down = abs(p[3][0] - p[2][0]) + abs(p[3][1] - p[2][1])
-    if not (np.isfinite(across) and np.isfinite(down) and across > 0 and down > 0):
-        return {}
-    return {"XSCALE": repr(cols / across), "YSCALE": repr(rows / down)}
 
 
 def _reference_level0(
@@ -86,7 +63,7 @@ def _reference_level0(
             "resampling": method,
             "dst_alpha": bands,
             "init_dest_nodata": False,
-            **_scale_options(ds, src_crs, crs, transform, rows, cols),
+            **warp_scale(ds, src_crs, crs, transform, (rows, cols)),
         }
         if alpha:
             options["src_alpha"] = bands

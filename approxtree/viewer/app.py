@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from approxtree.errors import InvalidParameterError
-from approxtree.textures.pyramid import TexturePyramid
+from approxtree.textures.detail import open_drape
 from approxtree.viewer.actions import ACTIONS
 from approxtree.viewer.frame_driver import FrameDriver
 from approxtree.viewer.input import Input
@@ -53,7 +53,8 @@ from approxtree.viewer.window import Window
 class Viewer:
     """An interactive window over ``tree``.
 
-    textures: texture pyramid folders (thematic layers, cycled with TAB); size: window
+    textures: texture pyramids, their folders or DetailTextures (thematic layers, cycled with
+    TAB); size: window
     (w, h); alpha, gamma: initial thresholds; fov: degrees; max_uploads, budget_ms: the
     per-frame upload budget (0 and None: no budget, every frame waits for its whole cut);
     screenshot_dir: where P writes its PNGs (and the measure tool its profiles);
@@ -70,7 +71,7 @@ class Viewer:
     def __init__(
         self,
         tree: Any,
-        textures: Sequence[str] = (),
+        textures: Sequence[Any] = (),
         size: tuple[int, int] = (1280, 720),
         alpha: float = 1.0,
         gamma: float = 2.0,
@@ -109,7 +110,7 @@ class Viewer:
         self.legend = legend
         self.title = title
         self.screenshot_dir = Path(screenshot_dir)
-        self.pyramids: list[Any] = [TexturePyramid(d) for d in textures]
+        self.pyramids: list[Any] = [open_drape(d) for d in textures]
         self.messages: list[str] = []
         # 2. The window, the Engine drawing into it, the cameras (home: the overview).
         self.window = Window(size, title, visible)

@@ -78,7 +78,8 @@ class FrameDriver:
     # -- settings the Engine keeps --------------------------------------------------------------
 
     def set_textures(self, pyramid: Any) -> None:
-        """Drape ``pyramid`` (a TexturePyramid) over the terrain; None: untextured."""
+        """Drape ``pyramid`` (a TexturePyramid or DetailTextures) over the terrain; None:
+        untextured."""
         self.engine.set_textures(pyramid)
 
     def set_skirts(self, on: bool) -> None:

@@ -28,12 +28,13 @@ from pathlib import Path
 from typing import Any
 
 from approxtree.errors import ApproxTreeError, StoreError
+from approxtree.textures.detail import open_drape
 from approxtree.tiles.map_tiles import EXTENSIONS, MIME_TYPES, tile_plan, tilejson
 from approxtree.tiles.quantized_mesh import layer_json, make_tile, terrain_job
 from approxtree.tiles.serve.archives import Archive, Route, open_archives, url_prefix
 from approxtree.tiles.serve.cache import Entry, TileCache
 from approxtree.tiles.tileset3d import tile_maker, tile_uri, tileset_document
-from approxtree.tiles.web_maps import open_map_tiles, open_pyramid
+from approxtree.tiles.web_maps import open_map_tiles
 
 #: Layer names a URL may carry.
 LAYER_NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
@@ -214,7 +215,7 @@ class TileService:
                     names = ", ".join(self.layer_folders) or "none: start with --textures DIR"
                     raise NotServed(f"No imagery layer {layer!r} (layers: {names}).")
                 folder = self.layer_folders[layer]
-                pyramid = self._open(("pyramid", layer), lambda: open_pyramid(folder, self.terrain))
+                pyramid = self._open(("pyramid", layer), lambda: open_drape(folder, self.terrain))
                 source = open_map_tiles(kind, self.terrain, pyramid, scheme, image_format=fmt)
             else:
                 source = open_map_tiles(kind, self.terrain, image_format=fmt)
