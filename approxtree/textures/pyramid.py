@@ -106,6 +106,19 @@ class PyramidLevel:
         return (abs(self.transform.a), abs(self.transform.e))
 
 
+def tile_row_checksums(block: np.ndarray) -> list[int]:
+    """CRC-32C of each tile of a (bands, h ≤ 512, cols) uint8 tile row, west to east (the last
+    clipped to ``cols``): the tile's texels in band-sequential C order (pyramid.json's
+    ``tile_crc32c``; re-bakes recompute them for the tiles they rewrite)."""
+    import crc32c
+
+    cols = block.shape[2]
+    return [
+        crc32c.crc32c(np.ascontiguousarray(block[:, :, c0 : c0 + _TILE]).data)
+        for c0 in range(0, cols, _TILE)
+    ]
+
+
 def _write_level(
     path: Path,
     spool: _Spool,
@@ -129,7 +142,6 @@ def _write_level(
     when a tile row's halving is whole. ``on_rows(n)`` after each tile row of n rows. Returns
     the level's ``tile_crc32c`` (rows of tiles, each the CRC-32C of the tile's texels in
     band-sequential C order)."""
-    import crc32c
     import rasterio
     from rasterio.windows import Window
 
@@ -159,7 +171,7 @@ def _write_level(
                 for t0 in range(0, m, _TILE):
                     tile = np.ascontiguousarray(block[:, :, t0 : t0 + _TILE])
                     ds.write(tile, window=Window(c0 + t0, r0, tile.shape[2], n))
-                    row_sums.append(crc32c.crc32c(tile.data))
+                    row_sums.extend(tile_row_checksums(tile))
                 if halved is not None:
                     half = np.empty((bands, (n + 1) // 2, (m + 1) // 2), dtype=np.uint8)
                     halve_bands(block, half)
