@@ -243,6 +243,29 @@ def test_cli_imagery_detail_only_from_its_zoom(nc, nc_store, tmp_path):
         assert not _magenta(away) and away[3] == 255, z
 
 
+def test_verify_imagery_with_a_detail_pyramid(nc, nc_store, tmp_path):
+    """verify --textures BASE --textures DETAIL@Z checks imagery cut with a detail pyramid
+    pixel by pixel (exit 0); with the base alone the colours are "not checked", never a false
+    failure; with the detail at another zoom the magenta box's tiles fail (exit 1)."""
+    import json
+
+    out = tmp_path / "imagery"
+    base, city = str(nc["base"].folder), str(nc["detail"].folder)
+    args = ["tiles", nc_store, "--format", "imagery", "--out", str(out), "--textures", base]
+    res = CliRunner().invoke(cli_main, [*args, "--textures", f"{city}@10", "--minzoom", "8"])
+    assert res.exit_code == 0, res.output
+    check = ["verify", str(out), "--json", "--textures", base]
+    res = CliRunner().invoke(cli_main, [*check, "--textures", f"{city}@10"])
+    report = json.loads(res.output)
+    assert res.exit_code == 0, res.output
+    assert [c for c in report["checks"] if c["name"] == "colours"][0]["items"] > 0
+    alone = CliRunner().invoke(cli_main, check)
+    assert alone.exit_code == 0, alone.output
+    assert any("detail pyramid" in n for n in json.loads(alone.output)["not_checked"])
+    wrong = CliRunner().invoke(cli_main, [*check, "--textures", f"{city}@9"])
+    assert wrong.exit_code == 1, wrong.output
+
+
 def test_cli_detail_refused_where_no_texture_is_draped(nc, nc_store, tmp_path):
     """tiles --format terrarium with a detail pyramid, and tiles with two base pyramids, are
     one Error line each (exit 2)."""

@@ -14,7 +14,7 @@ import click
 
 from approxtree.cli import common
 from approxtree.cli.common import _reports_errors
-from approxtree.cli.options import json_option, reader_options
+from approxtree.cli.options import json_option, reader_options, textures_option
 from approxtree.textures.image import RESAMPLINGS
 
 
@@ -63,12 +63,10 @@ def _print(report) -> None:
     help="Texture pyramids: the bake is a plain hillshade at gdaldem's defaults; level 0 is "
     "compared with `gdaldem hillshade` of the source.",
 )
-@click.option(
-    "--textures",
-    type=click.Path(file_okay=False, exists=True),
-    default=None,
-    help="Imagery tiles: the texture pyramid they were cut from; every pixel is compared "
-    "with it resampled at the pixel's centre.",
+@textures_option(
+    "Imagery tiles: the texture pyramid they were cut from (then --textures DETAIL@ZOOM when "
+    "a detail pyramid was laid over); every pixel is compared with it resampled at the "
+    "pixel's centre."
 )
 @click.option(
     "--image",
@@ -91,7 +89,7 @@ def verify(
     source: str | None,
     max_error: float | None,
     hillshade: bool,
-    textures: str | None,
+    textures: list,
     image: str | None,
     resampling: str,
     encoding,
@@ -114,7 +112,7 @@ def verify(
         max_error=max_error,
         hillshade=hillshade,
         source_file=source,
-        textures=textures,
+        textures=textures[0] if textures else None,
         image=image,
         resampling=resampling,
     )

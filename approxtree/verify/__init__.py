@@ -107,7 +107,7 @@ def verify(
     max_error: float | None = None,
     hillshade: bool = False,
     source_file: str | os.PathLike | None = None,
-    textures: str | os.PathLike | None = None,
+    textures: Any = None,
     image: str | os.PathLike | None = None,
     resampling: str = "bilinear",
     **reader_options: Any,
@@ -120,7 +120,8 @@ def verify(
     hillshade: a texture pyramid is a plain hillshade bake at gdaldem's defaults (level 0 is
     then compared with ``gdaldem hillshade`` of the source file). source_file: the file a
     GeometryData ``source`` was read from (named in the report, given to gdaldem). textures:
-    the texture pyramid folder imagery tiles were cut from (their colours are checked). image: a
+    the texture pyramid imagery tiles were cut from (their colours are checked): its folder, a
+    TexturePyramid, or a DetailTextures when a detail was laid over from a zoom. image: a
     texture pyramid is a bake of this image alone (``--shading none --image``), warped with
     ``resampling`` (gdalwarp's -r name): every level is compared with the image's
     box-filtered reprojection.
@@ -154,7 +155,7 @@ def verify(
         "max_error": max_error,
         "hillshade": hillshade,
         "source_path": None if source_file is None else str(source_file),
-        "textures": None if textures is None else Path(textures),
+        "textures": Path(textures) if isinstance(textures, (str, os.PathLike)) else textures,
         "image": None if image is None else str(image),
         "resampling": resampling,
     }

@@ -109,10 +109,10 @@ class _Tiles:
 
 
 def verify_map_tiles(
-    output: Path, terrain: Any, report: VerifyReport, textures: Path | None = None
+    output: Path, terrain: Any, report: VerifyReport, textures: Any = None
 ) -> None:
     """Run the checks of the module docstring on a tile folder or archive; ``textures``: the
-    texture pyramid folder imagery tiles were cut from."""
+    texture pyramid (folder, TexturePyramid or DetailTextures) imagery tiles were cut from."""
     from PIL import Image
 
     doc = read_tilejson(output)
@@ -129,7 +129,15 @@ def verify_map_tiles(
     if kind == "raster-dem" and terrain is not None:
         measure = _Heights(terrain, meta, report)
     elif kind == "imagery" and textures is not None:
-        measure = _Colours(Path(textures), meta, report)
+        if meta.get("detail_zoom") is not None and drape_folders(textures)[1] is None:
+            # Tiles with a detail pyramid laid over: its pixels are not the base's.
+            report.not_checked.append(
+                f"imagery colours: the tiles lay a detail pyramid over the base from zoom "
+                f"{meta['detail_zoom']}; give both (--textures BASE --textures "
+                f"DETAIL@{meta['detail_zoom']})"
+            )
+        else:
+            measure = _Colours(textures, meta, report)
     elif kind == "imagery":
         report.not_checked.append("imagery colours: give the texture pyramid (--textures)")
     try:
@@ -263,9 +271,9 @@ def pixel_centres(tiling: str, z: int, x: int, y: int, size: int) -> tuple[np.nd
     return np.meshgrid(lon, lat)
 
 
-class _Colours:
-    """Imagery tiles' pixels against the texture pyramid they were cut from, resampled here
-    as the imagery tiles' specification says (docs/guide/publish.md):
+class _Sampler:
+    """One texture pyramid resampled as the imagery tiles' specification says
+    (docs/guide/publish.md):
 
     1. the level: the coarsest whose level-0-relative texel (geodesic ground length of a
        level-0 texel at the pyramid's centre, × 2^k) is no larger than the tile's pixel
@@ -276,44 +284,27 @@ class _Colours:
     2. bilinear at the pixel's centre (taken into the pyramid's CRS by pyproj) between the
        four texel centres around it, colours premultiplied by alpha, texels beyond the level
        transparent.
-
-    Compared premultiplied (what a client composites; JPEG has the texture over black), per
-    channel 0..255, the tolerance ``tolerance(format)``: rounding of the tile's pixels and of
-    the pyramid's own halvings for PNG, the codec's loss for WEBP and JPEG (a mean and a
-    worst). A pixel size within 1 % of a level's boundary may have gone either way: the tile
-    passes if either level matches.
     """
 
-    def __init__(self, textures: Path, meta: dict[str, Any], report: VerifyReport) -> None:
+    def __init__(self, folder: Path, tiling: str) -> None:
         try:
-            doc = json.loads((textures / "pyramid.json").read_text())
+            doc = json.loads((folder / "pyramid.json").read_text())
             self.levels = list(doc["levels"])
             self.bands = int(doc["bands"])
             self.crs = doc["crs"]
         except (OSError, ValueError, KeyError, TypeError) as exc:
-            raise StoreError(f"{textures}: not a readable texture pyramid ({exc}).") from exc
+            raise StoreError(f"{folder}: not a readable texture pyramid ({exc}).") from exc
         if not self.crs:
-            raise StoreError(f"{textures}: the texture pyramid has no CRS to place it with.")
-        self.folder = textures
-        self.tiling = meta.get("tiling", "webmercator")
-        self.format = meta.get("format", "png")
-        self.mean_limit, self.worst_limit = COLOUR_TOLERANCE[self.format]
+            raise StoreError(f"{folder}: the texture pyramid has no CRS to place it with.")
+        self.folder = folder
+        self.tiling = tiling
         t = self.levels[0]["transform"]
         cx = t[2] + t[0] * int(self.levels[0]["width"]) / 2
         cy = t[5] + t[4] * int(self.levels[0]["height"]) / 2
         self.texel_metres = _texel_metres(self.crs, cx, cy, t[0], t[4])
-        self.report = report
-        self.check = report.check(
-            "colours",
-            f"every pixel, premultiplied, within {self.worst_limit} (mean within "
-            f"{self.mean_limit}) of the pyramid resampled at its centre",
-        )
-        self.measured = 0
-        self.worst = 0.0
-        self.mean_sum = 0.0
         self._files: dict[int, Any] = {}
 
-    def _choices(self, z: int, y: int, size: int) -> list[tuple[int, int]]:
+    def choices(self, z: int, y: int, size: int) -> list[tuple[int, int]]:
         """(level, block factor) the tile may sample: the rule's, and its neighbour when the
         pixel size lies within 1 % of a boundary."""
         n = 2**z
@@ -388,23 +379,77 @@ class _Colours:
         out[~inside] = 0.0
         return out
 
+    def candidates(self, z: int, x: int, y: int, size: int) -> list[np.ndarray]:
+        """The (size, size, 4) premultiplied pixels of tile (z, x, y) for each level it may
+        sample (``choices``)."""
+        lon, lat = pixel_centres(self.tiling, z, x, y, size)
+        px, py = _transformer("EPSG:4326", self.crs).transform(lon, lat)
+        px, py = np.asarray(px), np.asarray(py)
+        return [self.expected(k, f, px, py) for k, f in self.choices(z, y, size)]
+
+    def close(self) -> None:
+        for ds in self._files.values():
+            ds.close()
+
+
+def drape_folders(textures: Any) -> tuple[Path, tuple[Path, int] | None]:
+    """(base folder, (detail folder, zoom) or None) of ``textures``: a pyramid folder, an open
+    TexturePyramid, or a DetailTextures (a detail laid over its base from zoom ``level``)."""
+    detail = getattr(textures, "detail", None)
+    if detail is not None:
+        return Path(textures.base.folder), (Path(detail.folder), int(textures.level))
+    return Path(getattr(textures, "folder", textures)), None
+
+
+class _Colours:
+    """Imagery tiles' pixels against the texture pyramid they were cut from, resampled here
+    (``_Sampler``); from the detail's zoom on, the detail pyramid's pixels laid over the
+    base's (premultiplied Porter-Duff over), as the writer does.
+
+    Compared premultiplied (what a client composites; JPEG has the texture over black), per
+    channel 0..255, the tolerance ``tolerance(format)``: rounding of the tile's pixels and of
+    the pyramid's own halvings for PNG, the codec's loss for WEBP and JPEG (a mean and a
+    worst). A pixel size within 1 % of a level's boundary may have gone either way: the tile
+    passes if either level matches.
+    """
+
+    def __init__(self, textures: Any, meta: dict[str, Any], report: VerifyReport) -> None:
+        base, detail = drape_folders(textures)
+        tiling = meta.get("tiling", "webmercator")
+        self.base = _Sampler(base, tiling)
+        self.detail = None if detail is None else _Sampler(detail[0], tiling)
+        self.detail_zoom = 0 if detail is None else detail[1]
+        self.format = meta.get("format", "png")
+        self.mean_limit, self.worst_limit = COLOUR_TOLERANCE[self.format]
+        self.report = report
+        over = "" if detail is None else f", the detail's laid over it from zoom {detail[1]}"
+        self.check = report.check(
+            "colours",
+            f"every pixel, premultiplied, within {self.worst_limit} (mean within "
+            f"{self.mean_limit}) of the pyramid resampled at its centre{over}",
+        )
+        self.measured = 0
+        self.worst = 0.0
+        self.mean_sum = 0.0
+
     def tile(self, address: str, z: int, x: int, y: int, pixels: np.ndarray) -> None:
         size = pixels.shape[0]
         bands = pixels[None] if pixels.ndim == 2 else np.moveaxis(pixels, -1, 0)
         got = np.moveaxis(_as_rgba(bands.astype(np.float64)), 0, -1)
         got[..., :3] *= got[..., 3:] / 255.0
-        lon, lat = pixel_centres(self.tiling, z, x, y, size)
-        px, py = _transformer("EPSG:4326", self.crs).transform(lon, lat)
-        px, py = np.asarray(px), np.asarray(py)
+        wanted = self.base.candidates(z, x, y, size)
+        if self.detail is not None and z >= self.detail_zoom:
+            # Every pairing of the levels either pyramid may sample: the detail over the base.
+            tops = self.detail.candidates(z, x, y, size)
+            wanted = [top + low * (1.0 - top[..., 3:] / 255.0) for top in tops for low in wanted]
         # The smallest (worst, mean) difference over the levels the tile may sample.
         found = []
-        for k, factor in self._choices(z, y, size):
-            want = self.expected(k, factor, px, py)
+        for i, want in enumerate(wanted):
             if self.format == "jpeg":
                 # No alpha in JPEG: the premultiplied colour is the texture over black.
                 want[..., 3] = got[..., 3]
             diff = np.abs(got - want)
-            found.append((float(diff.max()), float(diff.mean()), k, diff))
+            found.append((float(diff.max()), float(diff.mean()), i, diff))
         worst, mean, _, diff = min(found, key=lambda f: f[:3])
         self.check.items += 1
         self.measured += size * size
@@ -416,8 +461,9 @@ class _Colours:
             self.check.fail(where, self.worst_limit, round(worst, 3), round(mean, 3))
 
     def finish(self) -> None:
-        for ds in self._files.values():
-            ds.close()
+        self.base.close()
+        if self.detail is not None:
+            self.detail.close()
         self.report.figures["pixels_measured"] = self.measured
         self.report.figures["worst_colour_difference"] = self.worst
         self.report.figures["mean_colour_difference"] = self.mean_sum / max(self.measured, 1)
