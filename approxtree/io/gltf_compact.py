@@ -43,6 +43,8 @@ from typing import Any
 import numpy as np
 
 from approxtree.errors import ApproxTreeError, InvalidParameterError
+from approxtree.kernels import mesh_normals
+from approxtree.kernels._jit import readonly
 
 #: Compressions of 3D Tiles content: lattice positions compressed, or float32 positions.
 COMPRESSIONS = ("draco", "meshopt", "none")
@@ -310,19 +312,7 @@ def _draco_primitive(
 def oct_filter(normals: np.ndarray) -> np.ndarray:
     """(n, 4) int8 of unit vectors (n, 3) as meshopt's OCTAHEDRAL filter stores them at 8 bits
     (meshopt_encodeFilterOct): octahedral x, y in ±127, then 127 (the filter's one), then 0."""
-    n = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
-    length = np.abs(n).sum(axis=1, keepdims=True)
-    n = n / np.where(length > 0, length, 1.0)
-    x, y, z = n[:, 0], n[:, 1], n[:, 2]
-    u = np.where(z >= 0, x, (1.0 - np.abs(y)) * np.copysign(1.0, x))
-    v = np.where(z >= 0, y, (1.0 - np.abs(x)) * np.copysign(1.0, y))
-    out = np.zeros((len(n), 4), dtype=np.int8)
-    # meshopt_quantizeSnorm: round half away from zero.
-    for k, c in enumerate((u, v)):
-        c = np.clip(c, -1.0, 1.0) * 127.0
-        out[:, k] = np.trunc(c + np.copysign(0.5, c))
-    out[:, 2] = 127
-    return out
+    return mesh_normals.oct_filter(readonly(np.asarray(normals).reshape(-1, 3), np.float64))
 
 
 def _meshopt_order(parts: list[np.ndarray], n: int) -> tuple[np.ndarray, list[np.ndarray]]:
