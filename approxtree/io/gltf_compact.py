@@ -36,6 +36,7 @@ with meshopt's index-sequence codec.
 
 from __future__ import annotations
 
+import functools
 import json
 import struct
 from typing import Any
@@ -43,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from approxtree.errors import ApproxTreeError, InvalidParameterError
+from approxtree.io.gltf import column_bounds
 from approxtree.kernels import mesh_normals
 from approxtree.kernels._jit import readonly
 
@@ -53,6 +55,8 @@ MAX_BITS = {"draco": 24, "meshopt": 16}
 #: Draco's effort (0 fastest .. 10 smallest): level 4 wrote NC tiles with normals smaller
 #: (4.9 KB) and faster (0.66 ms) than 7 (5.3 KB, 0.93 ms).
 DRACO_LEVEL = 4
+#: Triangle orders kept for reuse (``_strip_order``): a grid's tree has a few topologies.
+STRIP_ORDERS = 64
 DRACO_NORMAL_BITS = 8
 DRACO_UV_BITS = 14
 #: glTF enums.
@@ -271,6 +275,7 @@ def _draco_primitive(
     ids = {a["attribute_type"]: a["unique_id"] for a in mesh.attributes}
     decoded = np.asarray(mesh.points, dtype=np.float64).reshape(-1, 3)
     count = len(decoded)
+    low, high = column_bounds(decoded)
     faces = np.asarray(mesh.faces).reshape(-1, 3)
     at, length = doc.bin(data)
     view = doc.view({"buffer": 0, "byteOffset": at, "byteLength": length})
@@ -280,8 +285,8 @@ def _draco_primitive(
             "componentType": _FLOAT,
             "count": count,
             "type": "VEC3",
-            "min": [float(v) for v in decoded.min(axis=0)],
-            "max": [float(v) for v in decoded.max(axis=0)],
+            "min": [float(v) for v in low],
+            "max": [float(v) for v in high],
         }
     )
     normal = doc.accessor({"componentType": _FLOAT, "count": count, "type": "VEC3"})
@@ -316,24 +321,40 @@ def oct_filter(normals: np.ndarray) -> np.ndarray:
 
 
 def _meshopt_order(parts: list[np.ndarray], n: int) -> tuple[np.ndarray, list[np.ndarray]]:
-    """(remap (n,): new index of each vertex, each part's triangles (m, 3) in new indices):
-    each part's triangles in strip order, vertices in order of first use (meshoptimizer).
+    """(remap (n,): new index of each vertex, each part's triangles (m, 3) in new indices),
+    both int64 and read-only: each part's triangles in strip order, vertices in order of
+    first use (meshoptimizer).
 
     Strip order (what gltfpack uses for compressed output) rather than the vertex-cache
     order: the index codec and the vertex deltas compress better and it is quicker (NC:
-    10.5 KB per tile against 11.6, 0.61 s against 0.64 for 341 tiles)."""
+    10.5 KB per tile against 11.6, 0.61 s against 0.64 for 341 tiles). It depends on the
+    triangles alone, and the patches of a grid's tree share a few of them (lattices of the
+    same rows × columns, the same walls): each is ordered once (``_strip_order``)."""
+    flats = tuple(np.ascontiguousarray(t.ravel(), dtype=np.uint32).tobytes() for t in parts)
+    return _strip_order(flats, n)
+
+
+@functools.lru_cache(maxsize=STRIP_ORDERS)
+def _strip_order(flats: tuple[bytes, ...], n: int) -> tuple[np.ndarray, list[np.ndarray]]:
+    """``_meshopt_order`` of the parts' uint32 indices ``flats`` over n vertices; a
+    meshoptimizer strip order costs about 0.1 ms a tile, this cache's lookup a hash of the
+    indices (its arrays are read-only: every caller shares them)."""
     import meshoptimizer
 
     cached = []
-    for tris in parts:
-        flat = np.ascontiguousarray(tris.ravel(), dtype=np.uint32)
-        out = np.zeros_like(flat)
-        meshoptimizer.optimize_vertex_cache_strip(out, flat, len(flat), n)
+    for flat in flats:
+        indices = np.frombuffer(flat, dtype=np.uint32)
+        out = np.zeros_like(indices)
+        meshoptimizer.optimize_vertex_cache_strip(out, indices, len(indices), n)
         cached.append(out)
     every = np.concatenate(cached)
     remap = np.zeros(n, dtype=np.uint32)
     meshoptimizer.optimize_vertex_fetch_remap(remap, every, len(every), n)
-    return remap.astype(np.int64), [remap[c].astype(np.int64).reshape(-1, 3) for c in cached]
+    wide = remap.astype(np.int64)
+    faces = [wide[c].reshape(-1, 3) for c in cached]
+    for a in (wide, *faces):
+        a.flags.writeable = False
+    return wide, faces
 
 
 def _meshopt_view(
@@ -397,6 +418,7 @@ def _meshopt_primitives(
     # Positions: unsigned shorts padded to 8 bytes (the codec wants strides of 4).
     pos = np.zeros((n, 4), dtype="<u2")
     pos[:, :3] = q[order]
+    low, high = column_bounds(q)
     view = _meshopt_view(doc, _vertex_codec(pos), n, 8, "ATTRIBUTES", _ARRAY_BUFFER)
     position = doc.accessor(
         {
@@ -405,8 +427,8 @@ def _meshopt_primitives(
             "normalized": normalized,
             "count": n,
             "type": "VEC3",
-            "min": [int(v) for v in pos[:, :3].min(axis=0)],
-            "max": [int(v) for v in pos[:, :3].max(axis=0)],
+            "min": [int(v) for v in low],
+            "max": [int(v) for v in high],
         }
     )
     octs = oct_filter(np.asarray(normals)[order])

@@ -92,3 +92,19 @@ def region_extent(geo, points, triangles):
             dz = points[a, 2] - points[b, 2]
             chord2 = max(chord2, dx * dx + dy * dy + dz * dz)
     return low, high, math.sqrt(chord2), extreme
+
+
+@njit(cache=True)
+def column_bounds(points):
+    """(low (3,), high (3,)) per column of ``points`` (n >= 1, 3), in its dtype: numpy's
+    ``min(axis=0)`` and ``max(axis=0)`` take tens of microseconds on 3 columns."""
+    low = points[0].copy()
+    high = points[0].copy()
+    for i in range(1, points.shape[0]):
+        for c in range(3):
+            v = points[i, c]
+            if v < low[c]:
+                low[c] = v
+            if v > high[c]:
+                high[c] = v
+    return low, high

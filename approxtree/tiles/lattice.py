@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from approxtree.io.gltf import column_bounds
 from approxtree.kernels import tile_bounds
 from approxtree.kernels._jit import readonly
 from approxtree.tiles.earth import WGS84_A, WGS84_B
@@ -178,8 +179,8 @@ def fit_lattice(
     skirts left out since their walls claim nothing, or ``geographic_factor``).
     """
     local = np.asarray(rel, dtype=np.float64) @ rotation
-    origin = local.min(axis=0)
-    extent = max(float((local.max(axis=0) - origin).max()), 1e-9)
+    origin, top = column_bounds(local)
+    extent = max(float((top - origin).max()), 1e-9)
     if not math.isfinite(k):
         return None
     # The coarsest power of two within the budget, then refined until it fits the bits.

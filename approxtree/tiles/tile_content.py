@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from approxtree.geometry.rect import Rect
-from approxtree.io.gltf import glb_bytes, y_up
+from approxtree.io.gltf import column_bounds, glb_bytes, y_up
 from approxtree.io.gltf_compact import MAX_BITS, compact_glb
 from approxtree.kernels import mesh_normals, skirt_walls, tile_bounds
 from approxtree.kernels._jit import readonly
@@ -177,7 +177,8 @@ class NodeWriter:
         faces, normals = mesh_normals.surface_normals(
             readonly(points), readonly(tris, np.int64), surface, readonly(tops, np.int64)
         )
-        center = (points.min(axis=0) + points.max(axis=0)) / 2
+        low, high = column_bounds(points)
+        center = (low + high) / 2
         uvs = image = None
         mime = "image/png"
         if self.pyramid is not None:
@@ -219,7 +220,7 @@ class NodeWriter:
         if geo is not None:
             low, high = region(geo, stored, tris[:surface], moved)
         else:
-            low, high = stored.min(axis=0), stored.max(axis=0)
+            low, high = column_bounds(stored)
         content = TileContent(
             i, center, low, high, len(data), len(verts), len(tris), rounding, bits
         )
