@@ -419,9 +419,9 @@ def _meshopt_primitives(
     order[remap] = np.arange(n)
     doc.used.extend(["EXT_meshopt_compression", "KHR_mesh_quantization"])
     # Positions: unsigned shorts padded to 8 bytes (the codec wants strides of 4).
-    pos = np.zeros((n, 4), dtype="<u2")
-    pos[:, :3] = q[order]
-    low, high = column_bounds(q)
+    pos, octs, low, high = mesh_normals.meshopt_vertices(
+        readonly(q, np.int64), readonly(np.asarray(normals), np.float64), readonly(order)
+    )
     view = _meshopt_view(doc, _vertex_codec(pos), n, 8, "ATTRIBUTES", _ARRAY_BUFFER)
     position = doc.accessor(
         {
@@ -434,7 +434,6 @@ def _meshopt_primitives(
             "max": [int(v) for v in high],
         }
     )
-    octs = oct_filter(np.asarray(normals)[order])
     view = _meshopt_view(
         doc,
         _vertex_codec(octs.view(np.uint8)),

@@ -56,29 +56,57 @@ def vertex_normals(count, triangles, faces):
     return out
 
 
+@njit(cache=True, inline="always")
+def _oct_bytes(x, y, z, out, i):
+    """Row i of ``oct_filter``'s output ``out`` from the unit vector (x, y, z)."""
+    length = abs(x) + abs(y) + abs(z)
+    if length > 0:
+        x, y, z = x / length, y / length, z / length
+    if z >= 0:
+        u, v = x, y
+    else:
+        u = (1.0 - abs(y)) * math.copysign(1.0, x)
+        v = (1.0 - abs(x)) * math.copysign(1.0, y)
+    u = min(max(u, -1.0), 1.0) * 127.0
+    v = min(max(v, -1.0), 1.0) * 127.0
+    out[i, 0] = np.int8(math.trunc(u + math.copysign(0.5, u)))
+    out[i, 1] = np.int8(math.trunc(v + math.copysign(0.5, v)))
+    out[i, 2] = 127
+    out[i, 3] = 0
+
+
 @njit(cache=True)
 def oct_filter(normals):
     """(n, 4) int8 of unit vectors ``normals`` (n, 3) float64 as meshopt's OCTAHEDRAL filter
     stores them at 8 bits: octahedral x, y in ±127 (rounded half away from zero, as
     meshopt_quantizeSnorm), then 127, then 0."""
     n = normals.shape[0]
-    out = np.zeros((n, 4), dtype=np.int8)
+    out = np.empty((n, 4), dtype=np.int8)
     for i in range(n):
-        x, y, z = normals[i, 0], normals[i, 1], normals[i, 2]
-        length = abs(x) + abs(y) + abs(z)
-        if length > 0:
-            x, y, z = x / length, y / length, z / length
-        if z >= 0:
-            u, v = x, y
-        else:
-            u = (1.0 - abs(y)) * math.copysign(1.0, x)
-            v = (1.0 - abs(x)) * math.copysign(1.0, y)
-        u = min(max(u, -1.0), 1.0) * 127.0
-        v = min(max(v, -1.0), 1.0) * 127.0
-        out[i, 0] = np.int8(math.trunc(u + math.copysign(0.5, u)))
-        out[i, 1] = np.int8(math.trunc(v + math.copysign(0.5, v)))
-        out[i, 2] = 127
+        _oct_bytes(normals[i, 0], normals[i, 1], normals[i, 2], out, i)
     return out
+
+
+@njit(cache=True)
+def meshopt_vertices(lattice, normals, order):
+    """(positions (n, 4) uint16, octahedral normals (n, 4) int8, low (3,), high (3,)) of a
+    meshopt vertex buffer: vertex ``order[i]`` (n,) int64 of ``lattice`` (n, 3) int64
+    (0 <= values < 2^16) and unit ``normals`` (n, 3) float64 as row i, positions padded to 8
+    bytes (the codec wants strides of 4), low and high the lattice's bounds per axis."""
+    n = order.shape[0]
+    pos = np.zeros((n, 4), dtype=np.uint16)
+    octs = np.empty((n, 4), dtype=np.int8)
+    low = np.full(3, np.iinfo(np.int64).max)
+    high = np.full(3, np.iinfo(np.int64).min)
+    for i in range(n):
+        j = order[i]
+        for c in range(3):
+            value = lattice[j, c]
+            pos[i, c] = np.uint16(value)
+            low[c] = min(low[c], value)
+            high[c] = max(high[c], value)
+        _oct_bytes(normals[j, 0], normals[j, 1], normals[j, 2], octs, i)
+    return pos, octs, low, high
 
 
 @njit(cache=True)

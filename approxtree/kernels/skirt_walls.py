@@ -166,3 +166,30 @@ def skirt_mesh(vertices, triangles, rect, domain, depth, base):
             edges = edges[inner]
             outer = outer[inner]
     return hang_walls(vertices, triangles, edges, outer, depth, base)
+
+
+@njit(cache=True)
+def merge_mesh(vertices, triangles, tops):
+    """(vertices (n', 3), triangles (m, 3), tops (k',)) of a patch with wall bottoms (the last
+    k of ``vertices`` (n, 3) float64, hanging from patch vertices ``tops`` (k,) int64) whose
+    bottoms of equal top and height are made one (``merge_bottoms``; the kept ones in
+    order). triangles: (m, 3) int64."""
+    k = tops.shape[0]
+    top = vertices.shape[0] - k
+    keep, owner = merge_bottoms(vertices[top:, 2].copy(), tops, top)
+    out = np.empty((top + keep.shape[0], 3), dtype=np.float64)
+    for i in range(top):
+        for c in range(3):
+            out[i, c] = vertices[i, c]
+    for j in range(keep.shape[0]):
+        for c in range(3):
+            out[top + j, c] = vertices[top + keep[j], c]
+    tris = np.empty_like(triangles)
+    for i in range(triangles.shape[0]):
+        for c in range(3):
+            v = triangles[i, c]
+            tris[i, c] = v if v < top else top + owner[v - top]
+    new_tops = np.empty(keep.shape[0], dtype=np.int64)
+    for j in range(keep.shape[0]):
+        new_tops[j] = tops[keep[j]]
+    return out, tris, new_tops

@@ -270,11 +270,10 @@ def merge_bottoms(
     (vertices, triangles, tops)."""
     if not len(tops):
         return verts, tris, tops
-    top = len(verts) - len(tops)
     # A bottom equal to one before it (same top vertex, same height) joins that one.
-    keep, owner = skirt_walls.merge_bottoms(readonly(verts[top:, 2]), readonly(tops, np.int64), top)
-    new = np.concatenate([np.arange(top), top + owner])
-    return np.concatenate([verts[:top], verts[top + keep]]), new[tris], tops[keep]
+    return skirt_walls.merge_mesh(
+        readonly(verts, np.float64), readonly(tris, np.int64), readonly(tops, np.int64)
+    )
 
 
 def region(geo: np.ndarray, points: np.ndarray, surface: np.ndarray, moved: float = 0.0):
