@@ -96,15 +96,21 @@ def meshopt_vertices(lattice, normals, order):
     n = order.shape[0]
     pos = np.zeros((n, 4), dtype=np.uint16)
     octs = np.empty((n, 4), dtype=np.int8)
-    low = np.full(3, np.iinfo(np.int64).max)
-    high = np.full(3, np.iinfo(np.int64).min)
+    low = np.zeros(3, dtype=np.int64)
+    high = np.zeros(3, dtype=np.int64)
+    for c in range(3):
+        if n:
+            low[c] = lattice[order[0], c]
+            high[c] = lattice[order[0], c]
     for i in range(n):
         j = order[i]
         for c in range(3):
             value = lattice[j, c]
-            pos[i, c] = np.uint16(value)
-            low[c] = min(low[c], value)
-            high[c] = max(high[c], value)
+            pos[i, c] = value
+            if value < low[c]:
+                low[c] = value
+            if value > high[c]:
+                high[c] = value
         _oct_bytes(normals[j, 0], normals[j, 1], normals[j, 2], octs, i)
     return pos, octs, low, high
 
