@@ -176,7 +176,11 @@ def plot(report: dict, out: Path) -> None:
             tiles = row[v]["tiles_per_second"] * statistics.median(row["runs"][v])
             axes[0, j].plot([k] * len(row["runs"][v]), [tiles / s for s in row["runs"][v]], "k.")
             axes[0, j].annotate(
-                f"{row[v]['tiles_per_second_vs_baseline']:.2f}×", (k, tps[k]), ha="center"
+                f"{row[v]['tiles_per_second_vs_baseline']:.2f}×",
+                (k, max(tps[k], tiles / min(row["runs"][v]))),
+                xytext=(0, 4),
+                textcoords="offset points",
+                ha="center",
             )
         axes[0, j].set(title=row["tree"], ylabel="tiles/s (serial, median)", xticks=list(x))
         axes[0, j].set_xticklabels(labels)
