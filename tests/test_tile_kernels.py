@@ -183,7 +183,7 @@ def test_region_matches_numpy_extent():
     rng = np.random.default_rng(9)
     v, t = _grid_mesh(6, 6, rng)
     geo = np.column_stack([-79.0 + v[:, 0] * 1e-5, 35.5 + v[:, 1] * 1e-5, 100.0 + v[:, 2]])
-    points = v + [6.3e6, 0.0, 0.0]
+    points = v + np.array([6.3e6, 0.0, 0.0])
     low, high = region(geo, points, t, 0.25)
     e = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
     d = points[e[:, 0]] - points[e[:, 1]]

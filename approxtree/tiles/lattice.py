@@ -125,7 +125,7 @@ def bound_factor(
         readonly(faces, np.float64),
         readonly(np.asarray(triangles).reshape(-1, 3), np.int64),
         up,
-        readonly(normals if per_vertex else _NO_NORMALS, np.float64),
+        readonly(normals if normals is not None else _NO_NORMALS, np.float64),
         per_vertex,
     )
     alpha = math.acos(min(max(cos_alpha, -1.0), 1.0))
