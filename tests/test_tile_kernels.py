@@ -1,4 +1,4 @@
-"""The per-tile kernels (skirts, normals, octahedral bytes, lattice, region) against numpy.
+"""The per-tile kernels (skirts, normals, meshopt vertex rows, lattice, region) against numpy.
 
 The 3D Tiles writer and the renderer's loads call these once per node; they replaced numpy
 code of the same results, which is recomputed here on random meshes (including holes, so
@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from approxtree.io.gltf import face_normals, vertex_normals
-from approxtree.io.gltf_compact import oct_filter
 from approxtree.kernels import mesh_normals
 from approxtree.patches.skirts import add_skirts, border_edges
 from approxtree.tiles.lattice import fit_lattice
@@ -145,17 +144,24 @@ def test_normals_match_numpy_cross_and_bincount():
     np.testing.assert_array_equal(n[len(v) :], n[tops])
 
 
-def test_oct_filter_matches_numpy_quantization():
-    """Octahedral bytes equal the numpy rounding (half away from zero) of meshopt's filter."""
+def test_meshopt_vertices_match_numpy_quantization():
+    """meshopt's vertex rows: the lattice in the given order as shorts, its bounds, and the
+    normals' octahedral bytes as numpy rounds meshopt's filter (half away from zero)."""
     rng = np.random.default_rng(2)
     n = rng.normal(size=(500, 3))
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     n[:3] = [(0.0, 0.0, 1.0), (0.0, 0.0, -1.0), (1.0, 0.0, 0.0)]
-    s = n / np.abs(n).sum(axis=1, keepdims=True)
+    q = rng.integers(3, 65536, (500, 3))
+    order = rng.permutation(500)
+    pos, got, low, high = mesh_normals.meshopt_vertices(q, n, order)
+    np.testing.assert_array_equal(pos[:, :3], q[order])
+    assert pos.dtype == np.uint16 and (pos[:, 3] == 0).all()
+    np.testing.assert_array_equal(low, q.min(axis=0))
+    np.testing.assert_array_equal(high, q.max(axis=0))
+    s = n[order] / np.abs(n[order]).sum(axis=1, keepdims=True)
     x, y, z = s.T
     u = np.where(z >= 0, x, (1.0 - np.abs(y)) * np.copysign(1.0, x))
     w = np.where(z >= 0, y, (1.0 - np.abs(x)) * np.copysign(1.0, y))
-    got = oct_filter(n)
     for k, c in enumerate((u, w)):
         c = np.clip(c, -1.0, 1.0) * 127.0
         np.testing.assert_array_equal(got[:, k], np.trunc(c + np.copysign(0.5, c)))

@@ -317,12 +317,6 @@ def _draco_primitive(
 # meshopt
 
 
-def oct_filter(normals: np.ndarray) -> np.ndarray:
-    """(n, 4) int8 of unit vectors (n, 3) as meshopt's OCTAHEDRAL filter stores them at 8 bits
-    (meshopt_encodeFilterOct): octahedral x, y in ±127, then 127 (the filter's one), then 0."""
-    return mesh_normals.oct_filter(readonly(np.asarray(normals).reshape(-1, 3), np.float64))
-
-
 def _meshopt_order(parts: list[np.ndarray], n: int) -> tuple[np.ndarray, list[np.ndarray]]:
     """(remap (n,): new index of each vertex, each part's triangles (m, 3) in new indices),
     both int64 and read-only: each part's triangles in strip order, vertices in order of

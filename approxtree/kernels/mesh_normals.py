@@ -58,7 +58,9 @@ def vertex_normals(count, triangles, faces):
 
 @njit(cache=True, inline="always")
 def _oct_bytes(x, y, z, out, i):
-    """Row i of ``oct_filter``'s output ``out`` from the unit vector (x, y, z)."""
+    """Row i of ``out`` (n, 4) int8: the unit vector (x, y, z) as meshopt's OCTAHEDRAL filter
+    stores it at 8 bits: octahedral x, y in ±127 (rounded half away from zero, as
+    meshopt_quantizeSnorm), then 127, then 0."""
     length = abs(x) + abs(y) + abs(z)
     if length > 0:
         x, y, z = x / length, y / length, z / length
@@ -73,18 +75,6 @@ def _oct_bytes(x, y, z, out, i):
     out[i, 1] = np.int8(math.trunc(v + math.copysign(0.5, v)))
     out[i, 2] = 127
     out[i, 3] = 0
-
-
-@njit(cache=True)
-def oct_filter(normals):
-    """(n, 4) int8 of unit vectors ``normals`` (n, 3) float64 as meshopt's OCTAHEDRAL filter
-    stores them at 8 bits: octahedral x, y in ±127 (rounded half away from zero, as
-    meshopt_quantizeSnorm), then 127, then 0."""
-    n = normals.shape[0]
-    out = np.empty((n, 4), dtype=np.int8)
-    for i in range(n):
-        _oct_bytes(normals[i, 0], normals[i, 1], normals[i, 2], out, i)
-    return out
 
 
 @njit(cache=True)
