@@ -14,12 +14,15 @@ fixed size of 65 × 65 × 2 + 2 = 8452 bytes before gzip (the format's size, not
 measurement).
 
 With ``--baseline CHECKOUT`` (a git worktree of an earlier commit) each serial write runs in
-a fresh subprocess instead, the baseline's (its own code on PYTHONPATH, float32 content) and
-ours per compression taking turns, repeat after repeat: the tiles/s ratios compare writes
-that met the same load. Results go to benchmarks/results/tiles.json.
+a fresh subprocess instead, the baseline's (its own code on PYTHONPATH, writing
+``--baseline-compression``: ``none``, its float32 content, by default; ``default`` for a
+checkout older than the option) and ours per compression taking turns, repeat after repeat:
+the tiles/s ratios compare writes that met the same load. Results go to
+benchmarks/results/tiles.json; ``--plot`` draws tiles/s and bytes per tile of each variant.
 
     python benchmarks/bench_tiles.py [--fractal-size 4097] [--workers 2] [--repeats 3]
-        [--compressions draco,meshopt,none] [--baseline /tmp/base-checkout]
+        [--compressions meshopt,draco,none] [--baseline /tmp/base-checkout]
+        [--baseline-compression none] [--plot]
 """
 
 from __future__ import annotations
@@ -101,7 +104,10 @@ import json, sys, time
 import approxtree as at
 from approxtree.tiles import write_3dtiles
 tree = at.load_tree(sys.argv[1], verify=False)
-kwargs = {} if sys.argv[3] == "baseline" else {"compression": sys.argv[3]}
+variant = sys.argv[3]
+kwargs = {"compression": sys.argv[4] if variant == "baseline" else variant}
+if kwargs["compression"] == "default":
+    kwargs = {}
 t0 = time.perf_counter()
 figures = write_3dtiles(tree, sys.argv[2], **kwargs)
 print(json.dumps({"seconds": time.perf_counter() - t0, "tiles": figures["tiles"],
@@ -109,8 +115,12 @@ print(json.dumps({"seconds": time.perf_counter() - t0, "tiles": figures["tiles"]
 """
 
 
-def _against(name: str, store: Path, baseline: Path, compressions, repeats, folder) -> dict:
-    """Serial writes in subprocesses, baseline and ours per compression taking turns."""
+def _against(
+    name: str, store: Path, baseline: Path, base_compression: str, compressions, repeats, folder
+) -> dict:
+    """Serial writes in subprocesses, baseline and ours per compression taking turns; the
+    baseline writes ``base_compression`` (``default``: its default, for a checkout older than
+    the ``compression`` argument)."""
     variants = ["baseline", *compressions]
     runs: dict[str, list[dict]] = {v: [] for v in variants}
     for _ in range(repeats):
@@ -119,7 +129,7 @@ def _against(name: str, store: Path, baseline: Path, compressions, repeats, fold
             env = dict(os.environ, PYTHONPATH=str(baseline if variant == "baseline" else REPO))
             # cwd: not the repository, whose approxtree would shadow the baseline's.
             done = subprocess.run(
-                [sys.executable, "-c", _WORKER, str(store), str(out), variant],
+                [sys.executable, "-c", _WORKER, str(store), str(out), variant, base_compression],
                 env=env,
                 cwd=folder,
                 capture_output=True,
@@ -128,7 +138,11 @@ def _against(name: str, store: Path, baseline: Path, compressions, repeats, fold
             )
             runs[variant].append(json.loads(done.stdout.strip().splitlines()[-1]))
             shutil.rmtree(out)
-    row: dict = {"tree": name, "runs": {v: [r["seconds"] for r in rs] for v, rs in runs.items()}}
+    row: dict = {
+        "tree": name,
+        "baseline_compression": base_compression,
+        "runs": {v: [r["seconds"] for r in rs] for v, rs in runs.items()},
+    }
     base = statistics.median(r["seconds"] for r in runs["baseline"])
     for variant, rs in runs.items():
         seconds = statistics.median(r["seconds"] for r in rs)
@@ -140,14 +154,54 @@ def _against(name: str, store: Path, baseline: Path, compressions, repeats, fold
     return row
 
 
+def plot(report: dict, out: Path) -> None:
+    """Per tree of a ``--baseline`` run: tiles/s (median, and each run as a dot) and bytes per
+    tile of the baseline and of each compression."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [r for r in report["results"] if "baseline_compression" in r]
+    fig, axes = plt.subplots(2, len(rows), figsize=(5.0 * len(rows), 6.5), squeeze=False)
+    for j, row in enumerate(rows):
+        variants = list(row["runs"])
+        labels = [
+            f"main ({row['baseline_compression']})" if v == "baseline" else v for v in variants
+        ]
+        x = range(len(variants))
+        tps = [row[v]["tiles_per_second"] for v in variants]
+        axes[0, j].bar(x, tps, color=["grey"] + ["C0"] * (len(variants) - 1))
+        for k, v in enumerate(variants):
+            tiles = row[v]["tiles_per_second"] * statistics.median(row["runs"][v])
+            axes[0, j].plot([k] * len(row["runs"][v]), [tiles / s for s in row["runs"][v]], "k.")
+            axes[0, j].annotate(
+                f"{row[v]['tiles_per_second_vs_baseline']:.2f}×",
+                (k, max(tps[k], tiles / min(row["runs"][v]))),
+                xytext=(0, 4),
+                textcoords="offset points",
+                ha="center",
+            )
+        axes[0, j].set(title=row["tree"], ylabel="tiles/s (serial, median)", xticks=list(x))
+        axes[0, j].set_xticklabels(labels)
+        axes[1, j].bar(x, [row[v]["bytes_per_tile"] for v in variants], color="C1")
+        axes[1, j].set(ylabel="bytes per tile (GLB)", yscale="log", xticks=list(x))
+        axes[1, j].set_xticklabels(labels)
+    fig.suptitle(f"3D Tiles writes, {report['machine']['cpus']} CPUs, load {report['load'][0]:.1f}")
+    fig.tight_layout()
+    fig.savefig(out, dpi=100)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--fractal-size", type=int, default=4097)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--compressions", default="draco,meshopt,none")
+    parser.add_argument("--compressions", default="meshopt,draco,none")
     parser.add_argument("--baseline", type=Path, default=None)
+    parser.add_argument("--baseline-compression", default="none")
     parser.add_argument("--out", type=Path, default=RESULTS / "tiles.json")
+    parser.add_argument("--plot", action="store_true", help="also write the JSON's .png")
     args = parser.parse_args()
     compressions = args.compressions.split(",")
 
@@ -168,7 +222,15 @@ def main() -> None:
         for name, terrain in trees:
             tree, build, store = _tree(name, terrain, 1.0, folder)
             if args.baseline is not None:
-                row = _against(name, store, args.baseline, compressions, args.repeats, folder)
+                row = _against(
+                    name,
+                    store,
+                    args.baseline,
+                    args.baseline_compression,
+                    compressions,
+                    args.repeats,
+                    folder,
+                )
                 results.append(row)
                 print(json.dumps({k: v for k, v in row.items() if k != "runs"}))
                 continue
@@ -182,11 +244,15 @@ def main() -> None:
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
         "load": os.getloadavg(),
         "baseline": str(args.baseline) if args.baseline else None,
+        "baseline_compression": args.baseline_compression if args.baseline else None,
         "results": results,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=2))
     print(f"wrote {args.out}")
+    if args.plot and args.baseline is not None:
+        plot(report, args.out.with_suffix(".png"))
+        print(f"wrote {args.out.with_suffix('.png')}")
 
 
 if __name__ == "__main__":

@@ -17,6 +17,10 @@ from typing import Any
 
 import numpy as np
 
+from approxtree.kernels import mesh_normals
+from approxtree.kernels._jit import readonly
+from approxtree.kernels.tile_bounds import column_bounds as _column_bounds
+
 #: Column-major 4 × 4 matrix of the z-up → y-up rotation (x, y, z) → (x, z, −y), for a root node.
 Y_UP_MATRIX = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
 
@@ -36,10 +40,10 @@ def z_up(points: np.ndarray) -> np.ndarray:
 def face_normals(positions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """(m, 3) float64 cross products (b − a) × (c − a) of the triangles (m, 3): normals of
     twice the triangles' areas. positions: (n, 3) float64."""
-    p = np.asarray(positions, dtype=np.float64)
-    t = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
-    a = p[t[:, 0]]
-    return np.cross(p[t[:, 1]] - a, p[t[:, 2]] - a)
+    return mesh_normals.face_normals(
+        readonly(np.asarray(positions).reshape(-1, 3), np.float64),
+        readonly(np.asarray(triangles).reshape(-1, 3), np.int64),
+    )
 
 
 def vertex_normals(
@@ -48,19 +52,20 @@ def vertex_normals(
     """(n, 3) float64 unit area-weighted vertex normals of a mesh (up (0, 0, 1) where a vertex
     has no triangle). positions: (n, 3) float64; triangles: (m, 3) counter-clockwise; faces:
     their ``face_normals`` when already computed."""
-    p = np.asarray(positions, dtype=np.float64)
-    t = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
-    face = face_normals(p, t) if faces is None else faces
-    out = np.zeros_like(p)
-    # Sum each face's normal onto its three corners: one bincount per axis.
-    corners = t.ravel()
-    for axis in range(3):
-        out[:, axis] = np.bincount(corners, np.repeat(face[:, axis], 3), minlength=len(p))
-    length = np.linalg.norm(out, axis=1)
-    bad = ~(length > 0)
-    out[bad] = (0.0, 0.0, 1.0)
-    length[bad] = 1.0
-    return out / length[:, None]
+    face = face_normals(positions, triangles) if faces is None else faces
+    return mesh_normals.vertex_normals(
+        len(np.asarray(positions).reshape(-1, 3)),
+        readonly(np.asarray(triangles).reshape(-1, 3), np.int64),
+        readonly(face, np.float64),
+    )
+
+
+def column_bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(low (3,), high (3,)) per column of ``points`` (n, 3), in its dtype (as numpy's
+    ``min(axis=0)``, ``max(axis=0)``, which raise on n = 0; a loop, many times faster)."""
+    if not len(points):
+        return points.min(axis=0), points.max(axis=0)
+    return _column_bounds(readonly(points))
 
 
 #: glTF enums: component types, buffer view targets, sampler filters and wrap.
@@ -92,6 +97,7 @@ def glb_bytes(
     (the tests read every file back with pygltflib and trimesh and run the Khronos validator).
     """
     pos = np.ascontiguousarray(positions, dtype="<f4").reshape(-1, 3)
+    low, high = column_bounds(pos)
     nrm = np.ascontiguousarray(normals, dtype="<f4").reshape(-1, 3)
     # 16-bit indices when every vertex fits (a node's patch: always), else 32-bit.
     small = len(pos) <= 65535
@@ -113,8 +119,8 @@ def glb_bytes(
             "componentType": _FLOAT,
             "count": len(pos),
             "type": "VEC3",
-            "min": [float(v) for v in pos.min(axis=0)],
-            "max": [float(v) for v in pos.max(axis=0)],
+            "min": [float(v) for v in low],
+            "max": [float(v) for v in high],
         },
         {"bufferView": 2, "componentType": _FLOAT, "count": len(nrm), "type": "VEC3"},
     ]

@@ -36,6 +36,7 @@ with meshopt's index-sequence codec.
 
 from __future__ import annotations
 
+import functools
 import json
 import struct
 from typing import Any
@@ -43,14 +44,22 @@ from typing import Any
 import numpy as np
 
 from approxtree.errors import ApproxTreeError, InvalidParameterError
+from approxtree.io.gltf import column_bounds
+from approxtree.kernels import mesh_normals
+from approxtree.kernels._jit import readonly
 
 #: Compressions of 3D Tiles content: lattice positions compressed, or float32 positions.
 COMPRESSIONS = ("draco", "meshopt", "none")
+#: The default: meshopt writes as many tiles per second as float32 content did (Draco's
+#: encoder, GIL held, writes about half as many; its tiles are a third smaller).
+DEFAULT_COMPRESSION = "meshopt"
 #: Most lattice bits per axis each compression keeps exact.
 MAX_BITS = {"draco": 24, "meshopt": 16}
 #: Draco's effort (0 fastest .. 10 smallest): level 4 wrote NC tiles with normals smaller
 #: (4.9 KB) and faster (0.66 ms) than 7 (5.3 KB, 0.93 ms).
 DRACO_LEVEL = 4
+#: Triangle orders kept for reuse (``_strip_order``): a grid's tree has a few topologies.
+STRIP_ORDERS = 64
 DRACO_NORMAL_BITS = 8
 DRACO_UV_BITS = 14
 #: glTF enums.
@@ -269,6 +278,7 @@ def _draco_primitive(
     ids = {a["attribute_type"]: a["unique_id"] for a in mesh.attributes}
     decoded = np.asarray(mesh.points, dtype=np.float64).reshape(-1, 3)
     count = len(decoded)
+    low, high = column_bounds(decoded)
     faces = np.asarray(mesh.faces).reshape(-1, 3)
     at, length = doc.bin(data)
     view = doc.view({"buffer": 0, "byteOffset": at, "byteLength": length})
@@ -278,8 +288,8 @@ def _draco_primitive(
             "componentType": _FLOAT,
             "count": count,
             "type": "VEC3",
-            "min": [float(v) for v in decoded.min(axis=0)],
-            "max": [float(v) for v in decoded.max(axis=0)],
+            "min": [float(v) for v in low],
+            "max": [float(v) for v in high],
         }
     )
     normal = doc.accessor({"componentType": _FLOAT, "count": count, "type": "VEC3"})
@@ -307,43 +317,41 @@ def _draco_primitive(
 # meshopt
 
 
-def oct_filter(normals: np.ndarray) -> np.ndarray:
-    """(n, 4) int8 of unit vectors (n, 3) as meshopt's OCTAHEDRAL filter stores them at 8 bits
-    (meshopt_encodeFilterOct): octahedral x, y in ±127, then 127 (the filter's one), then 0."""
-    n = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
-    length = np.abs(n).sum(axis=1, keepdims=True)
-    n = n / np.where(length > 0, length, 1.0)
-    x, y, z = n[:, 0], n[:, 1], n[:, 2]
-    u = np.where(z >= 0, x, (1.0 - np.abs(y)) * np.copysign(1.0, x))
-    v = np.where(z >= 0, y, (1.0 - np.abs(x)) * np.copysign(1.0, y))
-    out = np.zeros((len(n), 4), dtype=np.int8)
-    # meshopt_quantizeSnorm: round half away from zero.
-    for k, c in enumerate((u, v)):
-        c = np.clip(c, -1.0, 1.0) * 127.0
-        out[:, k] = np.trunc(c + np.copysign(0.5, c))
-    out[:, 2] = 127
-    return out
-
-
 def _meshopt_order(parts: list[np.ndarray], n: int) -> tuple[np.ndarray, list[np.ndarray]]:
-    """(remap (n,): new index of each vertex, each part's triangles (m, 3) in new indices):
-    each part's triangles in strip order, vertices in order of first use (meshoptimizer).
+    """(remap (n,): new index of each vertex, each part's triangles (m, 3) in new indices),
+    both int64 and read-only: each part's triangles in strip order, vertices in order of
+    first use (meshoptimizer).
 
     Strip order (what gltfpack uses for compressed output) rather than the vertex-cache
     order: the index codec and the vertex deltas compress better and it is quicker (NC:
-    10.5 KB per tile against 11.6, 0.61 s against 0.64 for 341 tiles)."""
+    10.5 KB per tile against 11.6, 0.61 s against 0.64 for 341 tiles). It depends on the
+    triangles alone, and the patches of a grid's tree share a few of them (lattices of the
+    same rows × columns, the same walls): each is ordered once (``_strip_order``)."""
+    flats = tuple(np.ascontiguousarray(t.ravel(), dtype=np.uint32).tobytes() for t in parts)
+    return _strip_order(flats, n)
+
+
+@functools.lru_cache(maxsize=STRIP_ORDERS)
+def _strip_order(flats: tuple[bytes, ...], n: int) -> tuple[np.ndarray, list[np.ndarray]]:
+    """``_meshopt_order`` of the parts' uint32 indices ``flats`` over n vertices; a
+    meshoptimizer strip order costs about 0.1 ms a tile, this cache's lookup a hash of the
+    indices (its arrays are read-only: every caller shares them)."""
     import meshoptimizer
 
     cached = []
-    for tris in parts:
-        flat = np.ascontiguousarray(tris.ravel(), dtype=np.uint32)
-        out = np.zeros_like(flat)
-        meshoptimizer.optimize_vertex_cache_strip(out, flat, len(flat), n)
+    for flat in flats:
+        indices = np.frombuffer(flat, dtype=np.uint32)
+        out = np.zeros_like(indices)
+        meshoptimizer.optimize_vertex_cache_strip(out, indices, len(indices), n)
         cached.append(out)
     every = np.concatenate(cached)
     remap = np.zeros(n, dtype=np.uint32)
     meshoptimizer.optimize_vertex_fetch_remap(remap, every, len(every), n)
-    return remap.astype(np.int64), [remap[c].astype(np.int64).reshape(-1, 3) for c in cached]
+    wide = remap.astype(np.int64)
+    faces = [wide[c].reshape(-1, 3) for c in cached]
+    for a in (wide, *faces):
+        a.flags.writeable = False
+    return wide, faces
 
 
 def _meshopt_view(
@@ -405,8 +413,9 @@ def _meshopt_primitives(
     order[remap] = np.arange(n)
     doc.used.extend(["EXT_meshopt_compression", "KHR_mesh_quantization"])
     # Positions: unsigned shorts padded to 8 bytes (the codec wants strides of 4).
-    pos = np.zeros((n, 4), dtype="<u2")
-    pos[:, :3] = q[order]
+    pos, octs, low, high = mesh_normals.meshopt_vertices(
+        readonly(q, np.int64), readonly(np.asarray(normals), np.float64), readonly(order)
+    )
     view = _meshopt_view(doc, _vertex_codec(pos), n, 8, "ATTRIBUTES", _ARRAY_BUFFER)
     position = doc.accessor(
         {
@@ -415,11 +424,10 @@ def _meshopt_primitives(
             "normalized": normalized,
             "count": n,
             "type": "VEC3",
-            "min": [int(v) for v in pos[:, :3].min(axis=0)],
-            "max": [int(v) for v in pos[:, :3].max(axis=0)],
+            "min": [int(v) for v in low],
+            "max": [int(v) for v in high],
         }
     )
-    octs = oct_filter(np.asarray(normals)[order])
     view = _meshopt_view(
         doc,
         _vertex_codec(octs.view(np.uint8)),

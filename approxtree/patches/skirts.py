@@ -40,7 +40,12 @@ import numpy as np
 
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.tin import TIN
+from approxtree.kernels import skirt_walls
+from approxtree.kernels._jit import readonly
 from approxtree.kernels.rect_neighbours import neighbour_max_errors
+
+#: What ``skirt_mesh`` is passed for a rectangle or domain left out.
+_NO_RECT = readonly(np.zeros(0))
 
 
 def border_edges(triangles: np.ndarray) -> np.ndarray:
@@ -48,17 +53,10 @@ def border_edges(triangles: np.ndarray) -> np.ndarray:
 
     triangles: (m, 3) vertex indices, counter-clockwise seen from above.
     """
-    t = np.asarray(triangles, dtype=np.int64)
+    t = readonly(np.asarray(triangles, dtype=np.int64).reshape(-1, 3))
     if len(t) == 0:
         return np.empty((0, 2), dtype=np.int64)
-    directed = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
-    # Undirected edge key lo·n + hi: one 1-D unique instead of a row-wise one.
-    n = int(t.max()) + 1
-    key = np.minimum(directed[:, 0], directed[:, 1]) * n + np.maximum(
-        directed[:, 0], directed[:, 1]
-    )
-    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
-    return directed[counts[inverse] == 1]
+    return skirt_walls.border_edges(t)
 
 
 def add_skirts(
@@ -82,33 +80,19 @@ def add_skirts(
     Flags are 0 for the patch's vertices, 1 for the bottom vertices of the walls. The walls
     face outwards (counter-clockwise seen from outside the patch).
     """
-    v = np.asarray(vertices, dtype=np.float64)
-    t = np.asarray(triangles, dtype=np.int64)
-    edges = border_edges(t)
-    if rect is not None and len(edges):
-        edges = edges[_on_rect(v, edges, rect)]
-    outer = np.zeros(len(edges), dtype=bool)
-    if domain is not None and len(edges):
-        outer = _on_rect(v, edges, domain)
-        if not np.isfinite(base):
-            edges, outer = edges[~outer], outer[~outer]
-    flags = np.zeros(len(v), dtype=np.float32)
-    if len(edges) == 0:
-        return v, t, flags
+    v0 = np.asarray(vertices, dtype=np.float64)
+    t0 = np.asarray(triangles, dtype=np.int64)
+    if len(t0) == 0:
+        return v0, t0, np.zeros(len(v0), dtype=np.float32)
     # Two bottom vertices per wall quad: outer and interior walls end at different heights.
-    k = len(edges)
-    low = np.concatenate([v[edges[:, 0]], v[edges[:, 1]]])
-    outer2 = np.concatenate([outer, outer])
-    low[:, 2] = np.where(outer2, base, np.maximum(low[:, 2] - depth, base))
-    a, b = edges[:, 0], edges[:, 1]
-    a2 = len(v) + np.arange(k)
-    b2 = a2 + k
     # Seen from outside, a is top-left and b top-right: (a', b', b) and (a', b, a) are CCW.
-    walls = np.concatenate([np.column_stack([a2, b2, b]), np.column_stack([a2, b, a])])
-    return (
-        np.concatenate([v, low]),
-        np.concatenate([t, walls]),
-        np.concatenate([flags, np.ones(2 * k, dtype=np.float32)]),
+    return skirt_walls.skirt_mesh(
+        readonly(v0.reshape(-1, 3)),
+        readonly(t0.reshape(-1, 3)),
+        _NO_RECT if rect is None else readonly(np.asarray(rect, dtype=np.float64)),
+        _NO_RECT if domain is None else readonly(np.asarray(domain, dtype=np.float64)),
+        float(depth),
+        float(base),
     )
 
 
@@ -141,13 +125,11 @@ def _on_rect(
 ) -> np.ndarray:
     """(k,) bool: edges (k, 2) whose two ends lie on one side of ``rect`` (xmin, ymin, xmax,
     ymax), up to a relative tolerance for world-coordinate round-off."""
-    xmin, ymin, xmax, ymax = rect
-    tol = 1e-9 * max(xmax - xmin, ymax - ymin, 1e-300)
-    a, b = v[edges[:, 0]], v[edges[:, 1]]
-    on = np.zeros(len(edges), dtype=bool)
-    for axis, bound in ((0, xmin), (0, xmax), (1, ymin), (1, ymax)):
-        on |= (np.abs(a[:, axis] - bound) <= tol) & (np.abs(b[:, axis] - bound) <= tol)
-    return on
+    return skirt_walls.on_rect(
+        readonly(v, np.float64),
+        readonly(edges, np.int64),
+        readonly(np.asarray(rect, dtype=np.float64)),
+    )
 
 
 def _bounded_errors(

@@ -33,12 +33,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from approxtree.io.gltf import column_bounds
+from approxtree.kernels import tile_bounds
+from approxtree.kernels._jit import readonly
 from approxtree.tiles.earth import WGS84_A, WGS84_B
 
 #: glTF's y-up axes from z-up ones: (x, y, z) → (x, z, −y).
 Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 #: Fewest bits per axis a lattice is given (coarser saves nothing worth having).
 MIN_BITS = 8
+#: The verticals ``bound_factor`` passes its kernel for a tile with one vertical.
+_NO_NORMALS = np.zeros((0, 3))
 
 
 @dataclass(frozen=True)
@@ -114,18 +119,18 @@ def bound_factor(
     the largest α_t + θ_t, with one arccos each."""
     if not len(faces):
         return 0.5
-    f = np.asarray(faces, dtype=np.float64)
-    f = f / np.maximum(np.linalg.norm(f, axis=1, keepdims=True), 1e-300)
-    if normals is None:
-        alpha = math.acos(min(max(float((f @ up).min()), -1.0), 1.0))
-        phi = theta = 0.0
-    else:
-        t = np.asarray(triangles, dtype=np.int64)
-        first = normals[t[:, 0]]
-        alpha = math.acos(min(max(float(np.einsum("ij,ij->i", f, first).min()), -1.0), 1.0))
-        spread = min(float(np.einsum("ij,ij->i", first, normals[t[:, k]]).min()) for k in (1, 2))
-        theta = math.acos(min(max(spread, -1.0), 1.0))
-        phi = min(math.acos(min(max(float((normals @ up).min()), -1.0), 1.0)), math.pi / 2)
+    up = readonly(np.asarray(up), np.float64)
+    per_vertex = normals is not None
+    cos_alpha, cos_theta, cos_phi = tile_bounds.lattice_cosines(
+        readonly(faces, np.float64),
+        readonly(np.asarray(triangles).reshape(-1, 3), np.int64),
+        up,
+        readonly(normals if normals is not None else _NO_NORMALS, np.float64),
+        per_vertex,
+    )
+    alpha = math.acos(min(max(cos_alpha, -1.0), 1.0))
+    theta = math.acos(min(max(cos_theta, -1.0), 1.0))
+    phi = min(math.acos(min(max(cos_phi, -1.0), 1.0)), math.pi / 2)
     steep = alpha + theta
     if steep >= math.pi / 2:
         return math.inf
@@ -174,8 +179,8 @@ def fit_lattice(
     skirts left out since their walls claim nothing, or ``geographic_factor``).
     """
     local = np.asarray(rel, dtype=np.float64) @ rotation
-    origin = local.min(axis=0)
-    extent = max(float((local.max(axis=0) - origin).max()), 1e-9)
+    origin, top = column_bounds(local)
+    extent = max(float((top - origin).max()), 1e-9)
     if not math.isfinite(k):
         return None
     # The coarsest power of two within the budget, then refined until it fits the bits.
@@ -185,8 +190,6 @@ def fit_lattice(
     bound = step * k
     if bound > budget and bound > limit:
         return None
-    q = np.rint((local - origin) / step).astype(np.int64)
-    top = int(q.max())
-    bits = max(MIN_BITS, top.bit_length())
-    moved = float(np.linalg.norm(origin + q * step - local, axis=1).max())
+    q, top, moved = tile_bounds.round_to_lattice(readonly(local), readonly(origin), step)
+    bits = max(MIN_BITS, int(top).bit_length())
     return Lattice(q, origin, step, bits, rotation, bound, moved)

@@ -28,8 +28,10 @@ from typing import Any
 import numpy as np
 
 from approxtree.geometry.rect import Rect
-from approxtree.io.gltf import face_normals, glb_bytes, vertex_normals, y_up
+from approxtree.io.gltf import column_bounds, glb_bytes, y_up
 from approxtree.io.gltf_compact import MAX_BITS, compact_glb
+from approxtree.kernels import mesh_normals, skirt_walls, tile_bounds
+from approxtree.kernels._jit import readonly
 from approxtree.patches.skirts import add_skirts, patches_reach_rect, skirt_base, skirt_depths
 from approxtree.textures.detail import DetailTextures
 from approxtree.textures.embed import embedded_texture
@@ -149,8 +151,12 @@ class NodeWriter:
             return None
         data, content = made
         path = self.folder / self.uri(i)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_bytes(data)
+        # One write per file; its folder is made by the first tile that finds it missing.
+        try:
+            path.write_bytes(data)
+        except FileNotFoundError:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(data)
         return content
 
     def encode(self, i: int) -> tuple[bytes, TileContent] | None:
@@ -170,11 +176,11 @@ class NodeWriter:
             points = self.frame.to_frame(verts)
         # Normals of the surface only; a skirt vertex takes the normal of the top vertex it
         # hangs from, so walls do not tilt the shading of the border.
-        top = len(verts) - len(tops)
-        faces = face_normals(points, tris[:surface])
-        normals = vertex_normals(points[:top], tris[:surface], faces)
-        normals = np.concatenate([normals, normals[tops]])
-        center = (points.min(axis=0) + points.max(axis=0)) / 2
+        faces, normals = mesh_normals.surface_normals(
+            readonly(points), readonly(tris, np.int64), surface, readonly(tops, np.int64)
+        )
+        low, high = column_bounds(points)
+        center = (low + high) / 2
         uvs = image = None
         mime = "image/png"
         if self.pyramid is not None:
@@ -220,7 +226,7 @@ class NodeWriter:
         if geo is not None:
             low, high = region(geo, stored, tris[:surface], moved)
         else:
-            low, high = stored.min(axis=0), stored.max(axis=0)
+            low, high = column_bounds(stored)
         content = TileContent(
             i, center, low, high, len(data), len(verts), len(tris), rounding, bits
         )
@@ -270,22 +276,10 @@ def merge_bottoms(
     (vertices, triangles, tops)."""
     if not len(tops):
         return verts, tris, tops
-    top = len(verts) - len(tops)
-    z = verts[top:, 2]
-    # Sorted by (top, height): a bottom equal to the one before it joins its group.
-    order = np.lexsort((z, tops))
-    same = np.zeros(len(tops), dtype=bool)
-    same[1:] = (tops[order][1:] == tops[order][:-1]) & (z[order][1:] == z[order][:-1])
-    group = np.cumsum(~same) - 1
-    first = order[~same]
-    keep = np.sort(first)
-    # Old bottom → new index: its group's first member, renumbered in kept order.
-    rank = np.empty(len(tops), dtype=np.int64)
-    rank[keep] = np.arange(len(keep))
-    owner = np.empty(len(tops), dtype=np.int64)
-    owner[order] = first[group]
-    new = np.concatenate([np.arange(top), top + rank[owner]])
-    return np.concatenate([verts[:top], verts[top + keep]]), new[tris], tops[keep]
+    # A bottom equal to one before it (same top vertex, same height) joins that one.
+    return skirt_walls.merge_mesh(
+        readonly(verts, np.float64), readonly(tris, np.int64), readonly(tops, np.int64)
+    )
 
 
 def region(geo: np.ndarray, points: np.ndarray, surface: np.ndarray, moved: float = 0.0):
@@ -294,16 +288,18 @@ def region(geo: np.ndarray, points: np.ndarray, surface: np.ndarray, moved: floa
     straight edges between them (lowered by the sagitta of the longest chord of the surface
     triangles (m, 3): a skirt's edges span no more), a float32 rounding margin and ``moved``
     metres (how far stored positions lie from ``geo``'s)."""
-    tris = surface
-    edges = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
-    d = points[edges[:, 0]] - points[edges[:, 1]]
-    chord = float(np.sqrt(np.einsum("ij,ij->i", d, d).max()))
+    low, high, chord, extreme = tile_bounds.region_extent(
+        readonly(geo, np.float64),
+        readonly(points, np.float64),
+        readonly(np.asarray(surface).reshape(-1, 3), np.int64),
+    )
     sag = chord * chord / (8.0 * MIN_RADIUS) + 1e-2 + moved
-    lat = np.radians(geo[:, 1])
-    coslat = max(float(np.cos(np.abs(lat).max())), 1e-6)
+    coslat = max(float(np.cos(np.radians(extreme))), 1e-6)
     pad = np.array([sag / (MIN_RADIUS * coslat), sag / MIN_RADIUS, sag])
-    low = np.array([np.radians(geo[:, 0].min()), lat.min(), geo[:, 2].min()]) - pad
-    high = np.array([np.radians(geo[:, 0].max()), lat.max(), geo[:, 2].max() + 1e-2 + moved])
+    low[:2] = np.radians(low[:2])
+    high[:2] = np.radians(high[:2])
+    low -= pad
+    high[2] = high[2] + 1e-2 + moved
     high[:2] += pad[:2]
     return low, high
 

@@ -15,8 +15,8 @@ screen-space error exactly as the paging renderer refines by α:
 - Content (tiles/tile_content.py): the node's patch with its skirts, as the renderer draws it,
   relative to the tile's centre in the tileset frame, in glTF's y-up axes, with normals and,
   given a pyramid, the node's texture patch (of the detail pyramid for the nodes a
-  ``DetailTextures`` gives it); ``compression`` ``draco`` (default:
-  KHR_draco_mesh_compression), ``meshopt`` (EXT_meshopt_compression + KHR_mesh_quantization)
+  ``DetailTextures`` gives it); ``compression`` ``meshopt`` (default: EXT_meshopt_compression
+  + KHR_mesh_quantization), ``draco`` (KHR_draco_mesh_compression)
   or ``none`` (float32). Explicit tiling: ``{level}/{node}.glb``, each tile's ``transform``
   its centre relative to its parent's. Implicit tiling (``implicit``, tiles/implicit.py): the
   nodes as a QUADTREE (a child's quadrant is where its centre lies in its parent), contents
@@ -51,7 +51,7 @@ import numpy as np
 
 from approxtree.errors import InvalidParameterError
 from approxtree.io.atomic import atomic_directory
-from approxtree.io.gltf_compact import COMPRESSIONS
+from approxtree.io.gltf_compact import COMPRESSIONS, DEFAULT_COMPRESSION
 from approxtree.io.output_path import check_output_folder
 from approxtree.io.own_output import check_replaceable
 from approxtree.textures.detail import open_drape
@@ -127,7 +127,7 @@ def write_3dtiles(
     skirts: bool = True,
     image_format: str = "png",
     scheduler: str | None = None,
-    compression: str = "draco",
+    compression: str = DEFAULT_COMPRESSION,
     implicit: bool = False,
 ) -> dict[str, Any]:
     """Write the 3D Tiles 1.1 tileset of ``tree`` into the folder ``out`` (see the module
@@ -205,7 +205,7 @@ def tile_maker(
     origin: tuple[float, float] = (0.0, 0.0),
     skirts: bool = True,
     image_format: str = "png",
-    compression: str = "draco",
+    compression: str = DEFAULT_COMPRESSION,
 ) -> tuple[NodeWriter, EarthFrame]:
     """What ``write_3dtiles`` makes tiles with, for a caller that wants the bytes (the
     server): the node writer (its ``encode(node)``) and the frame, same arguments (explicit
