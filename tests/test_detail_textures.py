@@ -258,7 +258,7 @@ def test_verify_imagery_with_a_detail_pyramid(nc, nc_store, tmp_path):
     res = CliRunner().invoke(cli_main, [*check, "--textures", f"{city}@10"])
     report = json.loads(res.output)
     assert res.exit_code == 0, res.output
-    assert [c for c in report["checks"] if c["name"] == "colours"][0]["items"] > 0
+    assert next(c for c in report["checks"] if c["name"] == "colours")["items"] > 0
     alone = CliRunner().invoke(cli_main, check)
     assert alone.exit_code == 0, alone.output
     assert any("detail pyramid" in n for n in json.loads(alone.output)["not_checked"])
