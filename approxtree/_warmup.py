@@ -291,8 +291,14 @@ def extras_step(work: Path) -> None:
 
 
 def float64_step(work: Path) -> None:
-    """The commands on float64 heights (32-bit integer rasters, ASCII grids)."""
+    """The commands on float64 heights (32-bit integer rasters, ASCII grids); a frame of a
+    saved float64 tree through the API (the render's cut need not reach every patch kind)."""
+    from approxtree import ApproximationTree, load_tree
+
     _terrain_commands(work, _geotiff(work / "i32.tif", "int32", holes=False), "grid")
+    tree = ApproximationTree.build(_geotiff_grid(work, "float64"), epsilon=1.0, max_points=289)
+    tree.save(work / "f64.zarr")
+    _frame(load_tree(work / "f64.zarr"))
 
 
 def points_step(work: Path) -> None:
