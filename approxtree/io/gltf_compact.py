@@ -18,7 +18,8 @@ included). The caller chose the lattice, so it knows exactly what the file's pos
   normalized shorts scaled by ``65535 · step``, the only form CesiumJS's 3D Tiles terrain
   reads (the Khronos validator then reports the node matrix as not decomposable: it compares
   determinants in float32, and (65535 · step)³ is large),
-  normals through the OCTAHEDRAL filter (7 bits), texture coordinates as normalized unsigned
+  normals through the OCTAHEDRAL filter (7 bits; the wall bottoms share the
+  surface's mean normal), texture coordinates as normalized unsigned
   shorts, indices through the index codec; vertices reordered for the vertex cache and
   fetch first (meshoptimizer), which is what makes the codecs compress. The uncompressed
   views live in a fallback buffer that holds no data (the extensions are required).
@@ -68,7 +69,6 @@ MESHOPT_NORMAL_BITS = 7
 DRACO_UV_BITS = 14
 #: glTF enums.
 _BYTE, _USHORT, _UINT, _FLOAT = 5120, 5123, 5125, 5126
-_ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
 _LINEAR, _LINEAR_MIPMAP_LINEAR, _CLAMP_TO_EDGE = 9729, 9987, 33071
 #: CESIUM_tile_edges' sides, in the order ``edges`` gives them: west, south, east, north.
 EDGE_NAMES = ("left", "bottom", "right", "top")
@@ -369,11 +369,11 @@ def _meshopt_view(
     count: int,
     stride: int,
     mode: str,
-    target: int | None,
     filter_name: str = "NONE",
 ) -> int:
     """A buffer view whose data is meshopt-encoded in the BIN chunk; its plain bytes would sit
-    in the fallback buffer (buffer 1, which holds none)."""
+    in the fallback buffer (buffer 1, which holds none). No ``target``: it is optional (the
+    validator's hint), clients infer it from the accessors' use, and it cost 60 bytes a tile."""
     at, length = doc.bin(encoded)
     fallback = doc.json.setdefault(
         "_more_buffers",
@@ -391,8 +391,6 @@ def _meshopt_view(
             del entry["byteOffset"]
     if mode == "ATTRIBUTES":
         view["byteStride"] = stride
-    if target is not None:
-        view["target"] = target
     fallback["byteLength"] += count * stride + (-(count * stride)) % 4
     return doc.view(view)
 
@@ -415,6 +413,11 @@ def _meshopt_primitives(
     order = np.empty(n, dtype=np.int64)
     order[remap] = np.arange(n)
     doc.used.extend(["EXT_meshopt_compression", "KHR_mesh_quantization"])
+    # Wall bottoms (vertices of the skirts alone) share one normal, the surface's mean: the
+    # codec stores a repeated value in a few bits (their tops' normals, scattered along the
+    # border, cost ~110 bytes a tile on NC); walls only fill cracks below the neighbours.
+    if len(parts) > 1:
+        normals = _bottom_normals(np.asarray(normals, dtype=np.float64), parts[0])
     # Positions: unsigned shorts padded to 8 bytes (the codec wants strides of 4).
     pos, octs, low, high = mesh_normals.meshopt_vertices(
         readonly(q, np.int64),
@@ -422,7 +425,7 @@ def _meshopt_primitives(
         readonly(order),
         2 ** (MESHOPT_NORMAL_BITS - 1) - 1,
     )
-    view = _meshopt_view(doc, _vertex_codec(pos), n, 8, "ATTRIBUTES", _ARRAY_BUFFER)
+    view = _meshopt_view(doc, _vertex_codec(pos), n, 8, "ATTRIBUTES")
     position = doc.accessor(
         {
             "bufferView": view,
@@ -440,7 +443,6 @@ def _meshopt_primitives(
         n,
         4,
         "ATTRIBUTES",
-        _ARRAY_BUFFER,
         "OCTAHEDRAL",
     )
     normal = doc.accessor(
@@ -458,7 +460,6 @@ def _meshopt_primitives(
             int(faces.size),
             np.dtype(itype).itemsize,
             "TRIANGLES",
-            _ELEMENT_ARRAY_BUFFER,
         )
         indices = doc.accessor(
             {"bufferView": view, "componentType": icomp, "count": int(faces.size), "type": "SCALAR"}
@@ -472,7 +473,6 @@ def _meshopt_primitives(
             n,
             4,
             "ATTRIBUTES",
-            _ARRAY_BUFFER,
         )
         texcoord = doc.accessor(
             {
@@ -495,7 +495,6 @@ def _meshopt_primitives(
                 len(idx),
                 np.dtype(itype).itemsize,
                 "INDICES",
-                None,
             )
             sides[name] = doc.accessor(
                 {"bufferView": view, "componentType": icomp, "count": len(idx), "type": "SCALAR"}
@@ -503,6 +502,18 @@ def _meshopt_primitives(
         primitives[0]["extensions"] = {"CESIUM_tile_edges": sides}
         doc.used.append("CESIUM_tile_edges")
     return primitives
+
+
+def _bottom_normals(normals: np.ndarray, surface: np.ndarray) -> np.ndarray:
+    """``normals`` (n, 3) with the vertices no ``surface`` triangle (m, 3) uses given the
+    unit mean of the surface vertices' normals (up when they sum to zero)."""
+    used = np.zeros(len(normals), dtype=bool)
+    used[surface.ravel()] = True
+    mean = normals[used].sum(axis=0)
+    length = float(np.sqrt(mean @ mean))
+    out = normals.copy()
+    out[~used] = mean / length if length > 0 else (0.0, 0.0, 1.0)
+    return out
 
 
 def _vertex_codec(data: np.ndarray) -> bytes:
