@@ -144,16 +144,18 @@ def test_normals_match_numpy_cross_and_bincount():
     np.testing.assert_array_equal(n[len(v) :], n[tops])
 
 
-def test_meshopt_vertices_match_numpy_quantization():
+@pytest.mark.parametrize("one", [127, 63])
+def test_meshopt_vertices_match_numpy_quantization(one):
     """meshopt's vertex rows: the lattice in the given order as shorts, its bounds, and the
-    normals' octahedral bytes as numpy rounds meshopt's filter (half away from zero)."""
+    normals' octahedral bytes (8 or 7 bits) as numpy rounds meshopt's filter (half away from
+    zero)."""
     rng = np.random.default_rng(2)
     n = rng.normal(size=(500, 3))
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     n[:3] = [(0.0, 0.0, 1.0), (0.0, 0.0, -1.0), (1.0, 0.0, 0.0)]
     q = rng.integers(3, 65536, (500, 3))
     order = rng.permutation(500)
-    pos, got, low, high = mesh_normals.meshopt_vertices(q, n, order)
+    pos, got, low, high = mesh_normals.meshopt_vertices(q, n, order, one)
     np.testing.assert_array_equal(pos[:, :3], q[order])
     assert pos.dtype == np.uint16 and (pos[:, 3] == 0).all()
     np.testing.assert_array_equal(low, q.min(axis=0))
@@ -163,9 +165,9 @@ def test_meshopt_vertices_match_numpy_quantization():
     u = np.where(z >= 0, x, (1.0 - np.abs(y)) * np.copysign(1.0, x))
     w = np.where(z >= 0, y, (1.0 - np.abs(x)) * np.copysign(1.0, y))
     for k, c in enumerate((u, w)):
-        c = np.clip(c, -1.0, 1.0) * 127.0
+        c = np.clip(c, -1.0, 1.0) * one
         np.testing.assert_array_equal(got[:, k], np.trunc(c + np.copysign(0.5, c)))
-    assert (got[:, 2] == 127).all() and (got[:, 3] == 0).all()
+    assert (got[:, 2] == one).all() and (got[:, 3] == 0).all()
 
 
 def test_lattice_rounding_matches_numpy_rint():

@@ -146,6 +146,37 @@ def test_compressed_tiles_are_a_fraction_of_float32_ones(nc_tilesets):
     assert figures["draco"]["float32_tiles"] == 0
 
 
+def test_meshopt_normals_are_7_bit_and_wall_bottoms_share_one(nc_tilesets):
+    """meshopt tiles store 7-bit octahedral normals (one = 63), and every vertex that only
+    skirt triangles use has the same normal bytes."""
+    import meshoptimizer
+
+    tmp, _ = nc_tilesets
+    checked = 0
+    for path in sorted((tmp / "meshopt").rglob("*.glb")):
+        data = path.read_bytes()
+        length = struct.unpack("<I", data[12:16])[0]
+        doc = json.loads(data[20 : 20 + length])
+        blob = data[28 + length :]
+        primitives = doc["meshes"][0]["primitives"]
+        accessor = doc["accessors"][primitives[0]["attributes"]["NORMAL"]]
+        ext = doc["bufferViews"][accessor["bufferView"]]["extensions"]["EXT_meshopt_compression"]
+        start = ext.get("byteOffset", 0)
+        raw = np.frombuffer(blob[start : start + ext["byteLength"]], dtype=np.uint8)
+        octs = meshoptimizer.decode_vertex_buffer(ext["count"], 4, raw).view(np.int8)
+        octs = octs.reshape(-1)[: 4 * ext["count"]].reshape(-1, 4)
+        assert ext["filter"] == "OCTAHEDRAL" and (octs[:, 2] == 63).all()
+        assert (np.abs(octs[:, :2]) <= 63).all()
+        _, tris, skirt, _ = read_glb_parts(data, str(path))
+        # The reader appends each primitive's vertices; both primitives share these.
+        tris = tris % len(octs)
+        bottoms = np.setdiff1d(np.unique(tris[skirt]), np.unique(tris[~skirt]))
+        if len(bottoms):
+            assert (octs[bottoms] == octs[bottoms[0]]).all(), path
+            checked += 1
+    assert checked
+
+
 @pytest.mark.parametrize("compression", COMPRESSIONS)
 def test_compressed_glbs_pass_the_khronos_validator(nc_tilesets, compression):
     """The Khronos glTF validator finds 0 errors and 0 warnings in every compressed GLB, which

@@ -98,7 +98,7 @@ def _edges(path: Path) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
     def view(accessor: int, stride_type) -> np.ndarray:
         acc = doc["accessors"][accessor]
         ext = doc["bufferViews"][acc["bufferView"]]["extensions"]["EXT_meshopt_compression"]
-        raw = np.frombuffer(blob, np.uint8, ext["byteLength"], ext["byteOffset"])
+        raw = np.frombuffer(blob, np.uint8, ext["byteLength"], ext.get("byteOffset", 0))
         if ext["mode"] == "ATTRIBUTES":
             out = meshoptimizer.decode_vertex_buffer(ext["count"], ext["byteStride"], raw)
         else:

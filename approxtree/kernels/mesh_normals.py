@@ -3,7 +3,7 @@
 What every mesh writer (GLB, 3D Tiles content) computes per tile: the cross products of the
 triangles, their area-weighted sums at the vertices (each face added to its corners in
 triangle order, as numpy's per-axis ``bincount`` summed them), unit length, and meshopt's
-OCTAHEDRAL filter at 8 bits.
+OCTAHEDRAL filter at 8 bits or fewer.
 """
 
 from __future__ import annotations
@@ -57,10 +57,10 @@ def vertex_normals(count, triangles, faces):
 
 
 @njit(cache=True, inline="always")
-def _oct_bytes(x, y, z, out, i):
+def _oct_bytes(x, y, z, out, i, one):
     """Row i of ``out`` (n, 4) int8: the unit vector (x, y, z) as meshopt's OCTAHEDRAL filter
-    stores it at 8 bits: octahedral x, y in ±127 (rounded half away from zero, as
-    meshopt_quantizeSnorm), then 127, then 0."""
+    stores it at k bits (``one`` = 2^(k−1) − 1, 127 for 8 bits): octahedral x, y in ±one
+    (rounded half away from zero, as meshopt_quantizeSnorm), then one, then 0."""
     length = abs(x) + abs(y) + abs(z)
     if length > 0:
         x, y, z = x / length, y / length, z / length
@@ -69,20 +69,21 @@ def _oct_bytes(x, y, z, out, i):
     else:
         u = (1.0 - abs(y)) * math.copysign(1.0, x)
         v = (1.0 - abs(x)) * math.copysign(1.0, y)
-    u = min(max(u, -1.0), 1.0) * 127.0
-    v = min(max(v, -1.0), 1.0) * 127.0
+    u = min(max(u, -1.0), 1.0) * one
+    v = min(max(v, -1.0), 1.0) * one
     out[i, 0] = np.int8(math.trunc(u + math.copysign(0.5, u)))
     out[i, 1] = np.int8(math.trunc(v + math.copysign(0.5, v)))
-    out[i, 2] = 127
+    out[i, 2] = one
     out[i, 3] = 0
 
 
 @njit(cache=True)
-def meshopt_vertices(lattice, normals, order):
+def meshopt_vertices(lattice, normals, order, one=127):
     """(positions (n, 4) uint16, octahedral normals (n, 4) int8, low (3,), high (3,)) of a
     meshopt vertex buffer: vertex ``order[i]`` (n,) int64 of ``lattice`` (n, 3) int64
     (0 <= values < 2^16) and unit ``normals`` (n, 3) float64 as row i, positions padded to 8
-    bytes (the codec wants strides of 4), low and high the lattice's bounds per axis."""
+    bytes (the codec wants strides of 4), low and high the lattice's bounds per axis; the
+    normals' octahedral components in ±``one`` (127: 8 bits, 63: 7 bits)."""
     n = order.shape[0]
     pos = np.zeros((n, 4), dtype=np.uint16)
     octs = np.empty((n, 4), dtype=np.int8)
@@ -101,7 +102,7 @@ def meshopt_vertices(lattice, normals, order):
                 low[c] = value
             if value > high[c]:
                 high[c] = value
-        _oct_bytes(normals[j, 0], normals[j, 1], normals[j, 2], octs, i)
+        _oct_bytes(normals[j, 0], normals[j, 1], normals[j, 2], octs, i, one)
     return pos, octs, low, high
 
 
