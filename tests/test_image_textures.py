@@ -533,10 +533,10 @@ def test_imagery_tiles_show_the_image_at_known_points(quadrants, tmp_path):
 
 
 def test_bake_and_verify_offer_the_same_resamplings():
-    """bake --resampling and verify --resampling offer exactly image.RESAMPLINGS (one list)."""
+    """bake --resampling and verify --resampling offer exactly io.warp.RESAMPLINGS (one list)."""
     from approxtree.cli.bake import bake_command
     from approxtree.cli.verify import verify as verify_command
-    from approxtree.textures.image import RESAMPLINGS
+    from approxtree.io.warp import RESAMPLINGS
 
     for command in (bake_command, verify_command):
         (option,) = [p for p in command.params if p.name == "resampling"]

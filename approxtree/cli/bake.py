@@ -15,7 +15,7 @@ from approxtree.cli.options import (
     reader_options,
     replaceable,
 )
-from approxtree.textures.image import RESAMPLINGS
+from approxtree.io.warp import RESAMPLINGS
 
 
 def _takes_windowed(path: str, encoding: str | None) -> bool:

@@ -15,7 +15,7 @@ import click
 from approxtree.cli import common
 from approxtree.cli.common import _reports_errors
 from approxtree.cli.options import json_option, reader_options, textures_option
-from approxtree.textures.image import RESAMPLINGS
+from approxtree.io.warp import RESAMPLINGS
 
 
 def _shown(value: Any) -> str:

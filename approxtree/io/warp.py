@@ -14,6 +14,18 @@ from typing import Any
 import numpy as np
 from affine import Affine
 
+#: Resampling names (gdalwarp's ``-r`` spellings) → rasterio's Resampling member names: the
+#: choices of ``bake --resampling`` and ``verify --resampling`` (textures/image.py warps with
+#: them, verify/pyramid_image.py re-warps with the same).
+RESAMPLINGS = {
+    "nearest": "nearest",
+    "bilinear": "bilinear",
+    "cubic": "cubic",
+    "cubicspline": "cubic_spline",
+    "lanczos": "lanczos",
+    "average": "average",
+}
+
 
 def warp_scale(
     ds: Any, source_crs: Any, crs: Any, transform: Affine, shape: tuple[int, int]

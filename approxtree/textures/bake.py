@@ -204,7 +204,7 @@ def bake(
     overview; the water classes of the thematic layer and the ``water`` polygon layers are
     drawn over them (a stream does not cross a lake). images: rasters GDAL reads (RGB, RGBA,
     grey, grey + alpha, paletted; any CRS) warped onto the lattice with ``resampling`` (a
-    name of ``image.RESAMPLINGS``), the first at the bottom, each drawn over the one before,
+    name of ``io.warp.RESAMPLINGS``), the first at the bottom, each drawn over the one before,
     the thematic layer over them. water_level: a flood, the texels of h_T below it in the
     water colour over the thematic layer (``water.WaterLevel``). blend: how shading combines
     with the images, thematic layer and water below it ("shade" keeps their colour on flat

@@ -28,27 +28,16 @@ from approxtree.errors import InvalidParameterError, TerrainFormatError
 from approxtree.geometry.rect import Rect
 from approxtree.io._common import reading
 from approxtree.io.gdal import no_side_files
-from approxtree.io.warp import warp_scale
+from approxtree.io.warp import RESAMPLINGS, warp_scale
 from approxtree.textures.base import TextureData
 
 #: GDAL's block cache while an image is warped (MB): a strip's source blocks are read once,
 #: so a larger cache only grows with the image (GDAL's default is 5 % of the RAM).
 CACHE_MB = 128
 
-#: Resampling names (gdalwarp's ``-r`` spellings) → rasterio's Resampling member names: the
-#: choices of ``bake --resampling`` and ``verify --resampling``.
-RESAMPLINGS = {
-    "nearest": "nearest",
-    "bilinear": "bilinear",
-    "cubic": "cubic",
-    "cubicspline": "cubic_spline",
-    "lanczos": "lanczos",
-    "average": "average",
-}
-
 
 def _resampling(name: str):
-    """rasterio's Resampling member for a name of ``RESAMPLINGS``."""
+    """rasterio's Resampling member for a name of ``io.warp.RESAMPLINGS``."""
     from rasterio.enums import Resampling
 
     if name not in RESAMPLINGS:
@@ -100,7 +89,7 @@ class ImageTexture(TextureData):
     """An image reprojected onto a lattice: (rows, cols, 4) uint8 RGBA, alpha 0 outside it.
 
     path: the image; transform, shape (rows, cols), crs: the lattice (the terrain's CRS);
-    resampling: a name of ``RESAMPLINGS`` (paletted images are always sampled nearest).
+    resampling: a name of ``io.warp.RESAMPLINGS`` (paletted images are always sampled nearest).
     An image without a CRS is refused over a terrain that has one (and taken to share the
     terrain's coordinates over one without); an image that does not overlap the lattice is
     refused.

@@ -134,7 +134,7 @@ def verify(
         from approxtree.errors import TerrainFormatError
 
         raise TerrainFormatError(f"Image {image} does not exist.")
-    from approxtree.textures.image import RESAMPLINGS
+    from approxtree.io.warp import RESAMPLINGS
 
     if resampling not in RESAMPLINGS:
         raise InvalidParameterError(

@@ -21,8 +21,7 @@ from typing import Any
 import numpy as np
 
 from approxtree.errors import TerrainFormatError
-from approxtree.io.warp import warp_scale
-from approxtree.textures.image import RESAMPLINGS
+from approxtree.io.warp import RESAMPLINGS, warp_scale
 
 #: Rows of level 0 reprojected at once (a strip of float32 RGBA: 16 bytes a texel).
 STRIP = 128
