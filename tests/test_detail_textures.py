@@ -3,10 +3,6 @@ level inside its footprint, the base pyramid elsewhere (issue 30, item 3)."""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 import rasterio
@@ -283,34 +279,14 @@ def test_cli_detail_refused_where_no_texture_is_draped(nc, nc_store, tmp_path):
 def test_cli_view_opens_with_a_detail_pyramid(nc, nc_store, tmp_path):
     """view --textures BASE --textures DETAIL@3 opens (Xvfb) and its keyframes show magenta
     looking straight down inside the box, the land use outside it."""
-    import json
-    import shutil
+    from map_checks import view_keyframes
 
-    from PIL import Image
-
-    from approxtree.viewer.xvfb import virtual_display
-
-    if shutil.which("Xvfb") is None:
-        pytest.skip("Xvfb is not installed (Debian/Ubuntu: apt-get install -y xvfb)")
     x0, y0, x1, y1 = DETAIL_BOX
     points = [((x0 + x1) / 2, (y0 + y1) / 2), (642000.0, 226000.0)]
     script = [{"eye": [x, y - 1.0, 1500.0], "target": [x, y, 0.0], "frames": 3} for x, y in points]
-    (tmp_path / "path.json").write_text(json.dumps(script))
     base, city = str(nc["base"].folder), str(nc["detail"].folder)
     args = ["view", nc_store, "--textures", base, "--textures", f"{city}@3"]
-    args += ["--script", "path.json", "--screenshots", "shots", "--size", "160x120"]
-    args += ["--max-uploads", "0", "--lighting", "off"]
-    with virtual_display("640x480x24") as display:
-        result = subprocess.run(
-            [sys.executable, "-m", "approxtree", *args],
-            cwd=tmp_path,
-            env=dict(os.environ, DISPLAY=display),
-            capture_output=True,
-            text=True,
-            timeout=300,
-        )
-    assert result.returncode == 0, result.stderr
-    shots = [np.asarray(Image.open(tmp_path / "shots" / f"keyframe_{i:03d}.png")) for i in (0, 1)]
+    shots = view_keyframes(tmp_path, args, script)
     centre = [shot[55:65, 75:85] for shot in shots]
     assert _magenta(centre[0]).all()
     assert not _magenta(centre[1]).any()

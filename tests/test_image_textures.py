@@ -418,36 +418,15 @@ def _close(rgb: np.ndarray, quadrant) -> np.ndarray:
 def test_viewer_frames_show_the_image_at_known_points(quadrants, tmp_path):
     """view --textures of a bake --image pyramid (Xvfb, decal): looking straight down on each
     quadrant's known point, the frame's centre has that quadrant's colour."""
-    import json
-    import os
-    import sys
+    from map_checks import view_keyframes
 
-    from PIL import Image
-
-    from approxtree.viewer.xvfb import virtual_display
-
-    if shutil.which("Xvfb") is None:
-        pytest.skip("Xvfb is not installed (Debian/Ubuntu: apt-get install -y xvfb)")
     script = [
         {"eye": [x, y - 1.0, 2000.0], "target": [x, y, 0.0], "frames": 3}
         for x, y in quadrants.points.values()
     ]
-    (tmp_path / "path.json").write_text(json.dumps(script))
     args = ["view", str(quadrants.store), "--textures", str(quadrants.pyramid)]
-    args += ["--script", "path.json", "--screenshots", "shots", "--size", "160x120"]
-    args += ["--max-uploads", "0", "--lighting", "off"]
-    with virtual_display("640x480x24") as display:
-        result = subprocess.run(
-            [sys.executable, "-m", "approxtree", *args],
-            cwd=tmp_path,
-            env=dict(os.environ, DISPLAY=display),
-            capture_output=True,
-            text=True,
-            timeout=300,
-        )
-    assert result.returncode == 0, result.stderr
-    for i, q in enumerate(QUADRANTS):
-        shot = np.asarray(Image.open(tmp_path / "shots" / f"keyframe_{i:03d}.png"))
+    shots = view_keyframes(tmp_path, args, script)
+    for shot, q in zip(shots, QUADRANTS, strict=True):
         assert _close(shot[50:70, 70:90], q).all(), (q, shot[60, 80])
 
 
