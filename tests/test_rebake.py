@@ -273,29 +273,29 @@ def test_cli_new_light_without_patch(stored, tmp_path) -> None:
     same_pyramid(textures, tmp_path / "lit")
 
 
+def _update_in_a_process(
+    code: str, store: Path, patch: Path, textures: Path, kill: str | None = None
+) -> subprocess.CompletedProcess:
+    """``update STORE PATCH --textures DIR`` run by ``python -c CODE`` in a process of its own
+    (this checkout first on the path; ``kill``: APPROXTREE_UPDATE_KILL's stage)."""
+    env = dict(os.environ)
+    if kill is not None:
+        env["APPROXTREE_UPDATE_KILL"] = kill
+    root = str(Path(__file__).resolve().parents[1])
+    env["PYTHONPATH"] = root + os.pathsep + env.get("PYTHONPATH", "")
+    argv = ["update", str(store), str(patch), "--textures", str(textures)]
+    return subprocess.run(
+        [sys.executable, "-c", code, *argv], env=env, capture_output=True, text=True, check=False
+    )
+
+
 def test_killed_between_store_and_textures(stored) -> None:
     """A kill after the store swap leaves the new tree with the old, intact pyramid; the
     update without a patch then re-bakes it to the fresh bake's texels."""
     store, textures, patch, fresh = stored
     before = {k: TexturePyramid(textures).tile_crc32c[k] for k in range(2)}
-    env = dict(os.environ, APPROXTREE_UPDATE_KILL="saved")
-    root = str(Path(__file__).resolve().parents[1])
-    env["PYTHONPATH"] = root + os.pathsep + env.get("PYTHONPATH", "")
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-c",
-            "from approxtree.cli import main; main()",
-            "update",
-            str(store),
-            str(patch),
-            "--textures",
-            str(textures),
-        ],
-        env=env,
-        capture_output=True,
-        text=True,
-        check=False,
+    proc = _update_in_a_process(
+        "from approxtree.cli import main; main()", store, patch, textures, "saved"
     )
     assert proc.returncode == -signal.SIGKILL, proc.stderr
     assert {k: TexturePyramid(textures).tile_crc32c[k] for k in range(2)} == before
@@ -353,25 +353,7 @@ def test_killed_rebake_leaves_old_pyramid(stored) -> None:
     old = [before.level(k) for k in range(len(before))]
     result = CliRunner().invoke(main, ["update", str(store), str(patch)])
     assert result.exit_code == 0, result.output
-    env = dict(os.environ)
-    root = str(Path(__file__).resolve().parents[1])
-    env["PYTHONPATH"] = root + os.pathsep + env.get("PYTHONPATH", "")
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-c",
-            KILL_MID_REBAKE,
-            "update",
-            str(store),
-            str(patch),
-            "--textures",
-            str(textures),
-        ],
-        env=env,
-        capture_output=True,
-        text=True,
-        check=False,
-    )
+    proc = _update_in_a_process(KILL_MID_REBAKE, store, patch, textures)
     assert proc.returncode == -signal.SIGKILL, proc.stderr
     after = TexturePyramid(textures)
     for k, texels in enumerate(old):
