@@ -78,9 +78,11 @@ def main() -> None:
         def frame(name: str, update: str, textures: Rebake | None) -> None:
             """Draw with the pyramid as re-baked, write the PNG, print the step's times."""
             if textures is not None:
+                # Only the texture patches meeting a re-baked tile leave the caches.
                 engine.set_textures(textures.pyramid)
                 baked = f"{sum(textures.tiles)}/{sum(textures.tiles_total)} tiles re-baked "
-                baked += f"in {textures.seconds * 1e3:.0f} ms"
+                baked += f"in {textures.seconds * 1e3:.0f} ms, "
+                baked += f"{engine.update_figures['texture_gpu_dropped']} texture patches dropped"
             else:
                 baked = "textures as baked"
             t0 = time.perf_counter()

@@ -137,11 +137,19 @@ class Engine:
         """Texture the terrain with a TexturePyramid (or the folder holding one), or None.
 
         γ_N then follows each node's texture patch; the texture patches of a previous pyramid
-        leave the GPU and CPU caches.
+        leave the GPU and CPU caches. The same pyramid re-baked (``textures.rebake``: a new
+        build, or another process's ``approxtree update --textures``) drops only the patches
+        meeting a re-baked tile of their level (render/texture_follow.py); update_figures
+        counts them (``texture_gpu_dropped``, ``texture_gpu_kept``).
         """
         self._check_alive()
-        self.source.set_textures(textures)
-        self.cache.drop(lambda key: isinstance(key, TextureKey))
+        stale = self.source.set_textures(textures)
+        before = sum(isinstance(key, TextureKey) for key in self.cache.keys())
+        dropped = self.cache.drop(stale)
+        self.update_figures = {
+            "texture_gpu_dropped": dropped,
+            "texture_gpu_kept": before - dropped,
+        }
 
     def set_palette(self, palette: Any) -> None:
         """Colour untextured terrain (and tint baked shading) with a hypsometric palette: a

@@ -31,6 +31,7 @@ Meshes are built per frame: there is no provider (no CPU cache, no background lo
 
 from __future__ import annotations
 
+from collections.abc import Callable, Hashable
 from typing import Any
 
 import numpy as np
@@ -133,13 +134,15 @@ class PointQuadtreeSource:
         payload = self._batch.pop(key, None)  # type: ignore[arg-type]
         return payload if payload is not None else self._build([key])[key]  # type: ignore[list-item,index]
 
-    def set_textures(self, textures: Any) -> None:
-        """Only None: a point quadtree is drawn with the hypsometric colour ramp."""
+    def set_textures(self, textures: Any) -> Callable[[Hashable], bool]:
+        """Only None: a point quadtree is drawn with the hypsometric colour ramp (nothing
+        cached goes stale)."""
         if textures is not None:
             raise InvalidParameterError(
                 "A point quadtree is drawn with the hypsometric colour ramp; texture pyramids "
                 "apply to approximation trees (build one without --kind point-quadtree)."
             )
+        return lambda key: False
 
     def set_shading_side(self, side: int) -> None:
         """Nothing changes: γ does not apply to a point quadtree."""

@@ -24,6 +24,7 @@ mesh of seed 003, built per frame).
 
 from __future__ import annotations
 
+from collections.abc import Callable, Hashable
 from typing import Any, Protocol
 
 import numpy as np
@@ -68,7 +69,7 @@ class TileSource(Protocol):
 
     def load(self, key: MeshKey | TextureKey) -> Payload: ...
 
-    def set_textures(self, textures: Any) -> None: ...
+    def set_textures(self, textures: Any) -> Callable[[Hashable], bool]: ...
 
     def set_shading_side(self, side: int) -> None: ...
 

@@ -45,6 +45,7 @@ from approxtree.render.renderer import Renderer
 from approxtree.render.selector import Selection, finer_below, select
 from approxtree.render.skirts import add_skirts, patches_reach_rect, skirt_base, skirt_depths
 from approxtree.render.texture_binding import TextureBinding, as_pyramid
+from approxtree.render.texture_follow import pyramids_of, stale_textures
 from approxtree.render.texture_sharing import texture_nodes
 from approxtree.render.traversal import Paging, plan_frame
 from approxtree.textures.detail import DetailTextures
@@ -157,18 +158,26 @@ class ApproximationTreeSource:
             return self.full.load(key)
         return self.provider.load(key)
 
-    def set_textures(self, textures: Any) -> None:
-        """Texture with a TexturePyramid (or its folder), or None; texel sizes follow."""
+    def set_textures(self, textures: Any) -> Callable[[Hashable], bool]:
+        """Texture with a TexturePyramid (or its folder), or None; texel sizes follow.
+
+        Returns the predicate of the cache keys this makes stale (render/texture_follow.py):
+        after a re-bake of the same pyramid, only the texture patches meeting a re-baked
+        tile; else every texture patch. The CPU cache drops them here, the caller the GPU's.
+        """
         pyramid = as_pyramid(textures, self.tree.terrain)
-        self.provider.drop(lambda key: isinstance(key, TextureKey))
+        before = pyramids_of(self.binding)
         if pyramid is None:
             self.binding, self.texels = None, self.shading_texels
             self.finer = np.zeros(len(self.tree), dtype=bool)
             self.sources = np.zeros(len(self.tree), dtype=np.int64)
-            return
-        self.binding = TextureBinding(pyramid, self.tree.origin, self._rect_of, self._level_of)
-        self.texels, self.sources = self._texture_texels(pyramid)
-        self.finer = finer_below(self.tree, self.texels)
+        else:
+            self.binding = TextureBinding(pyramid, self.tree.origin, self._rect_of, self._level_of)
+            self.texels, self.sources = self._texture_texels(pyramid)
+            self.finer = finer_below(self.tree, self.texels)
+        stale = stale_textures(before, pyramids_of(self.binding))
+        self.provider.drop(stale)
+        return stale
 
     def _texture_texels(self, pyramid: Any) -> tuple[np.ndarray, np.ndarray]:
         """(n, 2) texel of each node's texture patch, in the pyramid the node uses (``pyramid``:
