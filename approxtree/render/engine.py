@@ -115,21 +115,41 @@ class Engine:
         """Take the tree's updates since the last frame (every frame calls this): meshes of
         changed nodes leave the GPU and CPU caches, the others are re-keyed to their new ids;
         the normal map and palette range follow the edited terrain. True when it changed."""
-        version = getattr(self.tree, "version", 0)
-        if version == self._tree_version:
+        if not self.tree_changed:
             return False
         follow = getattr(self.source, "follow", None)
         old_to_new = self.tree.changes_since(self._tree_version)
-        self._tree_version = version
-        before = len(self.cache)
+        self._tree_version = self.tree.version
         if follow is None:  # pragma: no cover - only approximation trees change
-            dropped = self.cache.drop(lambda key: isinstance(key, MeshKey))
+            self._rekey(lambda key: None if isinstance(key, MeshKey) else key)
         else:
-            dropped = self.cache.rekey(follow(old_to_new))
+            self._rekey(follow(old_to_new))
+        return True
+
+    @property
+    def tree_changed(self) -> bool:
+        """The tree was updated since the last frame (the next one follows it)."""
+        return getattr(self.tree, "version", 0) != self._tree_version
+
+    def replace_tree(self, tree: Any, old_to_new: np.ndarray | None) -> None:
+        """Draw ``tree``, a fresh load of this engine's store after another process updated
+        it (``approxtree update``), keeping the payloads of the nodes ``old_to_new`` maps:
+        (n_old,) the new id of each old node whose payload is unchanged, −1 elsewhere; None:
+        every node changed. render/tree_follow.py makes the map; ``follow_tree`` keeps the
+        in-memory case."""
+        self._check_alive()
+        mapping = self.source.replace_tree(tree, old_to_new)
+        self.tree = tree
+        self._tree_version = getattr(tree, "version", 0)
+        self._rekey(mapping)
+
+    def _rekey(self, mapping: Any) -> None:
+        """Re-key the GPU cache after a tree change; the normal map and palette follow."""
+        before = len(self.cache)
+        dropped = self.cache.rekey(mapping)
         self.update_figures = {"gpu_dropped": dropped, "gpu_kept": before - dropped}
         self.set_vertical_exaggeration(self.exaggeration)
         self.set_palette(self.palette)
-        return True
 
     # -- settings ---------------------------------------------------------------------------
 

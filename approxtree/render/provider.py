@@ -206,8 +206,11 @@ class PayloadProvider:
                 future.set_result(payload)
             except BaseException as exc:  # handed to the next load() of this key
                 future.set_result(None)
-                if self.error is None:
-                    self.error = exc
+                with self._lock:
+                    # A load started before a drop or rekey read what is now gone: its
+                    # error (e.g. a store swapped under it) is no one's to see.
+                    if self.error is None and generation == self._generation:
+                        self.error = exc
             finally:
                 with self._lock:
                     self._inflight.pop(key, None)
@@ -239,9 +242,11 @@ class PayloadProvider:
     # -- housekeeping -------------------------------------------------------------------------
 
     def drop(self, predicate: Callable[[Hashable], bool]) -> int:
-        """Forget the cached and queued keys that satisfy ``predicate``; returns how many."""
+        """Forget the cached and queued keys that satisfy ``predicate``; returns how many.
+        A background load's error not raised yet is forgotten too (it may be stale)."""
         with self._lock:
             self._generation += 1
+            self.error = None
             keys = [k for k in self._entries if predicate(k)]
             for k in keys:
                 self.nbytes -= self._entries.pop(k).nbytes
@@ -252,9 +257,11 @@ class PayloadProvider:
     def rekey(self, mapping: Callable[[Hashable], Hashable | None]) -> int:
         """Give every cached payload the key ``mapping(key)`` (its node renumbered by a tree
         update), forgetting those mapped to None and every queued key; loads in flight are
-        not cached (they may be stale). Returns how many payloads were forgotten."""
+        not cached (they may be stale), nor is a background error not raised yet. Returns
+        how many payloads were forgotten."""
         with self._lock:
             self._generation += 1
+            self.error = None
             kept: OrderedDict[Hashable, Payload] = OrderedDict()
             dropped = 0
             for key, payload in self._entries.items():

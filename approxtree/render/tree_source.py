@@ -80,6 +80,9 @@ class ApproximationTreeSource:
         d = tree.terrain.domain
         self._domain = (d.xmin, d.ymin, d.xmax, d.ymax)
         self._shading_side = NORMAL_MAP_MAX
+        #: Called after each node's patch is read from the tree; raises to refuse a payload
+        #: read from a store another process swapped meanwhile (render/tree_follow.py).
+        self.payload_check: Callable[[], None] | None = None
         self._node_figures()
 
     def _node_figures(self) -> None:
@@ -210,6 +213,16 @@ class ApproximationTreeSource:
         self.provider.drop(lambda key: isinstance(key, MeshKey))
         return True
 
+    def replace_tree(
+        self, tree: Any, old_to_new: np.ndarray | None
+    ) -> Callable[[Hashable], Hashable | None]:
+        """Draw ``tree`` instead, a fresh load of the same terrain after another process
+        updated its store; ``old_to_new`` as for ``follow`` (render/tree_follow.py makes
+        it). Returns ``follow``'s key map."""
+        _check_drawable(tree)
+        self.tree = tree
+        return self.follow(old_to_new)
+
     def follow(self, old_to_new: np.ndarray | None) -> Callable[[Hashable], Hashable | None]:
         """Take a tree update (``ApproximationTree.changes_since``: (n_old,) new id of every
         unchanged old node, −1 elsewhere; None: unknown, everything changed) and return the
@@ -301,6 +314,8 @@ class ApproximationTreeSource:
             return Payload(texels=self.binding.texels(key))
         i = key.item
         patch = _read_patch(self.tree, i)
+        if self.payload_check is not None:
+            self.payload_check()
         if not self.skirts:
             verts, tris = patch.vertices, patch.triangles
             flags = np.zeros(len(verts), dtype=np.float32)
