@@ -93,6 +93,12 @@ from approxtree.cli.options import (
     help="Land-cover legend of the --textures layer (default: the elevation palette's).",
 )
 @click.option(
+    "--follow/--no-follow",
+    default=True,
+    help="Show the updates another process makes to a tree store SOURCE and its --textures "
+    "folders (approxtree update) live [default: follow].",
+)
+@click.option(
     "--bookmarks",
     "bookmarks_path",
     type=click.Path(dir_okay=False),
@@ -122,6 +128,7 @@ def view(
     max_uploads: int,
     upload_ms: float | None,
     legend: str | None,
+    follow: bool,
     bookmarks_path: str | None,
     style: dict[str, Any],
     build: BuildChoices,
@@ -171,6 +178,7 @@ def view(
         legend=legend,
         bookmarks=bookmarks_path,
         source=source,
+        follow=follow,
         screenshot_name=screenshot_name,
         furniture_in_shots=screenshot_furniture,
         **style,

@@ -102,7 +102,8 @@ class Engine:
         self.renderer.set_walls(tree.terrain.domain, tree.origin)
         self.set_vertical_exaggeration(exaggeration)
         self.set_palette(palette)
-        #: The tree's version the caches hold (``follow_tree``); figures of the last update.
+        #: The tree's version the caches hold (``follow_tree``); figures of the last tree
+        #: change (gpu_dropped, gpu_kept) and of the last texture change (texture_gpu_...).
         self._tree_version = getattr(tree, "version", 0)
         self.update_figures: dict[str, int] = {}
         # Load the compiled selection kernels now, so select_ms of the first frame is honest.
@@ -147,7 +148,7 @@ class Engine:
         """Re-key the GPU cache after a tree change; the normal map and palette follow."""
         before = len(self.cache)
         dropped = self.cache.rekey(mapping)
-        self.update_figures = {"gpu_dropped": dropped, "gpu_kept": before - dropped}
+        self.update_figures |= {"gpu_dropped": dropped, "gpu_kept": before - dropped}
         self.set_vertical_exaggeration(self.exaggeration)
         self.set_palette(self.palette)
 
@@ -166,7 +167,7 @@ class Engine:
         stale = self.source.set_textures(textures)
         before = sum(isinstance(key, TextureKey) for key in self.cache.keys())
         dropped = self.cache.drop(stale)
-        self.update_figures = {
+        self.update_figures |= {
             "texture_gpu_dropped": dropped,
             "texture_gpu_kept": before - dropped,
         }

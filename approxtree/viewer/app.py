@@ -25,11 +25,14 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 from approxtree.errors import InvalidParameterError
 from approxtree.textures.detail import open_drape
+from approxtree.textures.pyramid import TexturePyramid
+from approxtree.tree.loading import load_tree
 from approxtree.viewer.actions import ACTIONS
 from approxtree.viewer.frame_driver import FrameDriver
 from approxtree.viewer.input import Input
@@ -65,7 +68,9 @@ class Viewer:
     (Engine and ``Engine.render``); legend: the land-cover legend of the thematic layer
     ("nlcd", "landclass96"; None: the hypsometric palette's legend when untextured);
     bookmarks: the bookmark file (default ``default_bookmarks_path()``); source: the key of
-    this terrain in it (the opened path).
+    this terrain in it (the opened path). follow: when ``source`` is a tree store folder, show
+    its updates by another process (``approxtree update``) and the re-bakes of the texture
+    pyramids given as folders, live (render/live.py).
     """
 
     def __init__(
@@ -91,6 +96,7 @@ class Viewer:
         legend: str | None = None,
         bookmarks: str | Path | None = None,
         source: str | None = None,
+        follow: bool = True,
     ) -> None:
         # 1. What needs no window fails first: settings, legend, texture folders.
         self.settings = ViewSettings(
@@ -139,6 +145,8 @@ class Viewer:
         )
         if self.pyramids:
             self.apply_textures()
+        if follow:
+            self._follow(source)
         self.frame_state: Any = None
         self._screenshot_due = False
         self.window.listen(self.input)
@@ -169,6 +177,29 @@ class Viewer:
         pyramid = self.pyramids[s.texture_index] if (self.pyramids and s.thematic) else None
         self.driver.set_textures(pyramid)
 
+    def _follow(self, source: str | None) -> None:
+        """Follow the store ``source`` (a folder holding a tree store) and the pyramids."""
+        store = Path(source) if source else None
+        if store is not None and not (store / "zarr.json").is_file():
+            store = None
+        folders = [p.folder for p in self.pyramids if isinstance(p, TexturePyramid)]
+        if store is not None or folders:
+            self.driver.follow(store, folders, partial(load_tree, verify=False))
+
+    def _take_changes(self) -> None:
+        """Give the parts that read the terrain the tree the last frames followed, and the
+        texture list the re-baked pyramids."""
+        for change in self.driver.take_changes():
+            if change.tree is not None:
+                self.nav.terrain = self.map.terrain = change.tree.terrain
+                kept = 0 if change.kept is None else int((change.kept >= 0).sum())
+                self.messages.append(f"store updated: {kept} of {len(change.tree)} nodes kept")
+            for folder, pyramid in change.pyramids.items():
+                self.pyramids = [
+                    pyramid if getattr(p, "folder", None) == folder else p for p in self.pyramids
+                ]
+                self.messages.append(f"textures re-baked: {folder}")
+
     def request_screenshot(self) -> None:
         self._screenshot_due = True
 
@@ -179,6 +210,7 @@ class Viewer:
         frame also reads the drawn world positions when a measure click waits."""
         positions, hover = self.map.frame_wants()
         frame = self.driver.draw(self.nav.camera(), self.window.framebuffer_size(), positions)
+        self._take_changes()
         self.frame_state = frame.frame_state
         self.map.after_frame(frame.positions, hover)
         return dict(frame.stats)

@@ -6,6 +6,10 @@ background and the traversal draws their nearest resident ancestors meanwhile, u
 most ``max_uploads`` meshes (``budget_ms``) per frame; only the root is uploaded up front.
 A frozen frustum draws the cut seen from the frozen view (``Cut(frozen=...)``).
 
+Live (``follow``): every frame first polls the store and the pyramids another process may
+update (``approxtree update``; render/live.py: one stat each); the Engine then draws the new
+tree and textures with the unchanged nodes' and tiles' payloads still cached.
+
 The rest of the viewer reads and changes the Engine only through this class, so a change of
 the Engine's API is made here.
 """
@@ -21,6 +25,7 @@ from approxtree.render.camera import Camera
 from approxtree.render.cut import Cut
 from approxtree.render.engine import Engine, Frame
 from approxtree.render.frame_state import FrameState
+from approxtree.render.live import LiveChange, LiveFollower
 from approxtree.render.style import Style, Sun
 from approxtree.render.traversal import Paging
 from approxtree.viewer.settings import ViewSettings
@@ -55,6 +60,8 @@ class FrameDriver:
         self.budget_ms = budget_ms
         self.engine = Engine(tree, context=ctx, exaggeration=float(exaggeration), palette=palette)
         self._frozen: FrameState | None = None
+        #: Follows a store and pyramids updated by another process (``follow``), or None.
+        self.live: LiveFollower | None = None
         # The root's mesh now: it also loads the compiled skirt kernels before frame 0.
         self.engine.upload(0)
 
@@ -89,6 +96,15 @@ class FrameDriver:
         """Draw z times ``factor``; ``scale`` follows."""
         self.engine.set_vertical_exaggeration(factor)
 
+    def follow(self, store: Any, pyramids: list[Any], loader: Any) -> None:
+        """Follow the store folder ``store`` (or None) and the pyramid folders ``pyramids``
+        as another process updates them; ``loader(path)`` loads the store's new tree."""
+        self.live = LiveFollower(self.engine, store, pyramids, loader)
+
+    def take_changes(self) -> list[LiveChange]:
+        """What the frames followed since the last call (render/live.py), oldest first."""
+        return self.live.take() if self.live is not None else []
+
     def freeze(self, camera: Camera, size: tuple[int, int]) -> None:
         """Keep drawing the cut seen by ``camera`` whatever the camera does next."""
         self._frozen = self.engine.frame_state(camera, size)
@@ -103,7 +119,9 @@ class FrameDriver:
         read the drawn world positions (Frame.positions, an extra pass)."""
         s = self.settings
         self.ctx.fbo.use()
-        frame = self.engine.render(
+        # Live: poll the store and pyramids first (and again for a frame that met a swap).
+        render = self.engine.render if self.live is None else self.live.render
+        frame = render(
             camera,
             size,
             # While frozen, the cut of the frozen frustum.
