@@ -13,7 +13,10 @@ notebook → viewer, render → tree). A Frame has its own ``_repr_png_``.
 ``TerrainWidget(tree)`` is a jupyter-rfb ``RemoteFrameBuffer``: each frame is rendered by an
 Engine, a drag orbits (left button) or pans (right or middle button, or with Shift) and the
 wheel zooms towards the target, through the viewer's ``OrbitController``. Needs the
-``notebook`` extra (``pip install approxtree[notebook]``).
+``notebook`` extra (``pip install approxtree[notebook]``). A tree changed by
+``tree.update(...)`` in a later cell is redrawn after that cell (IPython's post_run_cell
+event: ``TerrainWidget.refresh``), the Engine keeping the unchanged nodes' meshes; so is a
+re-baked pyramid given to ``TerrainWidget.set_textures``.
 """
 
 from __future__ import annotations
@@ -188,6 +191,26 @@ class TerrainWidget(_Base):
         # The view first: the widget may ask for a frame as soon as it exists.
         self.view = _OrbitView(tree, size, **engine_options)
         super().__init__(css_width=f"{size[0]}px", css_height=f"{size[1]}px")
+        # After each cell: redraw when the cell updated the tree.
+        self._ipython = _ipython()
+        if self._ipython is not None:
+            self._ipython.events.register("post_run_cell", self._after_cell)
+
+    def refresh(self) -> bool:
+        """Redraw when the tree was updated since the last frame; True when it was."""
+        if not self.view.engine.tree_changed:
+            return False
+        self.request_draw()
+        return True
+
+    def set_textures(self, textures: Any) -> None:
+        """Drape ``textures`` (``Engine.set_textures``: after a re-bake of the same pyramid,
+        only the texture patches of re-baked tiles are loaded again) and redraw."""
+        self.view.engine.set_textures(textures)
+        self.request_draw()
+
+    def _after_cell(self, *args: Any) -> None:
+        self.refresh()
 
     def get_frame(self) -> np.ndarray:
         """(h, w, 4) uint8 RGBA of the current pose (jupyter_rfb asks for it to draw)."""
@@ -198,5 +221,17 @@ class TerrainWidget(_Base):
             self.request_draw()
 
     def close(self, *args: Any, **kwargs: Any) -> None:
+        if self._ipython is not None:
+            self._ipython.events.unregister("post_run_cell", self._after_cell)
+            self._ipython = None
         self.view.close()
         super().close(*args, **kwargs)
+
+
+def _ipython() -> Any:
+    """The running IPython shell, or None (a plain Python process)."""
+    try:
+        from IPython import get_ipython
+    except ImportError:  # pragma: no cover - IPython comes with the notebook extra
+        return None
+    return get_ipython()

@@ -153,3 +153,36 @@ def test_example_notebook_runs_and_shows_pictures(gl, tmp_path):
     view = "application/vnd.jupyter.widget-view+json"
     widgets = [o for o in outputs if view in o.get("data", {})]
     assert widgets, "the widget cell shows no widget"
+
+
+def test_widget_redraws_a_tree_updated_in_a_later_cell(gl):
+    """After ``tree.update`` the widget's refresh (run after every cell) asks for a frame,
+    which shows the change: its Engine followed the update (``Engine.follow_tree``, whose
+    cache keeping tests/test_update_render.py checks) without being recreated."""
+    from approxtree.geometry.rect import Rect
+    from approxtree.notebook import TerrainWidget
+
+    grid = hills()
+    tree = ApproximationTree.build(grid, epsilon=1.0, progress=False)
+    widget = TerrainWidget(tree, size=(320, 180))
+    draws = []
+    widget.request_draw = lambda: draws.append(1)
+    try:
+        first = widget.get_frame()
+        assert not widget.refresh() and not draws
+        t = grid.transform
+        # 30 × 30 cells east of the centre raised 20 m within the terrain's z range.
+        r0, c0, n = 60, 90, 30
+        lo, hi = grid.z_range
+        old = np.array(grid.heights[r0 : r0 + n, c0 : c0 + n], dtype=np.float64)
+        heights = np.where(old > lo, np.minimum(old + 20.0, hi), old)
+        x0, y0 = t @ (c0, r0 + n)
+        x1, y1 = t @ (c0 + n, r0)
+        tree.update(Rect(x0, y0, x1, y1), heights)
+        assert widget.refresh() and draws == [1]
+        second = widget.get_frame()
+        assert not np.array_equal(first, second)
+        assert "gpu_dropped" in widget.view.engine.update_figures
+        assert not widget.refresh() and draws == [1]
+    finally:
+        widget.close()
