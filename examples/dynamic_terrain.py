@@ -3,6 +3,7 @@ follow each change of the terrain and of the water.
 
     python examples/dynamic_terrain.py [DEM] [--steps 8] [--flood 6] [--out dynamic_frames]
     python examples/dynamic_terrain.py ../shared/data/nc/elev_ned_30m.tif
+    python examples/dynamic_terrain.py ../shared/data/nc/elev_ned_30m.tif --live
 
 A simulation developer's loop: every step digs the pit deeper (and heaps the spoil beside
 it), ``tree.update`` rebuilds only the nodes over the changed window, ``rebake`` re-bakes only
@@ -10,12 +11,17 @@ the texture pyramid tiles the edit reaches, and the same Engine renders the next
 caches keep every unchanged node's mesh. Then the water rises: the pyramid's water layer (a
 thematic layer, texels below the level in the water colour) is re-baked where the shore line
 moved. Writes one PNG per step and prints each step's update, re-bake and frame times.
+
+``--live`` shows the same steps in the viewer's window as they happen (``--frames`` frames
+per step; close the window to stop): the viewer's Engine follows each update and re-bake
+without being recreated, and each step prints its update, re-bake and mean frame times.
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -37,12 +43,99 @@ def window_rect(grid: at.Grid, r0: int, c0: int, rows: int, cols: int) -> Rect:
     return Rect(min(xs), min(ys), max(xs), max(ys))
 
 
+def simulation(
+    grid: at.Grid, tree: at.ApproximationTree, pyramid, steps: int, flood: int, level: float
+) -> Iterator[tuple[str, str, Rebake]]:
+    """Apply the pit's steps, then the flood's, to ``tree`` and ``pyramid``; yields each
+    step's (name, what the update did, the re-bake) once it is applied."""
+    # The pit: flat-bottomed, steep-walled, in the middle third of the terrain, deepened each
+    # step; its spoil heaped east of it.
+    rows, cols = grid.height // 3, grid.width // 3
+    r0, c0 = grid.height // 3, grid.width // 3
+    yy, xx = np.mgrid[:rows, :cols]
+    radius = np.hypot((yy - rows / 2) / (rows / 3), (xx - cols / 3) / (cols / 4))
+    bowl = np.clip(4.0 * (1.0 - radius), 0.0, 1.0)
+    heap = np.exp(-(((yy - rows / 2) / (rows / 6)) ** 2 + ((xx - 0.8 * cols) / (cols / 8)) ** 2))
+    low, high = grid.z_range
+    relief = high - low
+    ground = np.array(grid.heights[r0 : r0 + rows, c0 : c0 + cols], dtype=np.float64)
+    rect = window_rect(grid, r0, c0, rows, cols)
+    for step in range(1, steps + 1):
+        depth = 0.15 * relief * step
+        report = tree.update(rect, ground - depth * bowl + 0.5 * depth * heap)
+        changed = f"{len(report.rebuilt)} nodes rebuilt of {report.nodes_after}"
+        update = f"update {report.seconds * 1e3:7.1f} ms ({changed})"
+        yield f"step_{step:02d}", update, rebake(pyramid.folder, tree.terrain, rect)
+    # The flood: the water rises to a third of the relief, step by step.
+    rising = np.linspace(level, low + relief / 3, flood + 1)[1:]
+    for step, height in enumerate(rising, start=1):
+        textures = rebake(pyramid.folder, tree.terrain, water_level=float(height))
+        yield f"flood_{step:02d}", f"water at {height:.1f}", textures
+
+
+def baked_line(textures: Rebake, dropped: int) -> str:
+    """A re-bake's figures: tiles re-baked, time, texture patches the Engine dropped."""
+    return (
+        f"{sum(textures.tiles)}/{sum(textures.tiles_total)} tiles re-baked in "
+        f"{textures.seconds * 1e3:.0f} ms, {dropped} texture patches dropped"
+    )
+
+
+def image_sequence(tree, pyramid, changes, out: Path) -> None:
+    """Render each step to a PNG with one Engine (its caches keep unchanged payloads)."""
+    with at.Engine(tree, textures=pyramid, exaggeration=4.0) as engine:
+        camera = overview_camera(tree.bboxes[0], engine.scale, fov=40.0, elevation=35.0)
+        cut = Cut(alpha=1.0, gamma=2.0)
+
+        def frame(name: str, update: str, baked: str) -> None:
+            """Draw, write the PNG, print the step's times."""
+            t0 = time.perf_counter()
+            image = engine.render(camera, (960, 540), cut).image
+            frame_ms = (time.perf_counter() - t0) * 1e3
+            Image.fromarray(image).save(out / f"{name}.png")
+            print(f"{name}: {update}, {baked}, frame {frame_ms:6.1f} ms")
+
+        frame("step_00", "the terrain as read", "textures as baked")
+        for name, update, textures in changes:
+            # Only the texture patches meeting a re-baked tile leave the caches.
+            engine.set_textures(textures.pyramid)
+            baked = baked_line(textures, engine.update_figures["texture_gpu_dropped"])
+            frame(name, update, baked)
+            if name.startswith("step"):
+                print(
+                    f"         {engine.update_figures['gpu_dropped']} meshes dropped from the GPU"
+                )
+
+
+def live(tree, pyramid, changes, frames: int) -> None:
+    """Show each step in the viewer's window as it happens, ``frames`` frames a step."""
+    from approxtree.viewer.app import Viewer
+
+    with Viewer(tree, textures=[pyramid], exaggeration=4.0, title="dynamic terrain") as viewer:
+        viewer.run(max_frames=frames)
+        for name, update, textures in changes:
+            if viewer.window.closing:
+                break
+            # The viewer's Engine: the tree's update is followed at the next frame, the
+            # re-baked pyramid now (only the patches of re-baked tiles dropped).
+            viewer.pyramids = [textures.pyramid]
+            viewer.apply_textures()
+            engine = viewer.driver.engine
+            baked = baked_line(textures, engine.update_figures["texture_gpu_dropped"])
+            t0 = time.perf_counter()
+            drawn = viewer.run(max_frames=frames)
+            frame_ms = (time.perf_counter() - t0) * 1e3 / max(drawn, 1)
+            print(f"{name}: {update}, {baked}, mean frame {frame_ms:6.1f} ms")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("dem", nargs="?", help="terrain file (default: matplotlib's sample DEM)")
     parser.add_argument("--steps", type=int, default=8, help="excavation steps")
     parser.add_argument("--flood", type=int, default=6, help="steps of the rising water")
     parser.add_argument("--out", default="dynamic_frames", help="folder of the PNG frames")
+    parser.add_argument("--live", action="store_true", help="show the steps in the viewer")
+    parser.add_argument("--frames", type=int, default=45, help="--live: frames per step")
     args = parser.parse_args()
 
     grid = at.open_terrain(args.dem) if args.dem else sample_terrain()
@@ -58,54 +151,12 @@ def main() -> None:
     t0 = time.perf_counter()
     pyramid = bake(grid, out / "textures", gl=False, water_level=level).pyramid
     print(f"bake {time.perf_counter() - t0:.2f} s, {len(pyramid)} levels")
-
-    # The pit: flat-bottomed, steep-walled, in the middle third of the terrain, deepened each
-    # step; its spoil heaped east of it.
-    rows, cols = grid.height // 3, grid.width // 3
-    r0, c0 = grid.height // 3, grid.width // 3
-    yy, xx = np.mgrid[:rows, :cols]
-    radius = np.hypot((yy - rows / 2) / (rows / 3), (xx - cols / 3) / (cols / 4))
-    bowl = np.clip(4.0 * (1.0 - radius), 0.0, 1.0)
-    heap = np.exp(-(((yy - rows / 2) / (rows / 6)) ** 2 + ((xx - 0.8 * cols) / (cols / 8)) ** 2))
-    relief = grid.z_range[1] - grid.z_range[0]
-    ground = np.array(grid.heights[r0 : r0 + rows, c0 : c0 + cols], dtype=np.float64)
-    rect = window_rect(grid, r0, c0, rows, cols)
-
-    with at.Engine(tree, textures=pyramid, exaggeration=4.0) as engine:
-        camera = overview_camera(tree.bboxes[0], engine.scale, fov=40.0, elevation=35.0)
-        cut = Cut(alpha=1.0, gamma=2.0)
-
-        def frame(name: str, update: str, textures: Rebake | None) -> None:
-            """Draw with the pyramid as re-baked, write the PNG, print the step's times."""
-            if textures is not None:
-                # Only the texture patches meeting a re-baked tile leave the caches.
-                engine.set_textures(textures.pyramid)
-                baked = f"{sum(textures.tiles)}/{sum(textures.tiles_total)} tiles re-baked "
-                baked += f"in {textures.seconds * 1e3:.0f} ms, "
-                baked += f"{engine.update_figures['texture_gpu_dropped']} texture patches dropped"
-            else:
-                baked = "textures as baked"
-            t0 = time.perf_counter()
-            image = engine.render(camera, (960, 540), cut).image
-            frame_ms = (time.perf_counter() - t0) * 1e3
-            Image.fromarray(image).save(out / f"{name}.png")
-            print(f"{name}: {update}, {baked}, frame {frame_ms:6.1f} ms")
-
-        frame("step_00", "the terrain as read", None)
-        for step in range(1, args.steps + 1):
-            depth = 0.15 * relief * step
-            report = tree.update(rect, ground - depth * bowl + 0.5 * depth * heap)
-            changed = f"{len(report.rebuilt)} nodes rebuilt of {report.nodes_after}"
-            update = f"update {report.seconds * 1e3:7.1f} ms ({changed})"
-            frame(f"step_{step:02d}", update, rebake(pyramid.folder, tree.terrain, rect))
-            dropped = engine.update_figures.get("gpu_dropped", 0)
-            print(f"         {dropped} meshes dropped from the GPU")
-        # The flood: the water rises to a third of the relief, step by step.
-        rising = np.linspace(level, low + (high - low) / 3, args.flood + 1)[1:]
-        for step, height in enumerate(rising, start=1):
-            textures = rebake(pyramid.folder, tree.terrain, water_level=float(height))
-            frame(f"flood_{step:02d}", f"water at {height:.1f}", textures)
-    print(f"frames in {out}/")
+    changes = simulation(grid, tree, pyramid, args.steps, args.flood, level)
+    if args.live:
+        live(tree, pyramid, changes, args.frames)
+    else:
+        image_sequence(tree, pyramid, changes, out)
+        print(f"frames in {out}/")
 
 
 if __name__ == "__main__":
