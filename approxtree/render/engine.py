@@ -139,7 +139,10 @@ class Engine:
         every node changed. render/tree_follow.py makes the map; ``follow_tree`` keeps the
         in-memory case."""
         self._check_alive()
-        mapping = self.source.replace_tree(tree, old_to_new)
+        replace = getattr(self.source, "replace_tree", None)
+        if replace is None:
+            raise InvalidParameterError("Only an approximation tree's Engine takes a new tree.")
+        mapping = replace(tree, old_to_new)
         self.tree = tree
         self._tree_version = getattr(tree, "version", 0)
         self._rekey(mapping)

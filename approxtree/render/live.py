@@ -84,10 +84,10 @@ class HeightDigests:
             padded = np.full((-(-(r1 - r0) // BLOCK) * BLOCK, bc * BLOCK), np.nan)
             padded[: r1 - r0, :cols] = np.where(np.isnan(z), np.nan, z)
             bits = padded.view(np.uint64).reshape(-1, BLOCK, bc, BLOCK)
-            bits = bits.transpose(0, 2, 1, 3).reshape(-1, bc, BLOCK * BLOCK)
+            blocks = bits.transpose(0, 2, 1, 3).reshape(-1, bc, BLOCK * BLOCK)
             for k in range(2):
                 # uint64 products and sums wrap: a weighted sum modulo 2⁶⁴.
-                self.digests[r0 // BLOCK : -(-r1 // BLOCK), :, k] = (bits * _WEIGHTS[k]).sum(
+                self.digests[r0 // BLOCK : -(-r1 // BLOCK), :, k] = (blocks * _WEIGHTS[k]).sum(
                     axis=-1, dtype=np.uint64
                 )
 
