@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from approxtree.errors import StoreError
+from approxtree.geometry.grid import Grid
 from approxtree.textures.pyramid import TexturePyramid
 
 #: Side (cells) of the blocks of ``HeightDigests``.
@@ -149,13 +150,17 @@ class LiveChange:
 class LiveFollower:
     """Keeps ``engine`` up to date with the store at ``store`` (a folder on disk, or None)
     and the texture pyramids in ``pyramids`` (folders) that another process updates (see the
-    module docstring). ``loader(path)`` loads a tree (``ApproximationTree.load``).
+    module docstring). ``loader(path)`` loads a tree (``ApproximationTree.load``). A store
+    whose tree is not an approximation tree over a Grid (the only kind ``update`` changes)
+    is not followed.
     """
 
     def __init__(self, engine: Any, store: Any, pyramids: Any, loader: Any) -> None:
         self.engine = engine
         self.loader = loader
-        self.store = None if store is None else Path(store)
+        # Only a tree over a regular Grid is updated (tree.update): other stores stay as read.
+        updatable = type(engine.tree.terrain) is Grid and hasattr(engine.source, "replace_tree")
+        self.store = None if store is None or not updatable else Path(store)
         self.pyramids = [Path(p) for p in pyramids]
         self._store_stamp = None if self.store is None else stamp(self.store / "zarr.json")
         self._pyramid_stamps = {p: stamp(p / "pyramid.json") for p in self.pyramids}
