@@ -80,6 +80,7 @@ def test_engine_follows_a_store_and_pyramid_updated_by_the_cli(gl_context, tmp_p
         cut = Cut(alpha=1.0, gamma=1.0)
         for cam in cameras(tree):
             eng.render(cam, SIZE, cut)
+        live.settle()  # the first digests taken (on the follower's thread)
         assert not live.poll()  # nothing changed yet
         meshes = {k.item for k in eng.cache.keys() if isinstance(k, MeshKey)}
         textures = texture_keys(eng.cache.keys())
@@ -154,3 +155,30 @@ def test_height_digests_see_every_single_cell_change() -> None:
         assert np.flatnonzero(changed.ravel()).tolist() == [r // 8 * changed.shape[1] + c // 8]
     assert not before.changed(HeightDigests(grid)).any()
     assert math.isfinite(float(before.digests.sum(dtype=np.float64)))
+
+
+def test_an_update_before_the_follower_started_is_followed(gl_context, tmp_path) -> None:
+    """A store swapped after the drawn tree was loaded but before its follower started is
+    noticed (the node table differs from a load now) and followed at the next poll keeping
+    nothing; the frame then equals a fresh Engine's."""
+    store, _, grid = store_and_pyramid(tmp_path)
+    tree = ApproximationTree.load(store)
+    result = CliRunner().invoke(main, ["update", str(store), str(patch_file(tmp_path, grid))])
+    assert result.exit_code == 0, result.output
+    eng = Engine(tree, context=gl_context, offscreen=True)
+    fresh_eng = None
+    try:
+        live = LiveFollower(eng, store, [], ApproximationTree.load)
+        live.settle()
+        change = live.poll()
+        assert change.tree is not None and change.kept is None
+        cut = Cut(alpha=1.0, gamma=math.inf)
+        fresh_eng = Engine(ApproximationTree.load(store), context=gl_context, offscreen=True)
+        for cam in cameras(tree):
+            frame = live.render(cam, SIZE, cut)
+            np.testing.assert_array_equal(frame.image, fresh_eng.render(cam, SIZE, cut).image)
+        assert not live.poll()
+    finally:
+        eng.release()
+        if fresh_eng is not None:
+            fresh_eng.release()

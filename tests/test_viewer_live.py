@@ -32,6 +32,7 @@ common = dict(textures=[tex], size=(480, 270), gamma=0.5, max_uploads=0, lightin
               bookmarks=out + "/bookmarks.json")
 with Viewer(load_tree(store, verify=False), source=store, **common) as v:
     v.render_frame()
+    v.driver.settle()  # the payloads loaded, the follower's first digests taken
     v.window.save_png(out + "/before.png")
     before = len(v.driver.engine.cache)
     update = [sys.executable, "-m", "approxtree", "update", store, patch, "--textures", tex]

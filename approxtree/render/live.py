@@ -17,7 +17,7 @@ pyramid's ``pyramid.json``) notices the swap and hands the Engine the change:
   exact too, but it would have to live in the store (another format promise) and it names
   the nodes of the previous version only, while a viewer may have missed several updates;
   identity plus digests compares any two versions. The cost: the heights are read whole
-  once per update (and at start).
+  once per update (and at start, on a thread of their own).
 - **Textures.** The re-baked pyramid is opened again; ``Engine.set_textures`` drops only the
   texture patches meeting a tile whose checksum changed (render/texture_follow.py).
 
@@ -31,6 +31,7 @@ re-baked tile fails its old checksum (a StoreError), handled the same way.
 from __future__ import annotations
 
 import os
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -164,11 +165,47 @@ class LiveFollower:
         self.pyramids = [Path(p) for p in pyramids]
         self._store_stamp = None if self.store is None else stamp(self.store / "zarr.json")
         self._pyramid_stamps = {p: stamp(p / "pyramid.json") for p in self.pyramids}
-        self._digests = None if self.store is None else HeightDigests(engine.tree.terrain)
+        # The first digests on a thread (the heights read whole: seconds for a large store),
+        # so the first frames do not wait; a poll that needs them waits.
+        self._digests: HeightDigests | None = None
+        self._first: threading.Thread | None = None
+        if self.store is not None:
+            self._first = threading.Thread(
+                target=self._first_digests, args=(engine.tree,), daemon=True
+            )
+            self._first.start()
         #: What the polls followed since the caller last took it (``take``).
         self.changes: list[LiveChange] = []
         if self.store is not None:
             engine.source.payload_check = self._check_store
+
+    def _first_digests(self, tree: Any) -> None:
+        """Digest the drawn tree's heights; none when the store was swapped meanwhile (then
+        the next update keeps nothing) or could not be read. A store swapped between the
+        drawn tree's load and this follower (its node table differs from a load now) is
+        followed at the next poll, keeping nothing."""
+        if self.store is None:
+            return
+        try:
+            now = self.loader(self.store)
+            same = all(
+                np.array_equal(getattr(now, name), getattr(tree, name), equal_nan=True)
+                for name in ("levels", "rects", "errors")
+            )
+            digests = HeightDigests(tree.terrain)
+        except StoreError:
+            return
+        if not same:
+            self._store_stamp = None
+        elif stamp(self.store / "zarr.json") == self._store_stamp:
+            self._digests = digests
+
+    def settle(self) -> None:
+        """Wait for the first digests (scripted replays and tests: the next poll is then
+        the same on any machine)."""
+        if self._first is not None:
+            self._first.join()
+            self._first = None
 
     def _check_store(self) -> None:
         """StoreChangedError when the store was swapped since the drawn tree was loaded."""
@@ -198,8 +235,9 @@ class LiveFollower:
     def _follow_store(self, now: tuple[int, int, int], change: LiveChange) -> None:
         """Load the new store and hand the Engine the nodes it keeps; a store swapped again
         during the load (or unreadable mid-swap) is left to the next poll."""
-        if self.store is None or self._digests is None:
+        if self.store is None:
             return
+        self.settle()
         try:
             tree = self.loader(self.store)
             digests = HeightDigests(tree.terrain)
@@ -207,7 +245,8 @@ class LiveFollower:
             return
         if stamp(self.store / "zarr.json") != now:
             return
-        kept = follow_map(self.engine.tree, tree, self._digests.changed(digests))
+        changed = None if self._digests is None else self._digests.changed(digests)
+        kept = follow_map(self.engine.tree, tree, changed)
         self._store_stamp, self._digests = now, digests
         self.engine.replace_tree(tree, kept)
         change.tree, change.kept = tree, kept

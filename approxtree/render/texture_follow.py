@@ -84,8 +84,7 @@ def stale_textures(
     # Per source: its tile side and changed tiles (None: all of that source's patches).
     changes = []
     for a, b in zip(old, new, strict=True):
-        tiles = [set() for _ in a.levels] if a is b else changed_tiles(a, b)
-        changes.append((tile_side(b), tiles))
+        changes.append((tile_side(b), changed_tiles(a, b)))
 
     def stale(key: Hashable) -> bool:
         if not isinstance(key, TextureKey):

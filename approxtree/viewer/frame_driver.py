@@ -146,6 +146,8 @@ class FrameDriver:
         """Wait until the payloads this frame requested are loaded (scripted replays)."""
         if self.engine.provider is not None:
             self.engine.provider.wait()
+        if self.live is not None:
+            self.live.settle()
 
     def release(self) -> None:
         self.engine.release()
