@@ -136,7 +136,7 @@ class Engine:
         """Draw ``tree``, a fresh load of this engine's store after another process updated
         it (``approxtree update``), keeping the payloads of the nodes ``old_to_new`` maps:
         (n_old,) the new id of each old node whose payload is unchanged, −1 elsewhere; None:
-        every node changed. render/tree_follow.py makes the map; ``follow_tree`` keeps the
+        every node changed. render/live.py makes the map; ``follow_tree`` keeps the
         in-memory case."""
         self._check_alive()
         replace = getattr(self.source, "replace_tree", None)

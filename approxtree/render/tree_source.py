@@ -81,7 +81,7 @@ class ApproximationTreeSource:
         self._domain = (d.xmin, d.ymin, d.xmax, d.ymax)
         self._shading_side = NORMAL_MAP_MAX
         #: Called after each node's patch is read from the tree; raises to refuse a payload
-        #: read from a store another process swapped meanwhile (render/tree_follow.py).
+        #: read from a store another process swapped meanwhile (render/live.py).
         self.payload_check: Callable[[], None] | None = None
         self._node_figures()
 
@@ -217,7 +217,7 @@ class ApproximationTreeSource:
         self, tree: Any, old_to_new: np.ndarray | None
     ) -> Callable[[Hashable], Hashable | None]:
         """Draw ``tree`` instead, a fresh load of the same terrain after another process
-        updated its store; ``old_to_new`` as for ``follow`` (render/tree_follow.py makes
+        updated its store; ``old_to_new`` as for ``follow`` (render/live.py makes
         it). Returns ``follow``'s key map."""
         _check_drawable(tree)
         self.tree = tree
