@@ -69,7 +69,11 @@ class LevelFile:
         """(bands, h, w) texels of the window: the base file's, each delta's over them."""
         from rasterio.windows import Window
 
-        out = self.base.read(window=window, boundless=boundless, fill_value=fill_value)
+        # fill_value only with boundless: rasterio would fill the alpha-masked texels with it.
+        if boundless:
+            out = self.base.read(window=window, boundless=True, fill_value=fill_value)
+        else:
+            out = self.base.read(window=window)
         r0, c0 = int(window.row_off), int(window.col_off)
         r1, c1 = r0 + out.shape[1], c0 + out.shape[2]
         for ds, (a, c) in self.deltas:
