@@ -456,3 +456,19 @@ def test_level_files_stay_compact_over_many_rebakes(nc, tmp_path) -> None:
     assert entries[0]["compact_bytes"] != first  # level 0 was written whole again at least once
     bake(grid, tmp_path / "fresh", gl=False, max_texture_size=256, texel_size=10.0)
     same_pyramid(folder, tmp_path / "fresh")
+
+
+def test_level_written_whole_again_equals_fresh_bake(nc, tmp_path, monkeypatch) -> None:
+    """With no delta allowed every re-bake writes each level whole again (its other tile rows
+    read from the pyramid): an edit in the first tile row only still gives a fresh bake's
+    texels, and the old level files go."""
+    import approxtree.textures.rebake as module
+
+    monkeypatch.setattr(module, "MAX_DELTAS", 0)
+    edits = [(10, 20, np.full((15, 25), 90.0)), (400, 300, np.full((30, 30), np.nan))]
+    edit_and_compare(tmp_path, nc, edits, max_texture_size=256, texel_size=10.0)
+    meta = json.loads((tmp_path / "pyramid" / "pyramid.json").read_text())
+    assert all(
+        not lv["deltas"] and lv["file"] != f"level{k}.tif" for k, lv in enumerate(meta["levels"])
+    )
+    assert not strays(tmp_path / "pyramid")

@@ -438,6 +438,9 @@ def _paste(texels: np.ndarray, region: TexelRect, block: np.ndarray, rect: Texel
     (the texels of ``region``)."""
     r0, r1 = max(region[0], rect[0]), min(region[1], rect[1])
     c0, c1 = max(region[2], rect[2]), min(region[3], rect[3])
+    # No overlap: nothing to copy (and the slices below would wrap around).
+    if r0 >= r1 or c0 >= c1:
+        return
     texels[:, r0 - region[0] : r1 - region[0], c0 - region[2] : c1 - region[2]] = block[
         :, r0 - rect[0] : r1 - rect[0], c0 - rect[2] : c1 - rect[2]
     ]
