@@ -46,6 +46,7 @@ re-bake's, or a replaced delta's) are ignored by readers and removed by the next
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -56,7 +57,7 @@ from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, NoReturn
 
 import numpy as np
 from affine import Affine
@@ -387,15 +388,18 @@ def _check_level(
     build: str,
     k: int,
     region: tuple[int, int, int, int] | None = None,
+    opened: Any = None,
 ) -> None:
     """Check a level written by ``_write_level`` against its entry in pyramid.json (build id,
     level number, size, bands, alpha, georeference); with ``region`` (r0, r1, c0, c1), a
-    delta file holding those texels of the level."""
+    delta file holding those texels of the level; ``opened``: the file's rasterio dataset
+    when the caller has it open."""
     import rasterio
     from rasterio.enums import ColorInterp
 
     try:
-        with no_side_files(), rasterio.open(path) as ds:
+        with contextlib.ExitStack() as stack:
+            ds = opened or stack.enter_context(_opened(path))
             rows, cols, count, dtypes = ds.height, ds.width, ds.count, set(ds.dtypes)
             tags = ds.tags()
             last_band = ds.colorinterp[-1]
@@ -419,6 +423,15 @@ def _check_level(
         raise StoreError(f"{path} has no alpha band; rebake the pyramid.")
     if not transform.almost_equals(level.transform):
         raise StoreError(f"{path} is georeferenced unlike pyramid.json says; rebake the pyramid.")
+
+
+@contextlib.contextmanager
+def _opened(path: Path) -> Iterator[Any]:
+    """A level file open for reading (rasterio, without GDAL's side files)."""
+    import rasterio
+
+    with no_side_files(), rasterio.open(path) as ds:
+        yield ds
 
 
 def _dump_meta(meta: dict) -> str:
@@ -555,11 +568,11 @@ class TexturePyramid:
         self._check_levels(files, sizes)
         for k, lv in enumerate(self.levels):
             _check_level(lv.path, lv, self.bands, lv.build or self.build_id, k)
-            for d in lv.deltas:
-                region = d.texels(lv.width, lv.height)
-                _check_level(d.path, lv, self.bands, d.build, k, region)
         self._check_chain()
         self._tiles = _TileCache(TILE_CACHE_BYTES)
+        # Deltas are checked like levels when first read (``_decode``), not all on open: a
+        # level may hold many, and each read tile is checked against its checksum anyway.
+        self._checked: set[Path] = set()
 
     def _delta(self, entry: dict, k: int, level: dict) -> PyramidDelta:
         """A level entry's delta, its name and tile rectangle checked (ValueError if not)."""
@@ -858,6 +871,10 @@ class TexturePyramid:
             failed = None
             try:
                 with no_side_files(), rasterio.open(path) as ds:
+                    if path != lv.path and path not in self._checked:
+                        build = next(x.build for x in lv.deltas if x.path == path)
+                        _check_level(path, lv, self.bands, build, k, (a, b, c, d), ds)
+                        self._checked.add(path)
                     texels = ds.read(window=Window(ca - c, ra - a, cb - ca, rb - ra))
             except rasterio.errors.RasterioError as exc:
                 failed = _cause(exc)
