@@ -56,7 +56,12 @@ from approxtree.geometry.rect import Rect
 from approxtree.io.atomic import atomic_write
 from approxtree.io.gdal import checked_write, no_side_files
 from approxtree.kernels.rgba import halve_bands
-from approxtree.textures.bake import WATER_COLOUR, bake, texture_lattice
+from approxtree.textures.bake import (
+    WATER_COLOUR,
+    bake,
+    texture_lattice,
+    thematic_on_lattice,
+)
 from approxtree.textures.base import TextureData
 from approxtree.textures.blend import MultiTexture
 from approxtree.textures.pyramid import (
@@ -150,6 +155,7 @@ def rebake(
             f"terrain's lattice {shape[1]} × {shape[0]} at {tuple(transform)[:6]}."
         )
     totals = [_tiles_of(lv.height, lv.width) for lv in pyramid.levels]
+    thematic = recipe.get("thematic")
     # A new light, or a shading that reads far cells: the whole pyramid, as a bake makes it.
     flood = water_level is not None and level != old_level
     if (
@@ -168,6 +174,8 @@ def rebake(
             context=context,
             water_level=level,
             blend=recipe.get("blend", "shade"),
+            thematic=None if thematic is None else thematic["path"],
+            palette=None if thematic is None else thematic["palette"],
         )
         return Rebake(result.pyramid, totals, totals, True, time.perf_counter() - t0)
     same = shape == terrain.shape and transform.almost_equals(terrain.transform)
@@ -203,7 +211,16 @@ def rebake(
         changed.append((r0 // 2, -(-r1 // 2), c0 // 2, -(-c1 // 2)))
     # A killed re-bake's files (never listed) go before this one writes its own.
     remove_unlisted(folder, pyramid.files)
+    # The thematic layer's colours on the whole lattice, as the bake makes them (a colour
+    # ramp spans the whole raster's values, so no window of it alone gives the same).
+    colours = None
+    if thematic is not None:
+        layer = thematic_on_lattice(
+            Path(thematic["path"]), thematic["palette"], transform, shape, terrain.crs
+        )
+        colours = layer.rgba()
     make = _Texels(terrain, options, level, recipe.get("blend", "shade"), transform, same)
+    make.colours = colours
     blocks = _level_blocks(make, shape, reached, len(levels))
     try:
         for k in range(len(levels) - 1, -1, -1):
@@ -289,16 +306,42 @@ def _recipe(pyramid: TexturePyramid) -> dict[str, Any]:
             f"{pyramid.folder} records no bake recipe (baked before re-bakes existed, or "
             "from an array): bake it again (approxtree bake) to let it follow updates."
         )
-    others = [
-        name for name in recipe["layers"] if not name.startswith(("shading:", "water-level:"))
-    ]
+    # A thematic layer is re-blended when the bake recorded its raster (``recipe["thematic"]``).
+    kept = ("shading:", "water-level:", "thematic:") if "thematic" in recipe else (
+        "shading:", "water-level:"
+    )  # fmt: skip
+    others = [name for name in recipe["layers"] if not name.startswith(kept)]
     if others or recipe["shading"] is None:
         raise InvalidParameterError(
             f"{pyramid.folder} holds layers a re-bake does not repeat ({', '.join(others)}); "
-            "only pyramids of a shading (and a water level) follow updates: bake it again "
+            "only pyramids of a shading (with a water level, a thematic raster) follow "
+            "updates: bake it again (approxtree bake)."
+        )
+    thematic = recipe.get("thematic")
+    if thematic is not None:
+        records = [thematic] + ([thematic["palette_file"]] if "palette_file" in thematic else [])
+        for record in records:
+            _check_input(pyramid.folder, record)
+    return recipe
+
+
+def _check_input(folder: Path, record: dict[str, Any]) -> None:
+    """StoreError unless the input file a bake recorded is there, of the same bytes and
+    modification time (a re-bake re-blends it and must find what the bake read)."""
+    path = Path(record["path"])
+    try:
+        st = path.stat()
+    except OSError as exc:
+        raise StoreError(
+            f"{folder} was baked with {path}, which is gone ({exc.strerror}): bake the "
+            "pyramid again (approxtree bake)."
+        ) from exc
+    if (st.st_size, st.st_mtime_ns) != (record["bytes"], record["mtime_ns"]):
+        raise StoreError(
+            f"{folder} was baked with {path}, which changed since ({st.st_size} bytes now, "
+            f"{record['bytes']} then; or a new modification time): bake the pyramid again "
             "(approxtree bake)."
         )
-    return recipe
 
 
 def _is_local(shading: str, options: dict[str, Any]) -> bool:
@@ -342,6 +385,8 @@ class _Texels:
     ) -> None:
         self.terrain, self.options, self.level, self.blend = terrain, options, level, blend
         self.transform, self.same = transform, same
+        #: (rows, cols, 4) uint8 of the thematic layer on the whole lattice, or None.
+        self.colours: np.ndarray | None = None
 
     def __call__(self, region: TexelRect, shape: tuple[int, int]) -> np.ndarray:
         """(bands, rows, cols) uint8 texels of ``region`` (half-open rows and columns)."""
@@ -351,12 +396,31 @@ class _Texels:
         z = _lattice_heights(self.terrain, self.transform, shape, self.same, (a, b, c, d))
         t = self.transform @ Affine.translation(c, a)
         window = Grid(z, t, self.terrain.crs, allow_empty=True)
-        texture: TextureData = TopographicShading(window, **self.options)
+        # The bake's layers on the window: thematic, water, then the shading blended over
+        # the colour layers below it (the others drawn "over").
+        layers: list[TextureData] = []
+        if self.colours is not None:
+            layers.append(_Colours(self.colours[a:b, c:d], t, self.terrain.crs))
         if self.level is not None:
-            water = WaterLevel(window, self.level, WATER_COLOUR)
-            texture = MultiTexture([water, texture], [self.blend])
+            layers.append(WaterLevel(window, self.level, WATER_COLOUR))
+        layers.append(TopographicShading(window, **self.options))
+        modes = ["over"] * (len(layers) - 1)
+        if modes:
+            modes[-1] = self.blend
+        texture = layers[0] if len(layers) == 1 else MultiTexture(layers, modes)
         block = np.concatenate([s.copy() for s in texture.level_strips(512)], axis=1)
         return np.ascontiguousarray(block[:, r0 - a : r1 - a, c0 - c : c1 - c])
+
+
+class _Colours(TextureData):
+    """A window of a colour layer already made on the whole lattice."""
+
+    def __init__(self, rgba: np.ndarray, transform: Affine, crs: str | None) -> None:
+        self._rgba, self.transform, self.crs = rgba, transform, crs
+        self.shape = (int(rgba.shape[0]), int(rgba.shape[1]))
+
+    def rgba(self) -> np.ndarray:
+        return np.ascontiguousarray(self._rgba)
 
 
 def _lattice_heights(

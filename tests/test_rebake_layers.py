@@ -1,0 +1,86 @@
+"""Re-bakes of pyramids with a thematic layer: the shading under it is re-blended, texel for
+texel as a fresh bake with the same inputs; a thematic raster gone or changed is refused."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from conftest import data_file
+from test_rebake import cells_rect, random_edits, same_pyramid
+
+from approxtree.cli import main
+from approxtree.errors import InvalidParameterError, StoreError
+from approxtree.geometry.grid import Grid
+from approxtree.io import read_grid
+from approxtree.textures.bake import bake
+from approxtree.textures.pyramid import TexturePyramid
+from approxtree.textures.rebake import rebake
+from approxtree.tree.approximation_tree import ApproximationTree
+
+
+@pytest.fixture
+def nc(data_dir) -> Grid:
+    """The NC DEM (500 × 450, 30 m cells)."""
+    return read_grid(data_file(data_dir, "nc/elev_ned_30m.tif"))
+
+
+@pytest.fixture
+def landuse(data_dir, tmp_path) -> Path:
+    """A copy of NC's land use raster (class table), free to be changed by a test."""
+    path = tmp_path / "landuse.tif"
+    shutil.copy(data_file(data_dir, "nc/landuse_r.tif"), path)
+    return path
+
+
+def test_thematic_rebakes_equal_fresh_bakes(nc, landuse, tmp_path) -> None:
+    """Random edits (nodata, edges) under NC's land use, and a rising water level between the
+    two: each re-bake re-blends only the reached tiles and equals a fresh bake with the same
+    thematic raster and water level."""
+    args = {"gl": False, "max_texture_size": 256, "thematic": landuse, "texel_size": 10.0}
+    folder = tmp_path / "p"
+    bake(nc, folder, water_level=50.0, **args)
+    assert TexturePyramid(folder).recipe["thematic"]["path"] == str(landuse.resolve())
+    heights = np.array(nc.heights, dtype=np.float64)
+    for i, (r0, c0, patch) in enumerate(random_edits(nc, seed=11, count=3, largest=60)):
+        heights[r0 : r0 + patch.shape[0], c0 : c0 + patch.shape[1]] = patch
+        grid = Grid(heights.astype(np.float32), nc.transform, nc.crs, allow_empty=True)
+        level = 50.0 + 10.0 * i
+        result = rebake(folder, grid, cells_rect(nc, r0, c0, *patch.shape), water_level=level)
+        assert not result.whole and sum(result.tiles) < sum(result.tiles_total)
+        fresh = tmp_path / f"fresh{i}"
+        bake(grid, fresh, water_level=level, **args)
+        same_pyramid(folder, fresh)
+
+
+def test_thematic_rebake_refuses_a_changed_or_gone_raster(nc, landuse, tmp_path) -> None:
+    """A thematic raster touched (new modification time) or removed since the bake: the
+    re-bake is a StoreError naming it, and the CLI says so on one Error: line; overlays are
+    still refused."""
+    folder = tmp_path / "p"
+    bake(nc, folder, gl=False, max_texture_size=256, thematic=landuse)
+    st = landuse.stat()
+    os.utime(landuse, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    with pytest.raises(StoreError, match="changed since"):
+        rebake(folder, nc, cells_rect(nc, 10, 10, 5, 5))
+    # Given its time back, the raster re-bakes again; removed, it is refused.
+    os.utime(landuse, ns=(st.st_atime_ns, st.st_mtime_ns))
+    rebake(folder, nc, cells_rect(nc, 10, 10, 5, 5))
+    store = tmp_path / "dem.zarr"
+    ApproximationTree.build(nc, epsilon=2.0, max_points=33 * 33).save(store)
+    landuse.unlink()
+    result = CliRunner().invoke(main, ["update", str(store), "--textures", str(folder)])
+    assert result.exit_code != 0
+    assert "is gone" in result.output and result.output.count("Error:") == 1
+
+
+def test_overlay_pyramids_are_still_refused(nc, data_dir, tmp_path) -> None:
+    """Vector overlays are not re-drawn by a re-bake: such a pyramid is refused with a reason."""
+    streams = data_file(data_dir, "nc/streams.shp")
+    bake(nc, tmp_path / "p", gl=False, max_texture_size=256, overlays=[streams])
+    with pytest.raises(InvalidParameterError, match="does not repeat"):
+        rebake(tmp_path / "p", nc, cells_rect(nc, 10, 10, 5, 5))
