@@ -32,7 +32,15 @@ the texels between the old and the new shore line meet, by the same steps.
 What is re-baked whole, through ``bake`` with the pyramid's recipe: a new light (or any other
 ``shading_options``), and the shadings whose texels depend on far cells (cast shadows, the
 curvature weight's spread over the whole grid, Phong and Gouraud on their own lattice).
-Pyramids with thematic rasters, images or overlays are refused: bake them again.
+A thematic layer (``bake(thematic=…)``) is re-blended: the bake records its raster in the
+recipe (path, palette, bytes and modification time); a re-bake colours it on the whole lattice
+as the bake does (a colour ramp spans the whole raster's values) and blends the re-shaded
+tiles over it, and refuses (StoreError) a raster gone or changed since. Pyramids with images,
+overlays or water polygons are refused: bake them again.
+
+Measured (``benchmarks/bench_update.py --pyramid``, 2 shared cores, load average 4–12, each
+re-bake beside a full bake of the same terrain): a 256² edit of an 8192² terrain re-bakes in
+61 ms, 3.3 % of the full bake (14–23 % when every level file was copied for the swap).
 """
 
 from __future__ import annotations
