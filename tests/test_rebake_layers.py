@@ -84,3 +84,50 @@ def test_overlay_pyramids_are_still_refused(nc, data_dir, tmp_path) -> None:
     bake(nc, tmp_path / "p", gl=False, max_texture_size=256, overlays=[streams])
     with pytest.raises(InvalidParameterError, match="does not repeat"):
         rebake(tmp_path / "p", nc, cells_rect(nc, 10, 10, 5, 5))
+
+
+def write_image(path: Path, grid: Grid) -> Path:
+    """An RGB GeoTIFF in EPSG:4326 (reprojected by the bake) over most of the grid: smooth
+    gradients with a checker, 400 × 360 pixels."""
+    import rasterio
+    from affine import Affine
+    from rasterio.warp import transform_bounds
+
+    d = grid.domain
+    west, south, east, north = transform_bounds(
+        grid.crs, "EPSG:4326", d.xmin, d.ymin, d.xmax, d.ymax
+    )
+    rows, cols = 360, 400
+    y, x = np.mgrid[0:rows, 0:cols]
+    rgb = np.stack([x * 255 // cols, y * 255 // rows, ((x // 20 + y // 20) % 2) * 200 + 30])
+    t = Affine((east - west) / cols * 0.9, 0, west, 0, -(north - south) / rows * 0.9, north)
+    profile = {"driver": "GTiff", "width": cols, "height": rows, "count": 3, "dtype": "uint8"}
+    with rasterio.open(path, "w", crs="EPSG:4326", transform=t, **profile) as ds:
+        ds.write(rgb.astype(np.uint8))
+    return path
+
+
+def test_image_rebakes_equal_fresh_bakes(nc, landuse, tmp_path) -> None:
+    """An image in another CRS under the land use and the shading: edits (one at the image's
+    edge) re-blend only the reached tiles, equal to fresh bakes with the same inputs; an image
+    changed since is refused."""
+    image = write_image(tmp_path / "photo.tif", nc)
+    args = {"gl": False, "max_texture_size": 256, "texel_size": 10.0, "images": [image]}
+    args["thematic"] = landuse
+    folder = tmp_path / "p"
+    bake(nc, folder, **args)
+    heights = np.array(nc.heights, dtype=np.float64)
+    edits = [*random_edits(nc, seed=5, count=2, largest=60), (400, 440, np.full((40, 40), 80.0))]
+    for i, (r0, c0, patch) in enumerate(edits):
+        heights[r0 : r0 + patch.shape[0], c0 : c0 + patch.shape[1]] = patch
+        grid = Grid(heights.astype(np.float32), nc.transform, nc.crs, allow_empty=True)
+        result = rebake(folder, grid, cells_rect(nc, r0, c0, *patch.shape))
+        assert not result.whole and sum(result.tiles) < sum(result.tiles_total)
+        fresh = tmp_path / f"fresh{i}"
+        bake(grid, fresh, **args)
+        same_pyramid(folder, fresh)
+    write_image(image, nc)
+    st = image.stat()
+    os.utime(image, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    with pytest.raises(StoreError, match="changed since"):
+        rebake(folder, grid, cells_rect(nc, 10, 10, 5, 5))

@@ -353,8 +353,11 @@ def bake(
         "water_level": None if water_level is None else float(water_level),
         "blend": blend,
     }
-    # The thematic raster a re-bake re-blends under the shading: where, how coloured, and
-    # its size and time, so that a re-bake refuses one that changed since.
+    # The images and thematic raster a re-bake re-blends under the shading: where, how
+    # warped or coloured, their size and time, so that a re-bake refuses one changed since.
+    if image_paths:
+        recipe["images"] = [input_record(image) for image in image_paths]
+        recipe["resampling"] = resampling
     if thematic_path is not None:
         recipe["thematic"] = {"palette": palette, **input_record(thematic_path)}
         if palette is not None and Path(palette).is_file():

@@ -35,8 +35,11 @@ curvature weight's spread over the whole grid, Phong and Gouraud on their own la
 A thematic layer (``bake(thematic=…)``) is re-blended: the bake records its raster in the
 recipe (path, palette, bytes and modification time); a re-bake colours it on the whole lattice
 as the bake does (a colour ramp spans the whole raster's values) and blends the re-shaded
-tiles over it, and refuses (StoreError) a raster gone or changed since. Pyramids with images,
-overlays or water polygons are refused: bake them again.
+tiles over it, and refuses (StoreError) a raster gone or changed since. Images
+(``bake(images=…)``) likewise: recorded in the recipe, warped again over the bake's very
+strips that hold the re-baked rows (GDAL's warp at an image's edge depends on the chunk),
+the window cut out of them. Pyramids with overlays or water polygons are refused: bake them
+again.
 
 Measured (``benchmarks/bench_update.py --pyramid``, 2 shared cores, load average 4–12, each
 re-bake beside a full bake of the same terrain): a 256² edit of an 8192² terrain re-bakes in
@@ -72,15 +75,18 @@ from approxtree.textures.bake import (
 )
 from approxtree.textures.base import TextureData
 from approxtree.textures.blend import MultiTexture
+from approxtree.textures.image import ImageTexture
 from approxtree.textures.pyramid import (
     _LEVEL_OPTIONS,
     _TAG_BUILD,
     _TAG_LEVEL,
     _TILE,
     OWN_LEVEL_FILE,
+    WINDOW_BYTES,
     TexturePyramid,
     _dump_meta,
     tile_row_checksums,
+    window_shape,
 )
 from approxtree.textures.shading import TopographicShading
 from approxtree.textures.water import WaterLevel, wet
@@ -184,6 +190,8 @@ def rebake(
             blend=recipe.get("blend", "shade"),
             thematic=None if thematic is None else thematic["path"],
             palette=None if thematic is None else thematic["palette"],
+            images=[image["path"] for image in recipe.get("images", [])],
+            resampling=recipe.get("resampling", "bilinear"),
         )
         return Rebake(result.pyramid, totals, totals, True, time.perf_counter() - t0)
     same = shape == terrain.shape and transform.almost_equals(terrain.transform)
@@ -229,6 +237,11 @@ def rebake(
         colours = layer.rgba()
     make = _Texels(terrain, options, level, recipe.get("blend", "shade"), transform, same)
     make.colours = colours
+    # Images are warped on the window's rows only, at the whole lattice's scale (as the bake).
+    make.images = [
+        ImageTexture(Path(image["path"]), transform, shape, terrain.crs, recipe["resampling"])
+        for image in recipe.get("images", [])
+    ]
     blocks = _level_blocks(make, shape, reached, len(levels))
     try:
         for k in range(len(levels) - 1, -1, -1):
@@ -315,21 +328,22 @@ def _recipe(pyramid: TexturePyramid) -> dict[str, Any]:
             "from an array): bake it again (approxtree bake) to let it follow updates."
         )
     # A thematic layer is re-blended when the bake recorded its raster (``recipe["thematic"]``).
-    kept = ("shading:", "water-level:", "thematic:") if "thematic" in recipe else (
-        "shading:", "water-level:"
-    )  # fmt: skip
+    kept = ("shading:", "water-level:")
+    kept += ("thematic:",) if "thematic" in recipe else ()
+    kept += ("image:",) if "images" in recipe else ()
     others = [name for name in recipe["layers"] if not name.startswith(kept)]
     if others or recipe["shading"] is None:
         raise InvalidParameterError(
             f"{pyramid.folder} holds layers a re-bake does not repeat ({', '.join(others)}); "
-            "only pyramids of a shading (with a water level, a thematic raster) follow "
-            "updates: bake it again (approxtree bake)."
+            "only pyramids of a shading (with a water level, a thematic raster, images) "
+            "follow updates: bake it again (approxtree bake)."
         )
+    records = list(recipe.get("images", []))
     thematic = recipe.get("thematic")
     if thematic is not None:
-        records = [thematic] + ([thematic["palette_file"]] if "palette_file" in thematic else [])
-        for record in records:
-            _check_input(pyramid.folder, record)
+        records += [thematic] + ([thematic["palette_file"]] if "palette_file" in thematic else [])
+    for record in records:
+        _check_input(pyramid.folder, record)
     return recipe
 
 
@@ -395,6 +409,8 @@ class _Texels:
         self.transform, self.same = transform, same
         #: (rows, cols, 4) uint8 of the thematic layer on the whole lattice, or None.
         self.colours: np.ndarray | None = None
+        #: The images on the whole lattice, bottom first.
+        self.images: list[ImageTexture] = []
 
     def __call__(self, region: TexelRect, shape: tuple[int, int]) -> np.ndarray:
         """(bands, rows, cols) uint8 texels of ``region`` (half-open rows and columns)."""
@@ -407,6 +423,14 @@ class _Texels:
         # The bake's layers on the window: thematic, water, then the shading blended over
         # the colour layers below it (the others drawn "over").
         layers: list[TextureData] = []
+        for image in self.images:
+            # The very strips the bake warps (whole rows, cut where its strips are: GDAL's
+            # warp of an image's edge depends on the chunk), then the window out of them.
+            step = window_shape(image.shape[1], 4, WINDOW_BYTES)[0]
+            start, stop = a // step * step, min(-(-b // step) * step, image.shape[0])
+            strip = np.concatenate(list(image.band_strips(step, start, stop)), axis=1)
+            rgba = np.moveaxis(strip[:, a - start : b - start, c:d], 0, -1)
+            layers.append(_Colours(rgba, t, self.terrain.crs))
         if self.colours is not None:
             layers.append(_Colours(self.colours[a:b, c:d], t, self.terrain.crs))
         if self.level is not None:
