@@ -196,9 +196,10 @@ def test_new_light_equals_fresh_bake(nc, tmp_path) -> None:
 
 
 def test_refuses_other_layers_and_other_terrains(nc, data_dir, tmp_path) -> None:
-    """A thematic pyramid, an array-built one and another terrain's are refused with a reason."""
-    landuse = data_file(data_dir, "nc/landuse_r.tif")
-    bake(nc, tmp_path / "thematic", gl=False, thematic=landuse, max_texture_size=256)
+    """A pyramid with overlays (thematic ones re-bake since: test_rebake_layers.py), an
+    array-built one and another terrain's are refused with a reason."""
+    streams = data_file(data_dir, "nc/streams.shp")
+    bake(nc, tmp_path / "thematic", gl=False, overlays=[streams], max_texture_size=256)
     with pytest.raises(InvalidParameterError, match="only pyramids of a shading"):
         rebake(tmp_path / "thematic", nc, cells_rect(nc, 0, 0, 2, 2))
     rgba = np.zeros((8, 8, 4), dtype=np.uint8)

@@ -131,3 +131,14 @@ def test_image_rebakes_equal_fresh_bakes(nc, landuse, tmp_path) -> None:
     os.utime(image, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
     with pytest.raises(StoreError, match="changed since"):
         rebake(folder, grid, cells_rect(nc, 10, 10, 5, 5))
+
+
+def test_new_light_over_a_thematic_layer_equals_fresh_bake(nc, landuse, tmp_path) -> None:
+    """A new light re-bakes a thematic pyramid whole with its recorded raster and palette."""
+    args = {"gl": False, "max_texture_size": 256, "thematic": landuse, "palette": "nlcd"}
+    bake(nc, tmp_path / "p", **args)
+    result = rebake(tmp_path / "p", nc, shading_options={"azimuth": 200.0})
+    assert result.whole
+    bake(nc, tmp_path / "fresh", shading_options={"azimuth": 200.0}, **args)
+    same_pyramid(tmp_path / "p", tmp_path / "fresh")
+    assert TexturePyramid(tmp_path / "p").recipe["thematic"]["palette"] == "nlcd"

@@ -341,7 +341,7 @@ def bake(
             return out
 
     # What a re-bake (``rebake``) repeats: the layers and the shading with its options.
-    recipe = {
+    recipe: dict[str, Any] = {
         "layers": names,
         "shading": shading,
         "shading_options": {

@@ -328,7 +328,7 @@ def _recipe(pyramid: TexturePyramid) -> dict[str, Any]:
             "from an array): bake it again (approxtree bake) to let it follow updates."
         )
     # A thematic layer is re-blended when the bake recorded its raster (``recipe["thematic"]``).
-    kept = ("shading:", "water-level:")
+    kept: tuple[str, ...] = ("shading:", "water-level:")
     kept += ("thematic:",) if "thematic" in recipe else ()
     kept += ("image:",) if "images" in recipe else ()
     others = [name for name in recipe["layers"] if not name.startswith(kept)]
