@@ -508,6 +508,46 @@ def _holds(tiles: tuple[int, int, int, int], tr: int, tc: int) -> bool:
     return tiles[0] <= tr < tiles[1] and tiles[2] <= tc < tiles[3]
 
 
+def _delta(folder: Path, entry: dict, k: int, level: dict) -> PyramidDelta:
+    """A level entry's delta, its name and tile rectangle checked (ValueError if not)."""
+    name = str(entry["file"])
+    match = OWN_LEVEL_FILE.match(name)
+    tr0, tr1, tc0, tc1 = (int(v) for v in entry["tiles"])
+    rows, cols = -(-int(level["height"]) // _TILE), -(-int(level["width"]) // _TILE)
+    if match is None or int(match.group(1)) != k or name == f"level{k}.tif":
+        raise ValueError(f"level {k} lists a delta named {name!r}")
+    if not (0 <= tr0 < tr1 <= rows and 0 <= tc0 < tc1 <= cols):
+        raise ValueError(f"delta {name} of level {k} holds tiles {entry['tiles']}")
+    return PyramidDelta(folder / name, (tr0, tr1, tc0, tc1), str(entry["build"]),
+                        int(entry["bytes"]))  # fmt: skip
+
+
+def _damaged(k: int, path: Path, origin: tuple[int, int], tiles: list, failed: str) -> NoReturn:
+    """StoreError naming the first of ``tiles`` that ``path`` (holding the level's texels
+    from ``origin``) does not decode."""
+    import rasterio
+    from rasterio.windows import Window
+
+    # Raised outside the handler: GDAL's chained errors, kept as the context, do not
+    # survive pickling back from a dask worker. Tile by tile to name the damaged one.
+    where = ""
+    with no_side_files(), rasterio.open(path) as ds:
+        for tr, tc in tiles:
+            a, b = tr * _TILE - origin[0], tc * _TILE - origin[1]
+            if not (0 <= a < ds.height and 0 <= b < ds.width):
+                continue
+            window = Window(b, a, min(_TILE, ds.width - b), min(_TILE, ds.height - a))
+            try:
+                ds.read(window=window)
+            except rasterio.errors.RasterioError:
+                where = f"tile ({tr}, {tc}) of "
+                break
+    raise StoreError(
+        f"{path} is damaged: {where}level {k} does not decode ({failed}); rebake the "
+        "pyramid (approxtree bake)."
+    )
+
+
 def _cause(exc: BaseException) -> str:
     """The innermost message of a chained GDAL error (ZSTD's, not "Read failed")."""
     while exc.__cause__ is not None:
@@ -558,7 +598,7 @@ class TexturePyramid:
                     int(lv["width"]),
                     int(lv["height"]),
                     Affine(*lv["transform"]),
-                    tuple(self._delta(d, k, lv) for d in lv.get("deltas", ())),
+                    tuple(_delta(self.folder, d, k, lv) for d in lv.get("deltas", ())),
                     None if lv.get("build") is None else str(lv["build"]),
                 )
                 for k, lv in enumerate(entries)
@@ -573,19 +613,6 @@ class TexturePyramid:
         # Deltas are checked like levels when first read (``_decode``), not all on open: a
         # level may hold many, and each read tile is checked against its checksum anyway.
         self._checked: set[Path] = set()
-
-    def _delta(self, entry: dict, k: int, level: dict) -> PyramidDelta:
-        """A level entry's delta, its name and tile rectangle checked (ValueError if not)."""
-        name = str(entry["file"])
-        match = OWN_LEVEL_FILE.match(name)
-        tr0, tr1, tc0, tc1 = (int(v) for v in entry["tiles"])
-        rows, cols = -(-int(level["height"]) // _TILE), -(-int(level["width"]) // _TILE)
-        if match is None or int(match.group(1)) != k or name == f"level{k}.tif":
-            raise ValueError(f"level {k} lists a delta named {name!r}")
-        if not (0 <= tr0 < tr1 <= rows and 0 <= tc0 < tc1 <= cols):
-            raise ValueError(f"delta {name} of level {k} holds tiles {entry['tiles']}")
-        return PyramidDelta(self.folder / name, (tr0, tr1, tc0, tc1), str(entry["build"]),
-                            int(entry["bytes"]))  # fmt: skip
 
     @property
     def files(self) -> set[str]:
@@ -879,40 +906,13 @@ class TexturePyramid:
             except rasterio.errors.RasterioError as exc:
                 failed = _cause(exc)
             if failed is not None:
-                self._damaged(k, path, (a, c), tiles, failed)
+                _damaged(k, path, (a, c), tiles, failed)
             if block is None:
                 block = texels
             else:
                 block[:, ra - r0 : rb - r0, ca - c0 : cb - c0] = texels
         assert block is not None  # the base file covers the level
         return block
-
-    def _damaged(
-        self, k: int, path: Path, origin: tuple[int, int], tiles: list, failed: str
-    ) -> NoReturn:
-        """StoreError naming the first of ``tiles`` that ``path`` (holding the level's texels
-        from ``origin``) does not decode."""
-        import rasterio
-        from rasterio.windows import Window
-
-        # Raised outside the handler: GDAL's chained errors, kept as the context, do not
-        # survive pickling back from a dask worker. Tile by tile to name the damaged one.
-        where = ""
-        with no_side_files(), rasterio.open(path) as ds:
-            for tr, tc in tiles:
-                a, b = tr * _TILE - origin[0], tc * _TILE - origin[1]
-                if not (0 <= a < ds.height and 0 <= b < ds.width):
-                    continue
-                window = Window(b, a, min(_TILE, ds.width - b), min(_TILE, ds.height - a))
-                try:
-                    ds.read(window=window)
-                except rasterio.errors.RasterioError:
-                    where = f"tile ({tr}, {tc}) of "
-                    break
-        raise StoreError(
-            f"{path} is damaged: {where}level {k} does not decode ({failed}); rebake the "
-            "pyramid (approxtree bake)."
-        )
 
     def _check_tile(self, k: int, tr: int, tc: int, texels: np.ndarray) -> None:
         """StoreError unless the (bands, h, w) texels of tile (tr, tc) of level k match its
