@@ -154,9 +154,10 @@ def test_fractal_with_holes_rewrites_only_reached_tiles(tmp_path) -> None:
         assert sum(result.tiles) < sum(result.tiles_total)
         reached = [a | b for a, b in zip(reached, tiles, strict=True)]
     assert done[0].tiles[0] == 4 and done[1].tiles[0] == 1
-    # Every tile no edit reached keeps its very bytes in the level files.
+    # Every tile no edit reached keeps its very bytes in the level files (the base file: no
+    # delta holds it, and a level written whole again encodes it the same).
     for k, lv in enumerate(pyramid.levels):
-        old, new = raw_tiles(tmp_path / "before" / lv.path.name), raw_tiles(lv.path)
+        old, new = raw_tiles(tmp_path / "before" / f"level{k}.tif"), raw_tiles(lv.path)
         kept = [key for key in old if key[1:] not in reached[k]]
         assert all(old[key] == new[key] for key in kept), k
         assert kept or k > 0
@@ -195,9 +196,10 @@ def test_new_light_equals_fresh_bake(nc, tmp_path) -> None:
 
 
 def test_refuses_other_layers_and_other_terrains(nc, data_dir, tmp_path) -> None:
-    """A thematic pyramid, an array-built one and another terrain's are refused with a reason."""
-    landuse = data_file(data_dir, "nc/landuse_r.tif")
-    bake(nc, tmp_path / "thematic", gl=False, thematic=landuse, max_texture_size=256)
+    """A pyramid with overlays (thematic ones re-bake since: test_rebake_layers.py), an
+    array-built one and another terrain's are refused with a reason."""
+    streams = data_file(data_dir, "nc/streams.shp")
+    bake(nc, tmp_path / "thematic", gl=False, overlays=[streams], max_texture_size=256)
     with pytest.raises(InvalidParameterError, match="only pyramids of a shading"):
         rebake(tmp_path / "thematic", nc, cells_rect(nc, 0, 0, 2, 2))
     rgba = np.zeros((8, 8, 4), dtype=np.uint8)
@@ -344,10 +346,15 @@ main(sys.argv[1:])
 """
 
 
+def strays(textures: Path) -> set[str]:
+    """Files of a pyramid folder that its pyramid.json does not list."""
+    return set(os.listdir(textures)) - TexturePyramid(textures).files - {"pyramid.json"}
+
+
 def test_killed_rebake_leaves_old_pyramid(stored) -> None:
     """SIGKILL between two level writes of a re-bake (after the store swap) leaves the old
     pyramid whole (every tile checks); the next update re-bakes it and removes the killed
-    writer's temp folder."""
+    writer's files."""
     store, textures, patch, fresh = stored
     before = TexturePyramid(textures)
     old = [before.level(k) for k in range(len(before))]
@@ -358,11 +365,45 @@ def test_killed_rebake_leaves_old_pyramid(stored) -> None:
     after = TexturePyramid(textures)
     for k, texels in enumerate(old):
         np.testing.assert_array_equal(after.level(k), texels)
-    assert [p for p in textures.parent.iterdir() if p.name.startswith(".textures.")]
+    assert strays(textures)
     result = CliRunner().invoke(main, ["update", str(store), "--textures", str(textures)])
     assert result.exit_code == 0, result.output
     same_pyramid(textures, fresh)
+    assert not strays(textures)
     assert not [p for p in textures.parent.iterdir() if p.name.startswith(".textures.")]
+
+
+@pytest.mark.parametrize("stage", ["rebake-written", "rebake-committed"])
+def test_killed_before_and_after_commit(stored, stage) -> None:
+    """SIGKILL with every delta written but pyramid.json not yet replaced leaves the old
+    pyramid; right after the commit, the new one (a fresh bake's texels); either way the
+    next re-bake removes the files no pyramid.json lists."""
+    store, textures, patch, fresh = stored
+    before = TexturePyramid(textures)
+    old = [before.level(k) for k in range(len(before))]
+    # A first re-bake elsewhere, so that the killed one has deltas to replace.
+    result = CliRunner().invoke(
+        main, ["update", str(store), str(patch), "--textures", str(textures)]
+    )
+    assert result.exit_code == 0, result.output
+    meta = json.loads((textures / "pyramid.json").read_text())
+    proc = _update_in_a_process(
+        "from approxtree.cli import main; main()", store, patch, textures, stage
+    )
+    assert proc.returncode == -signal.SIGKILL, proc.stderr
+    if stage == "rebake-written":
+        assert json.loads((textures / "pyramid.json").read_text()) == meta
+        assert strays(textures)
+    else:
+        assert json.loads((textures / "pyramid.json").read_text())["build"] != meta["build"]
+    same_pyramid(textures, fresh)
+    assert any((TexturePyramid(textures).level(k) != texels).any() for k, texels in enumerate(old))
+    result = CliRunner().invoke(
+        main, ["update", str(store), str(patch), "--textures", str(textures)]
+    )
+    assert result.exit_code == 0, result.output
+    same_pyramid(textures, fresh)
+    assert not strays(textures)
 
 
 def test_cli_bake_and_update_water_level(nc, tmp_path) -> None:
@@ -393,21 +434,42 @@ def test_cli_bake_and_update_water_level(nc, tmp_path) -> None:
 
 
 def test_level_files_stay_compact_over_many_rebakes(nc, tmp_path) -> None:
-    """Rewritten tiles are appended to a level file; after many re-bakes each file stays within
-    GROWTH times its size when last written whole, and the pyramid is still a fresh bake's."""
+    """Rewritten tiles go to deltas beside a level file; after many re-bakes each level's files
+    stay within GROWTH times its size when last written whole, and the pyramid is still a
+    fresh bake's."""
     from approxtree.textures.rebake import GROWTH
 
     folder = tmp_path / "p"
     bake(nc, folder, gl=False, max_texture_size=256, texel_size=10.0)
     heights = np.array(nc.heights, dtype=np.float64)
     first = TexturePyramid(folder).levels[0].path.stat().st_size
-    for _ in range(8):
-        heights[200:300, 150:300] -= 3.0
+    # Four windows, each across a different 2 × 2 of level 0's 3 × 3 tiles (170.7 cells a
+    # tile): no delta covers another, so they pile up until the level is written whole.
+    for i in range(8):
+        r0, c0 = (160, 330)[i % 2], (160, 330)[i // 2 % 2]
+        heights[r0 : r0 + 20, c0 : c0 + 20] -= 3.0
         grid = Grid(heights.astype(np.float32), nc.transform, nc.crs)
-        rebake(folder, grid, cells_rect(nc, 200, 150, 100, 150))
+        rebake(folder, grid, cells_rect(nc, r0, c0, 20, 20))
     entries = json.loads((folder / "pyramid.json").read_text())["levels"]
     for entry in entries:
-        assert entry["bytes"] <= GROWTH * entry["compact_bytes"]
+        total = entry["bytes"] + sum(d["bytes"] for d in entry.get("deltas", []))
+        assert total <= GROWTH * entry["compact_bytes"]
     assert entries[0]["compact_bytes"] != first  # level 0 was written whole again at least once
     bake(grid, tmp_path / "fresh", gl=False, max_texture_size=256, texel_size=10.0)
     same_pyramid(folder, tmp_path / "fresh")
+
+
+def test_level_written_whole_again_equals_fresh_bake(nc, tmp_path, monkeypatch) -> None:
+    """With no delta allowed every re-bake writes each level whole again (its other tile rows
+    read from the pyramid): an edit in the first tile row only still gives a fresh bake's
+    texels, and the old level files go."""
+    import approxtree.textures.rebake as module
+
+    monkeypatch.setattr(module, "MAX_DELTAS", 0)
+    edits = [(10, 20, np.full((15, 25), 90.0)), (400, 300, np.full((30, 30), np.nan))]
+    edit_and_compare(tmp_path, nc, edits, max_texture_size=256, texel_size=10.0)
+    meta = json.loads((tmp_path / "pyramid" / "pyramid.json").read_text())
+    assert all(
+        not lv["deltas"] and lv["file"] != f"level{k}.tif" for k, lv in enumerate(meta["levels"])
+    )
+    assert not strays(tmp_path / "pyramid")

@@ -64,12 +64,13 @@ FOLDERS: dict[str, FolderKind] = {
         FolderKind("tree store", "zarr.json", re.compile(r"([^/]+/)*(zarr\.json|c(/\d+)*)")),
         # pyramid.json and its levels; GDAL side files of reads before PAM was turned off
         # and the .levelK.tif.tmp / .pyramid.json.*.tmp temp files of format-1 bakes killed
-        # midway may be there too.
+        # midway may be there too; re-bakes add levelK.BUILD.tif (deltas, levels rewritten).
         FolderKind(
             "texture pyramid",
             "pyramid.json",
             re.compile(
                 r"pyramid\.json|level\d+\.tif(\.aux\.xml)?|\.level\d+\.tif\.tmp|"
+                r"level\d+\.[0-9a-f]{32}\.tif|"
                 r"\.pyramid\.json\..+\.tmp"
             ),
         ),

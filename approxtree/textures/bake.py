@@ -106,7 +106,7 @@ def _resample_heights(grid: Grid, transform: Affine, shape: tuple[int, int]) -> 
     return Grid(z.astype(np.float32), transform=transform, crs=grid.crs)
 
 
-def _thematic_on_lattice(
+def thematic_on_lattice(
     path: Path, palette: str | None, transform: Affine, shape: tuple[int, int], crs: str | None
 ) -> ThematicTexture:
     """A thematic raster resampled onto the lattice with the mapper the palette names: a
@@ -287,7 +287,7 @@ def bake(
         layers.append(ImageTexture(image, transform, shape, terrain.crs, resampling))
         names.append(f"image:{image.name}")
     if thematic_path is not None:
-        thematic_layer = _thematic_on_lattice(thematic_path, palette, transform, shape, terrain.crs)
+        thematic_layer = thematic_on_lattice(thematic_path, palette, transform, shape, terrain.crs)
         layers.append(thematic_layer)
         names.append(f"thematic:{thematic_path.name}")
     # h_T on the texture lattice: shaded, and compared with the water level.
@@ -341,7 +341,7 @@ def bake(
             return out
 
     # What a re-bake (``rebake``) repeats: the layers and the shading with its options.
-    recipe = {
+    recipe: dict[str, Any] = {
         "layers": names,
         "shading": shading,
         "shading_options": {
@@ -353,6 +353,15 @@ def bake(
         "water_level": None if water_level is None else float(water_level),
         "blend": blend,
     }
+    # The images and thematic raster a re-bake re-blends under the shading: where, how
+    # warped or coloured, their size and time, so that a re-bake refuses one changed since.
+    if image_paths:
+        recipe["images"] = [input_record(image) for image in image_paths]
+        recipe["resampling"] = resampling
+    if thematic_path is not None:
+        recipe["thematic"] = {"palette": palette, **input_record(thematic_path)}
+        if palette is not None and Path(palette).is_file():
+            recipe["thematic"]["palette_file"] = input_record(Path(palette))
     pyramid = TexturePyramid.build(
         texture,
         folder,
@@ -362,6 +371,12 @@ def bake(
         recipe=recipe,
     )
     return BakeResult(pyramid, time.perf_counter() - t0, names, used_gl)
+
+
+def input_record(path: Path) -> dict[str, Any]:
+    """An input file as a recipe keeps it: its absolute path, bytes and modification time."""
+    st = path.stat()
+    return {"path": str(path.resolve()), "bytes": st.st_size, "mtime_ns": st.st_mtime_ns}
 
 
 def _budget_layers(

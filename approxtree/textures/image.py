@@ -137,10 +137,14 @@ class ImageTexture(TextureData):
             r0 += n
         return out
 
-    def band_strips(self, rows: int) -> Iterator[np.ndarray]:
+    def band_strips(
+        self, rows: int, start: int = 0, stop: int | None = None
+    ) -> Iterator[np.ndarray]:
         """(4, ≤ rows, cols) uint8 RGBA strips from the top, each warped by GDAL when asked
         for (``rasterio.warp.reproject`` of the strip's window: only the source blocks under
-        it are read, in chunks of GDAL's warp memory)."""
+        it are read, in chunks of GDAL's warp memory). start, stop: only the lattice rows
+        start..stop, the same texels (the scale is the whole lattice's; a re-bake warps the
+        rows it re-blends)."""
         import rasterio
         from rasterio.enums import Resampling
         from rasterio.warp import reproject
@@ -170,8 +174,9 @@ class ImageTexture(TextureData):
                 # No alpha band: the nodata value or the mask marks what GDAL leaves out,
                 # and the warper's alpha band makes it (and the lattice past the image) 0.
                 source = rasterio.band(ds, layout.colour)
-            for r0 in range(0, n_rows, rows):
-                n = min(rows, n_rows - r0)
+            end = n_rows if stop is None else min(stop, n_rows)
+            for r0 in range(start, end, rows):
+                n = min(rows, end - r0)
                 planes = np.zeros((bands, n, cols), dtype=np.uint8)
                 reproject(
                     source,

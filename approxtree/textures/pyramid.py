@@ -33,10 +33,20 @@ writer computes them from the tiles it writes; a read decodes the
 whole tiles its window touches and checks each (``_TileCache`` keeps the checked ones), so a
 damaged tile is a StoreError, never texels drawn silently. A decode error (ZSTD, TIFF) is a
 StoreError too.
+
+Deltas (format 5, written by ``rebake``): a level entry may list ``deltas``, each a small
+tiled GeoTIFF ``level{k}.{build}.tif`` holding a rectangle of whole tiles of the level
+(``tiles``: tile rows tr0..tr1, columns tc0..tc1, half-open) tagged with its own build id;
+a tile's texels are those of the last delta holding it, else the base file's (whose own
+build id is the entry's ``build``, the pyramid's when absent). ``tile_crc32c`` is of the
+texels as read so. A re-bake writes new files only and commits by replacing pyramid.json,
+so a reader sees the old pyramid or the new one; files no pyramid.json names (a killed
+re-bake's, or a replaced delta's) are ignored by readers and removed by the next re-bake.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -47,6 +57,7 @@ from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, NoReturn
 
 import numpy as np
 from affine import Affine
@@ -66,6 +77,8 @@ WINDOW_BYTES = 8 << 20
 #: tiled, compressed levels (no longer memory-mapped) and grey + alpha levels for shadings;
 #: 4 a CRC-32C of every tile's decoded texels (``tile_crc32c``).
 PYRAMID_FORMAT = 4
+#: Formats a reader takes: 5 is 4 with per-level deltas (module docstring), written by re-bakes.
+READ_FORMATS = (4, 5)
 #: Tile side of the level GeoTIFFs (texels), as COGs use.
 _TILE = 512
 #: Decoded, checked tiles a pyramid keeps for reads of neighbouring windows (bytes).
@@ -90,16 +103,44 @@ _LEVEL_OPTIONS = {
 _TAG_BUILD = "APPROXTREE_PYRAMID"
 _TAG_LEVEL = "APPROXTREE_LEVEL"
 _LEVEL_FILE = re.compile(r"^level\d+\.tif$")
+#: Every level file approxtree writes: a bake's ``level{k}.tif``, a re-bake's deltas and
+#: levels written whole again ``level{k}.{build}.tif`` (group 1: the level number).
+OWN_LEVEL_FILE = re.compile(r"^level(\d+)(?:\.[0-9a-f]{32})?\.tif$")
+
+
+@dataclass(frozen=True)
+class PyramidDelta:
+    """Tiles of a level re-baked into a file of their own: tile rows tr0..tr1 and columns
+    tc0..tc1 (half-open) as ``tiles``, the file's build id and byte count."""
+
+    path: Path
+    tiles: tuple[int, int, int, int]
+    build: str
+    nbytes: int
+
+    def texels(self, width: int, height: int) -> tuple[int, int, int, int]:
+        """The texel rows and columns (r0, r1, c0, c1), half-open, it holds in a level of
+        ``width`` × ``height`` texels."""
+        tr0, tr1, tc0, tc1 = self.tiles
+        return tr0 * _TILE, min(tr1 * _TILE, height), tc0 * _TILE, min(tc1 * _TILE, width)
 
 
 @dataclass(frozen=True)
 class PyramidLevel:
-    """One level: its file, size in texels and affine georeference."""
+    """One level: its file, size in texels and affine georeference; its deltas (format 5),
+    oldest first, and the build id tagged in its file (None: the pyramid's)."""
 
     path: Path
     width: int
     height: int
     transform: Affine
+    deltas: tuple[PyramidDelta, ...] = ()
+    build: str | None = None
+
+    @property
+    def files(self) -> list[Path]:
+        """The base file and every delta's."""
+        return [self.path, *(d.path for d in self.deltas)]
 
     @property
     def texel_size(self) -> tuple[float, float]:
@@ -340,20 +381,34 @@ def _pyramid_rows(shape: tuple[int, ...], max_texture_size: int) -> int:
     return total
 
 
-def _check_level(path: Path, level: PyramidLevel, bands: int, build: str, k: int) -> None:
+def _check_level(
+    path: Path,
+    level: PyramidLevel,
+    bands: int,
+    build: str,
+    k: int,
+    region: tuple[int, int, int, int] | None = None,
+    opened: Any = None,
+) -> None:
     """Check a level written by ``_write_level`` against its entry in pyramid.json (build id,
-    level number, size, bands, alpha, georeference)."""
+    level number, size, bands, alpha, georeference); with ``region`` (r0, r1, c0, c1), a
+    delta file holding those texels of the level; ``opened``: the file's rasterio dataset
+    when the caller has it open."""
     import rasterio
     from rasterio.enums import ColorInterp
 
     try:
-        with no_side_files(), rasterio.open(path) as ds:
+        with contextlib.ExitStack() as stack:
+            ds = opened or stack.enter_context(_opened(path))
             rows, cols, count, dtypes = ds.height, ds.width, ds.count, set(ds.dtypes)
             tags = ds.tags()
             last_band = ds.colorinterp[-1]
             transform = ds.transform
     except rasterio.errors.RasterioError as exc:
         raise StoreError(f"{path} is not a readable GeoTIFF ({exc}); rebake the pyramid.") from exc
+    if region is not None:
+        r0, r1, c0, c1 = region
+        level = PyramidLevel(path, c1 - c0, r1 - r0, level.transform @ Affine.translation(c0, r0))
     if tags.get(_TAG_BUILD) != build or tags.get(_TAG_LEVEL) != str(k):
         raise StoreError(
             f"{path} belongs to another bake than {path.parent / 'pyramid.json'} (level {k} "
@@ -368,6 +423,15 @@ def _check_level(path: Path, level: PyramidLevel, bands: int, build: str, k: int
         raise StoreError(f"{path} has no alpha band; rebake the pyramid.")
     if not transform.almost_equals(level.transform):
         raise StoreError(f"{path} is georeferenced unlike pyramid.json says; rebake the pyramid.")
+
+
+@contextlib.contextmanager
+def _opened(path: Path) -> Iterator[Any]:
+    """A level file open for reading (rasterio, without GDAL's side files)."""
+    import rasterio
+
+    with no_side_files(), rasterio.open(path) as ds:
+        yield ds
 
 
 def _dump_meta(meta: dict) -> str:
@@ -439,6 +503,51 @@ def check_pyramid_target(folder: str | os.PathLike) -> None:
     check_replaceable(folder, "texture pyramid")
 
 
+def _holds(tiles: tuple[int, int, int, int], tr: int, tc: int) -> bool:
+    """Whether the tile rectangle (tr0, tr1, tc0, tc1), half-open, holds tile (tr, tc)."""
+    return tiles[0] <= tr < tiles[1] and tiles[2] <= tc < tiles[3]
+
+
+def _delta(folder: Path, entry: dict, k: int, level: dict) -> PyramidDelta:
+    """A level entry's delta, its name and tile rectangle checked (ValueError if not)."""
+    name = str(entry["file"])
+    match = OWN_LEVEL_FILE.match(name)
+    tr0, tr1, tc0, tc1 = (int(v) for v in entry["tiles"])
+    rows, cols = -(-int(level["height"]) // _TILE), -(-int(level["width"]) // _TILE)
+    if match is None or int(match.group(1)) != k or name == f"level{k}.tif":
+        raise ValueError(f"level {k} lists a delta named {name!r}")
+    if not (0 <= tr0 < tr1 <= rows and 0 <= tc0 < tc1 <= cols):
+        raise ValueError(f"delta {name} of level {k} holds tiles {entry['tiles']}")
+    return PyramidDelta(folder / name, (tr0, tr1, tc0, tc1), str(entry["build"]),
+                        int(entry["bytes"]))  # fmt: skip
+
+
+def _damaged(k: int, path: Path, origin: tuple[int, int], tiles: list, failed: str) -> NoReturn:
+    """StoreError naming the first of ``tiles`` that ``path`` (holding the level's texels
+    from ``origin``) does not decode."""
+    import rasterio
+    from rasterio.windows import Window
+
+    # Raised outside the handler: GDAL's chained errors, kept as the context, do not
+    # survive pickling back from a dask worker. Tile by tile to name the damaged one.
+    where = ""
+    with no_side_files(), rasterio.open(path) as ds:
+        for tr, tc in tiles:
+            a, b = tr * _TILE - origin[0], tc * _TILE - origin[1]
+            if not (0 <= a < ds.height and 0 <= b < ds.width):
+                continue
+            window = Window(b, a, min(_TILE, ds.width - b), min(_TILE, ds.height - a))
+            try:
+                ds.read(window=window)
+            except rasterio.errors.RasterioError:
+                where = f"tile ({tr}, {tc}) of "
+                break
+    raise StoreError(
+        f"{path} is damaged: {where}level {k} does not decode ({failed}); rebake the "
+        "pyramid (approxtree bake)."
+    )
+
+
 def _cause(exc: BaseException) -> str:
     """The innermost message of a chained GDAL error (ZSTD's, not "Read failed")."""
     while exc.__cause__ is not None:
@@ -460,7 +569,7 @@ class TexturePyramid:
         try:
             meta = json.loads(meta_path.read_text())
             version = meta.get("format", 1)
-            if version != PYRAMID_FORMAT:
+            if version not in READ_FORMATS:
                 raise StoreError(
                     f"{self.folder} is a texture pyramid of format {version}; this approxtree "
                     f"reads format {PYRAMID_FORMAT} (tiled, compressed levels checked against "
@@ -489,35 +598,55 @@ class TexturePyramid:
                     int(lv["width"]),
                     int(lv["height"]),
                     Affine(*lv["transform"]),
+                    tuple(_delta(self.folder, d, k, lv) for d in lv.get("deltas", ())),
+                    None if lv.get("build") is None else str(lv["build"]),
                 )
-                for lv in entries
+                for k, lv in enumerate(entries)
             ]
         except (ValueError, KeyError, TypeError, AttributeError) as exc:
             raise StoreError(f"{meta_path} is malformed: {exc}") from exc
         self._check_levels(files, sizes)
         for k, lv in enumerate(self.levels):
-            _check_level(lv.path, lv, self.bands, self.build_id, k)
+            _check_level(lv.path, lv, self.bands, lv.build or self.build_id, k)
         self._check_chain()
         self._tiles = _TileCache(TILE_CACHE_BYTES)
+        # Deltas are checked like levels when first read (``_decode``), not all on open: a
+        # level may hold many, and each read tile is checked against its checksum anyway.
+        self._checked: set[Path] = set()
+
+    @property
+    def files(self) -> set[str]:
+        """Names of every file this pyramid reads (levels and deltas), pyramid.json aside."""
+        return {p.name for lv in self.levels for p in lv.files}
 
     def _check_levels(self, files: list[str], sizes: list[int]) -> None:
         """pyramid.json's level list against the folder: names, missing or extra files, bytes."""
         where = self.folder / "pyramid.json"
         if not self.levels:
             raise StoreError(f"{where} lists no level; rebake the pyramid.")
-        if files != [f"level{k}.tif" for k in range(len(files))]:
+        numbers = [OWN_LEVEL_FILE.match(f) for f in files]
+        if [m and int(m.group(1)) for m in numbers] != list(range(len(files))):
             raise StoreError(f"{where} names its levels {files}; rebake the pyramid.")
-        on_disk = {n for n in os.listdir(self.folder) if _LEVEL_FILE.match(n)}
-        missing = [f for f in files if f not in on_disk]
-        extra = sorted(on_disk - set(files))
+        on_disk = set(os.listdir(self.folder))
+        listed = self.files
+        missing = sorted(f for f in listed if f not in on_disk)
+        # A bake's level file beyond the listed levels is refused; level{k}.tif of a listed
+        # level written whole again by a re-bake killed before its clean-up is a leftover.
+        extra = sorted(
+            n for n in on_disk - listed
+            if _LEVEL_FILE.match(n) and int(n[5:-4]) >= len(files)
+        )  # fmt: skip
         if missing or extra:
             what = f"missing {missing}" if missing else f"not listed in pyramid.json: {extra}"
             raise StoreError(f"{self.folder} has level files {what}; rebake the pyramid.")
-        for lv, nbytes in zip(self.levels, sizes, strict=True):
-            actual = lv.path.stat().st_size
+        expected = [(lv.path, nbytes) for lv, nbytes in zip(self.levels, sizes, strict=True)] + [
+            (d.path, d.nbytes) for lv in self.levels for d in lv.deltas
+        ]
+        for path, nbytes in expected:
+            actual = path.stat().st_size
             if actual != nbytes:
                 raise StoreError(
-                    f"{lv.path} has {actual} bytes, pyramid.json says {nbytes}; rebake the pyramid."
+                    f"{path} has {actual} bytes, pyramid.json says {nbytes}; rebake the pyramid."
                 )
 
     def _check_chain(self) -> None:
@@ -708,6 +837,21 @@ class TexturePyramid:
         r1, c1 = min(row0 + rows, lv.height), min(col0 + cols, lv.width)
         if r1 <= row0 or c1 <= col0:
             return out
+        planes = self.read_bands(k, row0, col0, r1 - row0, c1 - col0)
+        # Grey and alpha fill R, G, B and A; RGBA fills them as stored.
+        bands_into_rgba(planes, out)
+        return out
+
+    def read_bands(self, k: int, row0: int, col0: int, rows: int, cols: int) -> np.ndarray:
+        """(bands, rows, cols) uint8 texels of level k as stored (grey and alpha, or RGBA),
+        the window inside the level; every tile it touches checked (``read``)."""
+        lv = self.levels[k]
+        r1, c1 = row0 + rows, col0 + cols
+        if not (0 <= row0 < r1 <= lv.height and 0 <= col0 < c1 <= lv.width):
+            raise InvalidParameterError(
+                f"Texels {row0}..{r1} × {col0}..{c1} are not inside level {k} "
+                f"({lv.height} × {lv.width})."
+            )
         tiles = [
             (tr, tc)
             for tr in range(row0 // _TILE, (r1 - 1) // _TILE + 1)
@@ -732,10 +876,7 @@ class TexturePyramid:
                 if kept is None:
                     a, b = tr * _TILE - r0_, tc * _TILE - c0_
                     self._check_tile(k, tr, tc, block[:, a : a + _TILE, b : b + _TILE])
-        planes = np.ascontiguousarray(block[:, row0 - r0_ : r1 - r0_, col0 - c0_ : c1 - c0_])
-        # Grey and alpha fill R, G, B and A; RGBA fills them as stored.
-        bands_into_rgba(planes, out)
-        return out
+        return np.ascontiguousarray(block[:, row0 - r0_ : r1 - r0_, col0 - c0_ : c1 - c0_])
 
     def _decode(
         self, k: int, r0: int, c0: int, r1: int, c1: int, tiles: list[tuple[int, int]]
@@ -746,28 +887,32 @@ class TexturePyramid:
         from rasterio.windows import Window
 
         lv = self.levels[k]
-        failed = None
-        try:
-            with no_side_files(), rasterio.open(lv.path) as ds:
-                return ds.read(window=Window(c0, r0, c1 - c0, r1 - r0))
-        except rasterio.errors.RasterioError as exc:
-            failed = _cause(exc)
-        # Raised outside the handler: GDAL's chained errors, kept as the context, do not
-        # survive pickling back from a dask worker. Tile by tile to name the damaged one.
-        where = ""
-        with no_side_files(), rasterio.open(lv.path) as ds:
-            for tr, tc in tiles:
-                a, b = tr * _TILE, tc * _TILE
-                window = Window(b, a, min(_TILE, lv.width - b), min(_TILE, lv.height - a))
-                try:
-                    ds.read(window=window)
-                except rasterio.errors.RasterioError:
-                    where = f"tile ({tr}, {tc}) of "
-                    break
-        raise StoreError(
-            f"{lv.path} is damaged: {where}level {k} does not decode ({failed}); rebake the "
-            "pyramid (approxtree bake)."
-        )
+        # The base file's texels, then each delta's over them, oldest first (the last wins).
+        parts = [(lv.path, (0, lv.height, 0, lv.width))]
+        parts += [(d.path, d.texels(lv.width, lv.height)) for d in lv.deltas]
+        block = None
+        for path, (a, b, c, d) in parts:
+            ra, rb, ca, cb = max(r0, a), min(r1, b), max(c0, c), min(c1, d)
+            if ra >= rb or ca >= cb:
+                continue
+            failed = None
+            try:
+                with no_side_files(), rasterio.open(path) as ds:
+                    if path != lv.path and path not in self._checked:
+                        build = next(x.build for x in lv.deltas if x.path == path)
+                        _check_level(path, lv, self.bands, build, k, (a, b, c, d), ds)
+                        self._checked.add(path)
+                    texels = ds.read(window=Window(ca - c, ra - a, cb - ca, rb - ra))
+            except rasterio.errors.RasterioError as exc:
+                failed = _cause(exc)
+            if failed is not None:
+                _damaged(k, path, (a, c), tiles, failed)
+            if block is None:
+                block = texels
+            else:
+                block[:, ra - r0 : rb - r0, ca - c0 : cb - c0] = texels
+        assert block is not None  # the base file covers the level
+        return block
 
     def _check_tile(self, k: int, tr: int, tc: int, texels: np.ndarray) -> None:
         """StoreError unless the (bands, h, w) texels of tile (tr, tc) of level k match its
@@ -776,8 +921,11 @@ class TexturePyramid:
 
         tile = np.ascontiguousarray(texels)
         if crc32c.crc32c(tile.data) != self.tile_crc32c[k][tr][tc]:
+            # The file the tile was read from: the last delta holding it, else the base.
+            lv = self.levels[k]
+            held = [d.path for d in lv.deltas if _holds(d.tiles, tr, tc)]
             raise StoreError(
-                f"{self.levels[k].path} is damaged: tile ({tr}, {tc}) of level {k} does not "
+                f"{(held or [lv.path])[-1]} is damaged: tile ({tr}, {tc}) of level {k} does not "
                 "match its checksum in pyramid.json; rebake the pyramid (approxtree bake)."
             )
         self._tiles.put((k, tr, tc), tile if tile is not texels else tile.copy())
@@ -791,4 +939,4 @@ class TexturePyramid:
     @property
     def nbytes(self) -> int:
         """Bytes of all level files."""
-        return sum(lv.path.stat().st_size for lv in self.levels)
+        return sum(p.stat().st_size for lv in self.levels for p in lv.files)

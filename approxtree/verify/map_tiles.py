@@ -35,6 +35,7 @@ import numpy as np
 
 from approxtree.errors import StoreError
 from approxtree.verify.measure import world_to_index
+from approxtree.verify.pyramid import LevelFile
 from approxtree.verify.report import VerifyReport
 
 #: Decoding of each raster-dem encoding: h = (R·65536 + G·256 + B) / scale − offset.
@@ -327,9 +328,8 @@ class _Sampler:
 
     def _level(self, k: int):
         if k not in self._files:
-            import rasterio
-
-            self._files[k] = rasterio.open(self.folder / self.levels[k]["file"])
+            # The level's texels as a re-baked pyramid holds them (its deltas read over it).
+            self._files[k] = LevelFile(self.folder, self.levels[k])
         return self._files[k]
 
     def expected(self, k: int, factor: int, px: np.ndarray, py: np.ndarray) -> np.ndarray:

@@ -42,6 +42,60 @@ def _open(path: Path):
     return rasterio.open(path)
 
 
+class LevelFile:
+    """A level as its texels read: the base file, each delta (pyramid format 5: whole tiles
+    re-baked into a file of their own, listed oldest first) read over it. ``read`` takes a
+    rasterio window (``boundless`` and ``fill_value`` as rasterio's), the rest is the base
+    file's (height, width, count, dtypes, transform)."""
+
+    def __init__(self, output: Path, entry: dict) -> None:
+        self.base = _open(output / str(entry["file"]))
+        self.deltas: list[tuple[Any, tuple[int, int]]] = []
+        try:
+            for d in entry.get("deltas", ()):
+                tr0, _, tc0, _ = (int(v) for v in d["tiles"])
+                self.deltas.append((_open(output / str(d["file"])), (tr0 * TILE, tc0 * TILE)))
+        except BaseException:
+            self.close()
+            raise
+        self.height, self.width = self.base.height, self.base.width
+        self.count, self.dtypes, self.transform = (
+            self.base.count,
+            self.base.dtypes,
+            (self.base.transform),
+        )
+
+    def read(self, window, boundless: bool = False, fill_value: int = 0) -> np.ndarray:
+        """(bands, h, w) texels of the window: the base file's, each delta's over them."""
+        from rasterio.windows import Window
+
+        # fill_value only with boundless: rasterio would fill the alpha-masked texels with it.
+        if boundless:
+            out = self.base.read(window=window, boundless=True, fill_value=fill_value)
+        else:
+            out = self.base.read(window=window)
+        r0, c0 = int(window.row_off), int(window.col_off)
+        r1, c1 = r0 + out.shape[1], c0 + out.shape[2]
+        for ds, (a, c) in self.deltas:
+            ra, rb = max(r0, a), min(r1, a + ds.height)
+            ca, cb = max(c0, c), min(c1, c + ds.width)
+            if ra < rb and ca < cb:
+                texels = ds.read(window=Window(ca - c, ra - a, cb - ca, rb - ra))
+                out[:, ra - r0 : rb - r0, ca - c0 : cb - c0] = texels
+        return out
+
+    def close(self) -> None:
+        self.base.close()
+        for ds, _ in self.deltas:
+            ds.close()
+
+    def __enter__(self) -> LevelFile:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
 def verify_pyramid(
     output: Path,
     terrain: Any,
@@ -65,7 +119,7 @@ def verify_pyramid(
     if terrain is not None and good and good[0]:
         _check_coverage(entries[0], meta.get("crs"), terrain, report)
         if hillshade:
-            _check_hillshade(output / entries[0]["file"], entries[0], terrain, source_path, report)
+            _check_hillshade(output, entries[0], terrain, source_path, report)
     if image is not None and good and all(good):
         from approxtree.verify.pyramid_image import check_image
 
@@ -109,6 +163,7 @@ def _check_levels(output: Path, entries, bands: int, meta, report) -> list[bool]
             ok = False
         if "bytes" in lv and path.stat().st_size != int(lv["bytes"]):
             check.fail(where, f"{lv['bytes']} bytes", path.stat().st_size)
+        ok = _check_deltas(output, k, lv, bands, check) and ok
         good.append(ok)
     # The chain: each level halves the one before, texels twice as large, same origin.
     for k in range(1, len(entries)):
@@ -122,6 +177,40 @@ def _check_levels(output: Path, entries, bands: int, meta, report) -> list[bool]
         ):
             check.fail(f"level {k}", f"half of level {k - 1}", [coarse["width"], coarse["height"]])
     return good
+
+
+def _check_deltas(output: Path, k: int, lv, bands: int, check) -> bool:
+    """Each delta of a level (format 5) is a file, opens, holds its tiles' texels (size,
+    bands, georeference) and has its listed bytes."""
+    ok = True
+    rows, cols = int(lv["height"]), int(lv["width"])
+    t = lv["transform"]
+    for d in lv.get("deltas", ()):
+        check.items += 1
+        where = f"level {k} delta ({d.get('file')})"
+        path = output / str(d.get("file"))
+        try:
+            tr0, tr1, tc0, tc1 = (int(v) for v in d["tiles"])
+            with _open(path) as ds:
+                shape = (ds.count, ds.height, ds.width)
+                transform = list(ds.transform)[:6]
+                dtypes = set(ds.dtypes)
+        except Exception as exc:
+            check.fail(where, "a file that opens", f"{type(exc).__name__}: {exc}"[:120])
+            ok = False
+            continue
+        r0, c0 = tr0 * TILE, tc0 * TILE
+        listed = (bands, min(tr1 * TILE, rows) - r0, min(tc1 * TILE, cols) - c0)
+        want = [t[0], t[1], t[2] + c0 * t[0] + r0 * t[1], t[3], t[4], t[5] + c0 * t[3] + r0 * t[4]]
+        if shape != listed or dtypes != {"uint8"}:
+            check.fail(where, list(listed), list(shape))
+            ok = False
+        if not np.allclose(transform, want, rtol=1e-12, atol=0):
+            check.fail(where, want, transform)
+            ok = False
+        if path.stat().st_size != int(d.get("bytes", -1)):
+            check.fail(where, f"{d.get('bytes')} bytes", path.stat().st_size)
+    return ok
 
 
 def _tiles(lv) -> list[tuple[int, int, int, int]]:
@@ -152,7 +241,7 @@ def _check_tiles(output: Path, entries, good: list[bool], report) -> None:
         if not good[k]:
             continue
         listed = lv.get("tile_crc32c")
-        with _open(output / lv["file"]) as ds:
+        with LevelFile(output, lv) as ds:
             for i, j, r0, c0 in _tiles(lv):
                 decode.items += 1
                 where = f"level {k} tile ({i}, {j})"
@@ -202,8 +291,8 @@ def _check_halving(output: Path, entries, good: list[bool], report) -> None:
         if not (good[k] and good[k - 1]):
             continue
         with (
-            _open(output / entries[k - 1]["file"]) as fine,
-            _open(output / entries[k]["file"]) as ds,
+            LevelFile(output, entries[k - 1]) as fine,
+            LevelFile(output, entries[k]) as ds,
         ):
             for _, _, r0, c0 in _tiles(entries[k]):
                 check.items += 1
@@ -245,7 +334,7 @@ def _check_coverage(lv, crs, terrain, report) -> None:
             check.fail("crs", terrain.crs, crs)
 
 
-def _check_hillshade(path: Path, lv, terrain, source: str | None, report) -> None:
+def _check_hillshade(output: Path, lv, terrain, source: str | None, report) -> None:
     if shutil.which("gdaldem") is None or source is None:
         report.not_checked.append("hillshade: gdaldem is not on PATH, or the source is no file")
         return
@@ -281,7 +370,7 @@ def _check_hillshade(path: Path, lv, terrain, source: str | None, report) -> Non
                 f"hillshade: gdaldem cannot read the source ({run.stderr.strip()[:80]})"
             )
             return
-        with _open(out) as ref_ds, _open(path) as ds:
+        with _open(out) as ref_ds, LevelFile(output, lv) as ds:
             for _, _, r0, c0 in _tiles(lv):
                 ref = _read(ref_ds, r0, c0, TILE, TILE)[0].astype(np.int64)
                 mine = _read(ds, r0, c0, TILE, TILE)

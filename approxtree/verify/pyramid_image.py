@@ -22,6 +22,7 @@ import numpy as np
 
 from approxtree.errors import TerrainFormatError
 from approxtree.io.warp import RESAMPLINGS, warp_scale
+from approxtree.verify.pyramid import LevelFile
 
 #: Rows of level 0 reprojected at once (a strip of float32 RGBA: 16 bytes a texel).
 STRIP = 128
@@ -103,8 +104,6 @@ def check_image(
     """Compare every level of the pyramid in ``output`` with the image's reference (module
     docstring), strip by strip: each level's reference rows are compared as soon as they are
     complete and halved on for the next level."""
-    import rasterio
-
     check = report.check(
         "image", "every level is the box-filtered reprojection of the source image within 1"
     )
@@ -113,7 +112,7 @@ def check_image(
     done = [0] * count
     # A level's odd last row, waiting for the next strip to pair with.
     held: list[np.ndarray | None] = [None] * count
-    handles = [rasterio.open(output / lv["file"]) for lv in entries]
+    handles = [LevelFile(output, lv) for lv in entries]
 
     def take(k: int, strip: np.ndarray) -> None:
         worst[k] = max(worst[k], _compare(handles[k], strip, done[k], k, check))
