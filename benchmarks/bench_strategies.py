@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import statistics
 import subprocess
@@ -135,43 +136,59 @@ def _martini_true_error(terrain, verts, tris) -> tuple[int, float]:
     return len(t), p.error
 
 
-def bench_rtin(terrain, repeats):
+def bench_rtin(terrain, repeats, thresholds=RTIN_THRESHOLDS, equal_error=True):
+    """RTIN rows against pymartini at each threshold: one ``Martini(n)`` made beforehand and
+    reused, as a tile server does (its set-up is timed apart, ``pymartini_setup_seconds``),
+    each repeat ``create_tile`` + ``get_mesh`` against our whole ``approximate`` call (error
+    hierarchy, extraction measuring every grid point, world-coordinate mesh). equal_error:
+    also the triangles each needs at pymartini's measured error."""
     from pymartini import Martini
 
     from approxtree.patches.approximate import approximate
 
     n = terrain.shape[0]
     heights32 = terrain.heights.astype(np.float32)
+    t0 = time.perf_counter()
+    martini = Martini(n)
+    setup = time.perf_counter() - t0
     rows = []
-    for e in RTIN_THRESHOLDS:
+    for e in thresholds:
         (w_o, w_t, c_o, c_t), (ours, (verts, tris)) = _side_by_side(
             lambda e=e: approximate(terrain, "rtin", max_error=e),
-            lambda e=e: Martini(n).create_tile(heights32).get_mesh(e),
+            lambda e=e: martini.create_tile(heights32).get_mesh(e),
             repeats,
         )
-        m_tris, m_err = _martini_true_error(terrain, verts, tris)
-        # Equal true error: our RTIN asked for pymartini's measured error, and for its budget.
-        same_err = approximate(terrain, "rtin", max_error=m_err)
-        same_budget = approximate(terrain, "rtin", max_triangles=m_tris)
-        rows.append(
-            {
-                "threshold": e,
-                "seconds": w_o,
-                "pymartini_seconds": w_t,
-                "time_ratio": w_o / w_t,
-                "cpu_ratio": c_o / c_t,
-                "triangles": len(ours.triangles),
-                "true_max_error": ours.max_error,
-                "pymartini_triangles": m_tris,
-                "pymartini_true_max_error": m_err,
-                "triangles_at_pymartini_error": len(same_err.triangles),
-                "true_error_at_pymartini_error": same_err.max_error,
-                "triangle_ratio_at_equal_error": len(same_err.triangles) / m_tris,
-                "greedy_true_error_at_pymartini_triangles": same_budget.max_error,
-                "greedy_triangles": len(same_budget.triangles),
-            }
-        )
-        print("rtin", terrain.shape, rows[-1], flush=True)
+        row = {
+            "threshold": e,
+            "seconds": w_o,
+            "pymartini_seconds": w_t,
+            "pymartini_setup_seconds": setup,
+            "time_ratio": w_o / w_t,
+            "time_ratio_with_setup": w_o / (w_t + setup),
+            "cpu_seconds": c_o,
+            "pymartini_cpu_seconds": c_t,
+            "cpu_ratio": c_o / c_t,
+            "triangles": len(ours.triangles),
+            "true_max_error": ours.max_error,
+        }
+        if equal_error:
+            m_tris, m_err = _martini_true_error(terrain, verts, tris)
+            # Equal true error: our RTIN asked for pymartini's measured error, and its budget.
+            same_err = approximate(terrain, "rtin", max_error=m_err)
+            same_budget = approximate(terrain, "rtin", max_triangles=m_tris)
+            row.update(
+                {
+                    "pymartini_triangles": m_tris,
+                    "pymartini_true_max_error": m_err,
+                    "triangles_at_pymartini_error": len(same_err.triangles),
+                    "true_error_at_pymartini_error": same_err.max_error,
+                    "triangle_ratio_at_equal_error": len(same_err.triangles) / m_tris,
+                    "greedy_true_error_at_pymartini_triangles": same_budget.max_error,
+                    "greedy_triangles": len(same_budget.triangles),
+                }
+            )
+        rows.append(row)
+        print("rtin", terrain.shape, row, flush=True)
     return rows
 
 
@@ -269,12 +286,42 @@ def plot(out: dict, name: str = "strategies") -> None:
     plt.close(fig)
 
 
-def _ratio_range(out: dict) -> dict[str, float]:
-    """Smallest and largest CPU-time ratio ours / pydelatin over all greedy TIN rows."""
-    rows = [r for group in ("tin_tiles", "tin") for rs in out[group].values() for r in rs]
+def plot_rtin_times(out: dict, name: str) -> None:
+    """The RTIN time ratios ours / pymartini per grid and threshold: CPU time (bars; single
+    threaded on both sides below 2049², the fair figure on a shared machine) and wall time
+    (dots)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels, cpu, wall = [], [], []
+    for group in ("rtin", "rtin_tiles"):
+        for grid, rows in out[group].items():
+            for r in rows:
+                labels.append(f"{grid}{'²' if group == 'rtin' else ''}\n{r['threshold']:g}")
+                cpu.append(r["cpu_ratio"])
+                wall.append(r["time_ratio"])
+    fig, ax = plt.subplots(figsize=(14, 4.5))
+    ax.bar(range(len(cpu)), cpu, color="tab:green", label="CPU time")
+    ax.plot(range(len(wall)), wall, "k.", label="wall time")
+    ax.axhline(1.0, color="k", lw=0.8)
+    ax.axhline(1.5, color="tab:red", lw=0.8, ls="--", label="target 1.5×")
+    ax.set_xticks(range(len(cpu)), labels, fontsize=5, rotation=90)
+    ax.set_ylabel("ours / pymartini")
+    ax.set_title("RTIN vs pymartini (create_tile + get_mesh, Martini(n) reused; medians)")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(RESULTS / f"{name}_rtin_time.png", dpi=120)
+    plt.close(fig)
+
+
+def _ratio_range(out: dict, groups=("tin_tiles", "tin"), key="cpu_ratio") -> dict[str, float]:
+    """Smallest and largest ``key`` (ours / peer) over the rows of ``groups``."""
+    rows = [r for group in groups for rs in out.get(group, {}).values() for r in rs]
     if not rows:
         return {}
-    ratios = [r["cpu_ratio"] for r in rows]
+    ratios = [r[key] for r in rows]
     return {"min": min(ratios), "max": max(ratios), "rows": len(ratios)}
 
 
@@ -291,6 +338,14 @@ def main() -> None:
         action="store_true",
         help="only the greedy TIN rows (real tiles and fractal sizes) against pydelatin",
     )
+    ap.add_argument(
+        "--rtin-only",
+        action="store_true",
+        help="only the RTIN rows (fractal --rtin-sizes, real --rtin-tile-sizes crops) against "
+        "pymartini, its Martini(n) made once and reused",
+    )
+    ap.add_argument("--rtin-tile-sizes", type=int, nargs="*", default=[257, 1025])
+    ap.add_argument("--rtin-thresholds", type=float, nargs="+", default=RTIN_THRESHOLDS)
     ap.add_argument("--memory-error", type=float, default=5.0)
     ap.add_argument("--out", default="strategies", help="name of the JSON and plots")
     args = ap.parse_args()
@@ -317,8 +372,23 @@ def main() -> None:
         "tin_tiles": {},
         "tin": {},
         "rtin": {},
+        "rtin_tiles": {},
+        "load_average_start": os.getloadavg(),
     }
     print("compile", out["compile_seconds"], flush=True)
+    if args.rtin_only:
+        for n in args.rtin_sizes:
+            terrain = fractal_terrain(n, seed=1, relief=1000.0)
+            out["rtin"][n] = bench_rtin(terrain, args.repeats, args.rtin_thresholds, n <= 1025)
+        for name, grid in tile_crops(args.rtin_tile_sizes):
+            out["rtin_tiles"][name] = bench_rtin(grid, args.repeats, args.rtin_thresholds, False)
+        out["rtin_ratio_range"] = _ratio_range(out, ("rtin", "rtin_tiles"), "time_ratio")
+        out["load_average_end"] = os.getloadavg()
+        print("RTIN ours / pymartini (wall):", out["rtin_ratio_range"], flush=True)
+        RESULTS.mkdir(exist_ok=True)
+        (RESULTS / f"{args.out}.json").write_text(json.dumps(out, indent=1))
+        plot_rtin_times(out, args.out)
+        return
     for name, grid in tile_crops(args.tile_sizes):
         out["tin_tiles"][name] = bench_tin(grid, args.repeats, args.tile_errors)
     for n in args.sizes:
@@ -327,6 +397,7 @@ def main() -> None:
     out["tin_ratio_range"] = _ratio_range(out)
     print("TIN ours / pydelatin (CPU time):", out["tin_ratio_range"], flush=True)
     if args.tin_only:
+        out["load_average_end"] = os.getloadavg()
         RESULTS.mkdir(exist_ok=True)
         (RESULTS / f"{args.out}.json").write_text(json.dumps(out, indent=1))
         plot(out, args.out)

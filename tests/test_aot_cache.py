@@ -380,8 +380,11 @@ from approxtree.kernels.rgba import halve_bands
 
 z = (np.arange(40 * 48, dtype=np.float32).reshape(40, 48) ** 1.5) % 97
 z[5, 7] = np.nan
-strip = np.empty((2, 38, 48), np.uint8)
-hs.hillshade_grey_alpha_rows(z, 1, strip, 30.0, -30.0, 1.0, 45.0, 315.0, hs.HORN, hs.STANDARD)
+texels = np.empty((38, 48, 2), np.uint8)
+hs.hillshade_grey_alpha_rows(
+    z, 1, texels.view(np.uint16)[:, :, 0], 30.0, -30.0, 1.0, 45.0, 315.0, hs.HORN, hs.STANDARD
+)
+strip = np.ascontiguousarray(texels.transpose(2, 0, 1))
 half = np.empty((2, 19, 24), np.uint8)
 halve_bands(strip, half)
 kernels = (hs.hillshade_grey_alpha_rows, halve_bands)

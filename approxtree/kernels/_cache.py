@@ -74,19 +74,37 @@ def _kernel_files(root: Path) -> tuple[Path, ...]:
     return tuple(sorted(files, key=lambda p: p.relative_to(root).as_posix()))
 
 
+@functools.cache
+def _named_kernel_files(root: Path) -> tuple[tuple[str, str], ...]:
+    """(relative name, path) of each of ``_kernel_files(root)``, in its order."""
+    return tuple((p.relative_to(root).as_posix(), str(p)) for p in _kernel_files(root))
+
+
+@functools.cache
+def _sources_digest(
+    files: tuple[tuple[str, str], ...], stats: tuple[tuple[float, int], ...]
+) -> str:
+    """``kernel_sources_digest`` of ``files`` whose (mtime, size) are ``stats`` (the memo key:
+    numba asks once per kernel, ~70 times in a process, for the same files)."""
+    digest = hashlib.sha256()
+    for (name, path), (mtime, size) in zip(files, stats, strict=True):
+        digest.update(name.encode() + b"\0")
+        digest.update(_stamp(path, mtime, size, ()).encode())
+    return digest.hexdigest()
+
+
 def kernel_sources_digest(root: str | os.PathLike = PACKAGE_ROOT) -> str:
     """Content hash of every kernel source below ``root`` (relative names and contents).
 
     numba compiles a kernel together with the kernels it calls, including other modules'; a
     stamp of the kernel's own file alone would keep serving the old code after an edit there.
     """
-    root = Path(root)
-    digest = hashlib.sha256()
-    for p in _kernel_files(root):
-        digest.update(p.relative_to(root).as_posix().encode() + b"\0")
-        st = p.stat()
-        digest.update(_stamp(str(p), st.st_mtime, st.st_size, ()).encode())
-    return digest.hexdigest()
+    files = _named_kernel_files(Path(root))
+    stats = []
+    for _, path in files:
+        st = os.stat(path)
+        stats.append((st.st_mtime, st.st_size))
+    return _sources_digest(files, tuple(stats))
 
 
 def source_stamp(

@@ -162,10 +162,11 @@ def check_thematic_palette(palette: str | None) -> None:
     """InvalidParameterError, naming every kind of palette, unless ``palette`` names what a
     thematic raster is coloured with: None, a legend, an existing file or a matplotlib
     colormap (a hypsometric palette of PALETTES colours elevations, not classes)."""
-    import matplotlib
-
     if palette is None or palette in LEGENDS or Path(palette).is_file():
         return
+    # Only a colormap name needs matplotlib (~0.1 s to import): a plain bake never loads it.
+    import matplotlib
+
     if palette in matplotlib.colormaps:
         return
     what = (

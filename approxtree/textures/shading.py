@@ -190,13 +190,15 @@ class TopographicShading(ShadingTexture):
         height, width = self.shape
         # One strip buffer, reused: a strip is valid until the next is asked for (the
         # pyramid copies it), and fresh memory for each would be faulted in and zeroed.
-        buffer = np.empty((2, min(rows, height), width), dtype=np.uint8)
+        # Grey and alpha interleaved (rows, cols, 2), as the pyramid's spool stores texels:
+        # the (2, n, cols) strip is a view of it, which the spool takes without a copy.
+        buffer = np.empty((min(rows, height), width, 2), dtype=np.uint8)
         heights = self.terrain.heights
         if not isinstance(heights, WindowedHeights):
             z = self._heights()
             for r0 in range(0, height, rows):
-                strip = _strip(buffer, min(rows, height - r0))
-                hs.hillshade_grey_alpha_rows(z, r0, strip, *args)
+                texels, strip = _strip(buffer, min(rows, height - r0))
+                hs.hillshade_grey_alpha_rows(z, r0, texels, *args)
                 yield strip
             return
         # Windowed heights: each strip's rows and one more at each end (the 3 × 3 window) are
@@ -235,8 +237,8 @@ class TopographicShading(ShadingTexture):
                 a, z = ahead.popleft().result()
                 if i + depth < count:
                     ahead.append(reader.submit(window, i + depth))
-                strip = _strip(buffer, min(rows, height - r0))
-                hs.hillshade_grey_alpha_rows(z, r0 - a, strip, *args)
+                texels, strip = _strip(buffer, min(rows, height - r0))
+                hs.hillshade_grey_alpha_rows(z, r0 - a, texels, *args)
                 yield strip
 
     def shade(self) -> np.ndarray:
@@ -261,12 +263,11 @@ class TopographicShading(ShadingTexture):
         return np.round(v).astype(np.uint8)
 
 
-def _strip(buffer: np.ndarray, n: int) -> np.ndarray:
-    """The (bands, n, cols) strip of a reused (bands, rows, cols) buffer: the buffer itself,
-    or for a shorter last strip a new C-contiguous array (the kernels take C arrays only)."""
-    if n == buffer.shape[1]:
-        return buffer
-    return np.empty((buffer.shape[0], n, buffer.shape[2]), dtype=buffer.dtype)
+def _strip(buffer: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The first n rows of a reused (rows, cols, 2) uint8 buffer of grey + alpha texels: as
+    the kernel's (n, cols) uint16 texels, and as the (2, n, cols) strip view."""
+    rows = buffer[:n]
+    return rows.view(np.uint16)[:, :, 0], rows.transpose(2, 0, 1)
 
 
 def _check_light(azimuth: float, altitude: float, z_factor: float) -> None:
