@@ -42,7 +42,7 @@ from approxtree.geometry import TERRAIN_TYPES
 from approxtree.geometry.base import GeometryData, RecordArray
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.windowed import WindowedHeights
-from approxtree.patches.grid import GridPatch
+from approxtree.patches.grid import GridPatch, GridPatchArrays
 from approxtree.patches.records import Batch, take
 from approxtree.tree.patch_table import PatchTable
 from approxtree.tree.zarr_store import (
@@ -414,6 +414,33 @@ class TreeStoreSource:
         slots = self._where()[1][nodes]
         same = np.array_equal(slots, np.arange(len(nodes)))
         return batch if same else take(batch, slots)
+
+    def grid_table(self, grid: Grid, rects: np.ndarray) -> GridPatchArrays | None:
+        """The grid patches of every node over ``grid`` (the stored terrain, or an in-memory
+        copy of it) as one table in node order, from the "index" and "stats" arrays alone
+        (no lattice heights, no object per node); None unless every node is a grid patch.
+
+        rects: (n, 4) float64 the nodes' rectangles.
+        """
+        strategies, slot = self._where()
+        if list(self.meta["strategy_names"]) != [GridPatch.kind]:
+            return None
+        if self.fields(GridPatch.kind).get("index") != 6:
+            return None
+        base = f"patches/{GridPatch.kind}"
+        index = self.reader.read(f"{base}/index")[slot].astype(np.int64)
+        stats = self.reader.read(f"{base}/stats")[slot]
+        # Records hold the full raster's indices (``GridPatch.to_record``).
+        index[:, :4] -= np.array(grid.index_offset, dtype=np.int64).repeat(2)
+        return GridPatchArrays(
+            grid,
+            np.asarray(rects, dtype=np.float64),
+            index,
+            np.ascontiguousarray(stats[:, 0]),
+            np.ascontiguousarray(stats[:, 1]),
+            np.ascontiguousarray(stats[:, 2]),
+            stats[:, 3].astype(np.int64),
+        )
 
     def batch(self, strategy: str) -> Batch:
         """Every record of one strategy, in slot order."""

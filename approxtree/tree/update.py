@@ -34,6 +34,7 @@ from approxtree.tree.builder import BuiltLevels, _build_level
 from approxtree.tree.patch_table import PatchTable
 from approxtree.tree.policy import StrategyPolicy
 from approxtree.tree.subdivision import subdivide_level
+from approxtree.tree.tree_store import TreeStoreSource
 from approxtree.tree.update_cells import CellCache
 
 if TYPE_CHECKING:
@@ -384,6 +385,7 @@ def update_tree(tree: ApproximationTree, rect: Rect, heights: np.ndarray) -> Tre
     window = window_cells(grid, rect, heights.shape)
     policy = StrategyPolicy.resolve(tree.params["policy"])
     before = edit_grid(grid, window, heights)
+    _table_of_loaded(tree, grid)
     # Large grid patches are measured per lattice cell, kept by the tree between updates.
     cells = tree.__dict__.setdefault("_cell_cache", CellCache())
     cells.begin()
@@ -409,6 +411,21 @@ def update_tree(tree: ApproximationTree, rect: Rect, heights: np.ndarray) -> Tre
         nodes_after=len(tree),
         seconds=time.perf_counter() - t0,
     )
+
+
+def _table_of_loaded(tree: ApproximationTree, grid: Grid) -> None:
+    """Hold a loaded grid tree's patches as one table read from its store (two arrays, not a
+    record per node), so the update keeps the unchanged nodes' rows without an object each."""
+    source = tree._source
+    if (
+        isinstance(tree._patches, PatchTable)
+        or not isinstance(source, TreeStoreSource)
+        or list(tree.strategy_names) != [GridPatchArrays.kind]
+    ):
+        return
+    table = source.grid_table(grid, tree.rects)
+    if table is not None:
+        tree._patches = PatchTable([table])
 
 
 def compose_changes(changes: list[np.ndarray], behind: int) -> np.ndarray | None:
