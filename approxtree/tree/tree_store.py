@@ -136,7 +136,11 @@ def _write_terrain(
         else:
             write_array(group, name, np.asarray(a))
     if overview is not None:
-        arr = write_array(group, "overview", overview.values, chunks=(HEIGHT_CHUNK, HEIGHT_CHUNK))
+        # Its chunks that the changed heights miss are links too (the same chunking).
+        linked = overview.reuse(reuse) if reuse is not None else None
+        arr = write_array(
+            group, "overview", overview.values, chunks=(HEIGHT_CHUNK, HEIGHT_CHUNK), reuse=linked
+        )
         arr.attrs.update({"row_step": overview.steps[0], "col_step": overview.steps[1]})
 
 
@@ -156,6 +160,19 @@ class _OverviewTap:
         self.col_at[self.cols] = np.arange(len(self.cols))
         dtype = np.float64 if grid.heights.dtype == np.float64 else np.float32
         self.values = np.full((len(self.rows), len(self.cols)), np.nan, dtype=dtype)
+
+    def reuse(self, heights: ChunkReuse) -> ChunkReuse:
+        """The overview's chunks to link to an old store's: those holding no changed height
+        (``heights.changed``: inclusive rows and columns of the heights)."""
+        r0, r1, c0, c1 = heights.changed
+        rows = self.row_at[r0 : r1 + 1]
+        cols = self.col_at[c0 : c1 + 1]
+        rows, cols = rows[rows >= 0], cols[cols >= 0]
+        if not len(rows) or not len(cols):
+            # No overview line crosses the change: every chunk is the old one.
+            return ChunkReuse(heights.old.parent / "overview", (0, -1, 0, -1))
+        changed = (int(rows.min()), int(rows.max()), int(cols.min()), int(cols.max()))
+        return ChunkReuse(heights.old.parent / "overview", changed)
 
     def __call__(self, r0: int, r1: int, c0: int, c1: int, block: np.ndarray) -> None:
         ri = np.flatnonzero(self.row_at[r0:r1] >= 0)
