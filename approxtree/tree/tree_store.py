@@ -439,9 +439,9 @@ class TreeStoreSource:
 
         rects: (n, 4) float64 the nodes' rectangles.
         """
-        strategies, slot = self._where()
         if list(self.meta["strategy_names"]) != [GridPatch.kind]:
             return None
+        slot = self._where()[1]
         if self.fields(GridPatch.kind).get("index") != 6:
             return None
         base = f"patches/{GridPatch.kind}"
