@@ -2,9 +2,11 @@
 
 A grid patch (r0, r1, c0, c1, sr, sc) samples rows r0, r0 + sr, ... and r1 (likewise columns);
 its lattice cell (k, j) owns the data rows r0 + k·sr .. r0 + (k+1)·sr − 1 (the last cell down
-to r1) and the columns likewise. Each point is measured by ``grid_patch.grid_patch_part``, the
-very evaluation of ``_patch_error``, so the maxima, minima and counts over all cells equal the
-patch's figures bit for bit (the sign of a zero extreme aside: see ``grid_patch_errors``).
+to r1) and the columns likewise. Each point gets the very value ``_patch_error`` gives it: a
+cell whose four corners hold data by ``_plain_cell`` (the block's triangles without a division
+per point, as fast as the build's own kernel), any other by ``grid_patch.grid_patch_part``; so
+the maxima, minima and counts over all cells equal the patch's figures bit for bit (the sign
+of a zero extreme aside: see ``grid_patch_errors``).
 """
 
 from __future__ import annotations
@@ -12,7 +14,133 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from approxtree.kernels.grid_patch import grid_patch_part
+from approxtree.kernels.grid_patch import _plain, grid_patch_part
+
+
+@njit(cache=True)
+def _plain_cell(
+    heights: np.ndarray,
+    lattice: np.ndarray,
+    k: int,
+    j: int,
+    a0: int,
+    a1: int,
+    b0: int,
+    b1: int,
+    rb: int,
+    re: int,
+    cb: int,
+    ce: int,
+    frac: np.ndarray,
+) -> tuple[float, float, float, int]:
+    """(error, zmin, zmax, count) of the cell (k, j), block rows rb..re × columns cb..ce,
+    owning rows a0..a1 × columns b0..b1, whose four corners hold data (``_plain``); frac:
+    (ce − cb + 1,) the quotients dc / (ce − cb) (``_fractions``), made once per patch.
+
+    Each point gets ``_block_value``'s float64 value (same operands, same order: the
+    quotients dr / hr and dc / wc, then the triangle's two terms), without its per-point
+    divisions; the triangle changes once along a row, at dc = ceil(dr·wc / hr).
+    """
+    z00 = np.float64(lattice[k, j])
+    z01 = np.float64(lattice[k, j + 1])
+    z10 = np.float64(lattice[k + 1, j])
+    z11 = np.float64(lattice[k + 1, j + 1])
+    hr = re - rb
+    wc = ce - cb
+    err = 0.0
+    zmin = np.inf
+    zmax = -np.inf
+    count = 0
+    for r in range(a0, a1 + 1):
+        dr = r - rb
+        fr = dr / hr
+        vrow = dr == 0 or r == re
+        # Triangle B (00, 11, 10) before offset t, triangle A (00, 01, 11) from t on.
+        t = (dr * wc + hr - 1) // hr
+        b_base = z00 + fr * (z10 - z00)
+        a_add = fr * (z11 - z01)
+        for c in range(b0, b1 + 1):
+            dc = c - cb
+            z = heights[r, c]
+            if z == z:
+                count += 1
+                zmin = z if z < zmin else zmin
+                zmax = z if z > zmax else zmax
+            if vrow and (dc == 0 or c == ce):
+                # Patch vertices are reproduced exactly.
+                continue
+            if dc < t:
+                p = b_base + frac[dc] * (z11 - z10)
+            else:
+                p = z00 + frac[dc] * (z01 - z00) + a_add
+            # Nodata under a drawn triangle: the patch would cover a hole.
+            e = abs(z - p) if z == z else np.inf
+            err = e if e > err else err
+    return err, zmin, zmax, count
+
+
+@njit(cache=True)
+def _patch_fractions(c0: int, c1: int, sc: int) -> np.ndarray:
+    """dc / sc for dc = 0 .. sc, then dc / wl for dc = 0 .. wl (wl: the width of the patch's
+    last column of cells): the quotients ``_block_value`` computes, made once per patch."""
+    nbc = (c1 - c0 + sc - 1) // sc
+    wl = c1 - (c0 + (nbc - 1) * sc)
+    out = np.empty(sc + wl + 2)
+    for dc in range(sc + 1):
+        out[dc] = dc / sc
+    for dc in range(wl + 1):
+        out[sc + 1 + dc] = dc / wl
+    return out
+
+
+@njit(cache=True)
+def _cell(
+    heights: np.ndarray,
+    lattice: np.ndarray,
+    r0: int,
+    r1: int,
+    c0: int,
+    c1: int,
+    sr: int,
+    sc: int,
+    k: int,
+    j: int,
+    fractions: np.ndarray,
+) -> tuple[float, float, float, int, int]:
+    """(error, zmin, zmax, count, zeros) of lattice cell (k, j) of one grid patch (see
+    ``grid_patch_cells``); fractions: the patch's ``_patch_fractions``."""
+    nbr = (r1 - r0 + sr - 1) // sr
+    nbc = (c1 - c0 + sc - 1) // sc
+    a0 = r0 + k * sr
+    a1 = r1 if k == nbr - 1 else a0 + sr - 1
+    b0 = c0 + j * sc
+    b1 = c1 if j == nbc - 1 else b0 + sc - 1
+    re = min(a0 + sr, r1)
+    ce = min(b0 + sc, c1)
+    if (
+        _plain(lattice[k, j])
+        and _plain(lattice[k, j + 1])
+        and _plain(lattice[k + 1, j])
+        and _plain(lattice[k + 1, j + 1])
+    ):
+        # The last column of cells may be narrower: its quotients follow the full ones.
+        frac = fractions[sc + 1 :] if j == nbc - 1 else fractions[: sc + 1]
+        e, lo, hi, n = _plain_cell(heights, lattice, k, j, a0, a1, b0, b1, a0, re, b0, ce, frac)
+    else:
+        # A corner without data: the per-point path (edge values, holes).
+        e, lo, hi, n = grid_patch_part(
+            heights, 0, 0, a0, a1, b0, b1, lattice, 0, 0, r0, r1, c0, c1, sr, sc
+        )
+    # Signed zeros: 1 where the cell holds a +0.0, 2 a −0.0 (3 both), scanned only when an
+    # extreme is zero (which zero is the extreme depends on the scan order).
+    zeros = 0
+    if lo == 0.0 or hi == 0.0:
+        for r in range(a0, a1 + 1):
+            for c in range(b0, b1 + 1):
+                z = heights[r, c]
+                if z == 0.0:
+                    zeros |= 2 if np.signbit(z) else 1
+    return e, lo, hi, n, zeros
 
 
 @njit(cache=True, parallel=True)
@@ -38,35 +166,76 @@ def grid_patch_cells(
     without data), int64 count of valid points and int64 zeros (bit 1: a +0.0, bit 2: a −0.0,
     set only where an extreme of the cell is zero).
     """
-    nbr = (r1 - r0 + sr - 1) // sr
-    nbc = (c1 - c0 + sc - 1) // sc
     nk = k1 - k0 + 1
     nj = j1 - j0 + 1
     err = np.empty((nk, nj))
     zmin = np.empty((nk, nj))
     zmax = np.empty((nk, nj))
     count = np.empty((nk, nj), dtype=np.int64)
-    # Signed zeros: 1 where the cell holds a +0.0, 2 a −0.0 (3 both), scanned only when an
-    # extreme is zero (which zero is the extreme depends on the scan order).
-    zeros = np.zeros((nk, nj), dtype=np.int64)
+    zeros = np.empty((nk, nj), dtype=np.int64)
+    fractions = _patch_fractions(c0, c1, sc)
     for t in prange(nk * nj):
         k = k0 + t // nj
         j = j0 + t % nj
-        a0 = r0 + k * sr
-        a1 = r1 if k == nbr - 1 else a0 + sr - 1
-        b0 = c0 + j * sc
-        b1 = c1 if j == nbc - 1 else b0 + sc - 1
-        e, lo, hi, n = grid_patch_part(
-            heights, 0, 0, a0, a1, b0, b1, lattice, 0, 0, r0, r1, c0, c1, sr, sc
-        )
+        e, lo, hi, n, zz = _cell(heights, lattice, r0, r1, c0, c1, sr, sc, k, j, fractions)
         err[k - k0, j - j0] = e
         zmin[k - k0, j - j0] = lo
         zmax[k - k0, j - j0] = hi
         count[k - k0, j - j0] = n
-        if lo == 0.0 or hi == 0.0:
-            for r in range(a0, a1 + 1):
-                for c in range(b0, b1 + 1):
-                    z = heights[r, c]
-                    if z == 0.0:
-                        zeros[k - k0, j - j0] |= 2 if np.signbit(z) else 1
+        zeros[k - k0, j - j0] = zz
     return err, zmin, zmax, count, zeros
+
+
+@njit(cache=True, parallel=True)
+def grid_patch_cells_many(
+    heights: np.ndarray, lattices: np.ndarray, lattice_start: np.ndarray, index: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The figures of every cell of n grid patches at once (one thread pool for all).
+
+    lattices: the patches' lattices raveled one after the other, patch i's (nbr + 1) × (nbc + 1)
+    heights from lattice_start[i] ((n + 1,) int64); index: (n, 6) int64 (r0, r1, c0, c1, sr,
+    sc). Returns (error, zmin, zmax, count, zeros) raveled as one (cells,) array each, patch
+    i's nbr × nbc cells (row-major) from cell_start[i], and cell_start (n + 1,) int64.
+    """
+    n = index.shape[0]
+    cell_start = np.zeros(n + 1, dtype=np.int64)
+    for i in range(n):
+        nbr = (index[i, 1] - index[i, 0] + index[i, 4] - 1) // index[i, 4]
+        nbc = (index[i, 3] - index[i, 2] + index[i, 5] - 1) // index[i, 5]
+        cell_start[i + 1] = cell_start[i] + nbr * nbc
+    m = cell_start[n]
+    owner = np.empty(m, dtype=np.int64)
+    # The quotients of every patch, made once (not per cell: an allocation per cell would
+    # serialise the threads on the allocator).
+    frac_start = np.zeros(n + 1, dtype=np.int64)
+    for i in range(n):
+        owner[cell_start[i] : cell_start[i + 1]] = i
+        sc = index[i, 5]
+        nbc = (index[i, 3] - index[i, 2] + sc - 1) // sc
+        frac_start[i + 1] = frac_start[i] + sc + (index[i, 3] - index[i, 2] - (nbc - 1) * sc) + 2
+    fractions = np.empty(frac_start[n])
+    for i in range(n):
+        fractions[frac_start[i] : frac_start[i + 1]] = _patch_fractions(
+            index[i, 2], index[i, 3], index[i, 5]
+        )
+    err = np.empty(m)
+    zmin = np.empty(m)
+    zmax = np.empty(m)
+    count = np.empty(m, dtype=np.int64)
+    zeros = np.empty(m, dtype=np.int64)
+    for t in prange(m):
+        i = owner[t]
+        r0, r1, c0, c1 = index[i, 0], index[i, 1], index[i, 2], index[i, 3]
+        sr, sc = index[i, 4], index[i, 5]
+        nbc = (c1 - c0 + sc - 1) // sc
+        nbr = (r1 - r0 + sr - 1) // sr
+        lattice = lattices[lattice_start[i] : lattice_start[i + 1]].reshape(nbr + 1, nbc + 1)
+        frac = fractions[frac_start[i] : frac_start[i + 1]]
+        u = t - cell_start[i]
+        e, lo, hi, nn, zz = _cell(heights, lattice, r0, r1, c0, c1, sr, sc, u // nbc, u % nbc, frac)
+        err[t] = e
+        zmin[t] = lo
+        zmax[t] = hi
+        count[t] = nn
+        zeros[t] = zz
+    return err, zmin, zmax, count, zeros, cell_start

@@ -386,8 +386,11 @@ def update_tree(tree: ApproximationTree, rect: Rect, heights: np.ndarray) -> Tre
     policy = StrategyPolicy.resolve(tree.params["policy"])
     before = edit_grid(grid, window, heights)
     _table_of_loaded(tree, grid)
-    # Large grid patches are measured per lattice cell, kept by the tree between updates.
-    cells = tree.__dict__.setdefault("_cell_cache", CellCache())
+    # Large grid patches are measured per lattice cell, kept by the tree between updates
+    # (made by the build, or read from the store the tree was loaded from).
+    cells = tree.__dict__.get("_cell_cache")
+    if cells is None:
+        cells = tree.__dict__["_cell_cache"] = _stored_cells(tree)
     cells.begin()
     try:
         built, old_of, rebuilt = update_levels(tree, window, policy, cells)
@@ -426,6 +429,13 @@ def _table_of_loaded(tree: ApproximationTree, grid: Grid) -> None:
     table = source.grid_table(grid, tree.rects)
     if table is not None:
         tree._patches = PatchTable([table])
+
+
+def _stored_cells(tree: ApproximationTree) -> CellCache:
+    """The per-cell figures a loaded tree's store holds (``cells/``), or an empty cache."""
+    source = tree._source
+    entries = source.cell_entries() if isinstance(source, TreeStoreSource) else None
+    return CellCache(entries=dict(entries) if entries else {})
 
 
 def compose_changes(changes: list[np.ndarray], behind: int) -> np.ndarray | None:
