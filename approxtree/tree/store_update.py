@@ -79,8 +79,9 @@ def update_store(path: str | os.PathLike, patch: Grid, verify: bool = True) -> T
             f"{text} holds a tree over a {type(terrain).__name__}; only a grid's tree is updated."
         )
     # The terrain is read whole: the update edits its cells in memory, then the store is new.
+    # The band read is the loaded tree's own (dropped with it): no second copy of it.
     grid = Grid(
-        np.array(terrain.heights_array("updating a store's terrain")),
+        terrain.heights_array("updating a store's terrain"),
         terrain.transform,
         terrain.crs,
         terrain.nodata,
