@@ -3,9 +3,11 @@
 The patch raster must lie on the terrain's cells (same cell size, corners on cell edges, same
 CRS) and inside it; its cells (no data included) replace the terrain's. The tree is loaded,
 updated in memory (``ApproximationTree.update``: only the nodes the window reaches are
-rebuilt) and written as a new store beside the old one — its terrain height chunks that the
-window misses are hard links to the old store's chunk files (``zarr_store.ChunkReuse``), the
-rest written anew — which is then swapped in with
+rebuilt; the kept nodes' patches are one table read from the store's patch arrays, the large
+patches re-measured only in the lattice cells near the window, from the per-cell figures the
+store keeps, ``update_cells``) and written as a new store beside the old one — its terrain
+height chunks and overview chunks that the window misses are hard links to the old store's
+chunk files (``zarr_store.ChunkReuse``), the rest written anew — which is then swapped in with
 one atomic folder exchange (``io.atomic.atomic_directory``): a reader opening the store sees
 the old tree or the new one, never half of each; a writer killed at any point leaves the old
 store (and a temp folder the next write removes) or the new one.

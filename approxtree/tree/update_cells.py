@@ -9,6 +9,13 @@ one more each way (a point on a sampled line may use the neighbouring cell's tri
 reduces the cells into
 the patch's figures, bit for bit those of a fresh build. Entries meeting a window that an
 update did not refresh (their node is gone) are forgotten, so none goes stale.
+
+The cells are made by the build itself (``builder.build_levels`` measures a level of large
+grid patches per cell, with ``grid_patch_cells_many``, instead of with the whole-patch kernel:
+the same figures), kept by the tree, saved in its store (``cells/``, ``tree_store``) and read
+back by the first update of a loaded tree, so neither an update in memory nor a store update
+measures a large patch whole. A tree without them (a blocked build, an older store) measures
+the large patches above its first edits whole, as before.
 """
 
 from __future__ import annotations
@@ -26,8 +33,7 @@ from approxtree.patches.grid import GridPatch, GridPatchArrays
 from approxtree.tree.policy import StrategyPolicy
 
 #: Data points from which a node's grid patch is measured per cell (1024² and more): the cells
-#: around an edit (one thread, ~25 ns a point) cost less than a whole re-measure by the
-#: build's kernel, and the first measure of every cell (once per node) stays affordable.
+#: around an edit (one thread) cost less than a whole re-measure by the build's kernel.
 LARGE_POINTS = 1 << 20
 
 #: Points of a re-measure below which it runs on one thread.
