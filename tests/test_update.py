@@ -61,13 +61,15 @@ def random_edits(grid: Grid, rng: np.random.Generator, n: int, nodata: bool):
 
 
 def check_sequence(grid: Grid, seed: int, nodata: bool, **params) -> None:
-    """Apply random edits one after the other, comparing with a fresh build after each."""
+    """Apply random edits one after the other, comparing with a fresh build (tree and terrain
+    z range) after each."""
     rng = np.random.default_rng(seed)
     tree = ApproximationTree.build(grid, **params)
     for rect, heights in random_edits(grid, rng, 4, nodata):
         report = tree.update(rect, heights)
         fresh = ApproximationTree.build(Grid(np.array(grid.heights), grid.transform), **params)
         assert_same_tree(tree, fresh)
+        assert tree.terrain.z_range == fresh.terrain.z_range
         assert len(report.rebuilt) >= 1
         kept = np.flatnonzero(report.old_to_new >= 0)
         assert len(kept) + len(report.removed) == report.nodes_before

@@ -25,10 +25,11 @@ import numpy as np
 from approxtree.errors import InvalidParameterError, StoreError, TerrainFormatError
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
+from approxtree.geometry.windowed import WindowedHeights
 from approxtree.tree.approximation_tree import ApproximationTree
 from approxtree.tree.tree_store import save_tree
 from approxtree.tree.update import TreeUpdate
-from approxtree.tree.zarr_store import ChunkReuse, is_url, is_zip
+from approxtree.tree.zarr_store import ChunkReuse, ZarrHeightSource, is_url, is_zip
 
 
 def _same_crs(a: str | None, b: str | None) -> bool:
@@ -81,9 +82,8 @@ def update_store(path: str | os.PathLike, patch: Grid, verify: bool = True) -> T
             f"{text} holds a tree over a {type(terrain).__name__}; only a grid's tree is updated."
         )
     # The terrain is read whole: the update edits its cells in memory, then the store is new.
-    # The band read is the loaded tree's own (dropped with it): no second copy of it.
     grid = Grid(
-        terrain.heights_array("updating a store's terrain"),
+        _band(terrain),
         terrain.transform,
         terrain.crs,
         terrain.nodata,
@@ -102,6 +102,18 @@ def update_store(path: str | os.PathLike, patch: Grid, verify: bool = True) -> T
     save_tree(tree, path, reuse)
     _hook("saved")
     return report
+
+
+def _band(terrain: Grid) -> np.ndarray:
+    """The (rows, cols) heights of a loaded grid as a writable array of its own: read from the
+    store straight into it (a windowed grid's band is read-only, so it would be copied)."""
+    heights = terrain.heights
+    if isinstance(heights, WindowedHeights) and isinstance(heights.source, ZarrHeightSource):
+        rows, cols = heights.shape
+        band = heights.source.read(0, rows, 0, cols)
+        if band.flags.writeable and band.flags.owndata:
+            return band
+    return np.array(terrain.heights_array("updating a store's terrain"))
 
 
 def _hook(stage: str) -> None:

@@ -405,6 +405,7 @@ def update_tree(tree: ApproximationTree, rect: Rect, heights: np.ndarray) -> Tre
     kept = np.flatnonzero(old_of >= 0)
     old_to_new[old_of[kept]] = kept
     tree.replace_nodes(built)
+    _root_z_range(tree, grid)
     return TreeUpdate(
         window=window,
         old_to_new=old_to_new,
@@ -429,6 +430,15 @@ def _table_of_loaded(tree: ApproximationTree, grid: Grid) -> None:
     table = source.grid_table(grid, tree.rects)
     if table is not None:
         tree._patches = PatchTable([table])
+
+
+def _root_z_range(tree: ApproximationTree, grid: Grid) -> None:
+    """The edited grid's z range from the root's patch (its data points are all the grid's),
+    not from a pass over the band; left to that pass where an extreme is a zero (its sign
+    follows the scan order)."""
+    zmin, zmax = float(tree.bboxes[0, 2]), float(tree.bboxes[0, 5])
+    if grid.point_count > 0 and zmin != 0.0 and zmax != 0.0 and zmin <= zmax:
+        grid.__dict__["_z_range"] = (zmin, zmax)
 
 
 def _stored_cells(tree: ApproximationTree) -> CellCache:
