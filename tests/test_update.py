@@ -77,9 +77,11 @@ def check_sequence(grid: Grid, seed: int, nodata: bool, **params) -> None:
 
 @pytest.fixture(params=["built", "cells"])
 def large_nodes(request, monkeypatch) -> str:
-    """Run twice: large nodes rebuilt whole, and measured per lattice cell from 400 points."""
+    """Run twice: large nodes rebuilt whole, and measured per lattice cell from 400 points
+    (by the build from 2000 points, by the first update reaching them below)."""
     if request.param == "cells":
         monkeypatch.setattr(update_cells, "LARGE_POINTS", 400)
+        monkeypatch.setattr(update_cells, "BUILD_POINTS", 2000)
     return request.param
 
 

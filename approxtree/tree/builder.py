@@ -23,6 +23,7 @@ from approxtree.patches.base import GeometryPatch
 from approxtree.patches.grid import GridPatchArrays
 from approxtree.patches.table import patch_class
 from approxtree.progress import ProgressCallback, no_progress
+from approxtree.tree import update_cells
 from approxtree.tree.patch_table import PatchTable
 from approxtree.tree.policy import StrategyPolicy
 from approxtree.tree.subdivision import FANOUTS, subdivide_level
@@ -221,9 +222,13 @@ def _level_with_cells(
     cells: CellCache | None,
 ) -> Sequence[GeometryPatch] | GridPatchArrays:
     """``_build_level``, the large grid patches measured per cell into ``cells`` (the same
-    figures, bit for bit, at the same cost): a level all of whose nodes are such patches."""
+    figures, bit for bit): a level all of whose nodes are such patches of at least
+    ``update_cells.BUILD_POINTS`` points (smaller ones cost more per cell than whole)."""
     if cells is not None:
         grid = cast(Grid, terrain)
-        if cells.eligible(grid, policy, level, rects, max_points).all():
+        ranges = grid.index_ranges(rects)
+        points = (ranges[:, 1] - ranges[:, 0] + 1) * (ranges[:, 3] - ranges[:, 2] + 1)
+        wide = len(points) > 0 and points.min() >= update_cells.BUILD_POINTS
+        if wide and cells.eligible(grid, policy, level, rects, max_points).all():
             return cells.build(grid, rects, max_points)
     return _build_level(terrain, policy, level, rects, max_points, epsilon)
