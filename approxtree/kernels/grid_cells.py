@@ -354,7 +354,7 @@ def grid_patch_cells_many(
             row_start[i] + (index[i, 1] - index[i, 0] + index[i, 4] - 1) // index[i, 4]
         )
     for t in prange(row_start[n]):
-        i = np.searchsorted(row_start, t, side="right") - 1
+        i = int(np.searchsorted(row_start, t, side="right")) - 1
         r0, r1, c0, c1 = index[i, 0], index[i, 1], index[i, 2], index[i, 3]
         sr, sc = index[i, 4], index[i, 5]
         nbc = (c1 - c0 + sc - 1) // sc

@@ -422,7 +422,9 @@ class TreeStoreSource:
         self.reader.verify(read_skip=("terrain/",))
         self.check_cells()
 
-    def cell_entries(self) -> dict[tuple[int, ...], tuple[np.ndarray, ...]] | None:
+    def cell_entries(
+        self,
+    ) -> dict[tuple[int, int, int, int, int, int], tuple[np.ndarray, ...]] | None:
         """The stored per-cell figures (``cells/``): patch index → (error, zmin, zmax, count,
         zeros) arrays of shape (nbr, nbc) (float64 ×3, int64 ×2), as ``CellCache.entries``;
         None when the store has none."""
@@ -442,7 +444,7 @@ class TreeStoreSource:
             a, b = int(start[i]), int(start[i + 1])
             if b - a != shape[0] * shape[1] or b > len(fields[0]):
                 raise StoreError(f"{self.location} has malformed per-cell figures; rebuild it.")
-            out[tuple(key)] = tuple(f[a:b].reshape(shape) for f in fields)
+            out[(r0, r1, c0, c1, sr, sc)] = tuple(f[a:b].reshape(shape) for f in fields)
         return out
 
     def check_cells(self) -> None:

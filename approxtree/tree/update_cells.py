@@ -89,7 +89,7 @@ class CellCache:
         error, zmin, zmax = np.empty(n), np.empty(n), np.empty(n)
         count = np.empty(n, dtype=np.int64)
         heights = grid.heights_array("measuring grid patches")
-        keys: list[Index] = [tuple(idx) for idx in index.tolist()]  # type: ignore[misc]
+        keys: list[Index] = [tuple(idx) for idx in index.tolist()]
         new = [key for key in dict.fromkeys(keys) if key not in self.entries]
         if new:
             self._measure(heights, new)
