@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 import os
 import signal
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -109,10 +110,19 @@ def _band(terrain: Grid) -> np.ndarray:
     store straight into it (a windowed grid's band is read-only, so it would be copied)."""
     heights = terrain.heights
     if isinstance(heights, WindowedHeights) and isinstance(heights.source, ZarrHeightSource):
+        source = heights.source
         rows, cols = heights.shape
-        band = heights.source.read(0, rows, 0, cols)
-        if band.flags.writeable and band.flags.owndata:
-            return band
+        band = np.empty((rows, cols), dtype=source.dtype)
+        step = source.block_shape[0]
+
+        def read(r0: int) -> None:
+            band[r0 : r0 + step] = source.read(r0, min(rows, r0 + step), 0, cols)
+
+        # Rows of chunks on a thread per core (zarr decodes the chunks of one read on one).
+        threads = max(1, min(os.cpu_count() or 1, -(-rows // step)))
+        with ThreadPoolExecutor(threads, thread_name_prefix="store-read") as pool:
+            list(pool.map(read, range(0, rows, step)))
+        return band
     return np.array(terrain.heights_array("updating a store's terrain"))
 
 
