@@ -4,9 +4,10 @@ A fractal terrain of --size² cells is built once (the full build's time); then 
 of each edit size (64² … 2048² by default) are edited at random places (a pit dug 20 m deep)
 and the tree updated, --repeats times each (median); the ratio update / full build is the
 issue's figure (target ≤ 5 % for a 256² edit of an 8192² terrain). Kernels are compiled on
-a small grid first; the first update of the large tree (which measures the large nodes above
-it whole, see tree/update_cells.py) and --warmup 256² edits at random places (after which
-every large node holds its per-cell figures) are reported on their own. Results in
+a small grid first; the first update of the large tree (which measures the cells of the
+large nodes above it that the build did not, see tree/update_cells.py) and --warmup 256² edits
+at random places (after which every large node holds its per-cell figures) are reported on
+their own. Results in
 benchmarks/results/update_<size>.json and .png (cost against edit size).
 
 --pyramid measures the texture pyramid instead (``textures.rebake``): for each terrain side of
