@@ -4,9 +4,10 @@ A fractal terrain of --size² cells is built once (the full build's time); then 
 of each edit size (64² … 2048² by default) are edited at random places (a pit dug 20 m deep)
 and the tree updated, --repeats times each (median); the ratio update / full build is the
 issue's figure (target ≤ 5 % for a 256² edit of an 8192² terrain). Kernels are compiled on
-a small grid first; the first update of the large tree (which measures the large nodes above
-it whole, see tree/update_cells.py) and --warmup 256² edits at random places (after which
-every large node holds its per-cell figures) are reported on their own. Results in
+a small grid first; the first update of the large tree (which measures the cells of the
+large nodes above it that the build did not, see tree/update_cells.py) and --warmup 256² edits
+at random places (after which every large node holds its per-cell figures) are reported on
+their own. Results in
 benchmarks/results/update_<size>.json and .png (cost against edit size).
 
 --pyramid measures the texture pyramid instead (``textures.rebake``): for each terrain side of
@@ -26,8 +27,11 @@ against edit size, one line per terrain size).
 
 --store times ``approxtree update``'s work on a folder store (``store_update.update_store``:
 load, update, write the new store, swap) for a 256² patch, against a full build + save of the
-edited terrain, with the unchanged height chunks hard-linked (the default) and with the whole
-store written (``reuse`` off); results in benchmarks/results/update_store_<size>.json.
+terrain, --repeats times interleaved (medians): "cells", a built store (its per-cell figures
+saved, unchanged chunks hard-linked); "whole", the same with every chunk written; "old", a
+store without per-cell figures (written before they were saved). The build is timed with and
+without measuring the per-cell figures, interleaved. Results in
+benchmarks/results/update_store_<size>.json.
 """
 
 from __future__ import annotations
@@ -217,24 +221,49 @@ def pyramid_main(args: argparse.Namespace) -> None:
 
 
 def store_main(args: argparse.Namespace) -> None:
-    """A store update of a 256² patch against a full build + save (module doc)."""
+    """Store updates of a 256² patch against a full build + save (module doc)."""
+    import shutil
     import tempfile
 
     from approxtree.datasets import fractal_terrain
     from approxtree.geometry.grid import Grid
-    from approxtree.tree import store_update
+    from approxtree.tree import builder, store_update
     from approxtree.tree.approximation_tree import ApproximationTree
 
     work = Path(tempfile.mkdtemp(dir=args.work))
     grid = fractal_terrain(args.size, args.size, seed=1)
-    t0 = time.perf_counter()
-    tree = ApproximationTree.build(grid, epsilon=args.epsilon)
-    build_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    tree.save(work / "full.zarr")
-    save_s = time.perf_counter() - t0
-    print(f"full build {build_s:.2f} s + save {save_s:.2f} s", flush=True)
-    rows = []
+    # Warm-up: compile the build's, the update's and the store's kernels on a small grid.
+    small = fractal_terrain(1025, 1025, seed=2)
+    ApproximationTree.build(small, epsilon=args.epsilon).save(work / "warm.zarr")
+    warm = Grid(np.zeros((4, 4)), small.transform, index_offset=(5, 5), allow_empty=True)
+    store_update.update_store(work / "warm.zarr", warm, verify=False)
+    # Builds with and without the per-cell figures, interleaved (the host is shared).
+    whole_grid = builder._whole_grid
+    builds: dict[str, list[float]] = {"cells": [], "plain": []}
+    saves: list[float] = []
+    for _ in range(args.repeats):
+        for kind in ("plain", "cells"):
+            builder._whole_grid = whole_grid if kind == "cells" else (lambda terrain: False)
+            t0 = time.perf_counter()
+            tree = ApproximationTree.build(grid, epsilon=args.epsilon)
+            builds[kind].append(time.perf_counter() - t0)
+        builder._whole_grid = whole_grid
+        t0 = time.perf_counter()
+        tree.save(work / "full.zarr")
+        saves.append(time.perf_counter() - t0)
+    build_s = statistics.median(builds["cells"])
+    save_s = statistics.median(saves)
+    print(
+        f"full build {build_s:.2f} s (without per-cell figures "
+        f"{statistics.median(builds['plain']):.2f} s) + save {save_s:.2f} s (medians)",
+        flush=True,
+    )
+    # The stores: one with cells (updated again and again: each update loads it afresh), and
+    # one without (a store written before cells/ existed), copied afresh for each update.
+    shutil.copytree(work / "full.zarr", work / "cells.zarr")
+    shutil.copytree(work / "full.zarr", work / "whole.zarr")
+    tree.__dict__.pop("_cell_cache", None)
+    tree.save(work / "old.zarr")
     rng = np.random.default_rng(0)
     # The store write inside each update is timed on its own.
     writes: list[float] = []
@@ -248,38 +277,70 @@ def store_main(args: argparse.Namespace) -> None:
             writes.append(time.perf_counter() - t)
 
     store_update.save_tree = timed_save  # type: ignore[assignment]
+    rows = []
     try:
-        for linked in (True, False, True, False):
-            store = work / ("linked.zarr" if linked else "whole.zarr")
-            if not store.exists():
-                tree.save(store)
-            r0, c0 = (int(v) for v in rng.integers(0, args.size - 256 + 1, 2))
-            pit = np.array(grid.heights[r0 : r0 + 256, c0 : c0 + 256]) - 20.0
-            window = Grid(pit, grid.transform, index_offset=(r0, c0), allow_empty=True)
-            # The whole store written: a reuse that links nothing.
-            store_update.ChunkReuse = (
-                plain_reuse if linked else (lambda old, changed: None)  # type: ignore[assignment]
-            )
-            t0 = time.perf_counter()
-            report = store_update.update_store(store, window, verify=False)
-            seconds = time.perf_counter() - t0
-            rows.append(
-                {
-                    "linked": linked,
+        for _ in range(args.repeats):
+            for variant in ("cells", "whole", "old"):
+                store = work / f"{variant}.zarr"
+                if variant == "old":
+                    shutil.rmtree(work / "old_copy.zarr", ignore_errors=True)
+                    shutil.copytree(store, work / "old_copy.zarr")
+                    store = work / "old_copy.zarr"
+                r0, c0 = (int(v) for v in rng.integers(0, args.size - 256 + 1, 2))
+                pit = np.array(grid.heights[r0 : r0 + 256, c0 : c0 + 256]) - 20.0
+                window = Grid(pit, grid.transform, index_offset=(r0, c0), allow_empty=True)
+                # "whole": a reuse that links nothing (every chunk written).
+                store_update.ChunkReuse = (
+                    (lambda old, changed: None)  # type: ignore[assignment]
+                    if variant == "whole"
+                    else plain_reuse
+                )
+                t0 = time.perf_counter()
+                report = store_update.update_store(store, window, verify=False)
+                seconds = time.perf_counter() - t0
+                row = {
+                    "variant": variant,
                     "seconds": seconds,
                     "tree_update_seconds": report.seconds,
                     "write_seconds": writes[-1],
+                    "load_seconds": seconds - report.seconds - writes[-1],
+                    "ratio": seconds / (build_s + save_s),
                 }
-            )
-            print(
-                f"store update ({'linked' if linked else 'whole'}): {seconds:.2f} s "
-                f"(tree update {report.seconds:.2f} s, store write {writes[-1]:.2f} s), "
-                f"{100 * seconds / (build_s + save_s):.1f} % of build + save",
-                flush=True,
-            )
+                rows.append(row)
+                print(
+                    f"store update ({variant}): {seconds:.2f} s = load + read "
+                    f"{row['load_seconds']:.2f} + tree update {report.seconds:.2f} + write "
+                    f"{writes[-1]:.2f} s; "
+                    f"{100 * row['ratio']:.1f} % of build + save",
+                    flush=True,
+                )
     finally:
         store_update.save_tree, store_update.ChunkReuse = plain_save, plain_reuse
-    out = {"size": args.size, "build_seconds": build_s, "save_seconds": save_s, "updates": rows}
+    medians = {}
+    for variant in ("cells", "whole", "old"):
+        mine = [r for r in rows if r["variant"] == variant]
+        medians[variant] = {
+            key: statistics.median(r[key] for r in mine)
+            for key in ("seconds", "load_seconds", "tree_update_seconds", "write_seconds", "ratio")
+        }
+        m = medians[variant]
+        print(
+            f"median {variant}: {m['seconds']:.2f} s ({100 * m['ratio']:.1f} %): load + read "
+            f"{m['load_seconds']:.2f}, tree update {m['tree_update_seconds']:.2f}, write "
+            f"{m['write_seconds']:.2f}",
+            flush=True,
+        )
+    out = {
+        "size": args.size,
+        "build_seconds": build_s,
+        "build_all_seconds": builds["cells"],
+        "build_without_cells_all_seconds": builds["plain"],
+        "save_seconds": save_s,
+        "save_all_seconds": saves,
+        "load_average": list(os.getloadavg()),
+        "updates": rows,
+        "medians": medians,
+    }
     RESULTS.mkdir(parents=True, exist_ok=True)
     path = RESULTS / f"update_store_{args.size}.json"
     path.write_text(json.dumps(out, indent=2))

@@ -61,13 +61,15 @@ def random_edits(grid: Grid, rng: np.random.Generator, n: int, nodata: bool):
 
 
 def check_sequence(grid: Grid, seed: int, nodata: bool, **params) -> None:
-    """Apply random edits one after the other, comparing with a fresh build after each."""
+    """Apply random edits one after the other, comparing with a fresh build (tree and terrain
+    z range) after each."""
     rng = np.random.default_rng(seed)
     tree = ApproximationTree.build(grid, **params)
     for rect, heights in random_edits(grid, rng, 4, nodata):
         report = tree.update(rect, heights)
         fresh = ApproximationTree.build(Grid(np.array(grid.heights), grid.transform), **params)
         assert_same_tree(tree, fresh)
+        assert tree.terrain.z_range == fresh.terrain.z_range
         assert len(report.rebuilt) >= 1
         kept = np.flatnonzero(report.old_to_new >= 0)
         assert len(kept) + len(report.removed) == report.nodes_before
@@ -75,9 +77,11 @@ def check_sequence(grid: Grid, seed: int, nodata: bool, **params) -> None:
 
 @pytest.fixture(params=["built", "cells"])
 def large_nodes(request, monkeypatch) -> str:
-    """Run twice: large nodes rebuilt whole, and measured per lattice cell from 400 points."""
+    """Run twice: large nodes rebuilt whole, and measured per lattice cell from 400 points
+    (by the build from 2000 points, by the first update reaching them below)."""
     if request.param == "cells":
         monkeypatch.setattr(update_cells, "LARGE_POINTS", 400)
+        monkeypatch.setattr(update_cells, "BUILD_POINTS", 2000)
     return request.param
 
 

@@ -251,6 +251,9 @@ class ApproximationTree:
             },
         )
         tree.build_seconds = built.seconds
+        if built.cells is not None:
+            # The large patches' per-cell figures: an update (or a save) starts from them.
+            tree.__dict__["_cell_cache"] = built.cells
         return tree
 
     def replace_nodes(self, built: BuiltLevels) -> None:

@@ -11,19 +11,23 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 
 from approxtree.errors import InvalidParameterError, UnsupportedStrategyError
 from approxtree.geometry.base import GeometryData
+from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
 from approxtree.patches.base import GeometryPatch
 from approxtree.patches.grid import GridPatchArrays
 from approxtree.patches.table import patch_class
 from approxtree.progress import ProgressCallback, no_progress
+from approxtree.tree import update_cells
 from approxtree.tree.patch_table import PatchTable
 from approxtree.tree.policy import StrategyPolicy
 from approxtree.tree.subdivision import FANOUTS, subdivide_level
+from approxtree.tree.update_cells import CellCache
 
 
 @dataclass
@@ -42,6 +46,8 @@ class BuiltLevels:
     child_start: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
     child_count: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
     seconds: float = 0.0
+    #: Per-cell figures of the large grid patches (``update_cells``), when measured so.
+    cells: CellCache | None = None
 
 
 def validate_parameters(epsilon: float, max_points: int, fanout: int) -> None:
@@ -150,8 +156,11 @@ def build_levels(
     first = 0
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("rects", "levels", "parents", "cs", "cc")}
     patches_out: list[Sequence[GeometryPatch] | GridPatchArrays] = []
+    # A whole in-memory grid's large grid patches are measured per lattice cell, which an
+    # update (and a store update, the cells being saved) re-measures only near its edit.
+    cells = CellCache() if root_level == 0 and _whole_grid(terrain) else None
     while len(rects):
-        patches = _build_level(terrain, policy, level, rects, max_points, epsilon)
+        patches = _level_with_cells(terrain, policy, level, rects, max_points, epsilon, cells)
         if isinstance(patches, GridPatchArrays):
             errors = patches.error
         else:
@@ -194,4 +203,32 @@ def build_levels(
         child_count=np.concatenate(parts["cc"]),
     )
     out.seconds = time.perf_counter() - t0
+    out.cells = cells if cells is not None and cells.entries else None
     return out
+
+
+def _whole_grid(terrain: GeometryData) -> bool:
+    """Whether the terrain is a plain Grid held in memory whole (the one an update edits)."""
+    return type(terrain) is Grid and not terrain.is_windowed and terrain.index_offset == (0, 0)
+
+
+def _level_with_cells(
+    terrain: GeometryData,
+    policy: StrategyPolicy,
+    level: int,
+    rects: np.ndarray,
+    max_points: int,
+    epsilon: float,
+    cells: CellCache | None,
+) -> Sequence[GeometryPatch] | GridPatchArrays:
+    """``_build_level``, the large grid patches measured per cell into ``cells`` (the same
+    figures, bit for bit): a level all of whose nodes are such patches of at least
+    ``update_cells.BUILD_POINTS`` points (smaller ones cost more per cell than whole)."""
+    if cells is not None:
+        grid = cast(Grid, terrain)
+        ranges = grid.index_ranges(rects)
+        points = (ranges[:, 1] - ranges[:, 0] + 1) * (ranges[:, 3] - ranges[:, 2] + 1)
+        wide = len(points) > 0 and points.min() >= update_cells.BUILD_POINTS
+        if wide and cells.eligible(grid, policy, level, rects, max_points).all():
+            return cells.build(grid, rects, max_points)
+    return _build_level(terrain, policy, level, rects, max_points, epsilon)

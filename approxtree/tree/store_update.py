@@ -3,9 +3,11 @@
 The patch raster must lie on the terrain's cells (same cell size, corners on cell edges, same
 CRS) and inside it; its cells (no data included) replace the terrain's. The tree is loaded,
 updated in memory (``ApproximationTree.update``: only the nodes the window reaches are
-rebuilt) and written as a new store beside the old one — its terrain height chunks that the
-window misses are hard links to the old store's chunk files (``zarr_store.ChunkReuse``), the
-rest written anew — which is then swapped in with
+rebuilt; the kept nodes' patches are one table read from the store's patch arrays, the large
+patches re-measured only in the lattice cells near the window, from the per-cell figures the
+store keeps, ``update_cells``) and written as a new store beside the old one — its terrain
+height chunks and overview chunks that the window misses are hard links to the old store's
+chunk files (``zarr_store.ChunkReuse``), the rest written anew — which is then swapped in with
 one atomic folder exchange (``io.atomic.atomic_directory``): a reader opening the store sees
 the old tree or the new one, never half of each; a writer killed at any point leaves the old
 store (and a temp folder the next write removes) or the new one.
@@ -16,6 +18,7 @@ from __future__ import annotations
 import math
 import os
 import signal
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -23,10 +26,11 @@ import numpy as np
 from approxtree.errors import InvalidParameterError, StoreError, TerrainFormatError
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
+from approxtree.geometry.windowed import WindowedHeights
 from approxtree.tree.approximation_tree import ApproximationTree
 from approxtree.tree.tree_store import save_tree
 from approxtree.tree.update import TreeUpdate
-from approxtree.tree.zarr_store import ChunkReuse, is_url, is_zip
+from approxtree.tree.zarr_store import ChunkReuse, ZarrHeightSource, is_url, is_zip
 
 
 def _same_crs(a: str | None, b: str | None) -> bool:
@@ -80,7 +84,7 @@ def update_store(path: str | os.PathLike, patch: Grid, verify: bool = True) -> T
         )
     # The terrain is read whole: the update edits its cells in memory, then the store is new.
     grid = Grid(
-        np.array(terrain.heights_array("updating a store's terrain")),
+        _band(terrain),
         terrain.transform,
         terrain.crs,
         terrain.nodata,
@@ -99,6 +103,27 @@ def update_store(path: str | os.PathLike, patch: Grid, verify: bool = True) -> T
     save_tree(tree, path, reuse)
     _hook("saved")
     return report
+
+
+def _band(terrain: Grid) -> np.ndarray:
+    """The (rows, cols) heights of a loaded grid as a writable array of its own: read from the
+    store straight into it (a windowed grid's band is read-only, so it would be copied)."""
+    heights = terrain.heights
+    if isinstance(heights, WindowedHeights) and isinstance(heights.source, ZarrHeightSource):
+        source = heights.source
+        rows, cols = heights.shape
+        band = np.empty((rows, cols), dtype=source.dtype)
+        step = source.block_shape[0]
+
+        def read(r0: int) -> None:
+            band[r0 : r0 + step] = source.read(r0, min(rows, r0 + step), 0, cols)
+
+        # Rows of chunks on a thread per core (zarr decodes the chunks of one read on one).
+        threads = max(1, min(os.cpu_count() or 1, -(-rows // step)))
+        with ThreadPoolExecutor(threads, thread_name_prefix="store-read") as pool:
+            list(pool.map(read, range(0, rows, step)))
+        return band
+    return np.array(terrain.heights_array("updating a store's terrain"))
 
 
 def _hook(stage: str) -> None:

@@ -21,6 +21,15 @@ Layout (format version 1)::
       <field>_data           (total,) the records raveled one after the other and
       <field>_offsets        (k + 1,) int64: slot s is data[offsets[s]:offsets[s + 1]]
     quadtree/                (point quadtrees) the arrays of ``PointQuadtree.to_sections``
+    cells/                   optional (a grid tree whose large patches were measured per cell,
+                             ``tree.update_cells``): attributes {count: m}
+      index                  (m, 6) int64 the patches (r0, r1, c0, c1, sr, sc), sorted
+      start                  (m + 1,) int64: patch i's cells are [start[i], start[i + 1])
+      error zmin zmax        (cells,) float64, row-major per patch
+      count zeros            (cells,) int64 and uint8
+
+A store without ``cells/`` (written before it existed, or by a blocked build) reads and updates
+the same; its first update measures the large patches above the edit whole.
 
 Patch order: slots follow the *storage order*: nodes above the ancestor level L first (in
 breadth-first order), then the subtrees of the level-L nodes one after the other (each in
@@ -42,7 +51,7 @@ from approxtree.geometry import TERRAIN_TYPES
 from approxtree.geometry.base import GeometryData, RecordArray
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.windowed import WindowedHeights
-from approxtree.patches.grid import GridPatch
+from approxtree.patches.grid import GridPatch, GridPatchArrays
 from approxtree.patches.records import Batch, take
 from approxtree.tree.patch_table import PatchTable
 from approxtree.tree.zarr_store import (
@@ -136,7 +145,11 @@ def _write_terrain(
         else:
             write_array(group, name, np.asarray(a))
     if overview is not None:
-        arr = write_array(group, "overview", overview.values, chunks=(HEIGHT_CHUNK, HEIGHT_CHUNK))
+        # Its chunks that the changed heights miss are links too (the same chunking).
+        linked = overview.reuse(reuse) if reuse is not None else None
+        arr = write_array(
+            group, "overview", overview.values, chunks=(HEIGHT_CHUNK, HEIGHT_CHUNK), reuse=linked
+        )
         arr.attrs.update({"row_step": overview.steps[0], "col_step": overview.steps[1]})
 
 
@@ -156,6 +169,19 @@ class _OverviewTap:
         self.col_at[self.cols] = np.arange(len(self.cols))
         dtype = np.float64 if grid.heights.dtype == np.float64 else np.float32
         self.values = np.full((len(self.rows), len(self.cols)), np.nan, dtype=dtype)
+
+    def reuse(self, heights: ChunkReuse) -> ChunkReuse:
+        """The overview's chunks to link to an old store's: those holding no changed height
+        (``heights.changed``: inclusive rows and columns of the heights)."""
+        r0, r1, c0, c1 = heights.changed
+        rows = self.row_at[r0 : r1 + 1]
+        cols = self.col_at[c0 : c1 + 1]
+        rows, cols = rows[rows >= 0], cols[cols >= 0]
+        if not len(rows) or not len(cols):
+            # No overview line crosses the change: every chunk is the old one.
+            return ChunkReuse(heights.old.parent / "overview", (0, -1, 0, -1))
+        changed = (int(rows.min()), int(rows.max()), int(cols.min()), int(cols.max()))
+        return ChunkReuse(heights.old.parent / "overview", changed)
 
     def __call__(self, r0: int, r1: int, c0: int, c1: int, block: np.ndarray) -> None:
         ri = np.flatnonzero(self.row_at[r0:r1] >= 0)
@@ -306,7 +332,32 @@ def save_tree(
         for name in NODE_ARRAYS:
             write_array(group, name, np.asarray(getattr(tree, name)))
         write_array(group, "patch_slot", slot)
+        _write_cells(root, tree)
     return store_bytes(path)
+
+
+def _write_cells(root: Any, tree: ApproximationTree) -> None:
+    """The ``cells/`` group of a grid tree that holds per-cell figures (layout above)."""
+    cache = tree.__dict__.get("_cell_cache")
+    grid = tree.terrain
+    if cache is None or not cache.entries or not isinstance(grid, Grid):
+        return
+    if grid.index_offset != (0, 0):
+        return
+    keys = sorted(cache.entries)
+    entries = [cache.entries[key] for key in keys]
+    start = np.zeros(len(keys) + 1, dtype="<i8")
+    np.cumsum([e[0].size for e in entries], out=start[1:])
+    group = root.create_group("cells", attributes={"count": len(keys)})
+    write_array(group, "index", np.array(keys, dtype="<i8").reshape(-1, 6))
+    write_array(group, "start", start)
+    dtypes = ("<f8", "<f8", "<f8", "<i8", "u1")
+    for f, (name, dtype) in enumerate(zip(CELL_FIELDS, dtypes, strict=True)):
+        write_array(group, name, np.concatenate([np.ravel(e[f]) for e in entries]).astype(dtype))
+
+
+#: The per-cell figures of ``update_cells.CellCache``, in its order.
+CELL_FIELDS = ("error", "zmin", "zmax", "count", "zeros")
 
 
 def store_bytes(path: str | os.PathLike) -> int:
@@ -366,8 +417,56 @@ class TreeStoreSource:
     def verify(self) -> None:
         """Read every array but the terrain's now (the terrain's chunks are checked as they are
         read), so a damaged chunk fails here rather than when its patch is paged in; that
-        every chunk is there was checked when the store was opened."""
+        every chunk is there was checked when the store was opened. The per-cell figures, if
+        any, must agree with the patches they reduce to (``check_cells``)."""
         self.reader.verify(read_skip=("terrain/",))
+        self.check_cells()
+
+    def cell_entries(
+        self,
+    ) -> dict[tuple[int, int, int, int, int, int], tuple[np.ndarray, ...]] | None:
+        """The stored per-cell figures (``cells/``): patch index → (error, zmin, zmax, count,
+        zeros) arrays of shape (nbr, nbc) (float64 ×3, int64 ×2), as ``CellCache.entries``;
+        None when the store has none."""
+        if not self.reader.has("cells"):
+            return None
+        index = self.reader.read("cells/index").astype(np.int64)
+        start = self.reader.read("cells/start").astype(np.int64)
+        fields = [self.reader.read(f"cells/{name}") for name in CELL_FIELDS]
+        types = (np.float64, np.float64, np.float64, np.int64, np.int64)
+        fields = [f.astype(t, copy=False) for f, t in zip(fields, types, strict=True)]
+        out = {}
+        if index.ndim != 2 or index.shape[1] != 6 or len(start) != len(index) + 1:
+            raise StoreError(f"{self.location} has malformed per-cell figures; rebuild it.")
+        for i, key in enumerate(index.tolist()):
+            r0, r1, c0, c1, sr, sc = key
+            shape = (-(-(r1 - r0) // sr), -(-(c1 - c0) // sc))
+            a, b = int(start[i]), int(start[i + 1])
+            if b - a != shape[0] * shape[1] or b > len(fields[0]):
+                raise StoreError(f"{self.location} has malformed per-cell figures; rebuild it.")
+            out[(r0, r1, c0, c1, sr, sc)] = tuple(f[a:b].reshape(shape) for f in fields)
+        return out
+
+    def check_cells(self) -> None:
+        """StoreError unless every stored cell set reduces to the error and data count of the
+        grid patch with its index, where a node has one (the others stay valid for nodes an
+        update may bring back: their cells still hold that patch's figures)."""
+        entries = self.cell_entries()
+        if not entries or list(self.meta["strategy_names"]) != [GridPatch.kind]:
+            return
+        base = f"patches/{GridPatch.kind}"
+        index = self.reader.read(f"{base}/index")
+        stats = self.reader.read(f"{base}/stats")
+        where = {tuple(row): i for i, row in enumerate(index.tolist())}
+        for key, (error, _, _, count, _) in entries.items():
+            i = where.get(key)
+            if i is None:
+                continue
+            if error.max() != stats[i, 0] or count.sum() != stats[i, 3]:
+                raise StoreError(
+                    f"Tree store {self.location} is corrupted: the per-cell figures of patch "
+                    f"{key} disagree with its error. Rebuild it with `approxtree build`."
+                )
 
     def _where(self) -> tuple[np.ndarray, np.ndarray]:
         if self._placement is None:
@@ -414,6 +513,33 @@ class TreeStoreSource:
         slots = self._where()[1][nodes]
         same = np.array_equal(slots, np.arange(len(nodes)))
         return batch if same else take(batch, slots)
+
+    def grid_table(self, grid: Grid, rects: np.ndarray) -> GridPatchArrays | None:
+        """The grid patches of every node over ``grid`` (the stored terrain, or an in-memory
+        copy of it) as one table in node order, from the "index" and "stats" arrays alone
+        (no lattice heights, no object per node); None unless every node is a grid patch.
+
+        rects: (n, 4) float64 the nodes' rectangles.
+        """
+        if list(self.meta["strategy_names"]) != [GridPatch.kind]:
+            return None
+        slot = self._where()[1]
+        if self.fields(GridPatch.kind).get("index") != 6:
+            return None
+        base = f"patches/{GridPatch.kind}"
+        index = self.reader.read(f"{base}/index")[slot].astype(np.int64)
+        stats = self.reader.read(f"{base}/stats")[slot]
+        # Records hold the full raster's indices (``GridPatch.to_record``).
+        index[:, :4] -= np.array(grid.index_offset, dtype=np.int64).repeat(2)
+        return GridPatchArrays(
+            grid,
+            np.asarray(rects, dtype=np.float64),
+            index,
+            np.ascontiguousarray(stats[:, 0]),
+            np.ascontiguousarray(stats[:, 1]),
+            np.ascontiguousarray(stats[:, 2]),
+            stats[:, 3].astype(np.int64),
+        )
 
     def batch(self, strategy: str) -> Batch:
         """Every record of one strategy, in slot order."""

@@ -34,6 +34,7 @@ from approxtree.tree.builder import BuiltLevels, _build_level
 from approxtree.tree.patch_table import PatchTable
 from approxtree.tree.policy import StrategyPolicy
 from approxtree.tree.subdivision import subdivide_level
+from approxtree.tree.tree_store import TreeStoreSource
 from approxtree.tree.update_cells import CellCache
 
 if TYPE_CHECKING:
@@ -384,8 +385,12 @@ def update_tree(tree: ApproximationTree, rect: Rect, heights: np.ndarray) -> Tre
     window = window_cells(grid, rect, heights.shape)
     policy = StrategyPolicy.resolve(tree.params["policy"])
     before = edit_grid(grid, window, heights)
-    # Large grid patches are measured per lattice cell, kept by the tree between updates.
-    cells = tree.__dict__.setdefault("_cell_cache", CellCache())
+    _table_of_loaded(tree, grid)
+    # Large grid patches are measured per lattice cell, kept by the tree between updates
+    # (made by the build, or read from the store the tree was loaded from).
+    cells = tree.__dict__.get("_cell_cache")
+    if cells is None:
+        cells = tree.__dict__["_cell_cache"] = _stored_cells(tree)
     cells.begin()
     try:
         built, old_of, rebuilt = update_levels(tree, window, policy, cells)
@@ -400,6 +405,7 @@ def update_tree(tree: ApproximationTree, rect: Rect, heights: np.ndarray) -> Tre
     kept = np.flatnonzero(old_of >= 0)
     old_to_new[old_of[kept]] = kept
     tree.replace_nodes(built)
+    _root_z_range(tree, grid)
     return TreeUpdate(
         window=window,
         old_to_new=old_to_new,
@@ -409,6 +415,37 @@ def update_tree(tree: ApproximationTree, rect: Rect, heights: np.ndarray) -> Tre
         nodes_after=len(tree),
         seconds=time.perf_counter() - t0,
     )
+
+
+def _table_of_loaded(tree: ApproximationTree, grid: Grid) -> None:
+    """Hold a loaded grid tree's patches as one table read from its store (two arrays, not a
+    record per node), so the update keeps the unchanged nodes' rows without an object each."""
+    source = tree._source
+    if (
+        isinstance(tree._patches, PatchTable)
+        or not isinstance(source, TreeStoreSource)
+        or list(tree.strategy_names) != [GridPatchArrays.kind]
+    ):
+        return
+    table = source.grid_table(grid, tree.rects)
+    if table is not None:
+        tree._patches = PatchTable([table])
+
+
+def _root_z_range(tree: ApproximationTree, grid: Grid) -> None:
+    """The edited grid's z range from the root's patch (its data points are all the grid's),
+    not from a pass over the band; left to that pass where an extreme is a zero (its sign
+    follows the scan order)."""
+    zmin, zmax = float(tree.bboxes[0, 2]), float(tree.bboxes[0, 5])
+    if grid.point_count > 0 and zmin != 0.0 and zmax != 0.0 and zmin <= zmax:
+        grid.__dict__["_z_range"] = (zmin, zmax)
+
+
+def _stored_cells(tree: ApproximationTree) -> CellCache:
+    """The per-cell figures a loaded tree's store holds (``cells/``), or an empty cache."""
+    source = tree._source
+    entries = source.cell_entries() if isinstance(source, TreeStoreSource) else None
+    return CellCache(entries=dict(entries) if entries else {})
 
 
 def compose_changes(changes: list[np.ndarray], behind: int) -> np.ndarray | None:

@@ -9,6 +9,13 @@ one more each way (a point on a sampled line may use the neighbouring cell's tri
 reduces the cells into
 the patch's figures, bit for bit those of a fresh build. Entries meeting a window that an
 update did not refresh (their node is gone) are forgotten, so none goes stale.
+
+The cells are made by the build itself (``builder.build_levels`` measures a level of large
+grid patches per cell, with ``grid_patch_cells_many``, instead of with the whole-patch kernel:
+the same figures), kept by the tree, saved in its store (``cells/``, ``tree_store``) and read
+back by the first update of a loaded tree, so neither an update in memory nor a store update
+measures a large patch whole. A tree without them (a blocked build, an older store) measures
+the large patches above its first edits whole, as before.
 """
 
 from __future__ import annotations
@@ -21,19 +28,26 @@ import numpy as np
 
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
-from approxtree.kernels.grid_cells import grid_patch_cells
+from approxtree.kernels.grid_cells import grid_patch_cells, grid_patch_cells_many
 from approxtree.patches.grid import GridPatch, GridPatchArrays
 from approxtree.tree.policy import StrategyPolicy
 
 #: Data points from which a node's grid patch is measured per cell (1024² and more): the cells
-#: around an edit (one thread, ~25 ns a point) cost less than a whole re-measure by the
-#: build's kernel, and the first measure of every cell (once per node) stays affordable.
+#: around an edit (one thread) cost less than a whole re-measure by the build's kernel.
 LARGE_POINTS = 1 << 20
+
+#: Data points from which a build measures a level's large patches per cell (4096² and
+#: more: few patches of large cells, as fast as the whole-patch kernel); the smaller large
+#: patches get their cells when an update first reaches them (then kept, and saved).
+BUILD_POINTS = 1 << 24
 
 #: Points of a re-measure below which it runs on one thread.
 SERIAL_POINTS = 1 << 20
 
 Index = tuple[int, int, int, int, int, int]
+
+#: A window of no cells: measuring patches from their cells, nothing edited.
+NO_WINDOW = (0, -1, 0, -1)
 
 
 @dataclass
@@ -61,10 +75,11 @@ class CellCache:
         grid: Grid,
         rects: np.ndarray,
         max_points: int,
-        window: tuple[int, int, int, int],
+        window: tuple[int, int, int, int] = NO_WINDOW,
     ) -> GridPatchArrays:
         """The grid patches of ``rects`` (k, 4), as ``GridPatch.build_level_arrays`` makes
-        them, from the cells (measured again where the window reaches them)."""
+        them, from the cells: those of a patch not held yet measured whole (all such patches
+        in one kernel call), the others measured again where the window reaches them."""
         k = math.isqrt(max_points)
         ranges = grid.index_ranges(rects)
         spans = np.column_stack([ranges[:, 1] - ranges[:, 0], ranges[:, 3] - ranges[:, 2]])
@@ -74,9 +89,15 @@ class CellCache:
         error, zmin, zmax = np.empty(n), np.empty(n), np.empty(n)
         count = np.empty(n, dtype=np.int64)
         heights = grid.heights_array("measuring grid patches")
+        keys: list[Index] = [tuple(idx) for idx in index.tolist()]
+        new = [key for key in dict.fromkeys(keys) if key not in self.entries]
+        if new:
+            self._measure(heights, new)
         exact: list[int] = []
-        for i, idx in enumerate(index.tolist()):
-            e, lo, hi, c, zeros = self._cells(heights, tuple(idx), window)
+        for i, key in enumerate(keys):
+            fresh = key in new
+            e, lo, hi, c, zeros = self.entries[key] if fresh else self._cells(heights, key, window)
+            self.touched.add(key)
             error[i], count[i] = e.max(), c.sum()
             lo_v, hi_v = lo.min(), hi.max()
             if (lo_v == 0.0 or hi_v == 0.0) and np.bitwise_or.reduce(zeros, axis=None) == 3:
@@ -91,25 +112,32 @@ class CellCache:
             grid, np.asarray(rects, dtype=np.float64), index, error, zmin, zmax, count
         )
 
+    def _measure(self, heights: np.ndarray, keys: list[Index]) -> None:
+        """Measure every cell of the patches ``keys`` (not held yet), in one kernel call."""
+        lattices = [np.ravel(heights[np.ix_(*_lines(key))]) for key in keys]
+        start = np.zeros(len(keys) + 1, dtype=np.int64)
+        np.cumsum([len(a) for a in lattices], out=start[1:])
+        flat = np.concatenate(lattices).astype(heights.dtype, copy=False)
+        index = np.array(keys, dtype=np.int64).reshape(-1, 6)
+        *figures, cell_start = grid_patch_cells_many(heights, flat, start, index)
+        for i, key in enumerate(keys):
+            rows, cols = _lines(key)
+            shape = (len(rows) - 1, len(cols) - 1)
+            a, b = int(cell_start[i]), int(cell_start[i + 1])
+            self.entries[key] = tuple(f[a:b].reshape(shape) for f in figures)
+
     def _cells(
         self, heights: np.ndarray, index: Index, window: tuple[int, int, int, int]
     ) -> tuple[np.ndarray, ...]:
-        """The per-cell figures of one patch, measured whole or again where the window is."""
+        """The per-cell figures of one held patch, measured again where the window is."""
         r0, r1, c0, c1, sr, sc = index
-        rows = np.append(np.arange(r0, r1, sr), r1)
-        cols = np.append(np.arange(c0, c1, sc), c1)
-        lattice = np.ascontiguousarray(heights[np.ix_(rows, cols)])
-        nbr, nbc = len(rows) - 1, len(cols) - 1
-        entry = self.entries.get(index)
-        self.touched.add(index)
-        if entry is None:
-            entry = grid_patch_cells(heights, lattice, *index, 0, nbr - 1, 0, nbc - 1)
-            self.entries[index] = entry
-            return entry
+        entry = self.entries[index]
+        nbr, nbc = entry[0].shape
         # The cells owning edited points, and those around edited vertices (``_cell_span``).
         k0, k1 = _cell_span(window[0], window[1], r0, r1, sr, nbr)
         j0, j1 = _cell_span(window[2], window[3], c0, c1, sc, nbc)
         if k0 <= k1 and j0 <= j1:
+            lattice = np.ascontiguousarray(heights[np.ix_(*_lines(index))])
             # A few cells: one thread (waking a pool costs more than the work on a busy host).
             points = (min(r1, r0 + (k1 + 1) * sr) - r0 - k0 * sr + 1) * (
                 min(c1, c0 + (j1 + 1) * sc) - c0 - j0 * sc + 1
@@ -135,6 +163,12 @@ class CellCache:
             r0, r1, c0, c1 = idx[:4]
             if idx not in self.touched and r0 <= w1 and r1 >= w0 and c0 <= v1 and c1 >= v0:
                 del self.entries[idx]
+
+
+def _lines(index: Index) -> tuple[np.ndarray, np.ndarray]:
+    """The sampled rows and columns of a grid patch (every step-th line, and its last)."""
+    r0, r1, c0, c1, sr, sc = index
+    return np.append(np.arange(r0, r1, sr), r1), np.append(np.arange(c0, c1, sc), c1)
 
 
 def _cell_span(w0: int, w1: int, lo: int, hi: int, step: int, cells: int) -> tuple[int, int]:

@@ -128,8 +128,9 @@ class ChunkReuse:
     inclusive elements that differ from the old array. A chunk that meets them is written; any
     other is linked (``os.link``) to the old chunk file, which both stores then share: the
     old store is never written through such a link (a later write makes a new store beside
-    it). Nothing is linked when the old array's metadata (shape, chunks, dtype, codecs)
-    differs from the new one's, or across file systems.
+    it). Nothing is linked when the old array's metadata (shape, chunks, dtype, codecs; its
+    attributes aside) differs from the new one's, or across file systems. An empty ``changed``
+    (r1 < r0) links every chunk.
     """
 
     def __init__(self, old: str | os.PathLike, changed: tuple[int, int, int, int]) -> None:
@@ -146,8 +147,8 @@ class ChunkReuse:
             return None
         new = Path(root) / arr.path
         try:
-            same = (self.old / "zarr.json").read_bytes() == (new / "zarr.json").read_bytes()
-        except OSError:
+            same = _array_doc(self.old) == _array_doc(new)
+        except (OSError, ValueError):
             return None
         if not same:
             return None
@@ -170,6 +171,14 @@ class ChunkReuse:
             return True
 
         return link
+
+
+def _array_doc(folder: Path) -> dict[str, Any]:
+    """An array's metadata document without its attributes (set after the chunks are written,
+    and not part of the chunks' encoding)."""
+    doc = json.loads((folder / "zarr.json").read_bytes())
+    doc.pop("attributes", None)
+    return dict(doc)
 
 
 def write_array(

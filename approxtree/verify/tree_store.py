@@ -90,6 +90,8 @@ def verify_tree_store(files: StoreFiles, terrain: Any, report: VerifyReport) -> 
         return
     _check_partition(nodes, report)
     _check_slots(root, meta, nodes, report)
+    if "cells" in members:
+        _check_cells(root, meta, report)
     if terrain is None:
         return
     try:
@@ -154,6 +156,37 @@ def _check_chunks(files: StoreFiles, members: dict[str, Any], report: VerifyRepo
     report.figures["chunks"] = len(expected)
     report.figures["stray_chunks"] = len(stray)
     return damaged
+
+
+def _check_cells(root: Any, meta: dict[str, Any], report: VerifyReport) -> None:
+    """``cells``: the per-cell figures (an update's) are whole, and reduce to the error and
+    data count of the grid patch with their index, where one is stored."""
+    check = report.check("cells", "per-cell figures are whole and reduce to their patches'")
+    index = read_whole(root, "cells/index").astype(np.int64).reshape(-1, 6)
+    start = read_whole(root, "cells/start").astype(np.int64)
+    error = read_whole(root, "cells/error")
+    count = read_whole(root, "cells/count")
+    stats: dict[tuple[int, ...], np.ndarray] = {}
+    if "grid" in (meta.get("strategy_names") or []):
+        rows = read_whole(root, "patches/grid/index").reshape(-1, 6).tolist()
+        values = read_whole(root, "patches/grid/stats").reshape(-1, 4)
+        stats = {tuple(r): values[i] for i, r in enumerate(rows)}
+    if len(start) != len(index) + 1 or start[-1] != len(error) or len(count) != len(error):
+        check.items += 1
+        check.fail("cells/start", len(index) + 1, len(start))
+        return
+    for i, (r0, r1, c0, c1, sr, sc) in enumerate(index.tolist()):
+        check.items += 1
+        cells = math.ceil((r1 - r0) / sr) * math.ceil((c1 - c0) / sc)
+        a, b = int(start[i]), int(start[i + 1])
+        if b - a != cells:
+            check.fail(f"cells {i}", cells, b - a)
+            continue
+        found = stats.get((r0, r1, c0, c1, sr, sc))
+        if found is not None and (
+            error[a:b].max() != found[0] or int(count[a:b].sum()) != int(found[3])
+        ):
+            check.fail(f"cells {i}", float(found[0]), float(error[a:b].max()))
 
 
 # -- 3: terrain --------------------------------------------------------------------------------
