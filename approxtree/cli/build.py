@@ -203,7 +203,7 @@ def build(
     if workers is None and scheduler is None and getattr(terrain, "is_windowed", False):
         # A windowed terrain is large: build its blocks on every core.
         workers = os.cpu_count() or 1
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     # The bar counts data points covered by finished leaves, or blocks of a blocked build.
     blocked = workers is not None or scheduler is not None or block_size is not None
     unit = "block" if blocked or getattr(terrain, "is_windowed", False) else "point"
@@ -229,11 +229,18 @@ def build(
                 progress=on_progress,
                 regions=target,
             )
-        seconds = time.perf_counter() - t0
+        seconds, cpu1 = time.perf_counter() - t0, time.process_time()
         t1 = time.perf_counter()
         nbytes = save_tree(tree, out, regions=target) if target is not None else tree.save(out)
-        save_seconds = time.perf_counter() - t1
-    _emit({**tree_figures(tree, seconds, nbytes), "save_seconds": round(save_seconds, 4)}, as_json)
+        save_seconds, cpu2 = time.perf_counter() - t1, time.process_time()
+    # Where the time went: the save's wall time, and this process's CPU in each phase (a
+    # cluster's workers spend theirs in their own processes).
+    phases = {
+        "save_seconds": round(save_seconds, 4),
+        "build_cpu_seconds": round(cpu1 - cpu0, 4),
+        "save_cpu_seconds": round(cpu2 - cpu1, 4),
+    }
+    _emit({**tree_figures(tree, seconds, nbytes), **phases}, as_json)
 
 
 def _build_point_quadtree(path: str, terrain, delta: int | None, out: str) -> dict[str, Any]:
