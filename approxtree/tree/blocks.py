@@ -564,8 +564,9 @@ def assemble(
             rects[g] = rect
             if record is None:
                 index, (error, lo, hi, cnt) = next(grid_rows)
-                patches[g] = GridPatch(grid, rect, index, error, (lo, hi), int(cnt))
-                patches[g]._lattice_z = res.lattices.get(j)  # type: ignore[union-attr]
+                patch = GridPatch(grid, rect, index, error, (lo, hi), int(cnt))
+                patch._lattice_z = res.lattices.get(j)
+                patches[g] = patch
             else:
                 patches[g] = patch_class(grid, kind).from_record(grid, rect, record)
     return BuiltLevels(
