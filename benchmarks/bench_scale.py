@@ -12,7 +12,11 @@ Measured per run:
 - store bytes ÷ DEM bytes (DEM bytes = rows × cols × 4, float32).
 
 Then on one size, ``--workers 1`` against ``--workers 2`` (the speed-up), each with
-``--report FILE.html`` (the dask performance report: per-block task timeline).
+``--report FILE.html`` (the dask performance report: per-block task timeline); with
+``--speedup-pairs N`` (N > 1) instead N interleaved pairs of whole commands without reports
+(1, 2, 1, 2, ...), medians and each pair's ratio, with the phases the command reports (build,
+save; its own CPU in each) and the CPU of the whole process tree. ``--speedup-only`` skips
+the builds of every size (results: scale_speedup.json and .png).
 
 The build options that today's CLI lacks (read from ``approxtree build --help``) are left out
 and the measurements that need them skipped, with a note in the JSON. A build whose tree
@@ -20,7 +24,8 @@ passes ``--memory-limit-gb`` is stopped and reported as such (an in-memory build
 DEM would need about 15 GB).
 
     python benchmarks/bench_scale.py [--sizes 8192 16384 32768] [--data-dir DIR]
-        [--epsilon 1] [--speedup-size 8192] [--generate-only]
+        [--epsilon 1] [--speedup-size 8192] [--speedup-pairs 3] [--speedup-only]
+        [--generate-only]
 
 Results: benchmarks/results/scale.json and scale.png (RSS and time against size).
 """
@@ -331,6 +336,12 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--speedup-size", type=int, default=None, help="[smallest size]")
     parser.add_argument("--speedup-workers", type=int, nargs=2, default=[1, 2])
     parser.add_argument("--no-speedup", action="store_true")
+    parser.add_argument(
+        "--speedup-pairs", type=int, default=1, help="Interleaved pairs of whole commands [1]"
+    )
+    parser.add_argument(
+        "--speedup-only", action="store_true", help="Only the speed-up (no build per size)."
+    )
     parser.add_argument("--generate-only", action="store_true", help="Make the DEMs only.")
     parser.add_argument(
         "--memory-limit-gb",
@@ -393,7 +404,7 @@ def main(argv: list[str] | None = None) -> dict:
                 "today's `approxtree build` lacks " + ", ".join(missing) + ": the harness used "
                 "--out and a .atree where -o/zarr are missing, and skipped what needs the rest"
             )
-        for record in report["generated"]:
+        for record in [] if args.speedup_only else report["generated"]:
             size = record["size"]
             run = build(
                 Path(record["dem"]),
@@ -417,8 +428,12 @@ def main(argv: list[str] | None = None) -> dict:
         report["speedup"] = speedup(args, opts, report, limit)
 
     stem = "scale" if not args.generate_only else "scale_generate"
+    stem = "scale_speedup" if args.speedup_only else stem
     (args.out_dir / f"{stem}.json").write_text(json.dumps(report, indent=2))
-    plot(report, args.out_dir / f"{stem}.png")
+    if args.speedup_only:
+        plot_pairs(report["speedup"], args.out_dir / f"{stem}.png")
+    else:
+        plot(report, args.out_dir / f"{stem}.png")
     print(f"wrote {args.out_dir / (stem + '.json')} and {stem}.png")
     return report
 
@@ -432,6 +447,8 @@ def speedup(args: argparse.Namespace, opts: dict, report: dict, limit: int) -> d
         return {"skipped": "build has no --workers"}
     size = args.speedup_size or min(args.sizes)
     dem = next(Path(r["dem"]) for r in report["generated"] if r["size"] == size)
+    if args.speedup_pairs > 1:
+        return interleaved(args, opts, dem, size, limit)
     runs = []
     for w in args.speedup_workers:
         html = args.out_dir / f"scale_report_{size}_w{w}.html"
@@ -449,6 +466,92 @@ def speedup(args: argparse.Namespace, opts: dict, report: dict, limit: int) -> d
     }
     print(f"speed-up {size}², workers {args.speedup_workers}: {result['speedup']}", flush=True)
     return result
+
+
+def _phases(run: dict) -> dict:
+    """Wall and CPU seconds of one whole command by phase: start (process and cluster start,
+    reading the DEM's header), build, save, and the CPU of the command's own process against
+    that of the whole tree (the dask workers and nannies are the rest)."""
+    t = run["tree"]
+    build_s, save_s = t.get("seconds"), t.get("save_seconds")
+    out = {"wall": run["seconds"], "build": build_s, "save": save_s}
+    if build_s is not None and save_s is not None:
+        out["start_and_exit"] = round(run["seconds"] - build_s - save_s, 3)
+    out["cpu_tree"] = run["cpu_seconds"]
+    out["cpu_client_build"] = t.get("build_cpu_seconds")
+    out["cpu_client_save"] = t.get("save_cpu_seconds")
+    return out
+
+
+def interleaved(args: argparse.Namespace, opts: dict, dem: Path, size: int, limit: int) -> dict:
+    """``--speedup-pairs`` pairs of whole commands, the worker counts alternating; medians."""
+    import statistics
+
+    w = list(args.speedup_workers)
+    runs: dict[int, list[dict]] = {w[0]: [], w[1]: []}
+    for pair in range(args.speedup_pairs):
+        for workers in w:
+            run = build(dem, size, args.epsilon, opts, args.data_dir, workers, None, limit,
+                        args.timeout, False)  # fmt: skip
+            run["phases"] = _phases(run)
+            runs[workers].append(run)
+            print(
+                f"pair {pair + 1} workers {workers}: {run['seconds']:.1f} s, phases "
+                f"{run['phases']}, load {run['loadavg_1min']}",
+                flush=True,
+            )
+
+    def median(workers: int, key: str) -> float | None:
+        values = [r["phases"][key] for r in runs[workers] if r["phases"].get(key) is not None]
+        return round(statistics.median(values), 3) if values else None
+
+    keys = ("wall", "build", "save", "start_and_exit", "cpu_tree", "cpu_client_build",
+            "cpu_client_save")  # fmt: skip
+    medians = {str(k): {key: median(k, key) for key in keys} for k in w}
+    ratios = [
+        round(a["seconds"] / b["seconds"], 3) for a, b in zip(runs[w[0]], runs[w[1]], strict=True)
+    ]
+    result = {
+        "size": size,
+        "workers": w,
+        "pairs": args.speedup_pairs,
+        "medians": medians,
+        "speedup_whole_command": round(medians[str(w[0])]["wall"] / medians[str(w[1])]["wall"], 3),
+        "speedup_build_phase": round(medians[str(w[0])]["build"] / medians[str(w[1])]["build"], 3),
+        "pair_ratios": ratios,
+        "loadavg_1min": [r["loadavg_1min"] for k in w for r in runs[k]],
+        "runs": {str(k): v for k, v in runs.items()},
+    }
+    print(f"speed-up {size}², workers {w}: whole {result['speedup_whole_command']}, "
+          f"build {result['speedup_build_phase']}, pairs {ratios}", flush=True)  # fmt: skip
+    return result
+
+
+def plot_pairs(result: dict, out: Path) -> None:
+    """Median wall seconds by phase, one bar per worker count, and each pair's ratio."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
+    names = [str(k) for k in result["workers"]]
+    bottom = [0.0] * len(names)
+    for phase in ("start_and_exit", "build", "save"):
+        values = [result["medians"][n][phase] or 0.0 for n in names]
+        a.bar([f"{n} worker(s)" for n in names], values, bottom=bottom, label=phase)
+        bottom = [x + y for x, y in zip(bottom, values, strict=True)]
+    a.set(ylabel="median wall seconds", title=f"{result['size']}², whole command by phase")
+    a.legend()
+    b.plot(range(1, len(result["pair_ratios"]) + 1), result["pair_ratios"], "o-", label="pair")
+    b.axhline(result["speedup_whole_command"], color="grey", ls="--", label="median ratio")
+    b.axhline(1.8, color="red", ls=":", label="target 1.8×")
+    b.set(xlabel="pair", ylabel="1-worker ÷ 2-worker wall time", title="speed-up per pair")
+    b.legend()
+    loads = result["loadavg_1min"]
+    fig.suptitle(f"load average (1 min) before/after each run: {loads}", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out, dpi=100)
 
 
 if __name__ == "__main__":

@@ -28,6 +28,7 @@ from approxtree.tree.cut_mesh import CutMesh, cut_mesh
 from approxtree.tree.node import Node
 from approxtree.tree.patch_table import PatchTable, as_table
 from approxtree.tree.policy import StrategyPolicy
+from approxtree.tree.store_regions import HeightRegions
 from approxtree.tree.update import KEPT_CHANGES, TreeUpdate, compose_changes, update_tree
 
 
@@ -141,6 +142,7 @@ class ApproximationTree:
         scheduler: str | None = None,
         block_size: int | None = None,
         report: str | os.PathLike | None = None,
+        regions: HeightRegions | None = None,
     ) -> ApproximationTree:
         """Build A(s,d)(T): split nodes while ε_T(N) > epsilon, patches of at most s points.
 
@@ -154,7 +156,9 @@ class ApproximationTree:
         blocks on a dask LocalCluster of N processes, ``scheduler`` "tcp://host:8786" on an
         existing cluster; ``block_size`` (cells per block side, default 2048) alone builds
         block by block in this process, as does a windowed grid without workers; ``report``
-        writes a dask performance report (HTML) of a cluster build. A script passing ``workers``
+        writes a dask performance report (HTML) of a cluster build; ``regions``: where the block
+        tasks of a windowed grid write its height chunks for ``save_tree`` to take
+        (``tree.store_regions``, the build command's). A script passing ``workers``
         runs its build under ``if __name__ == "__main__":`` (the cluster starts processes that
         import the main module).
         """
@@ -189,6 +193,7 @@ class ApproximationTree:
                 block_size,
                 report,
                 on_progress,
+                regions,
             )
         finally:
             close()
@@ -207,6 +212,7 @@ class ApproximationTree:
         block_size: int | None,
         report: str | os.PathLike | None,
         on_progress: ProgressCallback,
+        regions: HeightRegions | None = None,
     ):
         """The BuiltLevels of a serial or blocked build (``build``)."""
         if blocked:
@@ -226,6 +232,7 @@ class ApproximationTree:
                 block_size,
                 run=run,
                 progress=on_progress,
+                regions=regions,
             )
         return build_levels(terrain, epsilon, max_points, fanout, policy_obj, on_progress)
 

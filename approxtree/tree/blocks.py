@@ -38,6 +38,7 @@ from approxtree.progress import ProgressCallback, no_progress
 from approxtree.tree.builder import BuiltLevels, build_levels, validate_parameters
 from approxtree.tree.patch_table import PatchTable
 from approxtree.tree.policy import StrategyPolicy
+from approxtree.tree.store_regions import HeightRegions, OverviewPart
 from approxtree.tree.subdivision import subdivide
 
 #: Cells per block side when none is given: a block's window of 2049² float32 heights is 16 MB.
@@ -80,6 +81,8 @@ class BlockTask:
     policy: StrategyPolicy
     #: numba threads inside the task (1 on a cluster: one task per core).
     threads: int | None = None
+    #: Where the task writes the height chunks it owns (windowed grids, ``store_regions``).
+    regions: HeightRegions | None = None
 
 
 @dataclass
@@ -93,6 +96,11 @@ class BlockResult:
     ``grid_stats`` (k, 4) float64 (error, zmin, zmax, count), in node order.
     ancestors: (a, 4) float64 (error, zmin, zmax, count) of each ancestor's grid patch over the
     block's own points, root first.
+    Windowed grids only: lattices, the (kr, kc) float64 lattice heights of the block's nodes
+    whose records carry them (``GridPatch.stores_lattice``) by local node; ancestor_lattices,
+    each ancestor's (lattice part, k_lo, j_lo) as ``lattice_part`` read it, root first; the
+    client needs no read of the band for them. overview: the task's overview lines when it
+    wrote its height chunks; write_seconds: the time that took.
     """
 
     block: int
@@ -108,6 +116,10 @@ class BlockResult:
     ancestors: np.ndarray
     seconds: float
     points: int
+    lattices: dict[int, np.ndarray] = field(default_factory=dict)
+    ancestor_lattices: list[tuple[np.ndarray, int, int]] = field(default_factory=list)
+    overview: OverviewPart | None = None
+    write_seconds: float = 0.0
 
 
 @dataclass
@@ -289,11 +301,14 @@ def run_block(task: BlockTask) -> BlockResult:
         # numba.config sets its settings from the environment at import; its stubs list none.
         limit = numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
         numba.set_num_threads(min(task.threads, limit))
+    overview = None
+    write_seconds = 0.0
     try:
         r0, r1, c0, c1 = task.index
         grid = task.grid
         ancestors = task.ancestors
-        if getattr(grid, "is_windowed", False):
+        windowed = bool(getattr(grid, "is_windowed", False))
+        if windowed:
             # A windowed terrain: read the patch vertices around the block, then the window.
             ancestors = [
                 Ancestor(a.node, a.index, *lattice_part(grid.heights, a.index, task.index))
@@ -314,6 +329,11 @@ def run_block(task: BlockTask) -> BlockResult:
             root_level=task.level,
         )
         stats = measure_ancestors(grid, task.index, ancestors)
+        if task.regions is not None:
+            # The height chunks this block owns go into the store from here, not the client.
+            t1 = time.perf_counter()
+            overview = task.regions.write(task.grid.heights, task.index)
+            write_seconds = time.perf_counter() - t1
     finally:
         numba.set_num_threads(threads)
         # A worker keeps a task until its result is collected: a windowed terrain's block
@@ -348,6 +368,13 @@ def run_block(task: BlockTask) -> BlockResult:
         if all(is_grid)
         else [None if g else p.to_record() for p, g in zip(built.patches, is_grid, strict=True)]
     )
+    # A windowed grid's coarse lattices travel back: the client would read the band for them.
+    lattices = _stored_lattices(built.patches) if windowed else {}
+    ancestor_lattices = (
+        [(np.asarray(a.lattice, dtype=np.float64), a.k_lo, a.j_lo) for a in ancestors]
+        if windowed
+        else []
+    )
     return BlockResult(
         block=task.block,
         rects=np.asarray(built.rects, dtype=np.float64).reshape(n, 4),
@@ -362,7 +389,22 @@ def run_block(task: BlockTask) -> BlockResult:
         ancestors=stats,
         seconds=time.perf_counter() - t0,
         points=(r1 - r0 + 1) * (c1 - c0 + 1),
+        lattices=lattices,
+        ancestor_lattices=ancestor_lattices,
+        overview=overview,
+        write_seconds=write_seconds,
     )
+
+
+def _stored_lattices(patches: Any) -> dict[int, np.ndarray]:
+    """{local node: (kr, kc) float64 lattice heights} of the grid patches whose records carry
+    them (the coarse ones: few per block)."""
+    out: dict[int, np.ndarray] = {}
+    for i in range(len(patches)):
+        p = patches[i]
+        if type(p) is GridPatch and p.stores_lattice:
+            out[i] = np.asarray(p.lattice_heights(), dtype=np.float64)
+    return out
 
 
 def make_tasks(
@@ -373,9 +415,11 @@ def make_tasks(
     fanout: int,
     policy: StrategyPolicy,
     threads: int | None = None,
+    regions: HeightRegions | None = None,
 ) -> list[BlockTask]:
     """One task per block. An in-memory grid ships each block's window and the patch vertices
-    it needs; a windowed grid (``is_windowed``) ships itself and the task reads both."""
+    it needs; a windowed grid (``is_windowed``) ships itself and the task reads both, and
+    writes its height chunks into ``regions`` when given."""
     windowed = bool(getattr(grid, "is_windowed", False))
     index = {node: upper_patch_index(grid, plan, node, max_points) for node in plan.upper}
     tasks: list[BlockTask] = []
@@ -401,6 +445,7 @@ def make_tasks(
                 fanout=int(fanout),
                 policy=policy,
                 threads=threads,
+                regions=regions if windowed else None,
             )
         )
     return tasks
@@ -446,6 +491,7 @@ def assemble(
             (zmin[node], zmax[node]),
             int(count[node]),
         )
+    _place_upper_lattices(plan, results, upper_patch)
     # Kept plan nodes: the root, and the children of kept upper nodes that split.
     kept = np.zeros(n_plan, dtype=bool)
     kept[0] = True
@@ -511,14 +557,16 @@ def assemble(
         gi = res.grid_index.copy()
         gi[:, :4] -= np.array(grid.index_offset, dtype=np.int64).repeat(2)
         grid_rows = iter(zip(gi.tolist(), res.grid_stats.tolist(), strict=True))
-        for g, box, kind, record in zip(
-            ids.tolist(), res.rects.tolist(), res.kinds, res.records, strict=True
+        for j, (g, box, kind, record) in enumerate(
+            zip(ids.tolist(), res.rects.tolist(), res.kinds, res.records, strict=True)
         ):
             rect = Rect(*box)
             rects[g] = rect
             if record is None:
                 index, (error, lo, hi, cnt) = next(grid_rows)
-                patches[g] = GridPatch(grid, rect, index, error, (lo, hi), int(cnt))
+                patch = GridPatch(grid, rect, index, error, (lo, hi), int(cnt))
+                patch._lattice_z = res.lattices.get(j)
+                patches[g] = patch
             else:
                 patches[g] = patch_class(grid, kind).from_record(grid, rect, record)
     return BuiltLevels(
@@ -531,6 +579,28 @@ def assemble(
     )
 
 
+def _place_upper_lattices(
+    plan: BlockPlan, results: list[BlockResult], upper_patch: dict[int, GeometryPatch]
+) -> None:
+    """Hand the upper patches that store their lattice the heights the blocks read for them
+    (windowed grids): the blocks' parts tile each lattice, so no read of the band is left."""
+    by_block = {r.block: r for r in results}
+    lattices: dict[int, np.ndarray] = {}
+    for b, node in enumerate(plan.blocks):
+        for anc, (part, k, j) in zip(
+            plan.ancestors(node), by_block[b].ancestor_lattices, strict=False
+        ):
+            patch = upper_patch[anc]
+            if not (isinstance(patch, GridPatch) and patch.stores_lattice):
+                continue
+            if anc not in lattices:
+                rows, cols = patch.lines
+                lattices[anc] = np.full((len(rows), len(cols)), np.nan)
+            lattices[anc][k : k + part.shape[0], j : j + part.shape[1]] = part
+    for anc, z in lattices.items():
+        upper_patch[anc]._lattice_z = z  # type: ignore[attr-defined]
+
+
 def build_blocked(
     grid: GeometryData,
     epsilon: float,
@@ -541,12 +611,14 @@ def build_blocked(
     block_level: int | None = None,
     run: Callable[[list[BlockTask]], list[BlockResult]] | None = None,
     progress: ProgressCallback | None = None,
+    regions: HeightRegions | None = None,
 ) -> BuiltLevels:
     """The serial build's nodes, built block by block.
 
     run: callable(tasks) -> results (``tree.distributed`` passes a dask runner); None runs the
     tasks here, one after the other; progress(done, total) in blocks (``approxtree.progress``;
-    a ``run`` reports its own).
+    a ``run`` reports its own); regions: where the tasks of a windowed grid write its height
+    chunks (``store_regions``; the store then takes them as they are).
     """
     validate_parameters(epsilon, max_points, fanout)
     if not isinstance(grid, Grid):
@@ -557,7 +629,7 @@ def build_blocked(
     t0 = time.perf_counter()
     plan = plan_blocks(grid, fanout, block_size, block_level)
     check_policy(grid, plan, policy)
-    tasks = make_tasks(grid, plan, epsilon, max_points, fanout, policy)
+    tasks = make_tasks(grid, plan, epsilon, max_points, fanout, policy, regions=regions)
     if run is None:
         report = progress or no_progress
         report(0, len(tasks))
@@ -567,6 +639,8 @@ def build_blocked(
             report(i + 1, len(tasks))
     else:
         results = run(tasks)
+    if regions is not None and all(t.regions is not None for t in tasks):
+        regions.collect(r.overview for r in results)
     out = assemble(grid, plan, results, epsilon, max_points)
     # The root's figures are the band's: a windowed grid need not scan itself for them.
     if getattr(grid, "is_windowed", False) and "_n_valid" not in grid.__dict__:

@@ -68,6 +68,7 @@ from approxtree.tree.zarr_store import (
 if TYPE_CHECKING:
     from approxtree.tree.approximation_tree import ApproximationTree
     from approxtree.tree.point_quadtree import PointQuadtree
+    from approxtree.tree.store_regions import HeightRegions
 
 NODE_ARRAYS = (
     "rects",
@@ -112,10 +113,15 @@ def storage_order(levels: np.ndarray, parents: np.ndarray, level: int) -> np.nda
 
 
 def _write_terrain(
-    root: Any, terrain: GeometryData, tap: Any = None, reuse: ChunkReuse | None = None
+    root: Any,
+    terrain: GeometryData,
+    tap: Any = None,
+    reuse: ChunkReuse | None = None,
+    regions: HeightRegions | None = None,
 ) -> None:
     """The terrain group; ``tap(r0, r1, c0, c1, values)`` sees every slab of the heights;
-    ``reuse`` links the unchanged height chunks to an old store's.
+    ``reuse`` links the unchanged height chunks to an old store's; ``regions``: the heights
+    the block tasks wrote (``store_regions``), moved in, and their overview lines.
 
     A grid larger than its overview also gets ``overview`` (the Engine's normal map samples,
     ``Grid.strided_heights``), picked from the same slabs: no second read of the band.
@@ -133,7 +139,9 @@ def _write_terrain(
             t(*args)
 
     for name, a in arrays.items():
-        if name == "heights":
+        if name == "heights" and regions is not None:
+            regions.move_into(group, name)
+        elif name == "heights":
             write_array(
                 group,
                 name,
@@ -145,10 +153,11 @@ def _write_terrain(
         else:
             write_array(group, name, np.asarray(a))
     if overview is not None:
+        values = overview.values if regions is None else regions.overview(overview)
         # Its chunks that the changed heights miss are links too (the same chunking).
         linked = overview.reuse(reuse) if reuse is not None else None
         arr = write_array(
-            group, "overview", overview.values, chunks=(HEIGHT_CHUNK, HEIGHT_CHUNK), reuse=linked
+            group, "overview", values, chunks=(HEIGHT_CHUNK, HEIGHT_CHUNK), reuse=linked
         )
         arr.attrs.update({"row_step": overview.steps[0], "col_step": overview.steps[1]})
 
@@ -182,6 +191,12 @@ class _OverviewTap:
             return ChunkReuse(heights.old.parent / "overview", (0, -1, 0, -1))
         changed = (int(rows.min()), int(rows.max()), int(cols.min()), int(cols.max()))
         return ChunkReuse(heights.old.parent / "overview", changed)
+
+    @staticmethod
+    def steps_of(grid: Grid) -> tuple[int, int] | None:
+        """The overview steps of ``grid``, None when it is its own overview."""
+        steps = grid.overview_steps()
+        return None if max(abs(v) for v in steps) == 1 else steps
 
     def __call__(self, r0: int, r1: int, c0: int, c1: int, block: np.ndarray) -> None:
         ri = np.flatnonzero(self.row_at[r0:r1] >= 0)
@@ -295,13 +310,19 @@ def _write_batch(group: Any, batch: Batch) -> dict[str, int | None]:
 
 
 def save_tree(
-    tree: ApproximationTree, path: str | os.PathLike, reuse: ChunkReuse | None = None
+    tree: ApproximationTree,
+    path: str | os.PathLike,
+    reuse: ChunkReuse | None = None,
+    regions: HeightRegions | None = None,
 ) -> int:
     """Write ``tree`` as a tree store at ``path`` atomically; returns the stored bytes.
 
     reuse: the terrain height chunks to take from an old folder store by hard link (the
-    unchanged ones of an update, ``store_update``); the rest is written.
+    unchanged ones of an update, ``store_update``); the rest is written. regions: the heights
+    its block tasks wrote (``store_regions``; used once complete, else the client copies).
     """
+    if regions is not None and not regions.complete:
+        regions = None
     n = len(tree)
     level = ancestor_level(tree.levels)
     order = storage_order(tree.levels, tree.parents, level)
@@ -315,9 +336,10 @@ def save_tree(
         "nodes": n,
     }
     slot = np.empty(n, dtype=np.int64)
-    tap = _lattice_tap(tree)
+    # Regions: the build's tasks handed the coarse patches their lattices; nothing streams past.
+    tap = _lattice_tap(tree) if regions is None else None
     with writing(path, meta) as root:
-        _write_terrain(root, tree.terrain, tap, reuse)
+        _write_terrain(root, tree.terrain, tap, reuse, regions)
         if tap is not None:
             tap.finish()
         patches = root.create_group("patches")

@@ -181,6 +181,23 @@ def _array_doc(folder: Path) -> dict[str, Any]:
     return dict(doc)
 
 
+def new_array(
+    group: Any, name: str, shape: tuple[int, ...], dtype: np.dtype, chunks: tuple[int, ...]
+) -> Any:
+    """Create the empty array ``group/name`` as ``write_array`` does (same metadata, so the
+    same bytes once filled): little-endian, the store's codecs, every chunk written."""
+    dtype = np.dtype(dtype).newbyteorder("<")
+    return group.create_array(
+        name,
+        shape=shape,
+        chunks=tuple(max(1, c) for c in chunks) if shape else None,
+        dtype=dtype,
+        compressors=codecs(dtype),
+        fill_value=0,
+        config={"write_empty_chunks": True},
+    )
+
+
 def write_array(
     group: Any,
     name: str,
@@ -202,15 +219,7 @@ def write_array(
     if chunks is None:
         data = np.asarray(data)
         chunks = _row_chunks(shape, dtype.itemsize)
-    arr = group.create_array(
-        name,
-        shape=shape,
-        chunks=tuple(max(1, c) for c in chunks) if shape else None,
-        dtype=dtype,
-        compressors=codecs(dtype),
-        fill_value=0,
-        config={"write_empty_chunks": True},
-    )
+    arr = new_array(group, name, shape, dtype, chunks)
     if not math.prod(shape):
         return arr
     if (isinstance(data, np.ndarray) and tap is None and reuse is None) or len(shape) != 2:
