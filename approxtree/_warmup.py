@@ -263,12 +263,16 @@ def _geotiff_grid(work: Path, dtype: str):
 def update_step(work: Path) -> None:
     """The per-cell figures of large grid patches that ``update`` keeps (patches of 2048²
     points and more, which no tiny file reaches): the kernel itself, in both height dtypes."""
-    from approxtree.kernels.grid_cells import grid_patch_cells
+    from approxtree.kernels.grid_cells import grid_patch_cells, grid_patch_cells_many
 
     for dtype in (np.float32, np.float64):
         heights = np.arange(81, dtype=dtype).reshape(9, 9)
         lattice = np.ascontiguousarray(heights[::4, ::4])
         grid_patch_cells(heights, lattice, 0, 8, 0, 8, 4, 4, 0, 1, 0, 1)
+        # The build's row kernel of the same figures (roots of 4096² points and more).
+        start = np.array([0, lattice.size], dtype=np.int64)
+        index = np.array([[0, 8, 0, 8, 4, 4]], dtype=np.int64)
+        grid_patch_cells_many(heights, lattice.ravel(), start, index)
 
 
 def extras_step(work: Path) -> None:

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
 from typing import Any
 
 import click
@@ -26,18 +24,6 @@ def _takes_windowed(path: str, encoding: str | None) -> bool:
     from approxtree.io._common import existing_file
 
     return "windowed" in detect_format(existing_file(path), encoding=encoding).options
-
-
-@contextmanager
-def _gl_context(gl: bool) -> Iterator[Any]:
-    """``render.context.optional_context(gl)``, the module imported only when gl is True."""
-    if not gl:
-        yield None
-        return
-    from approxtree.render.context import optional_context
-
-    with optional_context(True) as ctx:
-        yield ctx
 
 
 @click.command("bake")
@@ -188,6 +174,7 @@ def bake_command(
     from approxtree.errors import InvalidParameterError
     from approxtree.io.output_path import check_output_folder
     from approxtree.progress import progress_bar
+    from approxtree.render.context import hardware_gl, optional_context
     from approxtree.textures.bake import bake
     from approxtree.textures.palettes import check_thematic_palette
 
@@ -197,13 +184,7 @@ def bake_command(
     check_thematic_palette(palette)
     # The hillshade is baked with OpenGL on a GPU; with numpy without one, and on a software
     # rasterizer (llvmpipe), which the numba kernels outrun on the same cores.
-    # The OpenGL module (and the render package under it, ~0.04 s to import) is loaded only
-    # when OpenGL may bake.
-    gl = False
-    if not no_gl and shading == "topographic":
-        from approxtree.render.context import hardware_gl
-
-        gl = hardware_gl()
+    gl = not no_gl and shading == "topographic" and hardware_gl()
     if not _is_tree(source):
         ctx = click.get_current_context()
         if (
@@ -232,7 +213,7 @@ def bake_command(
     if palette is not None and thematic is None:
         raise InvalidParameterError("--palette colours a --thematic raster; give one.")
     with (
-        _gl_context(gl) as gl_context,
+        optional_context(gl) as gl_context,
         progress_bar("baking pyramid", unit="row", quiet=quiet) as on_progress,
     ):
         result = bake(

@@ -15,26 +15,6 @@ from approxtree.cli.common import _check_tree_output, _emit, _reports_errors, tr
 from approxtree.cli.options import json_option, overwrite_option, quiet_option, reader_options
 
 
-def _refine(terrain, files, width: float, depth: float, profile: str, spacing: float | None):
-    """The GridRefinement of a grid by the microstructures of ``files``."""
-    from approxtree.errors import InvalidParameterError
-    from approxtree.geometry import Grid, GridRefinement
-    from approxtree.io.microstructures import load_microstructures
-
-    if not isinstance(terrain, Grid):
-        raise InvalidParameterError(
-            f"--microstructures refines a regular grid, got a {type(terrain).__name__}."
-        )
-    tins = []
-    for f in files:
-        tins.extend(
-            load_microstructures(
-                f, terrain, width=width, profile=profile, depth=depth, spacing=spacing
-            )
-        )
-    return GridRefinement(terrain, tins)
-
-
 @click.command()
 @click.argument("dem", type=click.Path(dir_okay=False))
 @click.option(
@@ -192,7 +172,9 @@ def build(
         _emit(_build_point_quadtree(dem, terrain, delta, out), as_json)
         return
     if microstructure_files:
-        terrain = _refine(
+        from approxtree.io.microstructures import refine_grid
+
+        terrain = refine_grid(
             terrain,
             microstructure_files,
             microstructure_width,

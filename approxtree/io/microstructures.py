@@ -23,6 +23,7 @@ import numpy as np
 
 from approxtree.errors import EmptyTerrainError, InvalidParameterError, TerrainFormatError
 from approxtree.geometry.grid import Grid
+from approxtree.geometry.refinement import GridRefinement
 from approxtree.geometry.tin import TIN
 from approxtree.io._common import check_shapefile_length
 
@@ -179,3 +180,28 @@ def load_microstructures(
             "TINs (e.g. .terrain tiles, LAS points) or lines to build corridors along."
         )
     return [tin]
+
+
+def refine_grid(
+    terrain: Any,
+    files: Sequence[str],
+    width: float,
+    depth: float,
+    profile: str,
+    spacing: float | None,
+) -> Any:
+    """The GridRefinement of a regular grid by the microstructures of ``files``: any TIN file,
+    or line layers turned into corridors ``width`` wide and ``depth`` deep
+    (``load_microstructures``)."""
+    if not isinstance(terrain, Grid):
+        raise InvalidParameterError(
+            f"--microstructures refines a regular grid, got a {type(terrain).__name__}."
+        )
+    tins = []
+    for f in files:
+        tins.extend(
+            load_microstructures(
+                f, terrain, width=width, profile=profile, depth=depth, spacing=spacing
+            )
+        )
+    return GridRefinement(terrain, tins)

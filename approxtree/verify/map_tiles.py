@@ -34,8 +34,8 @@ from typing import Any
 import numpy as np
 
 from approxtree.errors import StoreError
+from approxtree.verify.level_file import LevelFile
 from approxtree.verify.measure import world_to_index
-from approxtree.verify.pyramid import LevelFile
 from approxtree.verify.report import VerifyReport
 
 #: Decoding of each raster-dem encoding: h = (R·65536 + G·256 + B) / scale − offset.

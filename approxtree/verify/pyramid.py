@@ -31,69 +31,9 @@ from typing import Any
 import numpy as np
 
 from approxtree.errors import StoreError
+from approxtree.verify.level_file import TILE, LevelFile, open_raster
+from approxtree.verify.pyramid_image import check_image
 from approxtree.verify.report import VerifyReport
-
-TILE = 512
-
-
-def _open(path: Path):
-    import rasterio
-
-    return rasterio.open(path)
-
-
-class LevelFile:
-    """A level as its texels read: the base file, each delta (pyramid format 5: whole tiles
-    re-baked into a file of their own, listed oldest first) read over it. ``read`` takes a
-    rasterio window (``boundless`` and ``fill_value`` as rasterio's), the rest is the base
-    file's (height, width, count, dtypes, transform)."""
-
-    def __init__(self, output: Path, entry: dict) -> None:
-        self.base = _open(output / str(entry["file"]))
-        self.deltas: list[tuple[Any, tuple[int, int]]] = []
-        try:
-            for d in entry.get("deltas", ()):
-                tr0, _, tc0, _ = (int(v) for v in d["tiles"])
-                self.deltas.append((_open(output / str(d["file"])), (tr0 * TILE, tc0 * TILE)))
-        except BaseException:
-            self.close()
-            raise
-        self.height, self.width = self.base.height, self.base.width
-        self.count, self.dtypes, self.transform = (
-            self.base.count,
-            self.base.dtypes,
-            (self.base.transform),
-        )
-
-    def read(self, window, boundless: bool = False, fill_value: int = 0) -> np.ndarray:
-        """(bands, h, w) texels of the window: the base file's, each delta's over them."""
-        from rasterio.windows import Window
-
-        # fill_value only with boundless: rasterio would fill the alpha-masked texels with it.
-        if boundless:
-            out = self.base.read(window=window, boundless=True, fill_value=fill_value)
-        else:
-            out = self.base.read(window=window)
-        r0, c0 = int(window.row_off), int(window.col_off)
-        r1, c1 = r0 + out.shape[1], c0 + out.shape[2]
-        for ds, (a, c) in self.deltas:
-            ra, rb = max(r0, a), min(r1, a + ds.height)
-            ca, cb = max(c0, c), min(c1, c + ds.width)
-            if ra < rb and ca < cb:
-                texels = ds.read(window=Window(ca - c, ra - a, cb - ca, rb - ra))
-                out[:, ra - r0 : rb - r0, ca - c0 : cb - c0] = texels
-        return out
-
-    def close(self) -> None:
-        self.base.close()
-        for ds, _ in self.deltas:
-            ds.close()
-
-    def __enter__(self) -> LevelFile:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def verify_pyramid(
@@ -121,8 +61,6 @@ def verify_pyramid(
         if hillshade:
             _check_hillshade(output, entries[0], terrain, source_path, report)
     if image is not None and good and all(good):
-        from approxtree.verify.pyramid_image import check_image
-
         check_image(output, entries, meta.get("crs"), Path(image), resampling, report)
     if not hillshade and image is None:
         report.not_checked.append(
@@ -146,7 +84,7 @@ def _check_levels(output: Path, entries, bands: int, meta, report) -> list[bool]
             good.append(False)
             continue
         try:
-            with _open(path) as ds:
+            with open_raster(path) as ds:
                 shape = (ds.count, ds.height, ds.width)
                 dtypes = set(ds.dtypes)
                 transform = list(ds.transform)[:6]
@@ -191,7 +129,7 @@ def _check_deltas(output: Path, k: int, lv, bands: int, check) -> bool:
         path = output / str(d.get("file"))
         try:
             tr0, tr1, tc0, tc1 = (int(v) for v in d["tiles"])
-            with _open(path) as ds:
+            with open_raster(path) as ds:
                 shape = (ds.count, ds.height, ds.width)
                 transform = list(ds.transform)[:6]
                 dtypes = set(ds.dtypes)
@@ -370,7 +308,7 @@ def _check_hillshade(output: Path, lv, terrain, source: str | None, report) -> N
                 f"hillshade: gdaldem cannot read the source ({run.stderr.strip()[:80]})"
             )
             return
-        with _open(out) as ref_ds, LevelFile(output, lv) as ds:
+        with open_raster(out) as ref_ds, LevelFile(output, lv) as ds:
             for _, _, r0, c0 in _tiles(lv):
                 ref = _read(ref_ds, r0, c0, TILE, TILE)[0].astype(np.int64)
                 mine = _read(ds, r0, c0, TILE, TILE)

@@ -22,7 +22,7 @@ import numpy as np
 
 from approxtree.errors import TerrainFormatError
 from approxtree.io.warp import RESAMPLINGS, warp_scale
-from approxtree.verify.pyramid import LevelFile
+from approxtree.verify.level_file import LevelFile
 
 #: Rows of level 0 reprojected at once (a strip of float32 RGBA: 16 bytes a texel).
 STRIP = 128
