@@ -87,8 +87,12 @@ nitpick_ignore_regex = [
         r"|optional|callable|array_like|default|function|dict\[str)",
     ),
     # Private classes in public signatures: the storage sources ApproximationTree.load makes,
-    # private bases.
-    (r"py:class", r"(.*\.)?(_\w+|TreeFile|TreeStoreSource)"),
+    # private bases, and internal records (a pyramid's deltas, a build's store regions, an
+    # update's per-cell figures) that the API pages do not list.
+    (
+        r"py:class",
+        r"(.*\.)?(_\w+|TreeFile|TreeStoreSource|PyramidDelta|HeightRegions|CellCache)",
+    ),
 ]
 
 # autodoc: members in source order, type hints in the signature, short names.
