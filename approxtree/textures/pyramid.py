@@ -160,6 +160,22 @@ def tile_row_checksums(block: np.ndarray) -> list[int]:
     ]
 
 
+def level_profile(rows: int, cols: int, bands: int, transform: Affine, crs: Any) -> dict:
+    """The rasterio profile of a level file (or a re-bake's delta): uint8 GeoTIFF of ``bands``
+    (grey + alpha or RGBA), the bake's tiling, compression and georeference."""
+    return {
+        "driver": "GTiff",
+        "width": cols,
+        "height": rows,
+        "count": bands,
+        "dtype": "uint8",
+        "transform": transform,
+        "crs": crs,
+        "photometric": "RGB" if bands == 4 else "MINISBLACK",
+        **_LEVEL_OPTIONS,
+    }
+
+
 def _write_level(
     path: Path,
     spool: _Spool,
@@ -187,17 +203,7 @@ def _write_level(
     from rasterio.windows import Window
 
     rows, cols = shape
-    profile = {
-        "driver": "GTiff",
-        "width": cols,
-        "height": rows,
-        "count": bands,
-        "dtype": "uint8",
-        "transform": transform,
-        "crs": crs,
-        "photometric": "RGB" if bands == 4 else "MINISBLACK",
-        **_LEVEL_OPTIONS,
-    }
+    profile = level_profile(rows, cols, bands, transform, crs)
     sums: list[list[int]] = []
     # checked_write: GDAL's write errors (a full disk) become a StoreError once it closes.
     with checked_write(path), rasterio.open(path, "w", **profile) as ds:

@@ -77,7 +77,6 @@ from approxtree.textures.base import TextureData
 from approxtree.textures.blend import MultiTexture
 from approxtree.textures.image import ImageTexture
 from approxtree.textures.pyramid import (
-    _LEVEL_OPTIONS,
     _TAG_BUILD,
     _TAG_LEVEL,
     _TILE,
@@ -85,6 +84,7 @@ from approxtree.textures.pyramid import (
     WINDOW_BYTES,
     TexturePyramid,
     _dump_meta,
+    level_profile,
     tile_row_checksums,
     window_shape,
 )
@@ -598,17 +598,7 @@ def _write_file(
     import rasterio
 
     bands, rows, cols = block.shape
-    profile = {
-        "driver": "GTiff",
-        "width": cols,
-        "height": rows,
-        "count": bands,
-        "dtype": "uint8",
-        "transform": transform,
-        "crs": crs,
-        "photometric": "RGB" if bands == 4 else "MINISBLACK",
-        **_LEVEL_OPTIONS,
-    }
+    profile = level_profile(rows, cols, bands, transform, crs)
     with checked_write(path), no_side_files(), rasterio.open(path, "w", **profile) as ds:
         ds.update_tags(**{_TAG_BUILD: build, _TAG_LEVEL: str(k)})
         ds.write(block)
