@@ -123,7 +123,8 @@ def edit_and_compare(tmp_path: Path, grid: Grid, args: dict, seed: int) -> Grid:
 
 def test_overlay_rebakes_equal_fresh_bakes(nc, data_dir, tmp_path) -> None:
     """NC's streams drawn over the shading (redrawn at every level, a width and colour of
-    their own): re-bakes equal fresh bakes; a stream file changed since is refused."""
+    their own): re-bakes (edits, a new light) equal fresh bakes; a stream file changed since is
+    refused."""
     streams = tmp_path / "streams"
     streams.mkdir()
     for ext in ("shp", "shx", "dbf", "prj"):
@@ -134,6 +135,10 @@ def test_overlay_rebakes_equal_fresh_bakes(nc, data_dir, tmp_path) -> None:
     edited = edit_and_compare(tmp_path, nc, args, seed=3)
     recipe = TexturePyramid(tmp_path / "p").recipe
     assert recipe["overlay_colour"] == [200, 30, 30, 200] and recipe["overlay_width"] == 25.0
+    # A new light re-bakes it whole with the recorded streams, colour and width.
+    assert rebake(tmp_path / "p", edited, shading_options={"azimuth": 200.0}).whole
+    bake(edited, tmp_path / "light", shading_options={"azimuth": 200.0}, **args)
+    same_pyramid(tmp_path / "p", tmp_path / "light")
     st = lines.stat()
     os.utime(lines, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
     with pytest.raises(StoreError, match="changed since"):
@@ -153,7 +158,7 @@ def test_thematic_overlay_water_rebakes_equal_fresh_bakes(nc, landuse, data_dir,
     refused."""
     streams = data_file(data_dir, "nc/streams.shp")
     water = write_water(tmp_path / "lakes.geojson", nc)
-    args = {"gl": False, "max_texture_size": 256, "thematic": landuse, "palette": "nlcd"}
+    args = {"gl": False, "max_texture_size": 256, "thematic": landuse, "palette": "landclass96"}
     args |= {"overlays": [streams], "water": [water], "water_level": 60.0}
     edited = edit_and_compare(tmp_path, nc, args, seed=21)
     water.unlink()

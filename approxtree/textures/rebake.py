@@ -38,8 +38,13 @@ as the bake does (a colour ramp spans the whole raster's values) and blends the 
 tiles over it, and refuses (StoreError) a raster gone or changed since. Images
 (``bake(images=…)``) likewise: recorded in the recipe, warped again over the bake's very
 strips that hold the re-baked rows (GDAL's warp at an image's edge depends on the chunk),
-the window cut out of them. Pyramids with overlays or water polygons are refused: bake them
-again.
+the window cut out of them. Overlays and water polygons (``bake(overlays=…, water=…)``)
+likewise: recorded in the recipe (paths, bytes and times; the overlays' colour, width and
+least width in texels), burnt on the whole lattice as the bake burns them (the lines hidden
+under the thematic layer's water classes, as the bake hides them) and the window cut out of
+them, so its edges hold the bake's texels; at every coarser level the overlays are redrawn
+over the halved texels at the level's own texel size, the whole level burnt once and the
+re-baked window cut out of it, before that level is halved again (the bake's ``redraw``).
 
 Measured (``benchmarks/bench_update.py --pyramid``, 2 shared cores, load average 4–12, each
 re-bake beside a full bake of the same terrain): a 256² edit of an 8192² terrain re-bakes in
