@@ -1,8 +1,10 @@
-"""Re-bakes of pyramids with a thematic layer: the shading under it is re-blended, texel for
-texel as a fresh bake with the same inputs; a thematic raster gone or changed is refused."""
+"""Re-bakes of pyramids with a thematic layer, images, overlays or water polygons: the shading
+is re-blended with them, texel for texel as a fresh bake with the same inputs; an input gone or
+changed is refused."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 from pathlib import Path
@@ -14,7 +16,7 @@ from conftest import data_file
 from test_rebake import cells_rect, random_edits, same_pyramid
 
 from approxtree.cli import main
-from approxtree.errors import InvalidParameterError, StoreError
+from approxtree.errors import StoreError
 from approxtree.geometry.grid import Grid
 from approxtree.io import read_grid
 from approxtree.textures.bake import bake
@@ -59,8 +61,7 @@ def test_thematic_rebakes_equal_fresh_bakes(nc, landuse, tmp_path) -> None:
 
 def test_thematic_rebake_refuses_a_changed_or_gone_raster(nc, landuse, tmp_path) -> None:
     """A thematic raster touched (new modification time) or removed since the bake: the
-    re-bake is a StoreError naming it, and the CLI says so on one Error: line; overlays are
-    still refused."""
+    re-bake is a StoreError naming it, and the CLI says so on one Error: line."""
     folder = tmp_path / "p"
     bake(nc, folder, gl=False, max_texture_size=256, thematic=landuse)
     st = landuse.stat()
@@ -78,12 +79,91 @@ def test_thematic_rebake_refuses_a_changed_or_gone_raster(nc, landuse, tmp_path)
     assert "is gone" in result.output and result.output.count("Error:") == 1
 
 
-def test_overlay_pyramids_are_still_refused(nc, data_dir, tmp_path) -> None:
-    """Vector overlays are not re-drawn by a re-bake: such a pyramid is refused with a reason."""
+def write_water(path: Path, grid: Grid) -> Path:
+    """A GeoJSON of three water polygons (one with a hole) over the grid, in its CRS."""
+    d = grid.domain
+    w, h = d.xmax - d.xmin, d.ymax - d.ymin
+
+    def ring(x0: float, y0: float, x1: float, y1: float) -> list[list[float]]:
+        xa, ya = d.xmin + x0 * w, d.ymin + y0 * h
+        xb, yb = d.xmin + x1 * w, d.ymin + y1 * h
+        return [[xa, ya], [xb, ya + 0.3 * (yb - ya)], [xb, yb], [xa, yb], [xa, ya]]
+
+    polygons = [
+        [ring(0.1, 0.1, 0.35, 0.3)],
+        [ring(0.5, 0.5, 0.9, 0.85), ring(0.6, 0.6, 0.7, 0.7)],
+        [ring(0.0, 0.7, 0.2, 1.0)],
+    ]
+    features = [
+        {"type": "Feature", "properties": {}, "geometry": {"type": "Polygon", "coordinates": p}}
+        for p in polygons
+    ]
+    crs = {"type": "name", "properties": {"name": grid.crs}}
+    path.write_text(json.dumps({"type": "FeatureCollection", "crs": crs, "features": features}))
+    return path
+
+
+def edit_and_compare(tmp_path: Path, grid: Grid, args: dict, seed: int) -> Grid:
+    """Bake ``grid`` with ``args``, then random edits (nodata, edges): each re-bake rewrites
+    only the reached tiles and equals a fresh bake of the edited grid; returns the last grid."""
+    folder = tmp_path / "p"
+    bake(grid, folder, **args)
+    heights = np.array(grid.heights, dtype=np.float64)
+    edits = [*random_edits(grid, seed=seed, count=3, largest=60), (0, 0, np.full((30, 30), 90.0))]
+    for i, (r0, c0, patch) in enumerate(edits):
+        heights[r0 : r0 + patch.shape[0], c0 : c0 + patch.shape[1]] = patch
+        edited = Grid(heights.astype(np.float32), grid.transform, grid.crs, allow_empty=True)
+        result = rebake(folder, edited, cells_rect(grid, r0, c0, *patch.shape))
+        assert not result.whole and sum(result.tiles) < sum(result.tiles_total)
+        fresh = tmp_path / f"fresh{i}"
+        bake(edited, fresh, **args)
+        same_pyramid(folder, fresh)
+    return edited
+
+
+def test_overlay_rebakes_equal_fresh_bakes(nc, data_dir, tmp_path) -> None:
+    """NC's streams drawn over the shading (redrawn at every level, a width and colour of
+    their own): re-bakes (edits, a new light) equal fresh bakes; a stream file changed since is
+    refused."""
+    streams = tmp_path / "streams"
+    streams.mkdir()
+    for ext in ("shp", "shx", "dbf", "prj"):
+        shutil.copy(data_file(data_dir, f"nc/streams.{ext}"), streams / f"streams.{ext}")
+    lines = streams / "streams.shp"
+    args = {"gl": False, "max_texture_size": 256, "texel_size": 10.0, "overlays": [lines]}
+    args |= {"overlay_colour": (200, 30, 30, 200), "overlay_width": 25.0}
+    edited = edit_and_compare(tmp_path, nc, args, seed=3)
+    recipe = TexturePyramid(tmp_path / "p").recipe
+    assert recipe["overlay_colour"] == [200, 30, 30, 200] and recipe["overlay_width"] == 25.0
+    # A new light re-bakes it whole with the recorded streams, colour and width.
+    assert rebake(tmp_path / "p", edited, shading_options={"azimuth": 200.0}).whole
+    bake(edited, tmp_path / "light", shading_options={"azimuth": 200.0}, **args)
+    same_pyramid(tmp_path / "p", tmp_path / "light")
+    st = lines.stat()
+    os.utime(lines, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    with pytest.raises(StoreError, match="changed since"):
+        rebake(tmp_path / "p", edited, cells_rect(nc, 10, 10, 5, 5))
+
+
+def test_water_polygon_rebakes_equal_fresh_bakes(nc, tmp_path) -> None:
+    """Water polygons (one with a hole) over the shading: re-bakes equal fresh bakes."""
+    water = write_water(tmp_path / "lakes.geojson", nc)
+    args = {"gl": False, "max_texture_size": 256, "texel_size": 15.0, "water": [water]}
+    edit_and_compare(tmp_path, nc, args, seed=8)
+
+
+def test_thematic_overlay_water_rebakes_equal_fresh_bakes(nc, landuse, data_dir, tmp_path):
+    """Land use, streams (hidden under its water classes: the water mask, coarsened at every
+    level) and water polygons together: re-bakes equal fresh bakes; a polygon file gone is
+    refused."""
     streams = data_file(data_dir, "nc/streams.shp")
-    bake(nc, tmp_path / "p", gl=False, max_texture_size=256, overlays=[streams])
-    with pytest.raises(InvalidParameterError, match="does not repeat"):
-        rebake(tmp_path / "p", nc, cells_rect(nc, 10, 10, 5, 5))
+    water = write_water(tmp_path / "lakes.geojson", nc)
+    args = {"gl": False, "max_texture_size": 256, "thematic": landuse, "palette": "landclass96"}
+    args |= {"overlays": [streams], "water": [water], "water_level": 60.0}
+    edited = edit_and_compare(tmp_path, nc, args, seed=21)
+    water.unlink()
+    with pytest.raises(StoreError, match="is gone"):
+        rebake(tmp_path / "p", edited, cells_rect(nc, 10, 10, 5, 5))
 
 
 def write_image(path: Path, grid: Grid) -> Path:

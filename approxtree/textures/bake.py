@@ -152,7 +152,7 @@ def _coarsen(mask: np.ndarray, level: int, shape: tuple[int, int]) -> np.ndarray
     return np.asarray(padded.reshape(shape[0], k, shape[1], k).any(axis=(1, 3)))
 
 
-def _water_mask(thematic: ThematicTexture, palette: str | None) -> np.ndarray | None:
+def thematic_water_mask(thematic: ThematicTexture, palette: str | None) -> np.ndarray | None:
     """(rows, cols) bool: texels of the thematic layer's water classes (the legend's, or the
     classes of a colour table coloured blue), or None when it has none."""
     mapper = thematic.mapper
@@ -307,16 +307,12 @@ def bake(
         layers.append(texture)
         names.append(f"shading:{shading}")
     # Overlays: at least min_overlay_texels wide; water (thematic classes, polygons) over them.
-    texel_w = max(abs(transform.a), abs(transform.e))
-    width = max(overlay_width or 0.0, min_overlay_texels * texel_w)
+    look = OverlayLook(tuple(overlay_colour), overlay_width, min_overlay_texels)
     water_mask = None
     if thematic_layer is not None and overlays:
-        water_mask = _water_mask(thematic_layer, palette)
+        water_mask = thematic_water_mask(thematic_layer, palette)
     for path in overlays or []:
-        line = rasterize_lines(path, transform, shape, terrain.crs, overlay_colour, width)
-        if water_mask is not None:
-            line.valid = line.valid & ~water_mask
-        layers.append(line)
+        layers.append(overlay_lines(Path(path), look, transform, shape, terrain.crs, water_mask))
         names.append(f"overlay:{Path(path).name}")
     for path in water or []:
         layers.append(rasterize_lines(path, transform, shape, terrain.crs, WATER_COLOUR, 0.0))
@@ -330,15 +326,8 @@ def bake(
     if overlays:
 
         def redraw(level: int, t: Affine, level_shape: tuple[int, int]) -> np.ndarray:
-            w = max(overlay_width or 0.0, min_overlay_texels * max(abs(t.a), abs(t.e)))
-            out = np.zeros((*level_shape, 4), dtype=np.uint8)
-            for path in overlays:
-                line = rasterize_lines(path, t, level_shape, terrain.crs, overlay_colour, w)
-                if water_mask is not None:
-                    line.valid = line.valid & ~_coarsen(water_mask, level, level_shape)
-                rgba = line.rgba()
-                out = np.where(rgba[..., 3:] > 0, rgba, out)
-            return out
+            paths = [Path(p) for p in overlays]
+            return redraw_overlays(paths, look, level, t, level_shape, terrain.crs, water_mask)
 
     # What a re-bake (``rebake``) repeats: the layers and the shading with its options.
     recipe: dict[str, Any] = {
@@ -358,6 +347,14 @@ def bake(
     if image_paths:
         recipe["images"] = [input_record(image) for image in image_paths]
         recipe["resampling"] = resampling
+    # The vector layers too: a re-bake draws them over the re-baked texels of every level.
+    if overlays:
+        recipe["overlays"] = [input_record(Path(p)) for p in overlays]
+        recipe["overlay_colour"] = [int(v) for v in overlay_colour]
+        recipe["overlay_width"] = None if overlay_width is None else float(overlay_width)
+        recipe["min_overlay_texels"] = float(min_overlay_texels)
+    if water:
+        recipe["water"] = [input_record(Path(p)) for p in water]
     if thematic_path is not None:
         recipe["thematic"] = {"palette": palette, **input_record(thematic_path)}
         if palette is not None and Path(palette).is_file():
@@ -371,6 +368,58 @@ def bake(
         recipe=recipe,
     )
     return BakeResult(pyramid, time.perf_counter() - t0, names, used_gl)
+
+
+@dataclass(frozen=True)
+class OverlayLook:
+    """How overlay lines are drawn: colour RGB(A) 0..255, width in world units (None: none
+    asked) and the least width in texels of the level they are drawn on."""
+
+    colour: tuple[int, ...] = OVERLAY_COLOUR
+    width: float | None = None
+    min_texels: float = MIN_OVERLAY_TEXELS
+
+    def width_at(self, t: Affine) -> float:
+        """The lines' width in world units on a lattice of transform ``t``."""
+        return max(self.width or 0.0, self.min_texels * max(abs(t.a), abs(t.e)))
+
+
+def overlay_lines(
+    path: Path,
+    look: OverlayLook,
+    transform: Affine,
+    shape: tuple[int, int],
+    crs: str | None,
+    water_mask: np.ndarray | None,
+) -> ThematicTexture:
+    """An overlay layer on level 0's lattice (``shape``): its lines, transparent under the
+    (rows, cols) ``water_mask`` if any."""
+    line = rasterize_lines(path, transform, shape, crs, look.colour, look.width_at(transform))
+    if water_mask is not None:
+        line.valid = line.valid & ~water_mask
+    return line
+
+
+def redraw_overlays(
+    paths: list[Path],
+    look: OverlayLook,
+    level: int,
+    t: Affine,
+    level_shape: tuple[int, int],
+    crs: str | None,
+    water_mask: np.ndarray | None,
+) -> np.ndarray:
+    """(rows, cols, 4) uint8: the overlay lines drawn on pyramid level ``level`` (transform
+    ``t``, ``level_shape``) at its own texel size, the last on top, transparent where none
+    is and under the level-0 ``water_mask`` (rows0, cols0) coarsened to the level."""
+    out = np.zeros((*level_shape, 4), dtype=np.uint8)
+    for path in paths:
+        line = rasterize_lines(path, t, level_shape, crs, look.colour, look.width_at(t))
+        if water_mask is not None:
+            line.valid = line.valid & ~_coarsen(water_mask, level, level_shape)
+        rgba = line.rgba()
+        out = np.where(rgba[..., 3:] > 0, rgba, out)
+    return out
 
 
 def input_record(path: Path) -> dict[str, Any]:

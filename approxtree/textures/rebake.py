@@ -38,8 +38,13 @@ as the bake does (a colour ramp spans the whole raster's values) and blends the 
 tiles over it, and refuses (StoreError) a raster gone or changed since. Images
 (``bake(images=…)``) likewise: recorded in the recipe, warped again over the bake's very
 strips that hold the re-baked rows (GDAL's warp at an image's edge depends on the chunk),
-the window cut out of them. Pyramids with overlays or water polygons are refused: bake them
-again.
+the window cut out of them. Overlays and water polygons (``bake(overlays=…, water=…)``)
+likewise: recorded in the recipe (paths, bytes and times; the overlays' colour, width and
+least width in texels), burnt on the whole lattice as the bake burns them (the lines hidden
+under the thematic layer's water classes, as the bake hides them) and the window cut out of
+them, so its edges hold the bake's texels; at every coarser level the overlays are redrawn
+over the halved texels at the level's own texel size, the whole level burnt once and the
+re-baked window cut out of it, before that level is halved again (the bake's ``redraw``).
 
 Measured (``benchmarks/bench_update.py --pyramid``, 2 shared cores, load average 4–12, each
 re-bake beside a full bake of the same terrain): a 256² edit of an 8192² terrain re-bakes in
@@ -54,6 +59,7 @@ import signal
 import stat
 import time
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -68,10 +74,16 @@ from approxtree.io.atomic import atomic_write
 from approxtree.io.gdal import checked_write, no_side_files
 from approxtree.kernels.rgba import halve_bands
 from approxtree.textures.bake import (
+    MIN_OVERLAY_TEXELS,
+    OVERLAY_COLOUR,
     WATER_COLOUR,
+    OverlayLook,
     bake,
+    overlay_lines,
+    redraw_overlays,
     texture_lattice,
     thematic_on_lattice,
+    thematic_water_mask,
 )
 from approxtree.textures.base import TextureData
 from approxtree.textures.blend import MultiTexture
@@ -84,11 +96,13 @@ from approxtree.textures.pyramid import (
     WINDOW_BYTES,
     TexturePyramid,
     _dump_meta,
+    _over,
     level_profile,
     tile_row_checksums,
     window_shape,
 )
 from approxtree.textures.shading import TopographicShading
+from approxtree.textures.thematic import ThematicTexture, rasterize_lines
 from approxtree.textures.water import WaterLevel, wet
 
 #: Texel rectangle (r0, r1, c0, c1), half-open, in a level's own rows and columns.
@@ -170,6 +184,11 @@ def rebake(
         )
     totals = [_tiles_of(lv.height, lv.width) for lv in pyramid.levels]
     thematic = recipe.get("thematic")
+    look = OverlayLook(
+        tuple(recipe.get("overlay_colour", OVERLAY_COLOUR)),
+        recipe.get("overlay_width"),
+        float(recipe.get("min_overlay_texels", MIN_OVERLAY_TEXELS)),
+    )
     # A new light, or a shading that reads far cells: the whole pyramid, as a bake makes it.
     flood = water_level is not None and level != old_level
     if (
@@ -192,6 +211,11 @@ def rebake(
             palette=None if thematic is None else thematic["palette"],
             images=[image["path"] for image in recipe.get("images", [])],
             resampling=recipe.get("resampling", "bilinear"),
+            overlays=[line["path"] for line in recipe.get("overlays", [])],
+            water=[body["path"] for body in recipe.get("water", [])],
+            overlay_colour=tuple(look.colour),
+            overlay_width=look.width,
+            min_overlay_texels=look.min_texels,
         )
         return Rebake(result.pyramid, totals, totals, True, time.perf_counter() - t0)
     same = shape == terrain.shape and transform.almost_equals(terrain.transform)
@@ -237,12 +261,32 @@ def rebake(
         colours = layer.rgba()
     make = _Texels(terrain, options, level, recipe.get("blend", "shade"), transform, same)
     make.colours = colours
+    # Overlay lines and water polygons on the whole lattice, as the bake burns them (a window
+    # is cut out of them: the same texels at its edges), and at every coarser level redrawn
+    # over the halved texels at the level's own texel size, as the bake redraws them.
+    lines = [Path(line["path"]) for line in recipe.get("overlays", [])]
+    mask = None
+    if lines and thematic is not None:
+        mask = thematic_water_mask(layer, thematic["palette"])
+    make.vectors = [overlay_lines(p, look, transform, shape, terrain.crs, mask) for p in lines]
+    make.vectors += [
+        rasterize_lines(Path(body["path"]), transform, shape, terrain.crs, WATER_COLOUR, 0.0)
+        for body in recipe.get("water", [])
+    ]
+    redraw = None
+    if lines:
+
+        def redraw(k: int) -> np.ndarray:
+            t = transform @ Affine.scale(float(1 << k))
+            lv_shape = (levels[k].height, levels[k].width)
+            return redraw_overlays(lines, look, k, t, lv_shape, terrain.crs, mask)
+
     # Images are warped on the window's rows only, at the whole lattice's scale (as the bake).
     make.images = [
         ImageTexture(Path(image["path"]), transform, shape, terrain.crs, recipe["resampling"])
         for image in recipe.get("images", [])
     ]
-    blocks = _level_blocks(make, shape, reached, len(levels))
+    blocks = _level_blocks(make, shape, reached, len(levels), redraw)
     try:
         for k in range(len(levels) - 1, -1, -1):
             lv, (where, block) = levels[k], blocks[k]
@@ -331,14 +375,17 @@ def _recipe(pyramid: TexturePyramid) -> dict[str, Any]:
     kept: tuple[str, ...] = ("shading:", "water-level:")
     kept += ("thematic:",) if "thematic" in recipe else ()
     kept += ("image:",) if "images" in recipe else ()
+    kept += ("overlay:",) if "overlays" in recipe else ()
+    kept += ("water:",) if "water" in recipe else ()
     others = [name for name in recipe["layers"] if not name.startswith(kept)]
     if others or recipe["shading"] is None:
         raise InvalidParameterError(
             f"{pyramid.folder} holds layers a re-bake does not repeat ({', '.join(others)}); "
-            "only pyramids of a shading (with a water level, a thematic raster, images) "
+            "only pyramids of a shading (with a water level, a thematic raster, images, "
+            "overlays, water polygons) "
             "follow updates: bake it again (approxtree bake)."
         )
-    records = list(recipe.get("images", []))
+    records = [*recipe.get("images", []), *recipe.get("overlays", []), *recipe.get("water", [])]
     thematic = recipe.get("thematic")
     if thematic is not None:
         records += [thematic] + ([thematic["palette_file"]] if "palette_file" in thematic else [])
@@ -411,6 +458,8 @@ class _Texels:
         self.colours: np.ndarray | None = None
         #: The images on the whole lattice, bottom first.
         self.images: list[ImageTexture] = []
+        #: The overlay lines, then the water polygons, on the whole lattice (drawn over).
+        self.vectors: list[ThematicTexture] = []
 
     def __call__(self, region: TexelRect, shape: tuple[int, int]) -> np.ndarray:
         """(bands, rows, cols) uint8 texels of ``region`` (half-open rows and columns)."""
@@ -435,10 +484,21 @@ class _Texels:
             layers.append(_Colours(self.colours[a:b, c:d], t, self.terrain.crs))
         if self.level is not None:
             layers.append(WaterLevel(window, self.level, WATER_COLOUR))
+        colour_layers = len(layers)
         layers.append(TopographicShading(window, **self.options))
+        for vector in self.vectors:
+            layers.append(
+                ThematicTexture(
+                    vector.values[a:b, c:d],
+                    t,
+                    vector.mapper,
+                    crs=self.terrain.crs,
+                    valid=vector.valid[a:b, c:d],
+                )
+            )
         modes = ["over"] * (len(layers) - 1)
-        if modes:
-            modes[-1] = self.blend
+        if colour_layers:
+            modes[colour_layers - 1] = self.blend
         texture = layers[0] if len(layers) == 1 else MultiTexture(layers, modes)
         block = np.concatenate([s.copy() for s in texture.level_strips(512)], axis=1)
         return np.ascontiguousarray(block[:, r0 - a : r1 - a, c0 - c : c1 - c])
@@ -503,12 +563,18 @@ def _union(a: TexelRect | None, b: TexelRect | None) -> TexelRect | None:
 
 
 def _level_blocks(
-    make: _Texels, shape: tuple[int, int], reached: TexelRect, levels: int
+    make: _Texels,
+    shape: tuple[int, int],
+    reached: TexelRect,
+    levels: int,
+    redraw: Callable[[int], np.ndarray] | None = None,
 ) -> list[tuple[TexelRect, np.ndarray]]:
     """Per level, a texel rect holding the changed texels and its (bands, rows, cols) new
     texels: level 0 shaded over the reached texels widened to multiples of 2^(levels − 1),
     each next level its halving in memory (the bake's filter; the widening keeps every
-    halving on even rows and columns, or on the level's odd last one, as the bake pairs them)."""
+    halving on even rows and columns, or on the level's odd last one, as the bake pairs them)
+    with ``redraw(k)`` (the (rows, cols, 4) overlay of the whole level k) drawn over it
+    before it is halved again, as the bake writes and halves it."""
     step = 1 << (levels - 1)
     r0, r1, c0, c1 = reached
     rect = (
@@ -524,6 +590,8 @@ def _level_blocks(
         rect = (r0 // 2, -(-r1 // 2), c0 // 2, -(-c1 // 2))
         half = np.empty((block.shape[0], rect[1] - rect[0], rect[3] - rect[2]), dtype=np.uint8)
         halve_bands(block, half)
+        if redraw is not None:
+            half = _over(half, redraw(len(out))[rect[0] : rect[1], rect[2] : rect[3]])
         out.append((rect, half))
         block = half
     return out
