@@ -195,13 +195,9 @@ def test_new_light_equals_fresh_bake(nc, tmp_path) -> None:
     assert TexturePyramid(tmp_path / "p").recipe["shading_options"] == light
 
 
-def test_refuses_other_layers_and_other_terrains(nc, data_dir, tmp_path) -> None:
-    """A pyramid with overlays (thematic ones re-bake since: test_rebake_layers.py), an
-    array-built one and another terrain's are refused with a reason."""
-    streams = data_file(data_dir, "nc/streams.shp")
-    bake(nc, tmp_path / "thematic", gl=False, overlays=[streams], max_texture_size=256)
-    with pytest.raises(InvalidParameterError, match="only pyramids of a shading"):
-        rebake(tmp_path / "thematic", nc, cells_rect(nc, 0, 0, 2, 2))
+def test_refuses_array_pyramids_and_other_terrains(nc, tmp_path) -> None:
+    """An array-built pyramid and another terrain's are refused with a reason (pyramids with
+    thematic layers and overlays re-bake: test_rebake_layers.py)."""
     rgba = np.zeros((8, 8, 4), dtype=np.uint8)
     TexturePyramid.build(rgba, tmp_path / "array", transform=nc.transform)
     with pytest.raises(StoreError, match="no bake recipe"):
