@@ -169,7 +169,8 @@ def bake_command(
 
     The folder holds pyramid.json and one georeferenced GeoTIFF per level, level0.tif the
     finest: tiled, ZSTD-compressed, the last band alpha; grey + alpha for pure shading, RGBA
-    otherwise.
+    otherwise. `approxtree update --textures` adds small delta files (level0.BUILD.tif)
+    holding only the re-baked tiles; pyramid.json lists them.
     """
     from approxtree.errors import InvalidParameterError
     from approxtree.io.output_path import check_output_folder
