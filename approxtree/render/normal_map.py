@@ -1,4 +1,4 @@
-"""The normal map: per-pixel normals of the terrain, computed once from the height field.
+"""The normal map and normal patches: per-pixel normals of the terrain, from its heights.
 
 Lighting (render/style.py) needs the surface normal under every fragment, whatever patch is
 drawn there: the normal map samples h_T on a lattice over the domain (a Grid's own cells,
@@ -21,18 +21,18 @@ A Grid over NORMAL_MAP_MAX cells a side gets a strided map, coarser than its dat
 shading is a pyramid of normal patches (``NormalPatches``, ``pyramid_levels``): level 0 holds
 the data's normals upsampled UPSAMPLE_MAX times (as a small grid's map), the next levels 2×,
 4×, ... coarser (the data's own normals, then every 2nd, 4th, ... line); a node's patch is
-the finest level's window covering D_N within the largest texture side, and a node whose patch would be no finer than the
-strided map keeps the map (``NormalKey`` None). Patches are computed on demand from the heights
-(a window with one line of halo: the same central differences as over the whole level) and
-cached like texture patches (the provider's CPU cache, the GPU cache); nodes share an
-ancestor's patch as they share texture patches (render/texture_sharing.py). γ_N is then its
-patch's texel, and ``finer_below`` sees the finer patches below the large nodes. A terrain
+the finest level's window covering D_N within the largest texture side, and a node whose
+patch would be no finer than the strided map keeps the map (``NormalKey`` None). Patches are
+computed on demand from the heights (a window with one line of halo: the same central
+differences as over the whole level) and cached like texture patches (the provider's CPU
+cache, the GPU cache, least recently used out); nodes share an ancestor's patch as they
+share texture patches (render/texture_sharing.py). γ_N is then its patch's texel, and
+``finer_below`` sees the finer patches below the large nodes. A terrain
 within NORMAL_MAP_MAX a side has no patches: its frames are drawn as before.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
