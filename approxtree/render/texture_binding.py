@@ -139,7 +139,8 @@ class TextureBinding:
 def group_meshes(meshes: list[MeshKey], patches: list[Hashable | None]) -> Groups:
     """[(patch key, meshes)]: ``meshes`` grouped by their texture (or normal) patch keys
     ``patches`` (one per mesh; None: no patch of its own), in first-seen order."""
-    groups: dict[Hashable | None, list[MeshKey]] = {}
+    # Any keys: texture patches (TextureKey) or normal patches (render/normal_map.NormalKey).
+    groups: dict[Any, list[MeshKey]] = {}
     for key, patch in zip(meshes, patches, strict=True):
         groups.setdefault(patch, []).append(key)
     return list(groups.items())
@@ -151,13 +152,14 @@ def page_groups(
     """``groups`` drawable without waiting for the store: a patch not ``loaded`` is replaced
     by ``stand_in`` (always drawable) and requested; a None patch stays. Returns (groups,
     patch keys to request)."""
-    merged: dict[Hashable | None, list[MeshKey]] = {}
+    merged: dict[Any, list[MeshKey]] = {}
     requests: list[Hashable] = []
     for tex_key, keys in groups:
+        drawn: Any = tex_key
         if tex_key is not None and not loaded(tex_key):
             requests.append(tex_key)
-            tex_key = stand_in
-        merged.setdefault(tex_key, []).extend(keys)
+            drawn = stand_in
+        merged.setdefault(drawn, []).extend(keys)
     return list(merged.items()), requests
 
 
