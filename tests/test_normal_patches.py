@@ -19,7 +19,7 @@ from approxtree.datasets import fractal_terrain
 from approxtree.render import Camera, Cut, Engine, Paging, display_scale
 from approxtree.render import normal_map as normal_map_module
 from approxtree.render.context import create_context
-from approxtree.render.normal_map import NormalKey, NormalPatches, normal_texels
+from approxtree.render.normal_map import NormalKey, NormalPatches, normal_texels, normals
 
 SIZE = (640, 360)
 SIDE = 128
@@ -187,3 +187,18 @@ def test_grids_within_the_map_side_have_no_patches(tree):
     patches = NormalPatches(tree.terrain, np.asarray(tree.rects))
     assert not patches.active and (patches.levels == -1).all()
     assert np.ptp(patches.texels, axis=0).max() == 0.0
+
+
+@pytest.mark.parametrize("uniform", [True, False])
+def test_compiled_normals_equal_numpys(uniform):
+    """normal_texels (compiled) encodes exactly the numpy normals of ``normals`` (np.gradient
+    and the norm), holes included, on uniform and round-off-uneven axes."""
+    rng = np.random.default_rng(7)
+    z = rng.normal(size=(40, 57)).cumsum(0).cumsum(1)
+    z[5, 6] = np.nan
+    if uniform:
+        xs, ys = np.arange(57) * 2.0, np.arange(40) * 3.0
+    else:
+        xs, ys = np.arange(57) * 0.7 + 3.1, np.arange(40) * 1.3 - 2.2
+    want = np.rint((normals(z, xs, ys)[..., :2] * 0.5 + 0.5) * 255.0).astype(np.uint8)
+    np.testing.assert_array_equal(normal_texels(z, xs, ys), want)
