@@ -9,12 +9,17 @@ at a half (fractal) or a quarter (DEMs) of it. The untextured
 frames are saved as PNGs, so that a run on another checkout can be compared pixel by
 pixel (``--compare``: PSNR of this run's images against those of the other).
 
-Terrains: a fractal tree store (``approxtree fractal --size 4097`` then ``approxtree build
---epsilon 0.5``; --fractal), Mount St Helens (USGS DEM, 30 m, steep) and a 1024² crop of the
-SRTM 3″ Mount Washington tile from ../shared/data (ε = 1 m, the CLI's default).
+Terrains: fractal tree stores (``approxtree fractal --size 4097`` or ``--size 8193`` then
+``approxtree build --epsilon 0.5``; --fractal, repeatable, named by their side), Mount St
+Helens (USGS DEM, 30 m, steep) and a 1024² crop of the SRTM 3″ Mount Washington tile from
+../shared/data (ε = 1 m, the CLI's default); --no-dems and --no-textures leave those out.
 
     PYTHONPATH=<checkout> python benchmarks/bench_gamma.py --fractal F.zarr --work DIR \\
         --images DIR/after [--compare DIR/before] [--out benchmarks/results/gamma.json]
+
+Frame times against another checkout (``--interleave CHECKOUT --rounds R``): this script runs
+itself R times on each checkout in turn (``--repeat`` warm frames per row after the first,
+which loads), and reports per row the median over rounds of each side's median warm frame.
 """
 
 from __future__ import annotations
@@ -22,6 +27,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -35,14 +44,17 @@ ALPHAS = (2.0, 4.0)
 GAMMAS = (2.0, math.inf)
 
 
-def open_trees(fractal: Path | None, data: Path) -> dict:
-    """name -> (tree, its terrain); the DEM trees are built here (ε = 1)."""
+def open_trees(fractals: list[Path], data: Path, dems: bool = True) -> dict:
+    """name -> tree: the fractal stores (``fractal_<side>``), and the DEM trees built here
+    (ε = 1)."""
     import approxtree as at
 
     trees = {}
-    if fractal is not None:
-        tree = at.ApproximationTree.load(fractal)
-        trees["fractal_4097"] = tree
+    for path in fractals:
+        tree = at.ApproximationTree.load(path)
+        trees[f"fractal_{max(tree.terrain.shape)}"] = tree
+    if not dems:
+        return trees
     helens = at.open_terrain(data / "edge" / "SainteHelens.dem")
     trees["st_helens_30m"] = at.ApproximationTree.build(helens, epsilon=1.0, progress=False)
     whole = at.open_terrain(data / "srtm" / "N44W072.hgt")
@@ -88,8 +100,11 @@ def cameras(tree, scale: np.ndarray) -> list[tuple[str, object]]:
     return [("default", framing_camera(box, scale, SIZE)), ("low", low)]
 
 
-def measure(tree, textures, images: Path | None, name: str, label: str = "none") -> list[dict]:
-    """The cuts at ALPHAS × GAMMAS of the default view; untextured images saved."""
+def measure(
+    tree, textures, images: Path | None, name: str, label: str = "none", repeat: int = 0
+) -> list[dict]:
+    """The cuts at ALPHAS × GAMMAS of both views; untextured images saved; ``repeat`` warm
+    frames more per row (their median: warm_ms)."""
     from PIL import Image
 
     from approxtree.render import Cut, Engine
@@ -103,6 +118,11 @@ def measure(tree, textures, images: Path | None, name: str, label: str = "none")
             t0 = time.perf_counter()
             frame = engine.render(camera, SIZE, Cut(alpha=alpha, gamma=gamma))
             ms = (time.perf_counter() - t0) * 1e3
+            warm = []
+            for _ in range(repeat):
+                t1 = time.perf_counter()
+                engine.render(camera, SIZE, Cut(alpha=alpha, gamma=gamma))
+                warm.append((time.perf_counter() - t1) * 1e3)
             s = frame.stats
             rows.append(
                 {
@@ -116,6 +136,8 @@ def measure(tree, textures, images: Path | None, name: str, label: str = "none")
                     "max_alpha": float(s["max_alpha"]),
                     "max_gamma": float(s["max_gamma"]),
                     "frame_ms": ms,
+                    "warm_ms": float(np.median(warm)) if warm else None,
+                    "normal_patches": int(s["texture_patches"]) if textures is None else None,
                 }
             )
             if images is not None and textures is None:
@@ -165,24 +187,81 @@ def compare(images: Path, before: Path) -> dict[str, float]:
     return out
 
 
+def interleave(argv: list[str], other: Path, rounds: int) -> list[dict]:
+    """Run this script with ``argv`` on ``other``'s checkout and on this one in turn,
+    ``rounds`` times; per row (terrain, view, textures, α, γ) the median over rounds of each
+    side's warm frame median (ms), and their ratio (this / other)."""
+    runs: dict[str, list[list[dict]]] = {"other": [], "this": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        for r in range(rounds):
+            for side, checkout in (("other", other), ("this", ROOT)):
+                out = Path(tmp) / f"{side}{r}.json"
+                env = dict(os.environ, PYTHONPATH=str(checkout))
+                cmd = [sys.executable, __file__, *argv, "--out", str(out)]
+                subprocess.run(cmd, env=env, check=True, stdout=subprocess.DEVNULL)
+                runs[side].append(json.loads(out.read_text())["rows"])
+
+    def key(r: dict) -> tuple:
+        return r["terrain"], r["view"], r["textures"], r["alpha"], r["gamma"]
+
+    table = []
+    for i, row in enumerate(runs["this"][0]):
+        this = float(np.median([run[i]["warm_ms"] for run in runs["this"]]))
+        that = float(np.median([run[i]["warm_ms"] for run in runs["other"]]))
+        assert key(runs["other"][0][i]) == key(row)
+        table.append(
+            {
+                **{k: row[k] for k in ("terrain", "view", "textures", "alpha", "gamma")},
+                "this_ms": this,
+                "other_ms": that,
+                "ratio": this / that,
+            }
+        )
+    return table
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--fractal", type=Path, help="fractal tree store (4097², ε = 0.5)")
+    ap.add_argument("--fractal", type=Path, action="append", default=[], help="fractal store")
     ap.add_argument("--data", type=Path, default=DATA)
+    ap.add_argument("--no-dems", action="store_true", help="fractal stores only")
+    ap.add_argument("--no-textures", action="store_true", help="untextured rows only")
     ap.add_argument("--work", type=Path, required=True, help="folder for baked pyramids")
     ap.add_argument("--images", type=Path, help="save the untextured γ = 2 frames here")
     ap.add_argument("--compare", type=Path, help="images of another checkout: PSNR")
+    ap.add_argument("--repeat", type=int, default=0, help="warm frames per row (warm_ms)")
+    ap.add_argument("--interleave", type=Path, help="another checkout: frame times against it")
+    ap.add_argument("--rounds", type=int, default=3, help="interleaved rounds per checkout")
     ap.add_argument("--out", type=Path, help="JSON results")
     args = ap.parse_args()
+    if args.interleave is not None:
+        argv = [a for f in args.fractal for a in ("--fractal", str(f))]
+        argv += ["--work", str(args.work), "--data", str(args.data)]
+        argv += ["--repeat", str(max(args.repeat, 1))]
+        argv += ["--no-dems"] * args.no_dems + ["--no-textures"] * args.no_textures
+        table = interleave(argv, args.interleave, args.rounds)
+        for r in table:
+            print(
+                f"{r['terrain']:16} {r['view']:8} {r['textures']:11} α {r['alpha']:g} "
+                f"γ {r['gamma']!s:4} this {r['this_ms']:8.1f} ms  other {r['other_ms']:8.1f} ms"
+                f"  ×{r['ratio']:.2f}"
+            )
+        if args.out is not None:
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+            timing = {"size": list(SIZE), "other": str(args.interleave), "rounds": args.rounds}
+            args.out.write_text(json.dumps({**timing, "rows": table}, indent=1))
+        return
     rows: list[dict] = []
-    for name, tree in open_trees(args.fractal, args.data).items():
-        rows += measure(tree, None, args.images, name)
+    for name, tree in open_trees(args.fractal, args.data, not args.no_dems).items():
+        rows += measure(tree, None, args.images, name, repeat=args.repeat)
+        if args.no_textures:
+            continue
         pyramid = bake_hillshade(tree, args.work / f"{name}_hillshade")
-        rows += measure(tree, str(pyramid), None, name, "hillshade")
+        rows += measure(tree, str(pyramid), None, name, "hillshade", args.repeat)
         # Texels finer than the cells: a pyramid of several levels over the 4097² fractal.
         divisor = 2 if name.startswith("fractal") else 4
         fine = bake_hillshade(tree, args.work / f"{name}_hillshade_fine{divisor}", divisor)
-        rows += measure(tree, str(fine), None, name, f"hillshade/{divisor}")
+        rows += measure(tree, str(fine), None, name, f"hillshade/{divisor}", args.repeat)
     add_ratios(rows)
     result: dict = {"size": list(SIZE), "rows": rows}
     if args.compare is not None and args.images is not None:

@@ -197,8 +197,9 @@ class Engine:
         side = max_texture_size(self.ctx, default=4096)
         data, uv = normal_map(self.tree.terrain, self.tree.origin, self.scale, side)
         self.renderer.set_normal_map(data, uv)
-        # Untextured γ measures the normal map's texel, which the texture limit may coarsen.
-        self.source.set_shading_side(side)
+        # Untextured γ measures the normal map's (or patch's) texel, which the texture limit
+        # may coarsen; normal patches are computed for the new scale.
+        self.source.set_shading_side(side, self.scale)
 
     def set_skirts(self, skirts: bool) -> None:
         """Turn skirts on or off; cached meshes are dropped when this changes them."""
@@ -359,7 +360,8 @@ class Engine:
         ctx.finish(), triangles, texture binds)."""
         binding = self.source.binding
         program = "terrain" if binding is None else "textured"
-        uv = None if binding is None else binding.uv
+        # Untextured: per-group normal patches where the source has them.
+        uv = self.source.shading_uv if binding is None else binding.uv
         lit, shade = style.lit(binding is not None), binding is not None and binding.shading
         args = (program, style, lit, self.source.load, uv, shade)
         return self.renderer.draw(target, fs, groups, resident, *args)

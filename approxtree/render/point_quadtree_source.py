@@ -144,8 +144,13 @@ class PointQuadtreeSource:
             )
         return lambda key: False
 
-    def set_shading_side(self, side: int) -> None:
+    def set_shading_side(self, side: int, scale: np.ndarray | None = None) -> None:
         """Nothing changes: γ does not apply to a point quadtree."""
+
+    @property
+    def shading_uv(self) -> None:
+        """No normal patches: every group is drawn with the normal map."""
+        return None
 
     def set_skirts(self, skirts: bool) -> bool:
         """Nothing changes: the LOD mesh needs no skirts."""

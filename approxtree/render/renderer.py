@@ -192,7 +192,8 @@ class Renderer:
         wireframe, the sun (the light, a unit vector in display coordinates) and the
         background (drawn behind the terrain, its colour channels only: alpha stays 0 there).
         lit: the light modulates the colour. texture_uv(texture key): its uv transform
-        ("textured"). shade_texture: the textures are grey shading that shades the palette.
+        ("textured"; with "terrain", the group's normal patch, None its key for the normal
+        map). shade_texture: the textures are grey shading that shades the palette.
         Returns (ms incl. ctx.finish(), triangles, texture binds).
         """
         import moderngl
@@ -235,6 +236,17 @@ class Renderer:
                         tex = resident[g][0] if resident else self.texture(tex_key, load)
                         tex.texture.use(location=1)
                         prog["u_tex_uv"].value = texture_uv(tex_key)  # type: ignore[misc]
+                        switches += 1
+                    elif program == "terrain" and texture_uv is not None:
+                        # The group's normal patch, or the normal map (key None).
+                        self.cache.pinned = {tex_key}
+                        if tex_key is None:
+                            self.normal_map.use(location=0)
+                            prog["u_normal_uv"].value = tuple(self.normal_uv)
+                        else:
+                            tex = resident[g][0] if resident else self.texture(tex_key, load)
+                            tex.texture.use(location=0)
+                            prog["u_normal_uv"].value = texture_uv(tex_key)
                         switches += 1
                     meshes = resident[g][1] if resident else (self.mesh(k, load) for k in keys)
                     for mesh in meshes:

@@ -17,7 +17,8 @@ included (visual_error.py), so every drawn inner node is within alpha pixels of 
 
 γ_N is the texel of the texture patch N is drawn with (core paper, 3.3 and 4.1). Refining N
 gets finer texels only when some descendant's patch has them; where none has (the pyramid's
-finest level reached, or one texture shading every node, as the untextured normal map does),
+finest level reached, or one texture shading every node, as the normal map of a grid within
+its side does; a larger grid's nodes have normal patches, render/normal_map.py),
 the texels have run out and refining would add geometry, not texels: γ_N > gamma refines N
 only where ``finer_below`` says a descendant's texel area is smaller than N's. γ_N is reported
 as it is either way (Selection.gammas, stats "max_gamma").

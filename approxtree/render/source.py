@@ -11,8 +11,10 @@ types and strategies to patch classes. A source implements ``TileSource``:
 - ``load(key)``: a node's payload (mesh with skirts, or texture patch) for the GPU cache;
 - ``set_textures(textures)``: the texture pyramid (or None), which the texel sizes ``texels``
   of γ follow;
-- ``set_shading_side(side)``: the largest side of the normal map (the context's texture limit),
-  which the untextured texels follow;
+- ``set_shading_side(side, scale)``: the largest side of the normal map (the context's texture
+  limit) and the display scale of its normals, which the untextured texels follow;
+- ``shading_uv``: the uv transform of a group's normal patch key, or None when untextured
+  groups are all drawn with the one normal map;
 - ``set_skirts(skirts)``: hang skirts or not (True when that changes the meshes);
 - ``release()``: stop background work and free what the source holds.
 
@@ -71,7 +73,10 @@ class TileSource(Protocol):
 
     def set_textures(self, textures: Any) -> Callable[[Hashable], bool]: ...
 
-    def set_shading_side(self, side: int) -> None: ...
+    def set_shading_side(self, side: int, scale: np.ndarray | None = None) -> None: ...
+
+    @property
+    def shading_uv(self) -> Callable[[Any], tuple[float, float, float, float]] | None: ...
 
     def set_skirts(self, skirts: bool) -> bool: ...
 

@@ -104,10 +104,7 @@ class TextureBinding:
     def groups(self, meshes: list[MeshKey], owners: list[MeshKey]) -> Groups:
         """[(texture key, meshes)]: ``meshes`` grouped by the texture patch of their
         ``owners`` (one owner per mesh), in first-seen order."""
-        groups: dict[TextureKey, list[MeshKey]] = {}
-        for key, owner in zip(meshes, owners, strict=True):
-            groups.setdefault(self.key(owner), []).append(key)
-        return list(groups.items())
+        return group_meshes(meshes, [self.key(owner) for owner in owners])
 
     def page(self, groups: Groups, loaded: Callable[[TextureKey], bool]) -> tuple[Groups, list]:
         """The groups of an interactive frame, drawable without waiting for the store: a
@@ -116,16 +113,7 @@ class TextureBinding:
 
         Returns (groups, texture keys to request).
         """
-        root = self.key(ROOT)
-        merged: dict[TextureKey, list[MeshKey]] = {}
-        requests: list[Hashable] = []
-        for tex_key, keys in groups:
-            assert tex_key is not None  # textured groups only
-            if not loaded(tex_key):
-                requests.append(tex_key)
-                tex_key = root
-            merged.setdefault(tex_key, []).extend(keys)
-        return list(merged.items()), requests
+        return page_groups(groups, loaded, self.key(ROOT))
 
     def uv(self, key: TextureKey) -> tuple[float, float, float, float]:
         """uv = local.xy * t[:2] + t[2:] of a texture window (u along columns, v along rows,
@@ -146,6 +134,33 @@ class TextureBinding:
         level, c0, r0, w, h, source = key
         texels = TexturePatch(self.pyramids[source], level, c0, r0, w, h).texels()
         return np.ascontiguousarray(texels, dtype=np.uint8)
+
+
+def group_meshes(meshes: list[MeshKey], patches: list[Hashable | None]) -> Groups:
+    """[(patch key, meshes)]: ``meshes`` grouped by their texture (or normal) patch keys
+    ``patches`` (one per mesh; None: no patch of its own), in first-seen order."""
+    # Any keys: texture patches (TextureKey) or normal patches (render/normal_map.NormalKey).
+    groups: dict[Any, list[MeshKey]] = {}
+    for key, patch in zip(meshes, patches, strict=True):
+        groups.setdefault(patch, []).append(key)
+    return list(groups.items())
+
+
+def page_groups(
+    groups: Groups, loaded: Callable[[Any], bool], stand_in: Hashable | None
+) -> tuple[Groups, list]:
+    """``groups`` drawable without waiting for the store: a patch not ``loaded`` is replaced
+    by ``stand_in`` (always drawable) and requested; a None patch stays. Returns (groups,
+    patch keys to request)."""
+    merged: dict[Any, list[MeshKey]] = {}
+    requests: list[Hashable] = []
+    for tex_key, keys in groups:
+        drawn: Any = tex_key
+        if tex_key is not None and not loaded(tex_key):
+            requests.append(tex_key)
+            drawn = stand_in
+        merged.setdefault(drawn, []).extend(keys)
+    return list(merged.items()), requests
 
 
 def as_pyramid(textures: Any, terrain: Any) -> TexturePyramid | DetailTextures | None:

@@ -17,10 +17,11 @@ What the Engine draws of an ApproximationTree, and from where:
    extent; walls on node borders only when patches reach their rectangle), float32 relative
    to the tree's origin — or a texture patch's texels, through the provider's CPU cache.
 
-Texel sizes (γ): the texture patch's with a pyramid (``set_textures``), else the normal map's
-(render/normal_map.py: the untextured shading's one texture patch, which every node shares),
-and per node whether a descendant's texel is finer (``selector.finer_below``): γ refines only
-there.
+Texel sizes (γ): the texture patch's with a pyramid (``set_textures``), else the normal
+patch's (render/normal_map.py: the normal map every node shares, or, on a grid over
+NORMAL_MAP_MAX a side, each node's normal patch, shared with ancestors as texture patches
+are), and per node whether a descendant's texel is finer (``selector.finer_below``): γ
+refines only there.
 """
 
 from __future__ import annotations
@@ -39,12 +40,17 @@ from approxtree.render.cut import Cut
 from approxtree.render.frame import PAGING_KEYS, FramePlan
 from approxtree.render.frame_state import FrameState
 from approxtree.render.full_resolution import FullResolutionSource
-from approxtree.render.normal_map import NORMAL_MAP_MAX, shading_texels
+from approxtree.render.normal_map import NORMAL_MAP_MAX, NormalKey, NormalPatches
 from approxtree.render.provider import DEFAULT_CPU_CACHE_BYTES, Payload, PayloadProvider
 from approxtree.render.renderer import Renderer
 from approxtree.render.selector import Selection, finer_below, select
 from approxtree.render.skirts import add_skirts, patches_reach_rect, skirt_base, skirt_depths
-from approxtree.render.texture_binding import TextureBinding, as_pyramid
+from approxtree.render.texture_binding import (
+    TextureBinding,
+    as_pyramid,
+    group_meshes,
+    page_groups,
+)
 from approxtree.render.texture_follow import pyramids_of, stale_textures
 from approxtree.render.texture_sharing import texture_nodes
 from approxtree.render.traversal import Paging, plan_frame
@@ -80,6 +86,8 @@ class ApproximationTreeSource:
         d = tree.terrain.domain
         self._domain = (d.xmin, d.ymin, d.xmax, d.ymax)
         self._shading_side = NORMAL_MAP_MAX
+        #: The display scale the normal patches are computed for (the Engine's, once set).
+        self._shading_scale = np.ones(3)
         #: Called after each node's patch is read from the tree; raises to refuse a payload
         #: read from a store another process swapped meanwhile (render/live.py).
         self.payload_check: Callable[[], None] | None = None
@@ -88,11 +96,11 @@ class ApproximationTreeSource:
     def _node_figures(self) -> None:
         """Per-node figures used every frame, computed once (and again after a tree update)."""
         tree = self.tree
-        # The untextured shading's texels (one texture patch for every node: γ refines nothing
-        # there); with a pyramid, each node's texture patch's, and where a finer one lies below.
-        self.shading_texels = shading_texels(tree.terrain, len(tree), self._shading_side)
-        self.texels = self.shading_texels
-        self.finer = np.zeros(len(tree), dtype=bool)
+        # The untextured shading's texels (the normal map's for every node, γ refining nothing,
+        # or each node's normal patch's); with a pyramid, each node's texture patch's; and
+        # where a finer one lies below.
+        self._shading_figures()
+        self.texels, self.finer = self.shading_texels, self.shading_finer
         self.sources = np.zeros(len(tree), dtype=np.int64)
         if self.binding is not None:
             pyramid = self.binding.detail or self.binding.pyramid
@@ -149,10 +157,34 @@ class ApproximationTreeSource:
                 )
                 figures["texture_stand_ins"] = len(tex_requests)
                 requests = tex_requests + requests
+        elif self.normals.active:
+            paged = renderer if interactive else None
+            requests = self._normal_groups(plan, cut, paged, figures) + requests
         if interactive:
             # One request per frame (it replaces the previous frame's): textures, then meshes.
             self.provider.request(requests)
         return plan
+
+    def _normal_groups(
+        self, plan: FramePlan, cut: Cut, paged: Renderer | None, figures: dict[str, int]
+    ) -> list:
+        """Group an untextured plan's meshes by normal patch: each node's own or the one of
+        its ancestor closest to the root within γ (texture_sharing.py); in an interactive
+        frame (``paged``: its renderer) a patch not loaded yet is drawn with the normal map
+        and requested (returned)."""
+        drawn = plan.selection
+        nodes, gammas = texture_nodes(self.tree.parents, drawn, cut.gamma, cut.share_textures)
+        zscale = float(self._shading_scale[2])
+        plan.groups = group_meshes(plan.meshes, [self.normals.key(i, zscale) for i in nodes])
+        plan.texture_nodes, plan.texture_gammas = nodes, gammas
+        if paged is None:
+            return []
+        cache, provider = paged.cache, self.provider
+        plan.groups, requests = page_groups(
+            plan.groups, lambda key: key in cache or key in provider, None
+        )
+        figures["texture_stand_ins"] = len(requests)
+        return requests
 
     def load(self, key: MeshKey | TextureKey) -> Payload:
         """The payload of ``key`` (step 3): nodes and texture patches through the CPU cache
@@ -171,8 +203,7 @@ class ApproximationTreeSource:
         pyramid = as_pyramid(textures, self.tree.terrain)
         before = pyramids_of(self.binding)
         if pyramid is None:
-            self.binding, self.texels = None, self.shading_texels
-            self.finer = np.zeros(len(self.tree), dtype=bool)
+            self.binding, self.texels, self.finer = None, self.shading_texels, self.shading_finer
             self.sources = np.zeros(len(self.tree), dtype=np.int64)
         else:
             self.binding = TextureBinding(pyramid, self.tree.origin, self._rect_of, self._level_of)
@@ -195,13 +226,37 @@ class ApproximationTreeSource:
         texels[detail] = patch_texel_sizes(pyramid.detail, rects[detail])
         return texels, detail.astype(np.int64)
 
-    def set_shading_side(self, side: int) -> None:
-        """The normal map's largest side (the context's texture limit): untextured texels
-        follow it."""
+    def set_shading_side(self, side: int, scale: np.ndarray | None = None) -> None:
+        """The normal map's largest side (the context's texture limit) and the display scale
+        (3,) of the normals (None: as before): untextured texels and normal patches follow."""
         self._shading_side = side
-        self.shading_texels = shading_texels(self.tree.terrain, len(self.tree), side)
+        if scale is not None:
+            self._shading_scale = np.asarray(scale, dtype=np.float64).copy()
+        self._shading_figures()
         if self.binding is None:
-            self.texels = self.shading_texels
+            self.texels, self.finer = self.shading_texels, self.shading_finer
+
+    def _shading_figures(self) -> None:
+        """The normal patches of the nodes, their texels and where finer ones lie below."""
+        tree = self.tree
+        self.normals = NormalPatches(
+            tree.terrain, np.asarray(tree.rects, dtype=np.float64), self._shading_side
+        )
+        self.shading_texels = self.normals.texels
+        self.shading_finer = (
+            finer_below(tree, self.shading_texels)
+            if self.normals.active
+            else np.zeros(len(tree), dtype=bool)
+        )
+
+    @property
+    def shading_uv(self) -> Callable[[Any], tuple[float, float, float, float]] | None:
+        """The uv transform of a normal patch key, None when untextured frames draw only the
+        normal map (no normal patches, or a texture pyramid)."""
+        if self.binding is not None or not self.normals.active:
+            return None
+        normals, origin = self.normals, self.tree.origin
+        return lambda key: normals.uv(key, origin)
 
     def set_skirts(self, skirts: bool) -> bool:
         """Hang skirts or not; True when that changes the meshes (the cached ones dropped)."""
@@ -308,6 +363,9 @@ class ApproximationTreeSource:
     def _build(self, key: MeshKey | TextureKey) -> Payload:
         """The payload of ``key``, built now: the provider's loader (it runs on the provider's
         threads and reads the tree's store without keeping the patch, ``read_patch``)."""
+        if isinstance(key, NormalKey):
+            texels = self.normals.texels_of(key, self.tree.origin, self._shading_scale)
+            return Payload(texels=texels)
         if isinstance(key, TextureKey):
             if self.binding is None:  # the pyramid was dropped while this load waited
                 raise InvalidParameterError("No texture pyramid: set_textures(None) was called.")

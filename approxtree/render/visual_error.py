@@ -41,8 +41,9 @@ An eye inside B_N gives +inf (always refined), as does a rectangle reaching behi
 γ (clip w <= 0). A segment part outside the frustum is not on screen and is not bounded.
 
 The texel of a node is that of the texture patch it is drawn with: with a texture pyramid its
-own patch's (``textures.patch.patch_texel_sizes``), untextured the normal map's, which shades
-every node (``render.normal_map.shading_texels``). ``texel_sizes`` (the node's data spacing)
+own patch's (``textures.patch.patch_texel_sizes``), untextured its normal patch's
+(``render.normal_map.NormalPatches``: the one normal map for every node of a grid within its
+side, else the finest pyramid level covering D_N). ``texel_sizes`` (the node's data spacing)
 is what ``select`` takes when a caller passes no texels.
 """
 
