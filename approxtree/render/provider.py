@@ -143,6 +143,7 @@ class PayloadProvider:
                 self._queued.discard(key)
                 self._queue.remove(key)
             generation = self._generation
+            prefetch = key in self._ahead
         if future is not None:
             payload = future.result()
             if payload is not None and generation == self._generation:
@@ -150,7 +151,7 @@ class PayloadProvider:
             if payload is None:
                 self.raise_error()  # the worker's error, once
         payload = self.loader(key)
-        self._store(key, payload, generation)
+        self._store(key, payload, generation, prefetch)
         return payload
 
     # -- background loads ---------------------------------------------------------------------
