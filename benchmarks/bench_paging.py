@@ -222,10 +222,12 @@ def run_flyover(args: argparse.Namespace) -> dict:
     ms = np.array([r["ms"] for r in rows])
     drew = np.array([r["stand_ins"] > 0 or r["texture_stand_ins"] > 0 for r in rows])
     mesh = np.array([r["stand_ins"] > 0 for r in rows])
-    settle = []
+    settle, settle_mesh = [], []
     for c in cuts:
         after = np.flatnonzero(~drew[c:])
         settle.append(int(after[0]) if len(after) else len(rows) - c)
+        after = np.flatnonzero(~mesh[c:])
+        settle_mesh.append(int(after[0]) if len(after) else len(rows) - c)
     between = np.ones(len(rows), dtype=bool)
     for c in cuts:
         between[c : c + 10] = False
@@ -238,7 +240,9 @@ def run_flyover(args: argparse.Namespace) -> dict:
         "stand_in_share": round(float(drew.mean()), 4),
         "mesh_stand_in_share": round(float(mesh.mean()), 4),
         "stand_in_share_outside_cuts": round(float(drew[between].mean()), 4),
+        "mesh_stand_in_share_outside_cuts": round(float(mesh[between].mean()), 4),
         "settle_frames_after_cuts": settle,
+        "mesh_settle_frames_after_cuts": settle_mesh,
         "uploads_median": float(np.median([r["uploads"] for r in rows])),
         "triangles_median": int(np.median([r["triangles"] for r in rows])),
         "frame_ms": [round(float(v), 2) for v in ms],

@@ -119,18 +119,20 @@ def test_prediction_extrapolates_the_camera_and_forgets_it_at_a_cut(tree):
 
 
 def test_the_predicted_view_is_requested_after_the_frames_own(tree):
-    """The cut of the extrapolated camera is asked for after every node of the frame's own
-    request, and it holds the nodes the camera wants when it gets there."""
+    """The cut of the camera extrapolated ``lookahead`` frames ahead (and twice that) is asked
+    for after every node of the frame's own request, and it holds the nodes the camera wants
+    when it gets there."""
     texels = texel_sizes(tree)
     prefetch = Prefetcher()
     paging = Paging(wait=False, lookahead=6, siblings=False)
     for t in (0.0, 0.03, 0.06):
         fs = low_view(tree, t)
         prefetch.start(0.0, fs, paging, frozen=False)
-    (view,) = prefetch.views(fs, paging, tree.bboxes[0])
+    view, further = prefetch.views(fs, paging, tree.bboxes[0])
     ahead = select(tree, view, ALPHA, math.inf).nodes
     later = select(tree, low_view(tree, 0.24), ALPHA, math.inf).nodes
     assert set(ahead.tolist()) == set(later.tolist())
+    assert np.allclose(further.eye, low_view(tree, 0.42).eye)  # and twice as far ahead
     wanted = select(tree, fs, ALPHA, math.inf)
     plan = plan_frame(wanted, fs, tree, texels, residency(set()), nothing, None, [ahead])
     new = set(ahead.tolist()) - set(plan.request.tolist()) - {0}

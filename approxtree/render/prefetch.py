@@ -152,12 +152,14 @@ class Prefetcher:
 
     def views(self, fs: FrameState, paging: Any, bounds: np.ndarray) -> list[FrameState]:
         """The FrameStates to prefetch for, most likely first: the cameras of ``paging.path``
-        (a fly-to path), then the camera extrapolated ``paging.lookahead`` frames ahead.
+        (a fly-to path), then the camera extrapolated ``paging.lookahead`` frames ahead and
+        twice that (a load slower than the lookahead still lands in time).
         bounds: (6,) the tree's root box (near/far)."""
         cameras = list(paging.path)
-        predicted = self.motion.predict(fs, paging.lookahead) if paging.lookahead else None
-        if predicted is not None:
-            cameras.append(predicted)
+        for frames in (paging.lookahead, 2 * paging.lookahead) if paging.lookahead else ():
+            predicted = self.motion.predict(fs, frames)
+            if predicted is not None:
+                cameras.append(predicted)
         return [
             FrameState.from_camera(cam, fs.viewport, bounds, fs.origin, fs.scale) for cam in cameras
         ]

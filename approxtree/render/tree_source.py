@@ -151,11 +151,12 @@ class ApproximationTreeSource:
                     plan.groups, lambda key: key in cache or key in provider
                 )
                 figures["texture_stand_ins"] = len(tex_requests)
-                requests = tex_requests + requests
-                # The texture patches of the predicted views first among the prefetches.
-                ahead = [key for view in views for key in self._texture_keys(view, cut)] + ahead
+                # Meshes first: a few kB each against MBs of texels, and a missing mesh
+                # coarsens the geometry (α), a missing texture only the colour.
+                requests = requests + tex_requests
+                ahead = ahead + [key for view in views for key in self._texture_keys(view, cut)]
         if interactive:
-            # One request per frame (it replaces the previous frame's): textures, then meshes,
+            # One request per frame (it replaces the previous frame's): meshes, then textures,
             # then what the next frames will want (loaded only where it evicts none of those).
             self.provider.request(requests, ahead)
         return plan
