@@ -15,6 +15,17 @@ the terrain seen).
     python benchmarks/bench_paging.py [--tree PATH] [--frames 600] [--size 1280x720]
         [--alpha 1] [--cache-mb 512] [--peer-cache-mb 64] [--dem-size 2049] [--max-uploads 32]
         [--out benchmarks/results/paging.json]
+
+``--scenario flyover`` (issue 26, item 3): a low fly-over of ``--tree`` textured by
+``--textures`` (a baked hillshade) at α ``--alpha``, γ ``--gamma``, in four straight legs with a
+camera cut between them (``flyover_cameras``), against ``--baseline-lib`` (a checkout of main,
+paging as main did) in interleaved processes, ``--rounds`` rounds. Per run: frame time median
+and p95, the share of frames drawing a mesh stand-in (and any stand-in, texture patches
+included), the frames each cut takes to settle, the load average. JSON and a plot:
+
+    python benchmarks/bench_paging.py --scenario flyover --tree f4097.zarr \
+        --textures f4097_textures --frames 400 --size 640x480 --alpha 4 --gamma 2 \
+        --baseline-lib /tmp/main --rounds 3 --out benchmarks/results/paging_flyover.json
 """
 
 from __future__ import annotations

@@ -10,8 +10,8 @@ by the tile source from frame to frame:
   camera cut, a teleport) or a sharp turn forgets the history: no prediction from a cut.
 - ``FrameBudget`` lets the upload budget follow the frame time: the frame's target is the
   recent median of its time without mesh uploads plus a margin, and the uploads may spend
-  what the last frame's other work leaves of it (at least one upload a frame: the renderer
-  counts its budget after the first).
+  what the last frame's other work leaves of it, never less than the margin (and at least
+  one upload a frame: the renderer counts its budget after the first).
 """
 
 from __future__ import annotations
@@ -117,11 +117,13 @@ class FrameBudget:
         self._last_upload_ms += float(ms)
 
     def allowance_ms(self) -> float | None:
-        """Target (median rest + margin) less the last frame's rest; ≥ 0 (None: no history)."""
+        """Target (median rest + margin) less the last frame's rest, at least the margin (a
+        frame heavy with texture uploads must not starve the cheap mesh uploads); None: no
+        history."""
         if not self.rest_ms:
             return None
         target = float(np.median(self.rest_ms)) + self.margin_ms
-        return max(0.0, target - self.rest_ms[-1])
+        return max(self.margin_ms, target - self.rest_ms[-1])
 
 
 class Prefetcher:

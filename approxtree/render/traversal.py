@@ -54,8 +54,9 @@ class Paging:
     motion (0: off); path: cameras the host knows the view will pass (a fly-to path), their
     cuts requested after the current frame's; siblings: request the siblings of wanted nodes
     last. frame_margin_ms: let the upload budget follow the frame time — uploads may spend
-    this margin over the recent median frame time without them, less what the last frame
-    overran (at least one upload a frame); None: only ``upload_ms``.
+    this margin over the recent median frame time without them, plus what the last frame
+    left of that (never less than the margin, at least one upload); None: only
+    ``upload_ms``.
     """
 
     wait: bool = True
