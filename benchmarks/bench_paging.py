@@ -15,6 +15,17 @@ the terrain seen).
     python benchmarks/bench_paging.py [--tree PATH] [--frames 600] [--size 1280x720]
         [--alpha 1] [--cache-mb 512] [--peer-cache-mb 64] [--dem-size 2049] [--max-uploads 32]
         [--out benchmarks/results/paging.json]
+
+``--scenario flyover`` (issue 26, item 3): a low fly-over of ``--tree`` textured by
+``--textures`` (a baked hillshade) at α ``--alpha``, γ ``--gamma``, in four straight legs with a
+camera cut between them (``flyover_cameras``), against ``--baseline-lib`` (a checkout of main,
+paging as main did) in interleaved processes, ``--rounds`` rounds. Per run: frame time median
+and p95, the share of frames drawing a mesh stand-in (and any stand-in, texture patches
+included), the frames each cut takes to settle, the load average. JSON and a plot:
+
+    python benchmarks/bench_paging.py --scenario flyover --tree f4097.zarr \
+        --textures f4097_textures --frames 400 --size 640x480 --alpha 4 --gamma 2 \
+        --baseline-lib /tmp/main --rounds 3 --out benchmarks/results/paging_flyover.json
 """
 
 from __future__ import annotations
@@ -53,6 +64,40 @@ def loop_cameras(tree, frames: int, scale) -> list:
         look = (*(centre + 0.2 * width * np.array([math.cos(ahead), math.sin(ahead)])), lo[2])
         cams.append(Camera.look_at(eye, look, fov=60))
     return cams
+
+
+def flyover_cameras(tree, frames: int, legs: int = 4) -> tuple[list, list[int]]:
+    """Cameras of a low fly-over in ``legs`` straight legs with a camera cut between them,
+    and the frames that follow a cut.
+
+    Each leg crosses 0.4 of the domain width at 0.03 of it above the highest point, looking
+    ahead and 20° down; the legs start at different corners and head in different directions,
+    so a cut lands on a view that shares nothing with the one before it.
+    """
+    from approxtree.render import Camera
+
+    b = np.asarray(tree.bboxes[0], dtype=np.float64)
+    lo, hi = b[:3], b[3:]
+    centre = 0.5 * (lo[:2] + hi[:2])
+    width = float(min(hi[:2] - lo[:2]))
+    height = hi[2] + 0.03 * width
+    per_leg = max(1, frames // legs)
+    cams, cuts = [], []
+    for k in range(frames):
+        leg, step = divmod(k, per_leg)
+        leg %= legs
+        if step == 0 and k > 0:
+            cuts.append(k)
+        heading = math.pi / 4 + leg * (math.pi / 2 + 0.3)
+        direction = np.array([math.cos(heading), math.sin(heading)])
+        start = (
+            centre - 0.2 * width * direction + 0.1 * width * np.array([-direction[1], direction[0]])
+        )
+        eye2 = start + 0.4 * width * direction * step / per_leg
+        look = eye2 + width * 0.1 * direction
+        drop = 0.1 * width * math.tan(math.radians(20))
+        cams.append(Camera.look_at((*eye2, height), (*look, height - drop), fov=60))
+    return cams, cuts
 
 
 def rss_parts() -> tuple[int, int]:
@@ -143,6 +188,87 @@ def run_one(args: argparse.Namespace) -> dict:
     }
 
 
+def run_flyover(args: argparse.Namespace) -> dict:
+    """The low fly-over with camera cuts (``flyover_cameras``) in this process, textured by
+    ``--textures`` at α ``--alpha`` and γ ``--gamma``; returns its figures.
+
+    A frame "settles" after a cut at the first frame drawing no stand-in (mesh or texture).
+    ``--plain`` pages as main did (only ``max_uploads``); otherwise the Paging fields of this
+    branch (lookahead, siblings, frame-time budget) are used where the library has them.
+    """
+    import dataclasses
+
+    from approxtree import load_tree
+    from approxtree.render import Cut, Engine, Paging
+
+    tree = load_tree(args.tree)
+    w, h = (int(v) for v in args.size.lower().split("x"))
+    cache = int(args.cache_mb * (1 << 20))
+    fields = {f.name for f in dataclasses.fields(Paging)}
+    extra = {}
+    if not args.plain and "lookahead" in fields:
+        extra = {"lookahead": args.lookahead, "frame_margin_ms": args.frame_margin_ms}
+    paging = Paging(False, args.max_uploads, **extra)
+    pyramid = args.textures  # a pyramid folder, or None: untextured
+    rows = []
+    with Engine(tree, pyramid, cache_bytes=cache, cpu_cache_bytes=cache) as eng:
+        cams, cuts = flyover_cameras(tree, args.frames)
+        cut = Cut(args.alpha, args.gamma)
+        eng.render(cams[0], (w, h), cut)  # the first view loaded: frame 0 starts settled
+        for cam in cams:
+            t0 = time.perf_counter()
+            frame = eng.render(cam, (w, h), cut, paging=paging)
+            ms = (time.perf_counter() - t0) * 1e3
+            st = frame.stats
+            rows.append(
+                {
+                    "ms": ms,
+                    "stand_ins": st["stand_ins"],
+                    "texture_stand_ins": st.get("texture_stand_ins", 0),
+                    "uploads": st.get("gpu_uploads", 0),
+                    "triangles": st["triangles"],
+                }
+            )
+        provider = eng.provider.figures()
+    ms = np.array([r["ms"] for r in rows])
+    drew = np.array([r["stand_ins"] > 0 or r["texture_stand_ins"] > 0 for r in rows])
+    mesh = np.array([r["stand_ins"] > 0 for r in rows])
+    settle, settle_mesh = [], []
+    for c in cuts:
+        after = np.flatnonzero(~drew[c:])
+        settle.append(int(after[0]) if len(after) else len(rows) - c)
+        after = np.flatnonzero(~mesh[c:])
+        settle_mesh.append(int(after[0]) if len(after) else len(rows) - c)
+    between = np.ones(len(rows), dtype=bool)
+    for c in cuts:
+        between[c : c + 10] = False
+    return {
+        "variant": "plain" if args.plain or not extra else "prefetch",
+        "paging": {"max_uploads": args.max_uploads, **extra},
+        "frames": len(rows),
+        "frame_ms_median": round(float(np.median(ms)), 2),
+        "frame_ms_p95": round(float(np.percentile(ms, 95)), 2),
+        "stand_in_share": round(float(drew.mean()), 4),
+        "mesh_stand_in_share": round(float(mesh.mean()), 4),
+        "stand_in_share_outside_cuts": round(float(drew[between].mean()), 4),
+        "mesh_stand_in_share_outside_cuts": round(float(mesh[between].mean()), 4),
+        "settle_frames_after_cuts": settle,
+        "mesh_settle_frames_after_cuts": settle_mesh,
+        "uploads_median": float(np.median([r["uploads"] for r in rows])),
+        "triangles_median": int(np.median([r["triangles"] for r in rows])),
+        "frame_ms": [round(float(v), 2) for v in ms],
+        "stand_in_frames": [int(v) for v in drew],
+        "provider": provider,
+        "loadavg": list(os_loadavg()),
+    }
+
+
+def os_loadavg() -> tuple[float, float, float]:
+    import os
+
+    return os.getloadavg()
+
+
 def _deciles(values: np.ndarray) -> list[float]:
     """values at frames 0, 10 %, ..., 100 % of the run."""
     n = len(values)
@@ -172,10 +298,22 @@ def main() -> None:
     parser.add_argument("--dem-size", type=int, default=2049)
     parser.add_argument("--max-uploads", type=int, default=32)
     parser.add_argument("--out", default=str(RESULTS / "paging.json"))
+    parser.add_argument("--scenario", choices=["loop", "flyover"], default="loop")
+    parser.add_argument("--textures", help="flyover: texture pyramid folder (a baked hillshade)")
+    parser.add_argument("--gamma", type=float, default=math.inf)
+    parser.add_argument("--lookahead", type=int, default=4)
+    parser.add_argument("--frame-margin-ms", type=float, default=4.0)
+    parser.add_argument("--plain", action="store_true", help="flyover: page as main did")
+    parser.add_argument("--baseline-lib", help="flyover: a checkout of main, run interleaved")
+    parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--one", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.one:
-        print(json.dumps(run_one(args)))
+        run = run_flyover if args.scenario == "flyover" else run_one
+        print(json.dumps(run(args)))
+        return
+    if args.scenario == "flyover":
+        flyover_main(args)
         return
     with tempfile.TemporaryDirectory() as tmp:
         built = None
@@ -214,6 +352,77 @@ def main() -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1))
     print(f"wrote {out}")
+
+
+def flyover_main(args: argparse.Namespace) -> None:
+    """The fly-over, this checkout against ``--baseline-lib`` (main) interleaved, ``--rounds``
+    rounds, each run in its own process; JSON and a plot into ``--out``."""
+    import os
+
+    if args.tree is None:
+        raise SystemExit("--scenario flyover needs --tree (see the module docstring)")
+    here = str(Path(__file__).resolve().parent.parent)
+    variants = [("prefetch", here, [])]
+    if args.baseline_lib:
+        variants.insert(0, ("main", str(Path(args.baseline_lib).resolve()), ["--plain"]))
+    runs = []
+    for r in range(args.rounds):
+        for name, lib, flags in variants:
+            cmd = [
+                *(sys.executable, __file__, "--one", "--scenario", "flyover", "--tree", args.tree),
+                *("--frames", str(args.frames), "--size", args.size, "--alpha", str(args.alpha)),
+                *("--gamma", str(args.gamma), "--cache-mb", str(args.cache_mb)),
+                *("--max-uploads", str(args.max_uploads), "--lookahead", str(args.lookahead)),
+                *("--frame-margin-ms", str(args.frame_margin_ms), *flags),
+                *(("--textures", args.textures) if args.textures else ()),
+            ]
+            env = {**os.environ, "PYTHONPATH": lib}
+            out = subprocess.run(cmd, check=True, capture_output=True, text=True, env=env).stdout
+            run = json.loads(out.strip().splitlines()[-1]) | {"name": name, "round": r}
+            runs.append(run)
+            short = {k: v for k, v in run.items() if k not in ("frame_ms", "stand_in_frames")}
+            print(json.dumps({k: v for k, v in short.items() if k != "provider"}), flush=True)
+    result = {
+        "scenario": "flyover",
+        "tree": args.tree,
+        "textures": args.textures,
+        "frames": args.frames,
+        "size": args.size,
+        "alpha": args.alpha,
+        "gamma": args.gamma,
+        "machine": {"platform": platform.platform(), "cpus": psutil.cpu_count()},
+        "runs": runs,
+    }
+    out_path = Path(args.out)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    out_path.write_text(json.dumps(result, indent=1))
+    plot_flyover(result, out_path.with_suffix(".png"))
+    print(f"wrote {out_path}")
+
+
+def plot_flyover(result: dict, path: Path) -> None:
+    """Frame time per frame of each variant's first round, stand-in frames marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(10, 4))
+    seen = set()
+    for run in result["runs"]:
+        if run["name"] in seen:
+            continue
+        seen.add(run["name"])
+        ms = np.array(run["frame_ms"])
+        line = ax.plot(ms, lw=0.8, label=f"{run['name']} (stand-ins {run['stand_in_share']:.0%})")
+        marks = np.flatnonzero(run["stand_in_frames"])
+        ax.plot(marks, ms[marks], ".", ms=3, color=line[0].get_color())
+    ax.set_xlabel("frame (dots: a stand-in drawn)")
+    ax.set_ylabel("ms per frame")
+    ax.set_title(f"paging fly-over, {result['size']}, α {result['alpha']}, γ {result['gamma']}")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
 
 
 if __name__ == "__main__":

@@ -7,9 +7,11 @@ renderer uploads, reading the tree's store lazily, and keeps them in an LRU cach
 bytes never exceeds its budget (a payload larger than the whole budget is handed to the caller
 but not kept).
 
-- ``request(keys)`` (coarsest first) replaces the wanted list: keys queued by an earlier frame
-  and not asked for again are cancelled (a view already left is never loaded late); the
-  worker threads take keys from the front of the list.
+- ``request(keys, ahead)`` (coarsest first) replaces the wanted list: keys queued by an
+  earlier frame and not asked for again are cancelled (a view already left is never loaded
+  late); the worker threads take keys from the front of the list. ``ahead`` keys (prefetch:
+  predicted views, siblings) come after ``keys`` and are cached only where that evicts no
+  payload of ``keys``, so a prefetch never pushes out what the current frame waits for.
 - ``is_resident`` / ``get`` answer from the cache without blocking; ``load`` blocks (the root
   of an interactive frame, and every payload of a single offscreen image).
 - ``figures()``: hits, misses, loads, bytes, evictions, cancelled, pending.
@@ -81,6 +83,10 @@ class PayloadProvider:
         # Wanted keys not yet started, front first; loads in flight by key.
         self._queue: list[Hashable] = []
         self._queued: set[Hashable] = set()
+        # Keys of the latest request proper (prefetched payloads never evict them), and the
+        # prefetched keys of its queue.
+        self._protected: set[Hashable] = set()
+        self._ahead: set[Hashable] = set()
         self._inflight: dict[Hashable, Future] = {}
         self._drains = 0
         self._pool: ThreadPoolExecutor | None = None
@@ -137,6 +143,7 @@ class PayloadProvider:
                 self._queued.discard(key)
                 self._queue.remove(key)
             generation = self._generation
+            prefetch = key in self._ahead
         if future is not None:
             payload = future.result()
             if payload is not None and generation == self._generation:
@@ -144,23 +151,29 @@ class PayloadProvider:
             if payload is None:
                 self.raise_error()  # the worker's error, once
         payload = self.loader(key)
-        self._store(key, payload, generation)
+        self._store(key, payload, generation, prefetch)
         return payload
 
     # -- background loads ---------------------------------------------------------------------
 
-    def request(self, keys: Iterable[Hashable]) -> None:
-        """Want ``keys`` (most urgent first: coarsest level first) loaded in the background.
+    def request(self, keys: Iterable[Hashable], ahead: Iterable[Hashable] = ()) -> None:
+        """Want ``keys`` (most urgent first: coarsest level first) loaded in the background,
+        then ``ahead`` (prefetch, cached only where it evicts none of ``keys``).
 
         Replaces the previous request: its keys that are neither asked for again nor started
         are cancelled. Cached keys and keys in flight are not queued again.
         """
         self._check_open()
+        keys = list(dict.fromkeys(keys))
+        protected = set(keys)
+        ahead = [k for k in dict.fromkeys(ahead) if k not in protected]
         with self._lock:
             wanted = [
-                k for k in dict.fromkeys(keys) if k not in self._entries and k not in self._inflight
+                k for k in [*keys, *ahead] if k not in self._entries and k not in self._inflight
             ]
             keep = set(wanted)
+            self._protected = protected
+            self._ahead = set(ahead)
             self.cancelled += sum(1 for k in self._queue if k not in keep)
             self._queue = wanted
             self._queued = keep
@@ -200,9 +213,10 @@ class PayloadProvider:
                 future: Future = Future()
                 self._inflight[key] = future
                 generation = self._generation
+                prefetch = key in self._ahead
             try:
                 payload = self.loader(key)
-                self._store(key, payload, generation)
+                self._store(key, payload, generation, prefetch)
                 future.set_result(payload)
             except BaseException as exc:  # handed to the next load() of this key
                 future.set_result(None)
@@ -215,14 +229,19 @@ class PayloadProvider:
                 with self._lock:
                     self._inflight.pop(key, None)
 
-    def _store(self, key: Hashable, payload: Payload, generation: int) -> None:
+    def _store(
+        self, key: Hashable, payload: Payload, generation: int, prefetch: bool = False
+    ) -> None:
         """Cache ``payload`` (loaded since ``generation``) and evict least recently used
-        entries down to the budget."""
+        entries down to the budget; a ``prefetch`` payload only where that evicts no key of
+        the current request (else it is dropped)."""
         size = payload.nbytes
         with self._lock:
             self.loads += 1
             stale = generation != self._generation
             if self._closed or stale or size > self.budget_bytes or key in self._entries:
+                return
+            if prefetch and not self._make_room(size):
                 return
             self._entries[key] = payload
             self.nbytes += size
@@ -230,6 +249,27 @@ class PayloadProvider:
                 _, old = self._entries.popitem(last=False)
                 self.nbytes -= old.nbytes
                 self.evictions += 1
+
+    def _make_room(self, size: int) -> bool:
+        """Evict least recently used entries outside the current request until ``size`` more
+        bytes fit (lock held); False, evicting nothing, when they cannot."""
+        excess = self.nbytes + size - self.budget_bytes
+        if excess <= 0:
+            return True
+        victims = []
+        for k, entry in self._entries.items():
+            if k in self._protected:
+                continue
+            victims.append(k)
+            excess -= entry.nbytes
+            if excess <= 0:
+                break
+        if excess > 0:
+            return False
+        for k in victims:
+            self.nbytes -= self._entries.pop(k).nbytes
+            self.evictions += 1
+        return True
 
     def raise_error(self) -> None:
         """Raise (once) the first error a background load met, e.g. a StoreError for a

@@ -41,6 +41,7 @@ from approxtree.render.frame import PAGING_KEYS, FramePlan
 from approxtree.render.frame_state import FrameState
 from approxtree.render.full_resolution import FullResolutionSource
 from approxtree.render.normal_map import NORMAL_MAP_MAX, NormalKey, NormalPatches
+from approxtree.render.prefetch import Prefetcher
 from approxtree.render.provider import DEFAULT_CPU_CACHE_BYTES, Payload, PayloadProvider
 from approxtree.render.renderer import Renderer
 from approxtree.render.selector import Selection, finer_below, select
@@ -91,6 +92,8 @@ class ApproximationTreeSource:
         #: Called after each node's patch is read from the tree; raises to refuse a payload
         #: read from a store another process swapped meanwhile (render/live.py).
         self.payload_check: Callable[[], None] | None = None
+        #: Camera motion and frame times of interactive frames (render/prefetch.py).
+        self.prefetch = Prefetcher()
         self._node_figures()
 
     def _node_figures(self) -> None:
@@ -138,10 +141,10 @@ class ApproximationTreeSource:
             self._texture(plan, plan.meshes, wanted.nodes.copy(), np.zeros(len(wanted.nodes)))
             return plan
         interactive = not paging.wait
-        figures, requests = dict.fromkeys(PAGING_KEYS, 0), list[Any]()
-        drawn = wanted
+        figures, requests, ahead = dict.fromkeys(PAGING_KEYS, 0), list[Any](), list[Any]()
+        drawn, views = wanted, list[Selection]()
         if interactive:
-            drawn, figures, requests = self._page(wanted, fs, paging, renderer)
+            drawn, figures, requests, ahead, views = self._page(wanted, fs, cut, paging, renderer)
         meshes = node_keys(drawn.nodes)
         plan = FramePlan(drawn, meshes, [(None, meshes)], figures)
         if self.binding is not None:
@@ -156,13 +159,18 @@ class ApproximationTreeSource:
                     plan.groups, lambda key: key in cache or key in provider
                 )
                 figures["texture_stand_ins"] = len(tex_requests)
-                requests = tex_requests + requests
+                # Meshes first: a few kB each against MBs of texels, and a missing mesh
+                # coarsens the geometry (α), a missing texture only the colour.
+                requests = requests + tex_requests
+                ahead = ahead + [key for view in views for key in self._texture_keys(view, cut)]
         elif self.normals.active:
+            # Normal patches after the meshes too, for the same reason.
             paged = renderer if interactive else None
-            requests = self._normal_groups(plan, cut, paged, figures) + requests
+            requests = requests + self._normal_groups(plan, cut, paged, figures)
         if interactive:
-            # One request per frame (it replaces the previous frame's): textures, then meshes.
-            self.provider.request(requests)
+            # One request per frame (it replaces the previous frame's): meshes, then textures,
+            # then what the next frames will want (loaded only where it evicts none of those).
+            self.provider.request(requests, ahead)
         return plan
 
     def _normal_groups(
@@ -185,6 +193,16 @@ class ApproximationTreeSource:
         )
         figures["texture_stand_ins"] = len(requests)
         return requests
+
+    def _texture_keys(self, selection: Selection, cut: Cut) -> list[TextureKey]:
+        """The texture patches the nodes of ``selection`` are drawn with (with a pyramid)."""
+        if self.binding is None:
+            return []
+        tex_nodes, _ = texture_nodes(
+            self.tree.parents, selection, cut.gamma, cut.share_textures, self.sources
+        )
+        groups = self.binding.groups(node_keys(selection.nodes), node_keys(tex_nodes))
+        return [key for key, _ in groups if key is not None]
 
     def load(self, key: MeshKey | TextureKey) -> Payload:
         """The payload of ``key`` (step 3): nodes and texture patches through the CPU cache
@@ -318,10 +336,11 @@ class ApproximationTreeSource:
     # -- paging ---------------------------------------------------------------------------------
 
     def _page(
-        self, wanted: Selection, fs: FrameState, paging: Paging, renderer: Renderer
-    ) -> tuple[Selection, dict[str, int], list]:
-        """The drawn cut of an interactive frame, its paging figures and the mesh keys to
-        request, coarsest first (traversal.py).
+        self, wanted: Selection, fs: FrameState, cut: Cut, paging: Paging, renderer: Renderer
+    ) -> tuple[Selection, dict[str, int], list, list, list[Selection]]:
+        """The drawn cut of an interactive frame, its paging figures, the mesh keys to
+        request (coarsest, most visible first), those to prefetch (traversal.py) and the
+        cuts of the predicted views.
 
         Uploads the wanted nodes whose payload is in the CPU cache (coarsest first, within
         the budget), and returns the nearest resident ancestors of what is still missing. The
@@ -335,15 +354,32 @@ class ApproximationTreeSource:
             return cache.is_resident(node_keys(nodes)) | (nodes == 0)
 
         t0 = time.perf_counter()
+        allowance = self.prefetch.start(t0, fs, paging, cut.frozen is not None)
+        # The cuts of the views the camera is about to reach (none for a frozen cut).
+        views = [] if cut.frozen else self.prefetch.views(fs, paging, self.tree.bboxes[0])
+        selections = [self.select(view, cut) for view in views]
+        ahead = [sel.nodes for sel in selections]
         plan = plan_frame(
-            wanted, fs, self.tree, self.texels, on_gpu, self._on_cpu, paging.max_uploads
+            wanted,
+            fs,
+            self.tree,
+            self.texels,
+            on_gpu,
+            self._on_cpu,
+            paging.max_uploads,
+            ahead,
+            paging.siblings,
         )
         budget_ms = (
             None
             if paging.upload_ms is None
             else paging.upload_ms - (time.perf_counter() - t0) * 1e3
         )
+        if allowance is not None:
+            budget_ms = allowance if budget_ms is None else min(budget_ms, allowance)
+        t1 = time.perf_counter()
         uploads = renderer.upload_within(node_keys(plan.upload), self.load, None, budget_ms)
+        self.prefetch.uploaded((time.perf_counter() - t1) * 1e3)
         # What is drawable now (uploads may have evicted older meshes from a small cache).
         drawn = plan_frame(wanted, fs, self.tree, self.texels, on_gpu, self._on_cpu, 0)
         figures = {
@@ -352,7 +388,8 @@ class ApproximationTreeSource:
             "paged_uploads": uploads,
             "texture_stand_ins": 0,
         }
-        return drawn.drawn, figures, node_keys(plan.request)
+        requests, prefetch = node_keys(plan.request), node_keys(plan.prefetch)
+        return drawn.drawn, figures, requests, prefetch, selections
 
     def _on_cpu(self, nodes: np.ndarray) -> np.ndarray:
         """(k,) bool: node payloads in the provider's CPU cache."""

@@ -3,7 +3,10 @@
 The Engine is embedded in the window (``Engine(tree, context=ctx)``) and draws into the
 framebuffer bound there. Its frames page (``wait=False``): the provider loads payloads in the
 background and the traversal draws their nearest resident ancestors meanwhile, uploading at
-most ``max_uploads`` meshes (``budget_ms``) per frame; only the root is uploaded up front.
+most ``max_uploads`` meshes (``budget_ms``) per frame, spending at most ``frame_margin_ms``
+over the recent median frame time; only the root is uploaded up front. What the camera is
+about to see (its motion extrapolated, the siblings of what it sees) is loaded ahead at a
+lower priority (render/prefetch.py).
 A frozen frustum draws the cut seen from the frozen view (``Cut(frozen=...)``).
 
 Live (``follow``): every frame first polls the store and the pyramids another process may
@@ -36,7 +39,9 @@ class FrameDriver:
 
     settings: the shared ViewSettings (cut, wireframe, light); exaggeration, palette: the
     Engine's picture options; background: Engine.render's; max_uploads, budget_ms: the
-    per-frame upload budget (0 and None: no budget, every frame waits for its whole cut).
+    per-frame upload budget (0 and None: no budget, every frame waits for its whole cut);
+    frame_margin_ms: the upload budget follows the frame time, this margin over its recent
+    median (None: it does not).
     """
 
     def __init__(
@@ -49,6 +54,7 @@ class FrameDriver:
         background: str = "sky",
         max_uploads: int = 32,
         budget_ms: float | None = None,
+        frame_margin_ms: float | None = 4.0,
     ) -> None:
         if max_uploads < 0:
             raise InvalidParameterError(f"max_uploads must be >= 0, got {max_uploads}")
@@ -58,6 +64,7 @@ class FrameDriver:
         self.background = background
         self.max_uploads = int(max_uploads)
         self.budget_ms = budget_ms
+        self.frame_margin_ms = frame_margin_ms
         self.engine = Engine(tree, context=ctx, exaggeration=float(exaggeration), palette=palette)
         self._frozen: FrameState | None = None
         #: Follows a store and pyramids updated by another process (``follow``), or None.
@@ -134,6 +141,7 @@ class FrameDriver:
                 wait=not self.max_uploads and self.budget_ms is None,
                 max_uploads=self.max_uploads or None,
                 upload_ms=self.budget_ms,
+                frame_margin_ms=self.frame_margin_ms,
             ),
         )
         if positions:
