@@ -15,6 +15,7 @@ store (and a temp folder the next write removes) or the new one.
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 import signal
@@ -27,9 +28,11 @@ from approxtree.errors import InvalidParameterError, StoreError, TerrainFormatEr
 from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
 from approxtree.geometry.windowed import WindowedHeights
+from approxtree.patches.grid import GridPatch
 from approxtree.tree.approximation_tree import ApproximationTree
-from approxtree.tree.tree_store import save_tree
-from approxtree.tree.update import TreeUpdate
+from approxtree.tree.tree_store import TreeStoreSource, save_tree
+from approxtree.tree.update import TreeUpdate, window_cells
+from approxtree.tree.update_band import SparseBand, read_domains
 from approxtree.tree.zarr_store import ChunkReuse, ZarrHeightSource, is_url, is_zip
 
 
@@ -82,27 +85,67 @@ def update_store(path: str | os.PathLike, patch: Grid, verify: bool = True) -> T
         raise TerrainFormatError(
             f"{text} holds a tree over a {type(terrain).__name__}; only a grid's tree is updated."
         )
-    # The terrain is read whole: the update edits its cells in memory, then the store is new.
-    grid = Grid(
-        _band(terrain),
-        terrain.transform,
-        terrain.crs,
-        terrain.nodata,
-        allow_empty=True,
-    )
-    grid.nodata_policy = terrain.nodata_policy
-    grid.filled_count = terrain.filled_count
+    sparse = _sparse_grid(tree, terrain)
+    if sparse is None:
+        # The terrain is read whole: the update edits its cells in memory, then the store is new.
+        grid = Grid(
+            _band(terrain),
+            terrain.transform,
+            terrain.crs,
+            terrain.nodata,
+            allow_empty=True,
+        )
+        grid.nodata_policy = terrain.nodata_policy
+        grid.filled_count = terrain.filled_count
+    else:
+        grid = sparse
     tree.terrain = grid
     rect = patch_window(grid, patch)
     heights = np.asarray(patch.heights_array("updating a store's terrain"))
+    if sparse is not None:
+        r0, r1, c0, c1 = window_cells(grid, rect, heights.shape)
+        read_domains(grid, np.array([[r0, r1, c0, c1]]))
     report = tree.update(rect, heights)
+    if sparse is not None and "_z_range" not in grid.__dict__:
+        # The band is not all read: the z range is the root patch's (a zero extreme's sign
+        # is the root patch's kernel's, where a scan of the band might find the other zero).
+        grid.__dict__["_z_range"] = (float(tree.bboxes[0, 2]), float(tree.bboxes[0, 5]))
     _hook("updated")
-    # The new store links the height chunks the window misses to the old store's files.
+    # The new store links the chunks the update left unchanged to the old store's files.
     r0, r1, c0, c1 = report.window
     reuse = ChunkReuse(Path(path) / "terrain" / "heights", (r0, r1, c0, c1))
     save_tree(tree, path, reuse)
     _hook("saved")
     return report
+
+
+def _sparse_grid(tree: ApproximationTree, terrain: Grid) -> Grid | None:
+    """The stored terrain as a grid over a sparse band (``update_band``): its chunks read as
+    the update needs them, the coarse patches' stored lattices copied in; None where the
+    band is read whole (a tree with other patches than grid patches, whose records may be
+    rebuilt from the band, or a terrain that is not a store's)."""
+    heights = terrain.heights
+    source = tree._source
+    if (
+        not isinstance(heights, WindowedHeights)
+        or not isinstance(heights.source, ZarrHeightSource)
+        or not isinstance(source, TreeStoreSource)
+        or list(tree.strategy_names) != [GridPatch.kind]
+        or terrain.index_offset != (0, 0)
+    ):
+        return None
+    band = SparseBand(heights.source)
+    grid = copy.copy(terrain)
+    for key in ("_whole_heights", "_overviews", "_z_range_blockwise"):
+        grid.__dict__.pop(key, None)
+    grid.__dict__["heights"] = band.band
+    grid.__dict__["_sparse_band"] = band
+    if "_n_valid" not in grid.__dict__:
+        # A store written without the band's figures: counting the points reads it all.
+        return None
+    for index, z in source.stored_lattices(GridPatch.kind):
+        band.seed(index, z)
+    return grid
 
 
 def _band(terrain: Grid) -> np.ndarray:
