@@ -143,8 +143,7 @@ def _sparse_grid(tree: ApproximationTree, terrain: Grid) -> Grid | None:
     if "_n_valid" not in grid.__dict__:
         # A store written without the band's figures: counting the points reads it all.
         return None
-    for index, z in source.stored_lattices(GridPatch.kind):
-        band.seed(index, z)
+    band.seed(list(source.stored_lattices(GridPatch.kind)))
     return grid
 
 

@@ -89,18 +89,26 @@ class SparseBand:
         rows, cols = self.band.shape
         self.read(np.array([[0, rows - 1, 0, cols - 1]]))
 
-    def seed(self, index: np.ndarray, z: np.ndarray) -> None:
-        """Copy a grid patch's stored lattice heights into the band at their points.
+    def seed(self, lattices: list[tuple[np.ndarray, np.ndarray]]) -> None:
+        """Copy grid patches' stored lattice heights into the band at their points.
 
-        index: (6,) int (r0, r1, c0, c1, sr, sc) the patch's lattice (the grid's own indices);
-        z: (kr · kc,) its heights, row-major (stored as float64: the band's values exactly).
+        lattices: (index, z) pairs: index (6,) int (r0, r1, c0, c1, sr, sc) a patch's lattice
+        (the grid's own indices), z (kr · kc,) its heights row-major (stored as float64: the
+        band's values exactly); one scattered assignment for them all.
         """
-        r0, r1, c0, c1, sr, sc = (int(v) for v in index)
-        rows = np.append(np.arange(r0, r1, sr), r1)
-        cols = np.append(np.arange(c0, c1, sc), c1)
-        if len(z) != len(rows) * len(cols):
-            return
-        self.band[np.ix_(rows, cols)] = np.asarray(z).reshape(len(rows), len(cols))
+        rows_all, cols_all, values = [], [], []
+        for index, z in lattices:
+            r0, r1, c0, c1, sr, sc = (int(v) for v in index)
+            rows = np.append(np.arange(r0, r1, sr), r1)
+            cols = np.append(np.arange(c0, c1, sc), c1)
+            if len(z) != len(rows) * len(cols):
+                continue
+            rows_all.append(np.repeat(rows, len(cols)))
+            cols_all.append(np.tile(cols, len(rows)))
+            values.append(np.asarray(z))
+        if values:
+            rr, cc = np.concatenate(rows_all), np.concatenate(cols_all)
+            self.band[rr, cc] = np.concatenate(values)
 
 
 def _runs(want: np.ndarray) -> list[tuple[int, int, int]]:
