@@ -5,12 +5,19 @@ CRS) and inside it; its cells (no data included) replace the terrain's. The tree
 updated in memory (``ApproximationTree.update``: only the nodes the window reaches are
 rebuilt; the kept nodes' patches are one table read from the store's patch arrays, the large
 patches re-measured only in the lattice cells near the window, from the per-cell figures the
-store keeps, ``update_cells``) and written as a new store beside the old one — its terrain
-height chunks and overview chunks that the window misses are hard links to the old store's
-chunk files (``zarr_store.ChunkReuse``), the rest written anew — which is then swapped in with
-one atomic folder exchange (``io.atomic.atomic_directory``): a reader opening the store sees
-the old tree or the new one, never half of each; a writer killed at any point leaves the old
-store (and a temp folder the next write removes) or the new one.
+store keeps, ``update_cells``) and written as a new store beside the old one, which is then
+swapped in with one atomic folder exchange (``io.atomic.atomic_directory``): a reader opening
+the store sees the old tree or the new one, never half of each; a writer killed at any point
+leaves the old store (and a temp folder the next write removes) or the new one.
+
+The terrain of a grid-patch tree is not read whole: its grid holds a sparse band
+(``update_band``) into which the store's height chunks are read as the update asks for them
+(the window, the domains of the nodes rebuilt, the cells around the window of the large
+patches); the coarse patches' records take their lattice heights from the old records (the
+window's points from the edited band), not from the band. The new
+store's chunks that the update leaves unchanged are hard links to the old store's files: the
+height and overview chunks the window misses (``zarr_store.ChunkReuse``), and the chunks of
+the node, patch and per-cell arrays that hold the same bytes (``zarr_store.EqualChunks``).
 """
 
 from __future__ import annotations
@@ -30,6 +37,7 @@ from approxtree.geometry.rect import Rect
 from approxtree.geometry.windowed import WindowedHeights
 from approxtree.patches.grid import GridPatch
 from approxtree.tree.approximation_tree import ApproximationTree
+from approxtree.tree.patch_table import PatchTable
 from approxtree.tree.tree_store import TreeStoreSource, save_tree
 from approxtree.tree.update import TreeUpdate, window_cells
 from approxtree.tree.update_band import SparseBand, read_domains
@@ -86,6 +94,11 @@ def update_store(path: str | os.PathLike, patch: Grid, verify: bool = True) -> T
             f"{text} holds a tree over a {type(terrain).__name__}; only a grid's tree is updated."
         )
     sparse = _sparse_grid(tree, terrain)
+    # The coarse patches' stored lattice heights, by patch index (a sparse band's only).
+    lattices: dict[tuple[int, ...], np.ndarray] = {}
+    if sparse is not None and isinstance(tree._source, TreeStoreSource):
+        for index, z in tree._source.stored_lattices(GridPatch.kind):
+            lattices[tuple(int(v) for v in index)] = z
     if sparse is None:
         # The terrain is read whole: the update edits its cells in memory, then the store is new.
         grid = Grid(
@@ -110,6 +123,8 @@ def update_store(path: str | os.PathLike, patch: Grid, verify: bool = True) -> T
         # The band is not all read: the z range is the root patch's (a zero extreme's sign
         # is the root patch's kernel's, where a scan of the band might find the other zero).
         grid.__dict__["_z_range"] = (float(tree.bboxes[0, 2]), float(tree.bboxes[0, 5]))
+    if sparse is not None:
+        _hand_lattices(tree, sparse, lattices, report.window)
     _hook("updated")
     # The new store links the chunks the update left unchanged to the old store's files.
     r0, r1, c0, c1 = report.window
@@ -143,8 +158,38 @@ def _sparse_grid(tree: ApproximationTree, terrain: Grid) -> Grid | None:
     if "_n_valid" not in grid.__dict__:
         # A store written without the band's figures: counting the points reads it all.
         return None
-    band.seed(list(source.stored_lattices(GridPatch.kind)))
     return grid
+
+
+def _hand_lattices(
+    tree: ApproximationTree,
+    grid: Grid,
+    stored: dict[tuple[int, ...], np.ndarray],
+    window: tuple[int, int, int, int],
+) -> None:
+    """Give each coarse grid patch of the updated tree whose lattice the store holds (same
+    patch index) those heights, its points in the window taken from the edited band, so
+    writing its record gathers nothing from the sparse band; a coarse patch with a new index
+    was built from its domain, which the band read whole."""
+    patches = tree._patches
+    if not isinstance(patches, PatchTable):
+        return
+    band = np.asarray(grid.heights)
+    w0, w1, v0, v1 = window
+    for p in patches.lattice_holders():
+        if type(p) is not GridPatch or p.grid is not grid or not p.stores_lattice:
+            continue
+        rows, cols = p.lines
+        # Grid indices are the full raster's (a sparse grid has no index offset).
+        z = stored.get(tuple(int(v) for v in p.index))
+        if z is None or len(z) != len(rows) * len(cols):
+            continue
+        z = np.array(z, dtype=np.float64).reshape(len(rows), len(cols))
+        ri = np.flatnonzero((rows >= w0) & (rows <= w1))
+        ci = np.flatnonzero((cols >= v0) & (cols <= v1))
+        if len(ri) and len(ci):
+            z[np.ix_(ri, ci)] = band[np.ix_(rows[ri], cols[ci])]
+        p._lattice_z = z
 
 
 def _band(terrain: Grid) -> np.ndarray:

@@ -4,8 +4,7 @@ A store update (``store_update``) edits a window of a terrain it does not read w
 grid's band is an ordinary (rows, cols) numpy array (the kernels need one) allocated but left
 unread, with the store's chunks read into it on demand (``SparseBand.read``) — the window's,
 the domains of the nodes being rebuilt, the cells around the window of the large patches
-(``update_cells``) — and the lattice heights of the coarse patches copied in from their
-stored records (``SparseBand.seed``). Code of the update that reads a domain of the grid first
+(``update_cells``). Code of the update that reads a domain of the grid first
 calls ``read_domains(grid, ranges)``, which does nothing for a grid held whole; anything it
 did not announce holds no defined value, so the update's result is compared with fresh builds
 by the tests (tests/test_store_update*.py).
@@ -35,7 +34,7 @@ class SparseBand:
     """A (rows, cols) band whose source chunks are read once each, when first needed.
 
     band: the (rows, cols) array (source dtype); only the chunks read (``loaded``, one flag
-    per source chunk) and the seeded points hold the terrain's heights.
+    per source chunk) hold the terrain's heights.
     """
 
     def __init__(self, source: BandSource) -> None:
@@ -88,27 +87,6 @@ class SparseBand:
         """Every chunk (a question only the whole band answers)."""
         rows, cols = self.band.shape
         self.read(np.array([[0, rows - 1, 0, cols - 1]]))
-
-    def seed(self, lattices: list[tuple[np.ndarray, np.ndarray]]) -> None:
-        """Copy grid patches' stored lattice heights into the band at their points.
-
-        lattices: (index, z) pairs: index (6,) int (r0, r1, c0, c1, sr, sc) a patch's lattice
-        (the grid's own indices), z (kr · kc,) its heights row-major (stored as float64: the
-        band's values exactly); one scattered assignment for them all.
-        """
-        rows_all, cols_all, values = [], [], []
-        for index, z in lattices:
-            r0, r1, c0, c1, sr, sc = (int(v) for v in index)
-            rows = np.append(np.arange(r0, r1, sr), r1)
-            cols = np.append(np.arange(c0, c1, sc), c1)
-            if len(z) != len(rows) * len(cols):
-                continue
-            rows_all.append(np.repeat(rows, len(cols)))
-            cols_all.append(np.tile(cols, len(rows)))
-            values.append(np.asarray(z))
-        if values:
-            rr, cc = np.concatenate(rows_all), np.concatenate(cols_all)
-            self.band[rr, cc] = np.concatenate(values)
 
 
 def _runs(want: np.ndarray) -> list[tuple[int, int, int]]:
