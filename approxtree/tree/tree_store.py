@@ -133,7 +133,9 @@ def _write_terrain(
     attrs, arrays = terrain.to_record()
     group = root.create_group("terrain", attributes={"kind": terrain.kind, "attrs": attrs})
     grid = getattr(terrain, "grid", terrain)
-    overview = _OverviewTap(grid) if isinstance(grid, Grid) else None
+    # An update's overview is written from the band, not collected: no (values) to fill.
+    update = reuse is not None and isinstance(grid, Grid) and not grid.is_windowed
+    overview = _OverviewTap(grid, collect=not update) if isinstance(grid, Grid) else None
     if overview is not None and max(abs(v) for v in overview.steps) == 1:
         overview = None
     taps = [t for t in (tap, overview) if t is not None]
@@ -143,7 +145,7 @@ def _write_terrain(
             t(*args)
 
     lines: _GridLines | None = None
-    if reuse is not None and isinstance(grid, Grid) and not grid.is_windowed:
+    if update:
         # An update: the heights and the overview chunks the change misses are links, the
         # others read from the (possibly sparse, ``update_band``) band as they are written.
         taps = [t for t in (tap,) if t is not None]
@@ -218,7 +220,7 @@ class _GridLines:
 class _OverviewTap:
     """Collects ``heights[::rs, ::cs]`` (the grid's overview steps) from the slabs streamed past."""
 
-    def __init__(self, grid: Any) -> None:
+    def __init__(self, grid: Any, collect: bool = True) -> None:
         self.steps = grid.overview_steps()
         rows, cols = grid.shape
         rs, cs = self.steps
@@ -230,7 +232,9 @@ class _OverviewTap:
         self.col_at = np.full(cols, -1, dtype=np.int64)
         self.col_at[self.cols] = np.arange(len(self.cols))
         dtype = np.float64 if grid.heights.dtype == np.float64 else np.float32
-        self.values = np.full((len(self.rows), len(self.cols)), np.nan, dtype=dtype)
+        # collect False: only the line lookups (``reuse``), no values collected.
+        shape = (len(self.rows), len(self.cols)) if collect else (0, 0)
+        self.values = np.full(shape, np.nan, dtype=dtype)
 
     def reuse(self, heights: ChunkReuse) -> ChunkReuse:
         """The overview's chunks to link to an old store's: those holding no changed height

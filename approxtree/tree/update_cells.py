@@ -37,10 +37,11 @@ from approxtree.tree.update_band import read_domains
 #: around an edit (one thread) cost less than a whole re-measure by the build's kernel.
 LARGE_POINTS = 1 << 20
 
-#: Data points from which a build measures a level's large patches per cell (4096² and
-#: more: few patches of large cells, as fast as the whole-patch kernel); the smaller large
+#: Data points from which a build measures a level's large patches per cell (2048² and
+#: more: few patches of large cells, about as fast as the whole-patch kernel, and a store
+#: update's first edit in an area then re-measures no 2048² patch whole); the smaller large
 #: patches get their cells when an update first reaches them (then kept, and saved).
-BUILD_POINTS = 1 << 24
+BUILD_POINTS = 1 << 22
 
 #: Points of a re-measure below which it runs on one thread.
 SERIAL_POINTS = 1 << 20
