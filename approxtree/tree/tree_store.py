@@ -145,13 +145,14 @@ def _write_terrain(
             t(*args)
 
     lines: _GridLines | None = None
-    if update:
+    lines_reuse: ChunkReuse | None = None
+    if update and isinstance(grid, Grid) and reuse is not None:
         # An update: the heights and the overview chunks the change misses are links, the
         # others read from the (possibly sparse, ``update_band``) band as they are written.
         taps = [t for t in (tap,) if t is not None]
         if overview is not None:
             lines = _GridLines(grid, overview.steps)
-            linked = overview.reuse(reuse)
+            lines_reuse = overview.reuse(reuse)
             overview = None
     for name, a in arrays.items():
         if name == "heights" and regions is not None:
@@ -177,7 +178,7 @@ def _write_terrain(
             write_array(group, name, np.asarray(a))
     if lines is not None and reuse is not None:
         arr = write_array(
-            group, "overview", lines, chunks=(HEIGHT_CHUNK, HEIGHT_CHUNK), reuse=linked
+            group, "overview", lines, chunks=(HEIGHT_CHUNK, HEIGHT_CHUNK), reuse=lines_reuse
         )
         arr.attrs.update({"row_step": lines.steps[0], "col_step": lines.steps[1]})
     if overview is not None:

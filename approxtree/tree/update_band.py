@@ -91,7 +91,7 @@ class SparseBand:
 
 def _runs(want: np.ndarray) -> list[tuple[int, int, int]]:
     """(chunk row, first, last) of each run of wanted chunks along a chunk row."""
-    out = []
+    out: list[tuple[int, int, int]] = []
     for i in np.flatnonzero(want.any(axis=1)).tolist():
         js = np.flatnonzero(want[i])
         breaks = np.flatnonzero(np.diff(js) > 1)
