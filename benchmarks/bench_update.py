@@ -23,15 +23,15 @@ against edit size, one line per terrain size).
     python benchmarks/bench_update.py [--size 8192] [--edits 64 128 256 512 1024 2048]
         [--repeats 3] [--epsilon 1.0] [--warmup 96]
     python benchmarks/bench_update.py --pyramid [--sizes 2048 4096 8192] [--edits ...]
-    python benchmarks/bench_update.py --store [--size 8192]
+    python benchmarks/bench_update.py --store [--sizes 4096 8192] [--edits 64 256 1024]
 
 --store times ``approxtree update``'s work on a folder store (``store_update.update_store``:
-load, update, write the new store, swap) for a 256² patch, against a full build + save of the
-terrain, --repeats times interleaved (medians): "cells", a built store (its per-cell figures
-saved, unchanged chunks hard-linked); "whole", the same with every chunk written; "old", a
-store without per-cell figures (written before they were saved). The build is timed with and
-without measuring the per-cell figures, interleaved. Results in
-benchmarks/results/update_store_<size>.json.
+load, read the chunks it needs, update, write the new store linking unchanged chunks, swap):
+for each terrain side of --sizes (or --size), --repeats times a full build + save of a
+fractal, each followed by one update of each edit size (--edits) at a random place, so each
+update is compared with the build + save next to it on a shared host; the ratio is
+update / (build + save), medians reported per edit size with the load average. Results in
+benchmarks/results/update_store_<size>.json and .png.
 """
 
 from __future__ import annotations
@@ -221,53 +221,24 @@ def pyramid_main(args: argparse.Namespace) -> None:
 
 
 def store_main(args: argparse.Namespace) -> None:
-    """Store updates of a 256² patch against a full build + save (module doc)."""
-    import shutil
+    """Store updates against a full build + save, per terrain size (module doc)."""
     import tempfile
 
     from approxtree.datasets import fractal_terrain
     from approxtree.geometry.grid import Grid
-    from approxtree.tree import builder, store_update
+    from approxtree.tree import store_update
     from approxtree.tree.approximation_tree import ApproximationTree
 
     work = Path(tempfile.mkdtemp(dir=args.work))
-    grid = fractal_terrain(args.size, args.size, seed=1)
     # Warm-up: compile the build's, the update's and the store's kernels on a small grid.
     small = fractal_terrain(1025, 1025, seed=2)
     ApproximationTree.build(small, epsilon=args.epsilon).save(work / "warm.zarr")
     warm = Grid(np.zeros((4, 4)), small.transform, index_offset=(5, 5), allow_empty=True)
     store_update.update_store(work / "warm.zarr", warm, verify=False)
-    # Builds with and without the per-cell figures, interleaved (the host is shared).
-    whole_grid = builder._whole_grid
-    builds: dict[str, list[float]] = {"cells": [], "plain": []}
-    saves: list[float] = []
-    for _ in range(args.repeats):
-        for kind in ("plain", "cells"):
-            builder._whole_grid = whole_grid if kind == "cells" else (lambda terrain: False)
-            t0 = time.perf_counter()
-            tree = ApproximationTree.build(grid, epsilon=args.epsilon)
-            builds[kind].append(time.perf_counter() - t0)
-        builder._whole_grid = whole_grid
-        t0 = time.perf_counter()
-        tree.save(work / "full.zarr")
-        saves.append(time.perf_counter() - t0)
-    build_s = statistics.median(builds["cells"])
-    save_s = statistics.median(saves)
-    print(
-        f"full build {build_s:.2f} s (without per-cell figures "
-        f"{statistics.median(builds['plain']):.2f} s) + save {save_s:.2f} s (medians)",
-        flush=True,
-    )
-    # The stores: one with cells (updated again and again: each update loads it afresh), and
-    # one without (a store written before cells/ existed), copied afresh for each update.
-    shutil.copytree(work / "full.zarr", work / "cells.zarr")
-    shutil.copytree(work / "full.zarr", work / "whole.zarr")
-    tree.__dict__.pop("_cell_cache", None)
-    tree.save(work / "old.zarr")
-    rng = np.random.default_rng(0)
+    sizes = args.sizes if args.sizes != [2048, 4096, 8192] else [args.size]
     # The store write inside each update is timed on its own.
     writes: list[float] = []
-    plain_save, plain_reuse = store_update.save_tree, store_update.ChunkReuse
+    plain_save = store_update.save_tree
 
     def timed_save(*a: object) -> int:
         t = time.perf_counter()
@@ -276,75 +247,104 @@ def store_main(args: argparse.Namespace) -> None:
         finally:
             writes.append(time.perf_counter() - t)
 
-    store_update.save_tree = timed_save  # type: ignore[assignment]
-    rows = []
-    try:
-        for _ in range(args.repeats):
-            for variant in ("cells", "whole", "old"):
-                store = work / f"{variant}.zarr"
-                if variant == "old":
-                    shutil.rmtree(work / "old_copy.zarr", ignore_errors=True)
-                    shutil.copytree(store, work / "old_copy.zarr")
-                    store = work / "old_copy.zarr"
-                r0, c0 = (int(v) for v in rng.integers(0, args.size - 256 + 1, 2))
-                pit = np.array(grid.heights[r0 : r0 + 256, c0 : c0 + 256]) - 20.0
+    rng = np.random.default_rng(0)
+    for size in sizes:
+        grid = fractal_terrain(size, size, seed=1)
+        store = work / f"store_{size}.zarr"
+        builds: list[float] = []
+        saves: list[float] = []
+        rows = []
+        for repeat in range(args.repeats):
+            # A full build + save, then one update of each edit size (interleaved: the host
+            # is shared, so each update is compared with the build + save next to it).
+            t0 = time.perf_counter()
+            tree = ApproximationTree.build(grid, epsilon=args.epsilon)
+            builds.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            tree.save(store)
+            saves.append(time.perf_counter() - t0)
+            full = builds[-1] + saves[-1]
+            for edit in args.edits:
+                if edit > size:
+                    continue
+                r0, c0 = (int(v) for v in rng.integers(0, size - edit + 1, 2))
+                pit = np.array(grid.heights[r0 : r0 + edit, c0 : c0 + edit]) - 20.0
                 window = Grid(pit, grid.transform, index_offset=(r0, c0), allow_empty=True)
-                # "whole": a reuse that links nothing (every chunk written).
-                store_update.ChunkReuse = (
-                    (lambda old, changed: None)  # type: ignore[assignment]
-                    if variant == "whole"
-                    else plain_reuse
-                )
-                t0 = time.perf_counter()
-                report = store_update.update_store(store, window, verify=False)
-                seconds = time.perf_counter() - t0
+                store_update.save_tree = timed_save  # type: ignore[assignment]
+                try:
+                    t0 = time.perf_counter()
+                    report = store_update.update_store(store, window, verify=False)
+                    seconds = time.perf_counter() - t0
+                finally:
+                    store_update.save_tree = plain_save
                 row = {
-                    "variant": variant,
+                    "repeat": repeat,
+                    "edit": edit,
                     "seconds": seconds,
                     "tree_update_seconds": report.seconds,
                     "write_seconds": writes[-1],
                     "load_seconds": seconds - report.seconds - writes[-1],
-                    "ratio": seconds / (build_s + save_s),
+                    "build_save_seconds": full,
+                    "ratio": seconds / full,
+                    "rebuilt": len(report.rebuilt),
                 }
                 rows.append(row)
                 print(
-                    f"store update ({variant}): {seconds:.2f} s = load + read "
-                    f"{row['load_seconds']:.2f} + tree update {report.seconds:.2f} + write "
-                    f"{writes[-1]:.2f} s; "
-                    f"{100 * row['ratio']:.1f} % of build + save",
+                    f"{size}² store, {edit}² edit: {seconds:.3f} s = load + read "
+                    f"{row['load_seconds']:.3f} + tree update {report.seconds:.3f} + write "
+                    f"{writes[-1]:.3f} s; {100 * row['ratio']:.2f} % of build + save "
+                    f"{full:.2f} s",
                     flush=True,
                 )
-    finally:
-        store_update.save_tree, store_update.ChunkReuse = plain_save, plain_reuse
-    medians = {}
-    for variant in ("cells", "whole", "old"):
-        mine = [r for r in rows if r["variant"] == variant]
-        medians[variant] = {
-            key: statistics.median(r[key] for r in mine)
-            for key in ("seconds", "load_seconds", "tree_update_seconds", "write_seconds", "ratio")
+        medians = {}
+        for edit in sorted({r["edit"] for r in rows}):
+            mine = [r for r in rows if r["edit"] == edit]
+            keys = ("seconds", "load_seconds", "tree_update_seconds", "write_seconds", "ratio")
+            m = {key: statistics.median(r[key] for r in mine) for key in keys}
+            medians[str(edit)] = m
+            print(
+                f"median {size}², {edit}²: {m['seconds']:.3f} s ({100 * m['ratio']:.2f} %): "
+                f"load + read {m['load_seconds']:.3f}, tree update "
+                f"{m['tree_update_seconds']:.3f}, write {m['write_seconds']:.3f}",
+                flush=True,
+            )
+        out = {
+            "size": size,
+            "epsilon": args.epsilon,
+            "build_seconds": statistics.median(builds),
+            "build_all_seconds": builds,
+            "save_seconds": statistics.median(saves),
+            "save_all_seconds": saves,
+            "load_average": list(os.getloadavg()),
+            "updates": rows,
+            "medians": medians,
         }
-        m = medians[variant]
-        print(
-            f"median {variant}: {m['seconds']:.2f} s ({100 * m['ratio']:.1f} %): load + read "
-            f"{m['load_seconds']:.2f}, tree update {m['tree_update_seconds']:.2f}, write "
-            f"{m['write_seconds']:.2f}",
-            flush=True,
-        )
-    out = {
-        "size": args.size,
-        "build_seconds": build_s,
-        "build_all_seconds": builds["cells"],
-        "build_without_cells_all_seconds": builds["plain"],
-        "save_seconds": save_s,
-        "save_all_seconds": saves,
-        "load_average": list(os.getloadavg()),
-        "updates": rows,
-        "medians": medians,
-    }
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    path = RESULTS / f"update_store_{args.size}.json"
-    path.write_text(json.dumps(out, indent=2))
-    print(f"wrote {path}")
+        RESULTS.mkdir(parents=True, exist_ok=True)
+        path = RESULTS / f"update_store_{size}.json"
+        path.write_text(json.dumps(out, indent=2))
+        plot_store(out, path.with_suffix(".png"))
+        print(f"wrote {path}", flush=True)
+
+
+def plot_store(out: dict, path: Path) -> None:
+    """Store update time as a share of build + save against edit side (medians)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    edits = sorted(int(e) for e in out["medians"])
+    shares = [100 * out["medians"][str(e)]["ratio"] for e in edits]
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.loglog(edits, shares, "o-", label="approxtree update (store)")
+    ax.axhline(5.0, color="r", ls=":", label="5 % of build + save")
+    ax.set_xscale("log", base=2)
+    ax.set_xlabel("edit side (cells)")
+    ax.set_ylabel("store update / (build + save) (%)")
+    ax.set_title(f"store update on a {out['size']}² fractal (ε = {out['epsilon']})")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
 
 
 def plot_rebake(out: dict, path: Path) -> None:

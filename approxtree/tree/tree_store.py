@@ -41,6 +41,8 @@ in together are stored together.
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -54,9 +56,11 @@ from approxtree.geometry.windowed import WindowedHeights
 from approxtree.patches.grid import GridPatch, GridPatchArrays
 from approxtree.patches.records import Batch, take
 from approxtree.tree.patch_table import PatchTable
+from approxtree.tree.update_band import read_domains
 from approxtree.tree.zarr_store import (
     HEIGHT_CHUNK,
     ChunkReuse,
+    EqualChunks,
     StoreReader,
     ZarrHeightSource,
     is_url,
@@ -129,7 +133,9 @@ def _write_terrain(
     attrs, arrays = terrain.to_record()
     group = root.create_group("terrain", attributes={"kind": terrain.kind, "attrs": attrs})
     grid = getattr(terrain, "grid", terrain)
-    overview = _OverviewTap(grid) if isinstance(grid, Grid) else None
+    # An update's overview is written from the band, not collected: no (values) to fill.
+    update = reuse is not None and isinstance(grid, Grid) and not grid.is_windowed
+    overview = _OverviewTap(grid, collect=not update) if isinstance(grid, Grid) else None
     if overview is not None and max(abs(v) for v in overview.steps) == 1:
         overview = None
     taps = [t for t in (tap, overview) if t is not None]
@@ -138,9 +144,27 @@ def _write_terrain(
         for t in taps:
             t(*args)
 
+    lines: _GridLines | None = None
+    lines_reuse: ChunkReuse | None = None
+    if update and isinstance(grid, Grid) and reuse is not None:
+        # An update: the heights and the overview chunks the change misses are links, the
+        # others read from the (possibly sparse, ``update_band``) band as they are written.
+        taps = [t for t in (tap,) if t is not None]
+        if overview is not None:
+            lines = _GridLines(grid, overview.steps)
+            lines_reuse = overview.reuse(reuse)
+            overview = None
     for name, a in arrays.items():
         if name == "heights" and regions is not None:
             regions.move_into(group, name)
+        elif name == "heights" and reuse is not None and not taps and isinstance(grid, Grid):
+            write_array(
+                group,
+                name,
+                _GridLines(grid, (1, 1)),
+                chunks=(HEIGHT_CHUNK, HEIGHT_CHUNK),
+                reuse=reuse,
+            )
         elif name == "heights":
             write_array(
                 group,
@@ -152,6 +176,11 @@ def _write_terrain(
             )
         else:
             write_array(group, name, np.asarray(a))
+    if lines is not None and reuse is not None:
+        arr = write_array(
+            group, "overview", lines, chunks=(HEIGHT_CHUNK, HEIGHT_CHUNK), reuse=lines_reuse
+        )
+        arr.attrs.update({"row_step": lines.steps[0], "col_step": lines.steps[1]})
     if overview is not None:
         values = overview.values if regions is None else regions.overview(overview)
         # Its chunks that the changed heights miss are links too (the same chunking).
@@ -162,10 +191,37 @@ def _write_terrain(
         arr.attrs.update({"row_step": overview.steps[0], "col_step": overview.steps[1]})
 
 
+class _GridLines:
+    """``heights[::rs, ::cs]`` of an in-memory grid as a 2-D array-like read by slices, each
+    read announced first (``update_band.read_domains``: a sparse band reads its chunks).
+
+    shape: (0,) when there is nothing to write (no overview); dtype: float64 or float32.
+    """
+
+    def __init__(self, grid: Grid, steps: tuple[int, int]) -> None:
+        self.grid = grid
+        self.steps = steps
+        rows, cols = grid.shape
+        self.rows = np.arange(rows)[:: steps[0]]
+        self.cols = np.arange(cols)[:: steps[1]]
+        self.shape: tuple[int, ...] = (len(self.rows), len(self.cols))
+        self.dtype = np.dtype(np.float64 if grid.heights.dtype == np.float64 else np.float32)
+
+    def __getitem__(self, key: tuple[slice, slice]) -> np.ndarray:
+        rr, cc = self.rows[key[0]], self.cols[key[1]]
+        if not len(rr) or not len(cc):
+            return np.empty((len(rr), len(cc)), dtype=self.dtype)
+        read_domains(self.grid, np.array([[rr.min(), rr.max(), cc.min(), cc.max()]]))
+        heights = self.grid.heights
+        if tuple(self.steps) == (1, 1):
+            return np.asarray(heights[rr[0] : rr[-1] + 1, cc[0] : cc[-1] + 1], dtype=self.dtype)
+        return np.asarray(heights[np.ix_(rr, cc)], dtype=self.dtype)
+
+
 class _OverviewTap:
     """Collects ``heights[::rs, ::cs]`` (the grid's overview steps) from the slabs streamed past."""
 
-    def __init__(self, grid: Any) -> None:
+    def __init__(self, grid: Any, collect: bool = True) -> None:
         self.steps = grid.overview_steps()
         rows, cols = grid.shape
         rs, cs = self.steps
@@ -177,7 +233,9 @@ class _OverviewTap:
         self.col_at = np.full(cols, -1, dtype=np.int64)
         self.col_at[self.cols] = np.arange(len(self.cols))
         dtype = np.float64 if grid.heights.dtype == np.float64 else np.float32
-        self.values = np.full((len(self.rows), len(self.cols)), np.nan, dtype=dtype)
+        # collect False: only the line lookups (``reuse``), no values collected.
+        shape = (len(self.rows), len(self.cols)) if collect else (0, 0)
+        self.values = np.full(shape, np.nan, dtype=dtype)
 
     def reuse(self, heights: ChunkReuse) -> ChunkReuse:
         """The overview's chunks to link to an old store's: those holding no changed height
@@ -292,19 +350,32 @@ def _read_terrain(reader: StoreReader) -> GeometryData:
 # -- patches -----------------------------------------------------------------------------------
 
 
-def _write_batch(group: Any, batch: Batch) -> dict[str, int | None]:
-    """Each field as a (k, width) table when fixed-width, else flat data plus offsets."""
+def _write_batch(group: Any, batch: Batch, old: EqualChunks | None = None) -> dict[str, int | None]:
+    """Each field as a (k, width) table when fixed-width, else flat data plus offsets.
+
+    old: the old store's group of these records (an update), whose chunks holding the same
+    bytes are linked (``EqualChunks``).
+    """
+
+    def same(name: str) -> EqualChunks | None:
+        return EqualChunks(old.old / name) if old is not None else None
+
     fields: dict[str, int | None] = {}
     for name, (flat, offsets) in batch.items():
         lengths = np.diff(offsets)
         k = len(lengths)
         if k and (lengths == lengths[0]).all() and lengths[0] > 0:
             width = int(lengths[0])
-            write_array(group, name, np.asarray(flat).reshape(k, width))
+            write_array(group, name, np.asarray(flat).reshape(k, width), reuse=same(name))
             fields[name] = width
         else:
-            write_array(group, f"{name}_data", np.asarray(flat))
-            write_array(group, f"{name}_offsets", np.asarray(offsets, dtype="<i8"))
+            write_array(group, f"{name}_data", np.asarray(flat), reuse=same(f"{name}_data"))
+            write_array(
+                group,
+                f"{name}_offsets",
+                np.asarray(offsets, dtype="<i8"),
+                reuse=same(f"{name}_offsets"),
+            )
             fields[name] = None
     return fields
 
@@ -342,24 +413,37 @@ def save_tree(
         _write_terrain(root, tree.terrain, tap, reuse, regions)
         if tap is not None:
             tap.finish()
+        # An update's other arrays link their chunks that hold the old store's bytes.
+        old = Path(path) if reuse is not None else None
+
+        def same(part: str) -> EqualChunks | None:
+            return EqualChunks(old / part) if old is not None else None
+
         patches = root.create_group("patches")
         for s, name in enumerate(tree.strategy_names):
             nodes = order[tree.strategies[order] == s]
             slot[nodes] = np.arange(len(nodes))
             group = patches.create_group(name)
-            write_array(group, "node", nodes.astype("<i8"))
-            fields = _write_batch(group, tree.patch_records(nodes, name))
+            base = f"patches/{name}"
+            write_array(group, "node", nodes.astype("<i8"), reuse=same(f"{base}/node"))
+            batch = tree.patch_records(nodes, name)
+            fields = _write_batch(group, batch, same(base) if old is not None else None)
             group.attrs.update({"count": len(nodes), "fields": fields})
         group = root.create_group("nodes")
         for name in NODE_ARRAYS:
-            write_array(group, name, np.asarray(getattr(tree, name)))
-        write_array(group, "patch_slot", slot)
-        _write_cells(root, tree)
+            write_array(group, name, np.asarray(getattr(tree, name)), reuse=same(f"nodes/{name}"))
+        write_array(group, "patch_slot", slot, reuse=same("nodes/patch_slot"))
+        _write_cells(root, tree, old)
     return store_bytes(path)
 
 
-def _write_cells(root: Any, tree: ApproximationTree) -> None:
-    """The ``cells/`` group of a grid tree that holds per-cell figures (layout above)."""
+def _write_cells(root: Any, tree: ApproximationTree, old: Path | None = None) -> None:
+    """The ``cells/`` group of a grid tree that holds per-cell figures (layout above); old:
+    the old store of an update, whose chunks holding the same bytes are linked."""
+
+    def same(name: str) -> EqualChunks | None:
+        return EqualChunks(old / "cells" / name) if old is not None else None
+
     cache = tree.__dict__.get("_cell_cache")
     grid = tree.terrain
     if cache is None or not cache.entries or not isinstance(grid, Grid):
@@ -371,11 +455,12 @@ def _write_cells(root: Any, tree: ApproximationTree) -> None:
     start = np.zeros(len(keys) + 1, dtype="<i8")
     np.cumsum([e[0].size for e in entries], out=start[1:])
     group = root.create_group("cells", attributes={"count": len(keys)})
-    write_array(group, "index", np.array(keys, dtype="<i8").reshape(-1, 6))
-    write_array(group, "start", start)
+    write_array(group, "index", np.array(keys, dtype="<i8").reshape(-1, 6), reuse=same("index"))
+    write_array(group, "start", start, reuse=same("start"))
     dtypes = ("<f8", "<f8", "<f8", "<i8", "u1")
     for f, (name, dtype) in enumerate(zip(CELL_FIELDS, dtypes, strict=True)):
-        write_array(group, name, np.concatenate([np.ravel(e[f]) for e in entries]).astype(dtype))
+        values = np.concatenate([np.ravel(e[f]) for e in entries]).astype(dtype)
+        write_array(group, name, values, reuse=same(name))
 
 
 #: The per-cell figures of ``update_cells.CellCache``, in its order.
@@ -535,6 +620,24 @@ class TreeStoreSource:
         slots = self._where()[1][nodes]
         same = np.array_equal(slots, np.arange(len(nodes)))
         return batch if same else take(batch, slots)
+
+    def stored_lattices(self, strategy: str) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        """(index (6,) int64, z (kr · kc,) float64) of every record of ``strategy`` (grid
+        patches) that carries its lattice heights (the coarse ones), in slot order."""
+        fields = self.fields(strategy)
+        if fields.get("index") != 6 or "z" not in fields or fields["z"] is not None:
+            return
+        base = f"patches/{strategy}"
+        off = self._offsets_of(f"{base}/z_offsets")
+        lengths = np.diff(off)
+        slots = np.flatnonzero(lengths > 0)
+        if not len(slots):
+            return
+        index = self.reader.read(f"{base}/index").astype(np.int64)
+        data = self.reader.read_rows(f"{base}/z_data", int(off[slots[0]]), int(off[slots[-1] + 1]))
+        base_off = int(off[slots[0]])
+        for s in slots.tolist():
+            yield index[s], data[int(off[s]) - base_off : int(off[s + 1]) - base_off]
 
     def grid_table(self, grid: Grid, rects: np.ndarray) -> GridPatchArrays | None:
         """The grid patches of every node over ``grid`` (the stored terrain, or an in-memory

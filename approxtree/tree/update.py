@@ -35,6 +35,7 @@ from approxtree.tree.patch_table import PatchTable
 from approxtree.tree.policy import StrategyPolicy
 from approxtree.tree.subdivision import subdivide_level
 from approxtree.tree.tree_store import TreeStoreSource
+from approxtree.tree.update_band import read_domains
 from approxtree.tree.update_cells import CellCache
 
 if TYPE_CHECKING:
@@ -207,6 +208,7 @@ def _prebuild(
     ids = ids[points < update_cells.LARGE_POINTS]
     if not len(ids):
         return None
+    read_domains(grid, r[points < update_cells.LARGE_POINTS])
     levels = tree.levels[ids]
     for lv in np.unique(levels).tolist():
         groups = policy.candidates_level(grid, int(lv), tree.rects[ids[levels == lv]])
@@ -277,6 +279,7 @@ def _build_need(
             parts.append((large, cells.build(grid, wanted[large], max_points, window)))
             left &= ~large
     if left.any():
+        read_domains(grid, grid.index_ranges(wanted[left]))
         parts.append((left, _build_level(grid, policy, level, wanted[left], max_points, eps)))
     if len(parts) == 1:
         return parts[0][1]

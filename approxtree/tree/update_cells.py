@@ -31,15 +31,17 @@ from approxtree.geometry.rect import Rect
 from approxtree.kernels.grid_cells import grid_patch_cells, grid_patch_cells_many
 from approxtree.patches.grid import GridPatch, GridPatchArrays
 from approxtree.tree.policy import StrategyPolicy
+from approxtree.tree.update_band import read_domains
 
 #: Data points from which a node's grid patch is measured per cell (1024² and more): the cells
 #: around an edit (one thread) cost less than a whole re-measure by the build's kernel.
 LARGE_POINTS = 1 << 20
 
-#: Data points from which a build measures a level's large patches per cell (4096² and
-#: more: few patches of large cells, as fast as the whole-patch kernel); the smaller large
+#: Data points from which a build measures a level's large patches per cell (2048² and
+#: more: few patches of large cells, about as fast as the whole-patch kernel, and a store
+#: update's first edit in an area then re-measures no 2048² patch whole); the smaller large
 #: patches get their cells when an update first reaches them (then kept, and saved).
-BUILD_POINTS = 1 << 24
+BUILD_POINTS = 1 << 22
 
 #: Points of a re-measure below which it runs on one thread.
 SERIAL_POINTS = 1 << 20
@@ -92,11 +94,14 @@ class CellCache:
         keys: list[Index] = [tuple(idx) for idx in index.tolist()]
         new = [key for key in dict.fromkeys(keys) if key not in self.entries]
         if new:
+            read_domains(grid, np.array([key[:4] for key in new]))
             self._measure(heights, new)
         exact: list[int] = []
         for i, key in enumerate(keys):
             fresh = key in new
-            e, lo, hi, c, zeros = self.entries[key] if fresh else self._cells(heights, key, window)
+            e, lo, hi, c, zeros = (
+                self.entries[key] if fresh else self._cells(grid, heights, key, window)
+            )
             self.touched.add(key)
             error[i], count[i] = e.max(), c.sum()
             lo_v, hi_v = lo.min(), hi.max()
@@ -106,6 +111,7 @@ class CellCache:
             zmin[i] = lo_v if count[i] > 0 else np.nan
             zmax[i] = hi_v if count[i] > 0 else np.nan
         if exact:
+            read_domains(grid, index[exact, :4])
             ref = GridPatch.build_level_arrays(grid, rects[exact], max_points)
             zmin[exact], zmax[exact] = ref.zmin, ref.zmax
         return GridPatchArrays(
@@ -127,7 +133,7 @@ class CellCache:
             self.entries[key] = tuple(f[a:b].reshape(shape) for f in figures)
 
     def _cells(
-        self, heights: np.ndarray, index: Index, window: tuple[int, int, int, int]
+        self, grid: Grid, heights: np.ndarray, index: Index, window: tuple[int, int, int, int]
     ) -> tuple[np.ndarray, ...]:
         """The per-cell figures of one held patch, measured again where the window is."""
         r0, r1, c0, c1, sr, sc = index
@@ -137,6 +143,10 @@ class CellCache:
         k0, k1 = _cell_span(window[0], window[1], r0, r1, sr, nbr)
         j0, j1 = _cell_span(window[2], window[3], c0, c1, sc, nbc)
         if k0 <= k1 and j0 <= j1:
+            # The kernel reads the points of these cells and their corners' lattice heights.
+            span = [r0 + k0 * sr, min(r1, r0 + (k1 + 1) * sr)]
+            span += [c0 + j0 * sc, min(c1, c0 + (j1 + 1) * sc)]
+            read_domains(grid, np.array([span]))
             lattice = np.ascontiguousarray(heights[np.ix_(*_lines(index))])
             # A few cells: one thread (waking a pool costs more than the work on a busy host).
             points = (min(r1, r0 + (k1 + 1) * sr) - r0 - k0 * sr + 1) * (

@@ -173,12 +173,82 @@ class ChunkReuse:
         return link
 
 
+def _chunk_bytes(path: Path, size: int) -> bytes | None:
+    """The first ``size`` decoded bytes of a chunk file written with ``codecs`` (blosc frame,
+    then its crc32c), None when it cannot be read or its checksum fails."""
+    import crc32c
+    from numcodecs import blosc
+
+    try:
+        data = path.read_bytes()
+        if len(data) < 4 or crc32c.crc32c(data[:-4]) != int.from_bytes(data[-4:], "little"):
+            return None
+        return bytes(blosc.decompress(data[:-4]))[:size]
+    except (OSError, RuntimeError, ValueError):
+        return None
+
+
 def _array_doc(folder: Path) -> dict[str, Any]:
     """An array's metadata document without its attributes (set after the chunks are written,
     and not part of the chunks' encoding)."""
     doc = json.loads((folder / "zarr.json").read_bytes())
     doc.pop("attributes", None)
     return dict(doc)
+
+
+class EqualChunks:
+    """The chunks of an array (split along axis 0 only) that a new folder store takes from an
+    old one's array of the same name by hard link, where they hold the same bytes.
+
+    old: the old store's array folder (e.g. STORE/nodes/errors). A chunk is linked when the
+    old array's metadata (its shape and attributes aside) is the new one's and its rows of
+    the old array are bitwise the new rows (a partial last chunk only at the same length);
+    the old array is read whole to compare. Nothing is linked across file systems, or when
+    the old array is missing or unreadable.
+    """
+
+    def __init__(self, old: str | os.PathLike) -> None:
+        self.old = Path(old)
+        #: Chunks linked by the last write.
+        self.linked = 0
+
+    def linked_chunks(self, arr: Any, values: np.ndarray) -> np.ndarray | None:
+        """(chunks,) bool: the chunks of the new ``arr`` (holding ``values``) now linked to
+        the old array's files; None when nothing can be."""
+        root = getattr(arr.store, "root", None)
+        if root is None or not len(values):
+            return None
+        new = Path(root) / arr.path
+        try:
+            old_doc, new_doc = _array_doc(self.old), _array_doc(new)
+        except (OSError, ValueError):
+            return None
+        n_old = int(old_doc.pop("shape", [0])[0])
+        new_doc.pop("shape", None)
+        if old_doc != new_doc:
+            return None
+        rows = int(arr.chunks[0])
+        n_new = len(values)
+        out = np.zeros(-(-n_new // rows), dtype=bool)
+        key = "/".join("0" for _ in values.shape[1:])
+        for i in range(len(out)):
+            a = i * rows
+            b = min(n_new, a + rows)
+            if b != min(n_old, a + rows) or a >= n_old:
+                continue
+            name = f"{i}/{key}" if key else str(i)
+            mine = values[a:b].tobytes()
+            if _chunk_bytes(self.old / "c" / name, len(mine)) != mine:
+                continue
+            target = new / "c" / name
+            try:
+                target.parent.mkdir(parents=True, exist_ok=True)
+                os.link(self.old / "c" / name, target)
+            except OSError:
+                continue
+            out[i] = True
+        self.linked += int(out.sum())
+        return out
 
 
 def new_array(
@@ -204,7 +274,7 @@ def write_array(
     data: Any,
     chunks: tuple[int, ...] | None = None,
     tap: Any = None,
-    reuse: ChunkReuse | None = None,
+    reuse: ChunkReuse | EqualChunks | None = None,
 ) -> Any:
     """Create ``group/name`` and fill it from ``data`` (an ndarray, or any 2-D array-like with
     ``shape``, ``dtype`` and slicing when ``chunks`` is given: then written block by block).
@@ -212,7 +282,8 @@ def write_array(
     tap: called as ``tap(r0, r1, c0, c1, values)`` with every 2-D slab written (half-open
     ranges), for a caller that wants to see the data once as it streams past. reuse: the
     chunks of a 2-D array that are hard links to an old store's chunk files instead of being
-    written (``ChunkReuse``; a folder store only).
+    written (``ChunkReuse``; a folder store only), or the chunks of an array chunked along
+    axis 0 that hold the old array's bytes (``EqualChunks``).
     """
     shape = tuple(int(s) for s in data.shape)
     dtype = np.dtype(data.dtype).newbyteorder("<")
@@ -221,6 +292,9 @@ def write_array(
         chunks = _row_chunks(shape, dtype.itemsize)
     arr = new_array(group, name, shape, dtype, chunks)
     if not math.prod(shape):
+        return arr
+    if isinstance(reuse, EqualChunks):
+        _write_unlinked(arr, np.asarray(data, dtype=dtype), reuse)
         return arr
     if (isinstance(data, np.ndarray) and tap is None and reuse is None) or len(shape) != 2:
         arr[...] = np.asarray(data)
@@ -238,13 +312,21 @@ def write_array(
 
     def copy(slab: tuple[int, int, int, int]) -> None:
         r0, r1, c0, c1 = slab
+        if linker is not None and tap is None:
+            # Chunk by chunk: an unchanged chunk is a hard link to the old store's file, and
+            # only the others are read from the source.
+            for a in range(r0, r1, chunks[0]):
+                for b in range(c0, c1, chunks[1]):
+                    if not linker(a // chunks[0], b // chunks[1]):
+                        a1, b1 = min(r1, a + chunks[0]), min(c1, b + chunks[1])
+                        arr[a:a1, b:b1] = np.asarray(data[a:a1, b:b1])
+            return
         values = np.asarray(data[r0:r1, c0:c1])
         if tap is not None:
             tap(r0, r1, c0, c1, values)
         if linker is None:
             arr[r0:r1, c0:c1] = values
             return
-        # Chunk by chunk: an unchanged chunk is a hard link to the old store's file.
         for a in range(r0, r1, chunks[0]):
             for b in range(c0, c1, chunks[1]):
                 if not linker(a // chunks[0], b // chunks[1]):
@@ -264,6 +346,27 @@ def write_array(
         for start in range(0, len(slabs), 2 * threads):
             list(pool.map(copy, slabs[start : start + 2 * threads]))
     return arr
+
+
+def _write_unlinked(arr: Any, values: np.ndarray, reuse: EqualChunks) -> None:
+    """Fill ``arr`` (chunked along axis 0) from ``values``: the chunks equal to the old
+    array's are links, each run of the others one write."""
+    linked = reuse.linked_chunks(arr, values)
+    if linked is None:
+        arr[...] = values
+        return
+    rows = int(arr.chunks[0])
+    todo = np.flatnonzero(~linked)
+    if not len(todo):
+        return
+    breaks = np.flatnonzero(np.diff(todo) > 1)
+    for first, last in zip(
+        todo[np.concatenate([[0], breaks + 1])],
+        todo[np.concatenate([breaks, [len(todo) - 1]])],
+        strict=True,
+    ):
+        a, b = int(first) * rows, min(len(values), (int(last) + 1) * rows)
+        arr[a:b] = values[a:b]
 
 
 def _metadata_crc(node: Any) -> int:
