@@ -340,6 +340,28 @@ def test_bookmark_and_flight(tmp_path):
     assert steps[len(steps) // 2] > steps[0] and steps[len(steps) // 2] > steps[-1]
 
 
+def test_flight_ahead_gives_the_cameras_the_view_will_pass(tmp_path):
+    """During a fly-to, the poses after the next one are the cameras the frames will have
+    (what the viewer hands the paging as ``Paging.path``), and looking at them moves nothing."""
+    settings = ViewSettings()
+    tree = fake_tree()
+    nav = Navigation(settings, tree, np.ones(3), FOV)
+    marks = Bookmarks(tmp_path / "marks.json", "t")
+    session = MapSession(settings, tree, nav, None, marks, tmp_path, [])
+    nav.set_pose_world(np.array([10.0, 20.0, 500.0]), np.array([600.0, 700.0, 0.0]))
+    session.save_bookmark()
+    nav.reset()
+    session.fly_to_next()
+    ahead = [nav.camera_at(*pose) for pose in session.upcoming(3)]
+    pose = nav.pose_world()
+    assert len(ahead) == 3 and np.allclose(nav.pose_world(), pose)
+    session.fly_on()
+    for camera in ahead:
+        session.fly_on()
+        assert np.allclose(camera.eye, nav.camera().eye)
+        assert np.allclose(camera.target, nav.camera().target)
+
+
 # -- replay and stats lines -------------------------------------------------------------------
 
 

@@ -52,6 +52,9 @@ from approxtree.viewer.settings import ViewSettings
 from approxtree.viewer.ui import Interface
 from approxtree.viewer.window import Window
 
+#: Poses of a fly-to flight ahead of the current one whose cuts the paging prefetches.
+FLIGHT_LOOKAHEAD = 8
+
 
 class Viewer:
     """An interactive window over ``tree``.
@@ -209,7 +212,11 @@ class Viewer:
         """Draw one frame's terrain into the window's back buffer; returns its stats. The
         frame also reads the drawn world positions when a measure click waits."""
         positions, hover = self.map.frame_wants()
-        frame = self.driver.draw(self.nav.camera(), self.window.framebuffer_size(), positions)
+        # A fly-to knows where the view goes: the paging prefetches those cuts.
+        path = [self.nav.camera_at(*pose) for pose in self.map.upcoming(FLIGHT_LOOKAHEAD)]
+        frame = self.driver.draw(
+            self.nav.camera(), self.window.framebuffer_size(), positions, path=path
+        )
         self._take_changes()
         self.frame_state = frame.frame_state
         self.map.after_frame(frame.positions, hover)

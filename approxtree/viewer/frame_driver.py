@@ -19,6 +19,7 @@ the Engine's API is made here.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -121,9 +122,16 @@ class FrameDriver:
 
     # -- frames ---------------------------------------------------------------------------------
 
-    def draw(self, camera: Camera, size: tuple[int, int], positions: bool = False) -> Frame:
+    def draw(
+        self,
+        camera: Camera,
+        size: tuple[int, int],
+        positions: bool = False,
+        path: Sequence[Camera] = (),
+    ) -> Frame:
         """Draw one interactive frame into the window's framebuffer; ``positions``: also
-        read the drawn world positions (Frame.positions, an extra pass)."""
+        read the drawn world positions (Frame.positions, an extra pass); ``path``: cameras
+        the view will pass next (a fly-to), whose cuts are prefetched (``Paging.path``)."""
         s = self.settings
         self.ctx.fbo.use()
         # Live: poll the store and pyramids first (and again for a frame that met a swap).
@@ -142,6 +150,7 @@ class FrameDriver:
                 max_uploads=self.max_uploads or None,
                 upload_ms=self.budget_ms,
                 frame_margin_ms=self.frame_margin_ms,
+                path=tuple(path),
             ),
         )
         if positions:

@@ -202,6 +202,10 @@ class MapSession:
     def flying(self) -> bool:
         return bool(self._flight)
 
+    def upcoming(self, n: int) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The flight's next ``n`` world poses (eye, target) after the one taken next."""
+        return self._flight[1 : 1 + n]
+
     def fly_on(self) -> None:
         """Take the flight's next pose."""
         self.nav.set_pose_world(*self._flight.pop(0))

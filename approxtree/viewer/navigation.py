@@ -19,6 +19,7 @@ from approxtree.viewer.controllers import (
     OrbitController,
     cursor_ray,
     pick_terrain,
+    to_camera,
     to_display,
     to_world,
 )
@@ -82,6 +83,11 @@ class Navigation:
     def camera(self) -> Camera:
         """The current camera for the Engine."""
         return self.controller.camera(self.origin, self.scale, self.fov)
+
+    def camera_at(self, eye: np.ndarray, target: np.ndarray) -> Camera:
+        """The Engine's camera at world ``eye`` looking at ``target``; the pose stays."""
+        display_eye, display_target = self.to_display(eye, target)
+        return to_camera(display_eye, display_target, self.origin, self.scale, self.fov)
 
     def rescale(self, scale: np.ndarray) -> None:
         """A new display scale (exaggeration): the current camera keeps its world pose, the
