@@ -31,8 +31,12 @@ nodes and triangles, the pyramid's bytes, the viewer's peak RSS and the GPU byte
         [--flight-frames 120] [--cuts 8] [--hold 10] [--texture-width 12288] [--quick]
 
 ``--quick``: a quarter of the microstructures and a 3072 × 1536 texture (a smoke test).
-Writes benchmarks/results/case_study.json. On a GPU machine run it as it is (it needs Xvfb
-only when no display is set).
+``--reuse-build``: keep the tree and land use of an earlier run in ``--work`` (its
+build.json), re-bake and fly only. Writes benchmarks/results/case_study.json, with the load
+average before each phase (1-minute figure: other processes share the cores) and the OpenGL
+renderer the viewer got. On a GPU machine run it as it is where a display is set (an X server
+on the GPU); without one it opens Xvfb, whose renderer is llvmpipe whatever the machine: the
+JSON's ``renderer`` says which one drew.
 """
 
 from __future__ import annotations
@@ -121,6 +125,27 @@ def _longest(lines: np.ndarray) -> list[list[float]]:
 
     line = lines[int(np.argmax(shapely.length(lines)))]
     return np.asarray(shapely.get_coordinates(line)).tolist()
+
+
+def _load() -> float:
+    """The 1-minute load average (other processes on the same cores)."""
+    return round(os.getloadavg()[0], 2)
+
+
+#: Prints the GL_RENDERER of a context made like the viewer's window (GLX on $DISPLAY).
+_RENDERER = (
+    "import moderngl; ctx = moderngl.create_standalone_context(); "
+    "print(ctx.info['GL_RENDERER'], '|', ctx.info['GL_VERSION'])"
+)
+
+
+def renderer(display: str | None) -> str:
+    """The OpenGL renderer and version a window on ``display`` (None: $DISPLAY) gets."""
+    env = dict(os.environ) if display is None else dict(os.environ, DISPLAY=display)
+    done = subprocess.run(
+        [sys.executable, "-c", _RENDERER], env=env, capture_output=True, text=True, check=False
+    )
+    return done.stdout.strip() or f"unknown ({done.stderr.strip().splitlines()[-1:]})"
 
 
 def _child(code: str, *args: str) -> dict:
@@ -221,6 +246,7 @@ def fly(work: Path, script: Path, size: str, display: str | None) -> dict:
         "--size", size, "--alpha", str(ALPHA), "--gamma", str(GAMMA), "--legend", "landclass96",
     ]  # fmt: skip
     env = dict(os.environ) if display is None else dict(os.environ, DISPLAY=display)
+    load = _load()
     t0 = time.perf_counter()
     done = subprocess.run(
         [sys.executable, "-c", _PEAK, *cmd], env=env, check=True, capture_output=True, text=True
@@ -249,6 +275,8 @@ def fly(work: Path, script: Path, size: str, display: str | None) -> dict:
         "max_gamma_max": max(s["max_gamma"] for s in lines),
         "viewer_peak_rss_bytes": 1024 * peak_kb,
         "process_seconds": round(wall, 2),
+        "load_before": load,
+        "load_after": _load(),
     }
 
 
@@ -263,22 +291,32 @@ def main() -> None:
         "--texture-width", type=int, default=TEXTURE_WIDTH, help="level 0's texels west-east"
     )
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument(
+        "--reuse-build", action="store_true", help="keep --work's tree and land use (build.json)"
+    )
     args = ap.parse_args()
     if not (DATA / "nc" / "elev_ned_30m.tif").exists():
         sys.exit(f"the NC data is absent under {DATA}: set APPROXTREE_DATA")
     work = args.work.resolve()
     work.mkdir(parents=True, exist_ok=True)
-    for stale in ("case.zarr", "textures"):
+    reuse = args.reuse_build and (work / "build.json").exists()
+    for stale in ("textures",) if reuse else ("case.zarr", "textures", "build.json"):
         if (work / stale).exists():
             import shutil
 
             shutil.rmtree(work / stale)
     here = str(Path(__file__).resolve().parent)
-    built = _child(_BUILD, str(work), here, "1" if args.quick else "0")
+    loads = {"build": _load()}
+    if reuse:
+        built = json.loads((work / "build.json").read_text())
+    else:
+        built = _child(_BUILD, str(work), here, "1" if args.quick else "0")
+        (work / "build.json").write_text(json.dumps(built))
     river = built.pop("longest_stream")
     print("build", json.dumps(built), flush=True)
     width = args.texture_width // 4 if args.quick else args.texture_width
     texel = (COLS - 1) * 30.0 / (width - 1)
+    loads["bake"] = _load()
     baked = _child(_BAKE, str(work), repr(texel))
     print("bake", json.dumps(baked), flush=True)
 
@@ -296,16 +334,23 @@ def main() -> None:
     script.write_text(json.dumps(path, indent=1))
     runs = []
     if os.environ.get("DISPLAY"):
+        drawn_by = renderer(None)
         runs = [fly(work, script, size, None) for size in args.sizes]
     else:
         from approxtree.viewer.xvfb import virtual_display
 
         with virtual_display() as display:
+            drawn_by = renderer(display)
             runs = [fly(work, script, size, display) for size in args.sizes]
+    print("renderer", drawn_by, flush=True)
     for r in runs:
         print("view", json.dumps(r), flush=True)
     out = {
         "machine": platform.platform(),
+        "cpus": os.cpu_count(),
+        "renderer": drawn_by,
+        "load_before": loads,
+        "build_reused": reuse,
         "quick": args.quick,
         "alpha": ALPHA,
         "gamma": GAMMA,

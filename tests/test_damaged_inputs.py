@@ -270,13 +270,20 @@ def test_bake_budget_counts_memory_disk_and_names_the_texel_that_fits(tmp_path):
     uncompressed pyramid (refused only past the best compression), and the texel it names
     passes the same check."""
     from approxtree.errors import InvalidParameterError
-    from approxtree.textures.bake_budget import BEST_COMPRESSION, check_bake_size
+    from approxtree.textures.bake_budget import (
+        BEST_COMPRESSION,
+        BYTES_PER_TEXEL,
+        EXTRA_LAYER_BYTES,
+        check_bake_size,
+    )
 
     shape, layers = (20_000, 30_000), ["resampled", "thematic"]
-    need = 20_000 * 30_000 * (240 + 16)
+    per_texel = max(BYTES_PER_TEXEL[k] for k in layers) + EXTRA_LAYER_BYTES
+    need = 20_000 * 30_000 * per_texel
     args = dict(cell=30.0, layers=layers, bands=4, max_texture_size=4096, folder=tmp_path)
     check_bake_size(shape, 1.0, memory=need, free_disk=10**15, **args)
-    with pytest.raises(InvalidParameterError, match=r"about 154 GB in memory.*256 bytes") as e:
+    said = rf"about {need / 1e9:.3g} GB in memory.*{per_texel} bytes"
+    with pytest.raises(InvalidParameterError, match=said) as e:
         check_bake_size(shape, 1.0, memory=need // 4, free_disk=10**15, **args)
     fits = float(str(e.value).split("at least ")[1].split(" ")[0])
     assert 2.0 <= fits <= 2.1

@@ -16,8 +16,11 @@ from approxtree.errors import InvalidParameterError
 from approxtree.geometry.base import GeometryData
 from approxtree.geometry.grid import Grid
 
-#: Most lattice points rasterize makes (a float32 grid of 256 MB).
-MAX_LATTICE_POINTS = 64_000_000
+#: Most lattice points rasterize makes (a float64 grid of 1 GB, filled strip by strip).
+MAX_LATTICE_POINTS = 2**27
+#: Lattice points sampled at a time: h_T's temporaries (locating points in triangles, the
+#: grid's bilinear weights) stay a few tens of MB whatever the lattice.
+STRIP_POINTS = 2**20
 
 
 def mean_spacing(terrain: GeometryData) -> float:
@@ -54,7 +57,14 @@ def rasterize(terrain: GeometryData, cell_size: float | None = None) -> Grid:
     dy = d.height / (rows - 1) if d.height > 0 else step
     xs = d.xmin + np.arange(cols) * dx
     ys = d.ymax - np.arange(rows) * dy
-    heights = terrain.height_at(xs[None, :], ys[:, None])
+    # Sampled strip by strip into one array: only the lattice itself grows with its size.
+    step_rows = max(1, STRIP_POINTS // cols)
+    heights: np.ndarray | None = None
+    for r0 in range(0, rows, step_rows):
+        strip = terrain.height_at(xs[None, :], ys[r0 : r0 + step_rows, None])
+        if heights is None:
+            heights = np.empty((rows, cols), dtype=strip.dtype)
+        heights[r0 : r0 + step_rows] = strip
     # Cell-centre georeference: the top-left corner lies half a step beyond the first point.
     transform = Affine(dx, 0.0, d.xmin - 0.5 * dx, 0.0, -dy, d.ymax + 0.5 * dy)
     return Grid(heights, transform=transform, crs=terrain.crs)

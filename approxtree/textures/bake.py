@@ -58,6 +58,9 @@ MIN_OVERLAY_TEXELS = 2.0
 #: Water polygons: the softened NLCD open-water blue.
 WATER_COLOUR = (110, 148, 190, 255)
 
+#: Texels of h_T resampled at a time onto the texture lattice.
+RESAMPLE_TEXELS = 2**20
+
 SHADINGS = {"topographic": TopographicShading, "phong": PhongShading, "gouraud": GouraudShading}
 
 
@@ -102,8 +105,12 @@ def _resample_heights(grid: Grid, transform: Affine, shape: tuple[int, int]) -> 
     rows, cols = shape
     xs = transform.c + (np.arange(cols) + 0.5) * transform.a
     ys = transform.f + (np.arange(rows) + 0.5) * transform.e
-    z = grid.height_at(xs[None, :], ys[:, None])
-    return Grid(z.astype(np.float32), transform=transform, crs=grid.crs)
+    # Strip by strip: h_T's float64 temporaries (~50 bytes a texel) never span the lattice.
+    z = np.empty(shape, dtype=np.float32)
+    step = max(1, RESAMPLE_TEXELS // cols)
+    for r0 in range(0, rows, step):
+        z[r0 : r0 + step] = grid.height_at(xs[None, :], ys[r0 : r0 + step, None])
+    return Grid(z, transform=transform, crs=grid.crs)
 
 
 def thematic_on_lattice(
@@ -126,11 +133,15 @@ def thematic_on_lattice(
     else:
         mapper = ColourRamp(palette)
     classes = isinstance(mapper, ClassTable)
-    values = np.full(shape, np.nan, dtype=np.float64)
+    source = np.where(src.valid, src.values, np.nan).astype(np.float64)
+    # Class codes that float32 holds exactly (any raster of small integer classes) are taken
+    # nearest in half the bytes; continuous fields are interpolated in float64.
+    exact32 = classes and np.array_equal(source.astype(np.float32), source, equal_nan=True)
+    values = np.full(shape, np.nan, dtype=np.float32 if exact32 else np.float64)
     with reading(path, "a thematic raster"), no_side_files(), rasterio.open(path) as ds:
         dst_crs = crs or (ds.crs.to_string() if ds.crs else None)
         reproject(
-            source=np.where(src.valid, src.values, np.nan).astype(np.float64),
+            source=source.astype(values.dtype),
             destination=values,
             src_transform=src.transform,
             src_crs=ds.crs,
@@ -278,22 +289,25 @@ def bake(
         folder,
     )
     used_gl = False
+    crs = terrain.crs
+    # h_T on the texture lattice (shaded, and compared with the water level), made first: a
+    # terrain rasterized here is then let go before the thematic layer is resampled.
+    on_lattice = None
+    if shading is not None or water_level is not None:
+        on_lattice = terrain if same else _resample_heights(terrain, transform, shape)
+    del terrain
     layers: list[TextureData] = []
     names: list[str] = []
     thematic_layer = None
     # Images first (each opened and checked now, warped strip by strip while the pyramid is
     # written), the thematic layer over them.
     for image in image_paths:
-        layers.append(ImageTexture(image, transform, shape, terrain.crs, resampling))
+        layers.append(ImageTexture(image, transform, shape, crs, resampling))
         names.append(f"image:{image.name}")
     if thematic_path is not None:
-        thematic_layer = thematic_on_lattice(thematic_path, palette, transform, shape, terrain.crs)
+        thematic_layer = thematic_on_lattice(thematic_path, palette, transform, shape, crs)
         layers.append(thematic_layer)
         names.append(f"thematic:{thematic_path.name}")
-    # h_T on the texture lattice: shaded, and compared with the water level.
-    on_lattice = None
-    if shading is not None or water_level is not None:
-        on_lattice = terrain if same else _resample_heights(terrain, transform, shape)
     if water_level is not None and on_lattice is not None:
         layers.append(WaterLevel(on_lattice, water_level, WATER_COLOUR))
         names.append(f"water-level:{water_level:g}")
@@ -312,10 +326,10 @@ def bake(
     if thematic_layer is not None and overlays:
         water_mask = thematic_water_mask(thematic_layer, palette)
     for path in overlays or []:
-        layers.append(overlay_lines(Path(path), look, transform, shape, terrain.crs, water_mask))
+        layers.append(overlay_lines(Path(path), look, transform, shape, crs, water_mask))
         names.append(f"overlay:{Path(path).name}")
     for path in water or []:
-        layers.append(rasterize_lines(path, transform, shape, terrain.crs, WATER_COLOUR, 0.0))
+        layers.append(rasterize_lines(path, transform, shape, crs, WATER_COLOUR, 0.0))
         names.append(f"water:{Path(path).name}")
     modes = ["over"] * (len(layers) - 1)
     if shading is not None and colour_layers:
@@ -327,7 +341,7 @@ def bake(
 
         def redraw(level: int, t: Affine, level_shape: tuple[int, int]) -> np.ndarray:
             paths = [Path(p) for p in overlays]
-            return redraw_overlays(paths, look, level, t, level_shape, terrain.crs, water_mask)
+            return redraw_overlays(paths, look, level, t, level_shape, crs, water_mask)
 
     # What a re-bake (``rebake``) repeats: the layers and the shading with its options.
     recipe: dict[str, Any] = {

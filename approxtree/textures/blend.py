@@ -33,6 +33,10 @@ def _shade(b: np.ndarray, s: np.ndarray) -> np.ndarray:
     return np.clip(b * np.clip(0.3 + 0.7 * s / FLAT_SHADE, 0.0, 1.25), 0.0, 1.0)
 
 
+#: Texels blended at a time by ``MultiTexture.band_strips``.
+BLEND_TEXELS = 2**18
+
+
 #: Blend mode → function (backdrop, source) of colours in [0, 1].
 BLEND_MODES = {
     "shade": _shade,
@@ -104,9 +108,15 @@ class MultiTexture(TextureData):
         """(4, ≤ rows, cols) uint8 strips, each the blend of the layers' strips: layers that
         stream (an image, a shading's grey levels) are never whole in memory as RGBA."""
         streams = [layer.band_strips(rows) for layer in self.layers]
-        # Each layer's strip is valid until its next is asked for: blended before that.
+        # Each layer's strip is valid until its next is asked for: blended before that, a few
+        # rows at a time (the float64 temporaries of a blend are ~100 bytes a texel).
         for strips in zip(*streams, strict=True):
-            out = np.moveaxis(strips[0], 0, -1)
-            for strip, mode in zip(strips[1:], self.modes, strict=True):
-                out = blend(out, np.moveaxis(strip, 0, -1), mode)
-            yield np.ascontiguousarray(np.moveaxis(out, -1, 0))
+            n, cols = strips[0].shape[1:]
+            out = np.empty((4, n, cols), dtype=np.uint8)
+            step = max(1, BLEND_TEXELS // max(cols, 1))
+            for r0 in range(0, n, step):
+                rgba = np.moveaxis(strips[0][:, r0 : r0 + step], 0, -1)
+                for strip, mode in zip(strips[1:], self.modes, strict=True):
+                    rgba = blend(rgba, np.moveaxis(strip[:, r0 : r0 + step], 0, -1), mode)
+                out[:, r0 : r0 + step] = np.moveaxis(rgba, -1, 0)
+            yield out

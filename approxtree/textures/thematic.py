@@ -12,13 +12,19 @@ Land-cover legends (``LEGENDS``): the standard NLCD colours and the GRASS landcl
 saturated, lighter) so the shading they are blended with stays readable.
 
 Vector layers (roads, rivers) become thematic layers by rasterization (``rasterize_lines``).
+
+A mapper that has ``for_strips(values, valid)`` returns the mapper a strip of the lattice is
+coloured with, its whole-lattice figures (a ramp's range, a colour file's percentages) resolved
+once: a thematic texture is then coloured strip by strip (``ThematicTexture.band_strips``),
+never whole as RGBA.
 """
 
 from __future__ import annotations
 
+import copy
 import os
 import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -107,6 +113,18 @@ def soften(rgb: tuple[int, ...], amount: float = SOFTEN) -> tuple[int, int, int]
     return (r, g, b)
 
 
+def _valid_range(values: np.ndarray, valid: np.ndarray) -> tuple[float, float] | None:
+    """(min, max) of the valid values of (rows, cols) ``values``, or None when none is valid;
+    computed without a copy of them."""
+    if not valid.any():
+        return None
+    # The first valid value starts both reductions (an integer raster takes no infinity).
+    first = values.flat[int(np.argmax(valid))]
+    lo = float(np.min(values, where=valid, initial=first))
+    hi = float(np.max(values, where=valid, initial=first))
+    return lo, hi
+
+
 class ClassTable:
     """Class value → RGBA colour; unknown classes and nodata are transparent."""
 
@@ -153,6 +171,10 @@ class ClassTable:
         out[known] = lut[pos[known]]
         return out
 
+    def for_strips(self, values: np.ndarray, valid: np.ndarray) -> ClassTable:
+        """The mapper of a strip: a class table needs no whole-lattice figure."""
+        return self
+
 
 class ColourRamp:
     """A continuous field through a matplotlib colormap, vmin → 0 and vmax → 1."""
@@ -170,10 +192,21 @@ class ColourRamp:
             ) from exc
         self.vmin, self.vmax = vmin, vmax
 
+    def _range(self, values: np.ndarray, valid: np.ndarray) -> tuple[float, float]:
+        """(vmin, vmax): as given, else the valid values' own (0 and 1 when none is valid)."""
+        found = _valid_range(values, valid) if self.vmin is None or self.vmax is None else None
+        vmin = found[0] if self.vmin is None and found else (self.vmin or 0.0)
+        vmax = found[1] if self.vmax is None and found else (self.vmax or 1.0)
+        return vmin, vmax
+
+    def for_strips(self, values: np.ndarray, valid: np.ndarray) -> ColourRamp:
+        """The mapper of a strip: this ramp with the whole lattice's range fixed."""
+        fixed = copy.copy(self)
+        fixed.vmin, fixed.vmax = self._range(values, valid)
+        return fixed
+
     def __call__(self, values: np.ndarray, valid: np.ndarray) -> np.ndarray:
-        v = values[valid]
-        vmin = float(v.min()) if self.vmin is None and v.size else (self.vmin or 0.0)
-        vmax = float(v.max()) if self.vmax is None and v.size else (self.vmax or 1.0)
+        vmin, vmax = self._range(values, valid)
         t = (values - vmin) / (vmax - vmin) if vmax > vmin else np.zeros_like(values)
         out = self.cmap(np.clip(np.nan_to_num(t), 0.0, 1.0), bytes=True)
         out[~valid] = 0
@@ -224,8 +257,7 @@ class ColourReliefFile:
 
     def table(self, values: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Sorted entry values (k,) and their colours (k, 4), percentages resolved."""
-        v = values[valid]
-        lo, hi = (float(v.min()), float(v.max())) if v.size else (0.0, 0.0)
+        lo, hi = _valid_range(values, valid) or (0.0, 0.0)
         keys = []
         for value, _ in self.entries:
             if value.endswith("%"):
@@ -237,8 +269,18 @@ class ColourReliefFile:
         c = np.array([self.entries[i][1] for i in order], dtype=np.float64)
         return k, c
 
+    def for_strips(self, values: np.ndarray, valid: np.ndarray) -> _FixedRelief:
+        """The mapper of a strip: this file's table with the whole lattice's percentages."""
+        return _FixedRelief(self, *self.table(values, valid))
+
     def __call__(self, values: np.ndarray, valid: np.ndarray) -> np.ndarray:
-        keys, colours = self.table(values, valid)
+        return self.apply(values, valid, *self.table(values, valid))
+
+    def apply(
+        self, values: np.ndarray, valid: np.ndarray, keys: np.ndarray, colours: np.ndarray
+    ) -> np.ndarray:
+        """(rows, cols, 4) uint8: ``values`` coloured by the table (``keys`` (k,), ``colours``
+        (k, 4)), nodata in the ``nv`` colour or transparent."""
         v = np.where(valid, values, keys[0]).astype(np.float64)
         # Index i of the first entry >= v: below the first or above the last entry the end
         # colours hold; between entries each channel is int(0.45 + a + t (b − a)), which is
@@ -254,6 +296,16 @@ class ColourReliefFile:
         out = np.clip(mixed, 0, 255).astype(np.uint8)
         out[~valid] = self.nodata_colour if self.nodata_colour is not None else (0, 0, 0, 0)
         return out
+
+
+class _FixedRelief:
+    """A colour file's mapper with its table resolved: keys (k,) and colours (k, 4)."""
+
+    def __init__(self, relief: ColourReliefFile, keys: np.ndarray, colours: np.ndarray) -> None:
+        self.relief, self.keys, self.colours = relief, keys, colours
+
+    def __call__(self, values: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        return self.relief.apply(values, valid, self.keys, self.colours)
 
 
 class ThematicTexture(TextureData):
@@ -307,6 +359,18 @@ class ThematicTexture(TextureData):
 
     def rgba(self) -> np.ndarray:
         return self.mapper(self.values, self.valid)
+
+    def band_strips(self, rows: int) -> Iterator[np.ndarray]:
+        """Coloured strip by strip when the mapper can (``for_strips``): RGBA and the mapper's
+        temporaries are never whole-lattice; other mappers colour the whole lattice once."""
+        for_strips = getattr(self.mapper, "for_strips", None)
+        if for_strips is None:
+            yield from super().band_strips(rows)
+            return
+        mapper = for_strips(self.values, self.valid)
+        for r0 in range(0, self.shape[0], rows):
+            rgba = mapper(self.values[r0 : r0 + rows], self.valid[r0 : r0 + rows])
+            yield np.ascontiguousarray(np.moveaxis(rgba, -1, 0))
 
 
 def rasterize_lines(
