@@ -75,7 +75,7 @@ def _mid(u, v):
 
 def check_against_brute(z: np.ndarray) -> None:
     n = z.shape[0]
-    err = vertex_errors(z, 0, 0, n, n, n - 1, False)
+    err = vertex_errors(z, 0, 0, n, n, n - 1, False, np.inf)
     want = brute_hierarchy(z.astype(np.float64))
     scale = 1e-9 * max(1.0, float(np.abs(z).max()))
     # Upper bounds (rounded up to float32), and tight: within float32 rounding of the truth.
