@@ -22,7 +22,8 @@ from approxtree.geometry.rect import Rect
 from approxtree.kernels.rtin import extract, vertex_errors
 from approxtree.kernels.rtin_greedy import greedy_rtin
 from approxtree.patches.base import GeometryPatch
-from approxtree.patches.lattice import LatticePatch, Window, grid_window, require_grid
+from approxtree.patches.lattice import Window, grid_window, require_grid
+from approxtree.patches.tin import CompiledMeshArrays
 
 
 def lattice_size(rows: int, cols: int) -> int:
@@ -125,7 +126,7 @@ def rtin_patch(
     return RTINPatch.from_extract(grid, rect, win, err, t)
 
 
-class RTINPatch(LatticePatch):
+class RTINPatch(CompiledMeshArrays):
     """RTIN of a Grid window: stores (row, col) vertex indices and triangles."""
 
     kind = "rtin"
