@@ -65,12 +65,18 @@ class CompiledMeshArrays(LatticePatch):
         h = g.heights
         if not isinstance(h, np.ndarray):
             return super().vertices
-        return grid_vertices(self.ij, g.x_coords, g.y_coords, h)
+        return grid_vertices(
+            readonly(self.ij, np.int32),
+            readonly(g.x_coords, np.float64),
+            readonly(g.y_coords, np.float64),
+            readonly(h),
+        )
 
     @property
     def triangles(self) -> np.ndarray:
         # Index space is (col, row); a north-up transform mirrors it, so flip to stay CCW.
-        return wide_triangles(self.tris, self.grid.transform.a * self.grid.transform.e < 0)
+        flip = bool(self.grid.transform.a * self.grid.transform.e < 0)
+        return wide_triangles(readonly(self.tris, np.int32), flip)
 
 
 class GridTINPatch(CompiledMeshArrays):
