@@ -207,7 +207,7 @@ def _decide(e: float, dm: float, cut: float, margin: float) -> float:
         return dm
     v = _store((e + dm) * (1.0 + 2e-6) + margin)
     if v <= cut:
-        return v
+        return float(v)
     return -1.0
 
 
