@@ -75,7 +75,7 @@ def _mid(u, v):
 
 def check_against_brute(z: np.ndarray) -> None:
     n = z.shape[0]
-    err = vertex_errors(z, 0, 0, n, n, n - 1, False)
+    err = vertex_errors(z, 0, 0, n, n, n - 1, False, np.inf)
     want = brute_hierarchy(z.astype(np.float64))
     scale = 1e-9 * max(1.0, float(np.abs(z).max()))
     # Upper bounds (rounded up to float32), and tight: within float32 rounding of the truth.
@@ -96,3 +96,30 @@ def test_errors_equal_brute_force_on_a_real_dem(data_dir) -> None:
     heights = at.open_terrain(data_file(data_dir, "scape/crater.stm")).heights
     for r0, c0 in ((0, 0), (100, 140)):
         check_against_brute(np.ascontiguousarray(heights[r0 : r0 + 65, c0 : c0 + 65]))
+
+
+@pytest.mark.parametrize("n", [17, 33, 65])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_cut_table_splits_as_the_exact_table(n: int, seed: int) -> None:
+    """A table for one threshold puts every entry on the exact table's side of it, bounds the
+    brute-force error below it, and extracts the same mesh with the same measured error."""
+    from approxtree.kernels.rtin import extract
+
+    rng = np.random.default_rng(seed)
+    # Smooth relief plus noise: bounds decide some entries, scans others.
+    yy, xx = np.mgrid[0:n, 0:n] / (n - 1)
+    z = (300 * np.sin(3 * xx + seed) * np.cos(2 * yy) + rng.normal(0.0, 2.0, (n, n))).astype(
+        np.float32
+    )
+    exact = vertex_errors(z, 0, 0, n, n, n - 1, False, np.inf)
+    want = brute_hierarchy(z.astype(np.float64))
+    for cut in [0.5, 2.0, 5.0, 20.0, *np.quantile(exact[exact > 0], [0.3, 0.7, 0.95])]:
+        cut = float(cut)
+        err = vertex_errors(z, 0, 0, n, n, n - 1, False, cut)
+        assert np.array_equal(err > cut, exact > cut)
+        below = err <= cut
+        assert (err[below] >= want[below] - 1e-9 * float(np.abs(z).max())).all()
+        got = extract(err, cut, z, 0, 0, n, n, False)
+        ref = extract(exact, cut, z, 0, 0, n, n, False)
+        for a, b in zip(got, ref, strict=True):
+            assert np.array_equal(a, b)

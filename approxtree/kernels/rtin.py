@@ -42,8 +42,12 @@ def _mid_error(heights, r0, c0, ux, uy, vx, vy) -> float:
 
 
 @njit(cache=True)
-def _tri_error(heights, r0, c0, rows, cols, ax, ay, bx, by, cx, cy, has_nan) -> float:
-    """True error of one hierarchy triangle (inf: it must split), see the module docstring."""
+def _tri_error(heights, r0, c0, rows, cols, ax, ay, bx, by, cx, cy, has_nan, cut) -> float:
+    """True error of one hierarchy triangle (inf: it must split), see the module docstring.
+
+    cut: once the error is known to exceed cut, any value > cut may come back (the scan stops
+    early); inf for the exact error.
+    """
     if orient(ax, ay, bx, by, cx, cy) < 0:
         bx, by, cx, cy = cx, cy, bx, by
     w1 = cols - 1
@@ -62,7 +66,7 @@ def _tri_error(heights, r0, c0, rows, cols, ax, ay, bx, by, cx, cy, has_nan) -> 
         if has_nan:
             k, _, _ = scan_with_holes(heights, r0, c0, ax, ay, bx, by, cx, cy)
             return max(k, 0.0)
-        return _scan_right(heights, r0, c0, ax, ay, bx, by, cx, cy)
+        return _scan_right(heights, r0, c0, ax, ay, bx, by, cx, cy, cut)
     # Partly or wholly outside the window: split while it reaches window points other than
     # those on its own edges along the window's far border.
     y0 = min(ay, min(by, cy))
@@ -136,8 +140,11 @@ def _row_max(heights: np.ndarray, r: int, start: int, n: int, base: float, gx: f
 
 
 @njit(cache=True)
-def _scan_right(heights, r0, c0, ax, ay, bx, by, cx, cy) -> float:
+def _scan_right(heights, r0, c0, ax, ay, bx, by, cx, cy, cut) -> float:
     """Exact max |z − plane| over the non-corner points of a hierarchy triangle, no nodata.
+
+    Stops after the first row that takes the maximum past cut (the value returned is then
+    only known to exceed cut).
 
     The same arithmetic as ``tin_scan.scan_candidate`` (so the same value to the last bit), but
     row spans come from the edges directly, which are axis-parallel or diagonal: no divisions.
@@ -158,6 +165,8 @@ def _scan_right(heights, r0, c0, ax, ay, bx, by, cx, cy) -> float:
         # vectorized, exact maximum.
         if y != ay and y != by and y != cy:
             best = max(best, _row_max(heights, r0 + y, c0 + lo, n, base, gx))
+            if best > cut:
+                return best
             continue
         for i in range(n):
             x = lo + i
@@ -184,13 +193,44 @@ def _store(e: float) -> np.float32:
     return v
 
 
+@njit(cache=True, inline="always")
+def _decide(e: float, dm: float, cut: float, margin: float) -> float:
+    """An entry's value without a scan, or −1 when its triangles must be scanned.
+
+    e: the maximum stored at its children's midpoints (<= cut), dm: the error at the midpoint
+    itself. Past cut by more than round-off: dm (the full table's entry exceeds cut too). Else
+    the bound e + dm (a point of a child with plane P1 is off the parent's plane by its error
+    to P1 plus dm times its barycentric weight at the midpoint, <= 1), widened past round-off,
+    when its float32 stays <= cut (the full table's entry is then <= cut as well).
+    """
+    if dm - margin > cut:
+        return dm
+    v = _store((e + dm) * (1.0 + 2e-6) + margin)
+    if v <= cut:
+        return float(v)
+    return -1.0
+
+
 @njit(cache=True, parallel=True)
 def vertex_errors(
-    heights: np.ndarray, r0: int, c0: int, rows: int, cols: int, size: int, has_nan: bool
+    heights: np.ndarray,
+    r0: int,
+    c0: int,
+    rows: int,
+    cols: int,
+    size: int,
+    has_nan: bool,
+    cut: float,
 ) -> np.ndarray:
     """E (size+1, size+1) float32 over the window heights[r0:r0+rows, c0:c0+cols].
 
     size: s = 2^k >= max(rows, cols) − 1. Entries that are no midpoint stay 0.
+    cut: inf for the exact hierarchy. A finite cut serves one extraction at threshold cut:
+    every entry is on the same side of cut as the exact table's (E > cut: split), but not
+    exact: past cut, any value > cut (a triangle with a child past cut is not scanned, nor one
+    whose midpoint alone is past it, a scan stops once past it); at or below, an upper bound of
+    the true error (children's bound plus the midpoint's error, ``_decide``, scanned only when
+    that bound reaches cut). So ``extract(E, cut, ...)`` draws the exact table's mesh.
     """
     n = size + 1
     err = np.zeros((n, n), dtype=np.float32)
@@ -201,100 +241,170 @@ def vertex_errors(
     # are edge midpoints, so D(2) stores its side's midpoint error and A(2) the diagonal's,
     # maxed with its sides (the same values as the generic path: max is exact).
     fine = not has_nan
-    L = 2
-    while L <= big:
-        h = L // 2
-        q = h // 2
-        m = big // L
-        # D(L), horizontal sides y = j·L: triangles of the squares above and below.
-        for j in prange(m + 1):
-            y = j * L
-            for i in range(m):
-                x0 = i * L
-                if L == 2 and fine and x0 + 2 <= w1 and min(y + 1, big) <= h1:
-                    err[y, x0 + 1] = _store(_mid_error(heights, r0, c0, x0, y, x0 + 2, y))
-                    continue
-                e = 0.0
-                if j < m:
-                    e = max(
-                        e,
-                        _tri_error(
-                            heights, r0, c0, rows, cols, x0 + h, y + h, x0, y, x0 + L, y, has_nan
-                        ),
-                    )
+    # Bounds need finite heights, and a margin above the round-off of a plane's value at a
+    # point (a few ulps of the heights' magnitude).
+    bound = fine and cut < np.inf
+    zmax = 0.0
+    if bound:
+        for r in range(rows):
+            for c in range(cols):
+                zmax = max(zmax, abs(np.float64(heights[r0 + r, c0 + c])))
+    margin = 1e-9 * (zmax + 1.0)
+    # A value within float32 round-off below cut whose stored float32 is past it: the exact
+    # table's entry depends on exact children values a bound replaced; then start over exact.
+    dirty = np.zeros(1, dtype=np.int64)
+    for attempt in range(2):
+        if attempt == 1:
+            if dirty[0] == 0:
+                break
+            bound = False
+            cut = np.inf
+            err[:] = 0
+        L = 2
+        while L <= big:
+            h = L // 2
+            q = h // 2
+            m = big // L
+            # D(L), horizontal sides y = j·L: triangles of the squares above and below.
+            # Children first: past cut, the triangles need no scan.
+            for j in prange(m + 1):
+                y = j * L
+                for i in range(m):
+                    x0 = i * L
+                    if L == 2 and fine and x0 + 2 <= w1 and min(y + 1, big) <= h1:
+                        err[y, x0 + 1] = _store(_mid_error(heights, r0, c0, x0, y, x0 + 2, y))
+                        continue
+                    e = 0.0
                     if q > 0:
-                        e = max(e, err[y + q, x0 + q], err[y + q, x0 + h + q])
-                if j > 0:
-                    e = max(
-                        e,
-                        _tri_error(
-                            heights, r0, c0, rows, cols, x0 + h, y - h, x0 + L, y, x0, y, has_nan
-                        ),
-                    )
+                        if j < m:
+                            e = max(e, err[y + q, x0 + q], err[y + q, x0 + h + q])
+                        if j > 0:
+                            e = max(e, err[y - q, x0 + q], err[y - q, x0 + h + q])
+                    if bound and q > 0 and e <= cut and x0 + L <= w1 and min(y + h, big) <= h1:
+                        v = _decide(e, _mid_error(heights, r0, c0, x0, y, x0 + L, y), cut, margin)
+                        if v >= 0.0:
+                            err[y, x0 + h] = _store(v)
+                            continue
+                    if j < m and e <= cut:
+                        e = max(
+                            e,
+                            _tri_error(
+                                heights, r0, c0, rows, cols, x0 + h, y + h, x0, y, x0 + L, y,
+                                has_nan, cut,
+                            ),
+                        )  # fmt: skip
+                    if j > 0 and e <= cut:
+                        e = max(
+                            e,
+                            _tri_error(
+                                heights, r0, c0, rows, cols, x0 + h, y - h, x0 + L, y, x0, y,
+                                has_nan, cut,
+                            ),
+                        )  # fmt: skip
+                    if e <= cut < _store(e):
+                        dirty[0] = 1
+                    err[y, x0 + h] = _store(e)
+            # D(L), vertical sides x = i·L.
+            for i in prange(m + 1):
+                x = i * L
+                for j in range(m):
+                    y0 = j * L
+                    if L == 2 and fine and y0 + 2 <= h1 and min(x + 1, big) <= w1:
+                        err[y0 + 1, x] = _store(_mid_error(heights, r0, c0, x, y0, x, y0 + 2))
+                        continue
+                    e = 0.0
                     if q > 0:
-                        e = max(e, err[y - q, x0 + q], err[y - q, x0 + h + q])
-                err[y, x0 + h] = _store(e)
-        # D(L), vertical sides x = i·L.
-        for i in prange(m + 1):
-            x = i * L
-            for j in range(m):
+                        if i < m:
+                            e = max(e, err[y0 + q, x + q], err[y0 + h + q, x + q])
+                        if i > 0:
+                            e = max(e, err[y0 + q, x - q], err[y0 + h + q, x - q])
+                    if bound and q > 0 and e <= cut and y0 + L <= h1 and min(x + h, big) <= w1:
+                        v = _decide(e, _mid_error(heights, r0, c0, x, y0, x, y0 + L), cut, margin)
+                        if v >= 0.0:
+                            err[y0 + h, x] = _store(v)
+                            continue
+                    if i < m and e <= cut:
+                        e = max(
+                            e,
+                            _tri_error(
+                                heights, r0, c0, rows, cols, x + h, y0 + h, x, y0 + L, x, y0,
+                                has_nan, cut,
+                            ),
+                        )  # fmt: skip
+                    if i > 0 and e <= cut:
+                        e = max(
+                            e,
+                            _tri_error(
+                                heights, r0, c0, rows, cols, x - h, y0 + h, x, y0, x, y0 + L,
+                                has_nan, cut,
+                            ),
+                        )  # fmt: skip
+                    if e <= cut < _store(e):
+                        dirty[0] = 1
+                    err[y0 + h, x] = _store(e)
+            # A(L): both triangles of each square's diagonal, and the four side midpoints.
+            for j in prange(m):
                 y0 = j * L
-                if L == 2 and fine and y0 + 2 <= h1 and min(x + 1, big) <= w1:
-                    err[y0 + 1, x] = _store(_mid_error(heights, r0, c0, x, y0, x, y0 + 2))
-                    continue
-                e = 0.0
-                if i < m:
-                    e = max(
-                        e,
-                        _tri_error(
-                            heights, r0, c0, rows, cols, x + h, y0 + h, x, y0 + L, x, y0, has_nan
-                        ),
-                    )
-                    if q > 0:
-                        e = max(e, err[y0 + q, x + q], err[y0 + h + q, x + q])
-                if i > 0:
-                    e = max(
-                        e,
-                        _tri_error(
-                            heights, r0, c0, rows, cols, x - h, y0 + h, x, y0, x, y0 + L, has_nan
-                        ),
-                    )
-                    if q > 0:
-                        e = max(e, err[y0 + q, x - q], err[y0 + h + q, x - q])
-                err[y0 + h, x] = _store(e)
-        # A(L): both triangles of each square's diagonal, and the four side midpoints.
-        for j in prange(m):
-            y0 = j * L
-            for i in range(m):
-                x0 = i * L
-                if L == 2 and fine and x0 + 2 <= w1 and y0 + 2 <= h1:
+                for i in range(m):
+                    x0 = i * L
+                    if L == 2 and fine and x0 + 2 <= w1 and y0 + 2 <= h1:
+                        if (i + j) % 2 == 0:
+                            e = _mid_error(heights, r0, c0, x0, y0, x0 + 2, y0 + 2)
+                        else:
+                            e = _mid_error(heights, r0, c0, x0 + 2, y0, x0, y0 + 2)
+                        e = max(e, err[y0, x0 + 1], err[y0 + 2, x0 + 1])
+                        e = max(e, err[y0 + 1, x0], err[y0 + 1, x0 + 2])
+                        err[y0 + 1, x0 + 1] = _store(e)
+                        continue
+                    e = max(np.float64(err[y0, x0 + h]), np.float64(err[y0 + L, x0 + h]))
+                    e = max(e, np.float64(err[y0 + h, x0]), np.float64(err[y0 + h, x0 + L]))
+                    if bound and e <= cut and x0 + L <= w1 and y0 + L <= h1:
+                        if (i + j) % 2 == 0:
+                            dm = _mid_error(heights, r0, c0, x0, y0, x0 + L, y0 + L)
+                        else:
+                            dm = _mid_error(heights, r0, c0, x0 + L, y0, x0, y0 + L)
+                        v = _decide(e, dm, cut, margin)
+                        if v >= 0.0:
+                            err[y0 + h, x0 + h] = _store(v)
+                            continue
                     if (i + j) % 2 == 0:
-                        e = _mid_error(heights, r0, c0, x0, y0, x0 + 2, y0 + 2)
+                        if e <= cut:
+                            e = max(
+                                e,
+                                _tri_error(
+                                    heights, r0, c0, rows, cols, x0 + L, y0, x0, y0, x0 + L,
+                                    y0 + L, has_nan, cut,
+                                ),
+                            )  # fmt: skip
+                        if e <= cut:
+                            e = max(
+                                e,
+                                _tri_error(
+                                    heights, r0, c0, rows, cols, x0, y0 + L, x0 + L, y0 + L,
+                                    x0, y0, has_nan, cut,
+                                ),
+                            )  # fmt: skip
                     else:
-                        e = _mid_error(heights, r0, c0, x0 + 2, y0, x0, y0 + 2)
-                    e = max(e, err[y0, x0 + 1], err[y0 + 2, x0 + 1])
-                    e = max(e, err[y0 + 1, x0], err[y0 + 1, x0 + 2])
-                    err[y0 + 1, x0 + 1] = _store(e)
-                    continue
-                if (i + j) % 2 == 0:
-                    e1 = _tri_error(
-                        heights, r0, c0, rows, cols, x0 + L, y0, x0, y0, x0 + L, y0 + L, has_nan
-                    )
-                    e2 = _tri_error(
-                        heights, r0, c0, rows, cols, x0, y0 + L, x0 + L, y0 + L, x0, y0, has_nan
-                    )
-                else:
-                    e1 = _tri_error(
-                        heights, r0, c0, rows, cols, x0, y0, x0, y0 + L, x0 + L, y0, has_nan
-                    )
-                    e2 = _tri_error(
-                        heights, r0, c0, rows, cols, x0 + L, y0 + L, x0 + L, y0, x0, y0 + L, has_nan
-                    )
-                e = max(e1, e2)
-                e = max(e, err[y0, x0 + h], err[y0 + L, x0 + h])
-                e = max(e, err[y0 + h, x0], err[y0 + h, x0 + L])
-                err[y0 + h, x0 + h] = _store(e)
-        L *= 2
+                        if e <= cut:
+                            e = max(
+                                e,
+                                _tri_error(
+                                    heights, r0, c0, rows, cols, x0, y0, x0, y0 + L, x0 + L,
+                                    y0, has_nan, cut,
+                                ),
+                            )  # fmt: skip
+                        if e <= cut:
+                            e = max(
+                                e,
+                                _tri_error(
+                                    heights, r0, c0, rows, cols, x0 + L, y0 + L, x0 + L, y0,
+                                    x0, y0 + L, has_nan, cut,
+                                ),
+                            )  # fmt: skip
+                    if e <= cut < _store(e):
+                        dirty[0] = 1
+                    err[y0 + h, x0 + h] = _store(e)
+            L *= 2
     return err
 
 

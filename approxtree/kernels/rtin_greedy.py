@@ -128,7 +128,7 @@ def greedy_rtin(
         ax, ay, lx, ly, rx, ry = roots[k]
         for q in range(6):
             tri[n_tri, q] = roots[k][q]
-        e = _tri_error(heights, r0, c0, rows, cols, ax, ay, lx, ly, rx, ry, has_nan)
+        e = _tri_error(heights, r0, c0, rows, cols, ax, ay, lx, ly, rx, ry, has_nan, np.inf)
         hsize = heap_push(heap, hkey, hpos, hsize, n_tri, e)
         n_tri += 1
         nt += _drawn(heights, r0, c0, rows, cols, ax, ay, lx, ly, rx, ry, has_nan)
@@ -252,7 +252,9 @@ def greedy_rtin(
                     tri[n_tri, 3] = by
                     tri[n_tri, 4] = cx
                     tri[n_tri, 5] = cy
-                    e = _tri_error(heights, r0, c0, rows, cols, qx, qy, bx, by, cx, cy, has_nan)
+                    e = _tri_error(
+                        heights, r0, c0, rows, cols, qx, qy, bx, by, cx, cy, has_nan, np.inf
+                    )
                     hsize = heap_push(heap, hkey, hpos, hsize, n_tri, e)
                     n_tri += 1
     return split

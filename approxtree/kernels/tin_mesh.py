@@ -205,3 +205,35 @@ def half_edge_twins(tv: np.ndarray, n_vertices: int) -> np.ndarray:
                     out[f] = e
                     break
     return out
+
+
+@njit(cache=True)
+def grid_vertices(
+    ij: np.ndarray, x_coords: np.ndarray, y_coords: np.ndarray, heights: np.ndarray
+) -> np.ndarray:
+    """(n, 3) float64 world (x, y, z) of the grid points ij (n, 2) int32 (row, column).
+
+    One pass writing each row whole: no index widening, no per-column gathers.
+    """
+    n = ij.shape[0]
+    out = np.empty((n, 3), dtype=np.float64)
+    for k in range(n):
+        r = ij[k, 0]
+        c = ij[k, 1]
+        out[k, 0] = x_coords[c]
+        out[k, 1] = y_coords[r]
+        out[k, 2] = heights[r, c]
+    return out
+
+
+@njit(cache=True)
+def wide_triangles(tris: np.ndarray, flip: bool) -> np.ndarray:
+    """(m, 3) int64 copy of tris (m, 3) int32, corners 1 and 2 swapped with flip."""
+    m = tris.shape[0]
+    out = np.empty((m, 3), dtype=np.int64)
+    b, c = (2, 1) if flip else (1, 2)
+    for t in range(m):
+        out[t, 0] = tris[t, 0]
+        out[t, 1] = tris[t, b]
+        out[t, 2] = tris[t, c]
+    return out

@@ -22,7 +22,8 @@ from approxtree.geometry.rect import Rect
 from approxtree.kernels.rtin import extract, vertex_errors
 from approxtree.kernels.rtin_greedy import greedy_rtin
 from approxtree.patches.base import GeometryPatch
-from approxtree.patches.lattice import LatticePatch, Window, grid_window, require_grid
+from approxtree.patches.lattice import Window, grid_window, require_grid
+from approxtree.patches.tin import CompiledMeshArrays
 
 
 def lattice_size(rows: int, cols: int) -> int:
@@ -72,14 +73,17 @@ def _threshold(
 PARALLEL_MIN_POINTS = 2049 * 2049
 
 
-def _vertex_errors(grid: Grid, win: Window, size: int) -> np.ndarray:
-    """``kernels.rtin.vertex_errors`` of the window, threaded only for large lattices."""
+def _vertex_errors(grid: Grid, win: Window, size: int, cut: float) -> np.ndarray:
+    """``kernels.rtin.vertex_errors`` of the window, threaded only for large lattices.
+
+    cut: the one threshold the table will serve (entries past it are not exact), or inf.
+    """
     threads = numba.get_num_threads()
     if (size + 1) ** 2 < PARALLEL_MIN_POINTS:
         numba.set_num_threads(1)
     try:
         z = grid.heights_array("building RTIN patches")
-        return vertex_errors(z, win.r0, win.c0, win.rows, win.cols, size, win.has_nan)
+        return vertex_errors(z, win.r0, win.c0, win.rows, win.cols, size, win.has_nan, cut)
     finally:
         numba.set_num_threads(threads)
 
@@ -114,12 +118,15 @@ def rtin_patch(
             win.has_nan,
         )
         return RTINPatch.from_extract(grid, rect, win, split, 0.5)
-    err = _vertex_errors(grid, win, size)
+    # One threshold known beforehand (no budget): the table need only be exact up to it.
+    budget = max_points is not None or max_triangles is not None
+    cut = float(max_error) if max_error is not None and not budget else np.inf
+    err = _vertex_errors(grid, win, size, cut)
     t = _threshold(err, grid, win, max_error, max_points, max_triangles)
     return RTINPatch.from_extract(grid, rect, win, err, t)
 
 
-class RTINPatch(LatticePatch):
+class RTINPatch(CompiledMeshArrays):
     """RTIN of a Grid window: stores (row, col) vertex indices and triangles."""
 
     kind = "rtin"

@@ -21,6 +21,7 @@ from approxtree.geometry.grid import Grid
 from approxtree.geometry.rect import Rect
 from approxtree.kernels._jit import readonly
 from approxtree.kernels.greedy_tin import greedy_tin
+from approxtree.kernels.tin_mesh import grid_vertices, wide_triangles
 from approxtree.patches.base import GeometryPatch
 from approxtree.patches.lattice import LatticePatch, Window, grid_window, require_grid
 
@@ -54,7 +55,31 @@ def grid_tin(
     )
 
 
-class GridTINPatch(LatticePatch):
+class CompiledMeshArrays(LatticePatch):
+    """A LatticePatch whose world mesh arrays come from one compiled pass each (the same
+    values as ``LatticePatch``'s numpy gathers, without their widened index temporaries)."""
+
+    @property
+    def vertices(self) -> np.ndarray:
+        g = self.grid
+        h = g.heights
+        if not isinstance(h, np.ndarray):
+            return super().vertices
+        return grid_vertices(
+            readonly(self.ij, np.int32),
+            readonly(g.x_coords, np.float64),
+            readonly(g.y_coords, np.float64),
+            readonly(h),
+        )
+
+    @property
+    def triangles(self) -> np.ndarray:
+        # Index space is (col, row); a north-up transform mirrors it, so flip to stay CCW.
+        flip = bool(self.grid.transform.a * self.grid.transform.e < 0)
+        return wide_triangles(readonly(self.tris, np.int32), flip)
+
+
+class GridTINPatch(CompiledMeshArrays):
     """The TIN of one window of a Grid (vertices are grid points)."""
 
     kind = "tin"
