@@ -65,6 +65,7 @@ def rasterize(terrain: GeometryData, cell_size: float | None = None) -> Grid:
         if heights is None:
             heights = np.empty((rows, cols), dtype=strip.dtype)
         heights[r0 : r0 + step_rows] = strip
+    assert heights is not None  # rows >= 2: the loop ran
     # Cell-centre georeference: the top-left corner lies half a step beyond the first point.
     transform = Affine(dx, 0.0, d.xmin - 0.5 * dx, 0.0, -dy, d.ymax + 0.5 * dy)
     return Grid(heights, transform=transform, crs=terrain.crs)
