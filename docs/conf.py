@@ -91,7 +91,8 @@ nitpick_ignore_regex = [
     # update's per-cell figures) that the API pages do not list.
     (
         r"py:class",
-        r"(.*\.)?(_\w+|TreeFile|TreeStoreSource|PyramidDelta|HeightRegions|CellCache)",
+        r"(.*\.)?(_\w+|TreeFile|TreeStoreSource|PyramidDelta|HeightRegions|CellCache"
+        r"|CompiledMeshArrays)",
     ),
 ]
 
