@@ -29,6 +29,10 @@ from numba import njit, prange
 from approxtree.kernels.tin_mesh import orient
 from approxtree.kernels.tin_scan import plane, row_span, scan_with_holes
 
+#: Hierarchy triangles whose hypotenuse spans at most this many lattice steps are measured
+#: point by point (``_small_error``), larger ones row by row (``_scan_right``).
+SMALL_SPAN = 16
+
 
 @njit(cache=True, inline="always")
 def _mid_error(heights, r0, c0, ux, uy, vx, vy) -> float:
@@ -39,6 +43,56 @@ def _mid_error(heights, r0, c0, ux, uy, vx, vy) -> float:
     zv = np.float64(heights[r0 + vy, c0 + vx])
     zm = np.float64(heights[r0 + (uy + vy) // 2, c0 + (ux + vx) // 2])
     return abs(zm - 0.5 * (zu + zv))
+
+
+@njit(cache=True)
+def _small_error(heights, r0, c0, ax, ay, lx, ly, rx, ry, span) -> float:
+    """Exact max |z − plane| over the non-corner points of a small hierarchy triangle, its
+    hypotenuse l–r spanning span (a power of two) lattice steps in x or y, apex a: point by
+    point, the plane's value at each from the corners' heights by its barycentric weights
+    (multiples of 1/span: no divisions, no row set-up)."""
+    za = np.float64(heights[r0 + ay, c0 + ax])
+    zl = np.float64(heights[r0 + ly, c0 + lx])
+    zr = np.float64(heights[r0 + ry, c0 + rx])
+    inv = 1.0 / span
+    best = 0.0
+    if lx == rx or ly == ry:
+        # Hypotenuse along an axis (legs diagonal): rows k = 0 (the hypotenuse) to h − 1
+        # towards the apex, row k centred at m + k·n with h − k points either side (d the unit
+        # step along the hypotenuse, n towards the apex).
+        h = span // 2
+        dx = (rx - lx) // span
+        dy = (ry - ly) // span
+        mx = (lx + rx) // 2
+        my = (ly + ry) // 2
+        nx = (ax - mx) // h
+        ny = (ay - my) // h
+        zm = (zl + zr) * 0.5
+        g = (zr - zl) * inv
+        rise = (za - zm) * (2.0 * inv)
+        for k in range(h):
+            centre = zm + rise * k
+            for t in range(k - h, h - k + 1):
+                if k == 0 and (t == -h or t == h):
+                    continue
+                z = np.float64(heights[r0 + my + k * ny + t * dy, c0 + mx + k * nx + t * dx])
+                best = max(best, abs(z - (centre + g * t)))
+        return best
+    # Hypotenuse diagonal (legs along the axes): p = l + i·u + j·v, u = (a − l)/span,
+    # v = (r − a)/span, 0 <= j <= i <= span, the plane zl + i·(za − zl)/span + j·(zr − za)/span.
+    ux = (ax - lx) // span
+    uy = (ay - ly) // span
+    vx = (rx - ax) // span
+    vy = (ry - ay) // span
+    gu = (za - zl) * inv
+    gv = (zr - za) * inv
+    for i in range(1, span + 1):
+        for j in range(0, i + 1):
+            if i == span and (j == 0 or j == span):
+                continue
+            z = np.float64(heights[r0 + ly + i * uy + j * vy, c0 + lx + i * ux + j * vx])
+            best = max(best, abs(z - (zl + gu * i + gv * j)))
+    return best
 
 
 @njit(cache=True)
@@ -63,6 +117,10 @@ def _tri_error(heights, r0, c0, rows, cols, ax, ay, bx, by, cx, cy, has_nan, cut
                     _mid_error(heights, r0, c0, cx, cy, ax, ay),
                 ),
             )
+        span = max(abs(bx - cx), abs(by - cy))
+        if not has_nan and span <= SMALL_SPAN:
+            # The next levels (most of the rest): their few points one by one.
+            return _small_error(heights, r0, c0, ax, ay, bx, by, cx, cy, span)
         if has_nan:
             k, _, _ = scan_with_holes(heights, r0, c0, ax, ay, bx, by, cx, cy)
             return max(k, 0.0)
