@@ -178,6 +178,73 @@ def bench_pyramid(size: int, repeats: int, baseline: str | None) -> dict:
 #: A process that only imports what ``approxtree bake`` imports before its work.
 _IMPORT_CHILD = "import approxtree.cli, approxtree.io, approxtree.textures.bake"
 
+#: One ``approxtree bake`` under cProfile, in its own process: seconds of its phases (imports
+#: before the command runs, the numba dispatch that loads a cached kernel, the shading kernel,
+#: the pyramid writes, the wait on the strip workers) as JSON on stdout.
+_PROFILE_CHILD = """
+import cProfile, json, pstats, sys, time
+t0 = time.perf_counter()
+prof = cProfile.Profile()
+prof.enable()
+import approxtree.cli, approxtree.io, approxtree.textures.bake, approxtree.render.context
+t1 = time.perf_counter()
+approxtree.cli.main(sys.argv[1:], standalone_mode=False)
+prof.disable()
+t2 = time.perf_counter()
+phases = {"numba_dispatch_and_cache_load": "_compile_for_args",
+          "hillshade_kernel": "hillshade_grey_alpha_rows", "spool_strips": "_spool_strips",
+          "pwrite": "<built-in method posix.pwrite>",
+          "wait_on_workers": "<method 'acquire' of '_thread.lock' objects>",
+          "open_dem": "_terrain_of"}
+found = {k: 0.0 for k in phases}
+for (path, line, name), (cc, nc, tt, ct, callers) in pstats.Stats(prof).stats.items():
+    for k, want in phases.items():
+        if name == want:
+            found[k] = max(found[k], ct)
+print(json.dumps({"imports_s": t1 - t0, "command_s": t2 - t1, "profiled_total_s": t2 - t0,
+                  "phases_cumulative_s": found}))
+"""
+
+
+#: Modules whose import seconds the start-up profile lists.
+_WATCHED_IMPORTS = (
+    "numpy", "numba", "llvmlite.binding", "rasterio", "click", "tifffile", "affine",
+    "approxtree.kernels", "approxtree.geometry", "approxtree.io", "approxtree.textures.bake",
+    "approxtree.render", "approxtree.tree.zarr_store", "approxtree.cli",
+)  # fmt: skip
+
+
+def _startup_profile(src: Path, env: dict[str, str], cwd: Path) -> dict:
+    """Where one bake's time goes: cProfile phases and ``-X importtime`` of its imports (the
+    top-level packages by cumulative seconds)."""
+    out = cwd / "profiled"
+    res = subprocess.run(
+        [sys.executable, "-c", _PROFILE_CHILD, "bake", str(src), "--out", str(out), "--no-gl"],
+        env=env, cwd=cwd, capture_output=True, text=True, check=True,
+    )  # fmt: skip
+    report = json.loads(res.stdout.strip().splitlines()[-1])
+    shutil.rmtree(out, ignore_errors=True)
+    imp = subprocess.run(
+        [sys.executable, "-X", "importtime", "-c", _IMPORT_CHILD + ", approxtree.render.context"],
+        env=env, cwd=cwd, capture_output=True, text=True, check=True,
+    )  # fmt: skip
+    # Each watched module's cumulative import seconds where it is first imported, and the
+    # whole import (the top-level entries).
+    watched = {}
+    total = 0.0
+    for line in imp.stderr.splitlines():
+        parts = line.split("|")
+        if len(parts) != 3 or not parts[1].strip().isdigit():
+            continue
+        name = parts[2].strip()
+        seconds = int(parts[1]) / 1e6
+        if not parts[2].startswith("  "):
+            total += seconds
+        if name in _WATCHED_IMPORTS and name not in watched:
+            watched[name] = seconds
+    report["import_cumulative_s"] = {"all": total, **watched}
+    return report
+
 
 def _patch_reads(folder: Path) -> dict:
     """Median seconds to read texture patches (4096², 1024², 256² windows) of a pyramid."""
@@ -203,6 +270,7 @@ def bench_cli(
     size: int, repeats: int, gl: bool, baseline: str | None, compress: str, dem: str | None
 ) -> dict:
     """``approxtree bake`` (fresh processes) vs ``gdaldem hillshade``, interleaved."""
+    load_start = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         tmp_path = Path(tmp)
         # Compiled bytecode as an installed package has it (.pyc written by the warm-up run,
@@ -266,6 +334,7 @@ def bench_cli(
                     ),
                     flush=True,
                 )
+        profile = _startup_profile(src, env, tmp_path)
     med = {
         name: {key: statistics.median(r[key] for r in rs) for key in rs[0]}
         for name, rs in runs.items()
@@ -277,13 +346,15 @@ def bench_cli(
         "dem_bytes": dem_bytes,
         "dem_compression": "given" if dem else compress,
         "cores": os.cpu_count(),
-        "load_average": os.getloadavg(),
+        "load_average": load_start,
         "bytecode": "cached (.pyc under PYTHONPYCACHEPREFIX, as an installed package has)",
         "medians": med,
         "wall_ratio_over_gdaldem": {k: v["wall_s"] / gdal["wall_s"] for k, v in med.items()},
         "cpu_ratio_over_gdaldem": {k: v["cpu_s"] / gdal["cpu_s"] for k, v in med.items()},
         "peak_over_dem_bytes": {k: v["peak_bytes"] / dem_bytes for k, v in med.items()},
         "patch_read_s": patch_reads,
+        "startup_profile": profile,
+        "load_average_end": os.getloadavg(),
         "runs": runs,
     }
 

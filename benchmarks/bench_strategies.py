@@ -15,7 +15,7 @@ compile of the warm-up call is reported separately (``compile_seconds``). Writes
 
     python benchmarks/bench_strategies.py [--sizes 1025 2049 4097] [--rtin-sizes 257 1025 4097]
         [--tile-sizes 256 512] [--tin-errors 1 5 10 30] [--tile-errors 1 2 5 10] [--repeats 5]
-        [--tin-only] [--out strategies]
+        [--tin-only] [--rtin-only] [--rtin-breakdown] [--out strategies]
 
 ``--tin-only`` runs just the greedy TIN rows of issue 15 (real 256²/512² tiles, fractal sizes
 × errors) against pydelatin and writes their JSON (with the range of the CPU-time ratios).
@@ -192,6 +192,58 @@ def bench_rtin(terrain, repeats, thresholds=RTIN_THRESHOLDS, equal_error=True):
     return rows
 
 
+def rtin_breakdown(terrain, repeats: int, thresholds=RTIN_THRESHOLDS) -> list[dict]:
+    """Where one RTIN call's CPU time goes against pymartini's, per threshold (medians of
+    ``repeats``, process time): our error table (``kernels.rtin.vertex_errors`` for that
+    threshold), the extraction that measures every point (``extract``) and the rest of
+    ``approximate`` (Python, the world mesh arrays); pymartini's ``create_tile`` and
+    ``get_mesh``."""
+    from pymartini import Martini
+
+    from approxtree.kernels.rtin import extract
+    from approxtree.patches.approximate import approximate
+    from approxtree.patches.lattice import grid_window
+    from approxtree.patches.rtin import _vertex_errors, lattice_size
+
+    def cpu(fn) -> float:
+        times = []
+        for _ in range(repeats):
+            t0 = time.process_time()
+            fn()
+            times.append(time.process_time() - t0)
+        return statistics.median(times)
+
+    win = grid_window(terrain, terrain.domain)
+    size = lattice_size(win.rows, win.cols)
+    z = terrain.heights_array("benchmark")
+    heights32 = terrain.heights.astype(np.float32)
+    martini = Martini(size + 1)
+    rows = []
+    for e in thresholds:
+        err = _vertex_errors(terrain, win, size, float(e))
+        tile = martini.create_tile(heights32)
+        total = cpu(lambda e=e: approximate(terrain, "rtin", max_error=e))
+        table = cpu(lambda e=e: _vertex_errors(terrain, win, size, float(e)))
+        walk = cpu(lambda e=e, t=err: extract(t, float(e), z, 0, 0, win.rows, win.cols, False))
+        create = cpu(lambda: martini.create_tile(heights32))
+        mesh = cpu(lambda e=e, m=tile: m.get_mesh(e))
+        rows.append(
+            {
+                "threshold": e,
+                "ours_cpu_s": total,
+                "error_table_cpu_s": table,
+                "extract_cpu_s": walk,
+                "rest_cpu_s": total - table - walk,
+                "pymartini_create_tile_cpu_s": create,
+                "pymartini_get_mesh_cpu_s": mesh,
+                "cpu_ratio": total / (create + mesh),
+                "triangles": int(extract(err, float(e), z, 0, 0, win.rows, win.cols, True)[0]),
+            }
+        )
+        print("breakdown", terrain.shape, rows[-1], flush=True)
+    return rows
+
+
 _MEMORY_CHILD = """
 import sys, numpy as np
 engine, path, e = sys.argv[1], sys.argv[2], float(sys.argv[3])
@@ -345,6 +397,12 @@ def main() -> None:
         "pymartini, its Martini(n) made once and reused",
     )
     ap.add_argument("--rtin-tile-sizes", type=int, nargs="*", default=[257, 1025])
+    ap.add_argument(
+        "--rtin-breakdown",
+        action="store_true",
+        help="only the CPU-time breakdown of RTIN calls against pymartini's two steps on the "
+        "257² fractal and real crops (where the fixed costs of a call weigh most)",
+    )
     ap.add_argument("--rtin-thresholds", type=float, nargs="+", default=RTIN_THRESHOLDS)
     ap.add_argument("--memory-error", type=float, default=5.0)
     ap.add_argument("--out", default="strategies", help="name of the JSON and plots")
@@ -376,6 +434,17 @@ def main() -> None:
         "load_average_start": os.getloadavg(),
     }
     print("compile", out["compile_seconds"], flush=True)
+    if args.rtin_breakdown:
+        grids = [("fractal_257", fractal_terrain(257, seed=1, relief=1000.0))]
+        grids += tile_crops([257])
+        out["rtin_breakdown"] = {
+            name: rtin_breakdown(grid, max(args.repeats, 21), args.rtin_thresholds)
+            for name, grid in grids
+        }
+        out["load_average_end"] = os.getloadavg()
+        RESULTS.mkdir(exist_ok=True)
+        (RESULTS / f"{args.out}.json").write_text(json.dumps(out, indent=1))
+        return
     if args.rtin_only:
         for n in args.rtin_sizes:
             terrain = fractal_terrain(n, seed=1, relief=1000.0)

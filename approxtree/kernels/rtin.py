@@ -29,6 +29,10 @@ from numba import njit, prange
 from approxtree.kernels.tin_mesh import orient
 from approxtree.kernels.tin_scan import plane, row_span, scan_with_holes
 
+#: Hierarchy triangles whose hypotenuse spans at most this many lattice steps are measured
+#: point by point (``_small_error``), larger ones row by row (``_scan_right``).
+SMALL_SPAN = 16
+
 
 @njit(cache=True, inline="always")
 def _mid_error(heights, r0, c0, ux, uy, vx, vy) -> float:
@@ -39,6 +43,56 @@ def _mid_error(heights, r0, c0, ux, uy, vx, vy) -> float:
     zv = np.float64(heights[r0 + vy, c0 + vx])
     zm = np.float64(heights[r0 + (uy + vy) // 2, c0 + (ux + vx) // 2])
     return abs(zm - 0.5 * (zu + zv))
+
+
+@njit(cache=True)
+def _small_error(heights, r0, c0, ax, ay, lx, ly, rx, ry, span) -> float:
+    """Exact max |z − plane| over the non-corner points of a small hierarchy triangle, its
+    hypotenuse l–r spanning span (a power of two) lattice steps in x or y, apex a: point by
+    point, the plane's value at each from the corners' heights by its barycentric weights
+    (multiples of 1/span: no divisions, no row set-up)."""
+    za = np.float64(heights[r0 + ay, c0 + ax])
+    zl = np.float64(heights[r0 + ly, c0 + lx])
+    zr = np.float64(heights[r0 + ry, c0 + rx])
+    inv = 1.0 / span
+    best = 0.0
+    if lx == rx or ly == ry:
+        # Hypotenuse along an axis (legs diagonal): rows k = 0 (the hypotenuse) to h − 1
+        # towards the apex, row k centred at m + k·n with h − k points either side (d the unit
+        # step along the hypotenuse, n towards the apex).
+        h = span // 2
+        dx = (rx - lx) // span
+        dy = (ry - ly) // span
+        mx = (lx + rx) // 2
+        my = (ly + ry) // 2
+        nx = (ax - mx) // h
+        ny = (ay - my) // h
+        zm = (zl + zr) * 0.5
+        g = (zr - zl) * inv
+        rise = (za - zm) * (2.0 * inv)
+        for k in range(h):
+            centre = zm + rise * k
+            for t in range(k - h, h - k + 1):
+                if k == 0 and (t == -h or t == h):
+                    continue
+                z = np.float64(heights[r0 + my + k * ny + t * dy, c0 + mx + k * nx + t * dx])
+                best = max(best, abs(z - (centre + g * t)))
+        return best
+    # Hypotenuse diagonal (legs along the axes): p = l + i·u + j·v, u = (a − l)/span,
+    # v = (r − a)/span, 0 <= j <= i <= span, the plane zl + i·(za − zl)/span + j·(zr − za)/span.
+    ux = (ax - lx) // span
+    uy = (ay - ly) // span
+    vx = (rx - ax) // span
+    vy = (ry - ay) // span
+    gu = (za - zl) * inv
+    gv = (zr - za) * inv
+    for i in range(1, span + 1):
+        for j in range(0, i + 1):
+            if i == span and (j == 0 or j == span):
+                continue
+            z = np.float64(heights[r0 + ly + i * uy + j * vy, c0 + lx + i * ux + j * vx])
+            best = max(best, abs(z - (zl + gu * i + gv * j)))
+    return best
 
 
 @njit(cache=True)
@@ -63,6 +117,10 @@ def _tri_error(heights, r0, c0, rows, cols, ax, ay, bx, by, cx, cy, has_nan, cut
                     _mid_error(heights, r0, c0, cx, cy, ax, ay),
                 ),
             )
+        span = max(abs(bx - cx), abs(by - cy))
+        if not has_nan and span <= SMALL_SPAN:
+            # The next levels (most of the rest): their few points one by one.
+            return _small_error(heights, r0, c0, ax, ay, bx, by, cx, cy, span)
         if has_nan:
             k, _, _ = scan_with_holes(heights, r0, c0, ax, ay, bx, by, cx, cy)
             return max(k, 0.0)
@@ -512,41 +570,75 @@ def _walk(
         # Unit right triangles (most leaves of a fine mesh) have no point but their corners.
         if abs(lx - rx) == 1 and abs(ly - ry) == 1:
             continue
-        # Measure the leaf: every non-corner point, in the arithmetic of ``_scan_right`` (the
-        # hierarchy's own values); interior points belong to this leaf alone, edge points
-        # (row ends, rows along a horizontal edge) count once, marked −2 in mark.
+        # Measure the leaf: every non-corner point, the plane's value at each from the
+        # corners' heights by its barycentric weights (multiples of 1/span, as
+        # ``_small_error``: no divisions, no row set-up); interior points belong to this leaf
+        # alone, edge points count once, marked −2 in mark (corners are vertices: skipped).
         za = np.float64(heights[r0 + ay, c0 + ax])
-        gx, gy = plane(
-            za,
-            np.float64(heights[r0 + ly, c0 + lx]),
-            np.float64(heights[r0 + ry, c0 + rx]),
-            ax, ay, lx, ly, rx, ry,
-        )  # fmt: skip
-        big = max(ax, max(lx, rx)) + 1
-        for y in range(min(ay, min(ly, ry)), max(ay, max(ly, ry)) + 1):
-            lo, hi = _edge_x(ax, ay, lx, ly, y, big, -1)
-            lo, hi = _edge_x(lx, ly, rx, ry, y, lo, hi)
-            lo, hi = _edge_x(rx, ry, ax, ay, y, lo, hi)
-            base = za + gy * (y - ay) + gx * (lo - ax)
-            flat = (ay == ly == y) or (ly == ry == y) or (ry == ay == y)
-            corner_row = y == ay or y == ly or y == ry
-            row = y * cols
-            for i in range(hi - lo + 1):
-                x = lo + i
-                if flat or x == lo or x == hi:
-                    if corner_row and (
-                        (x == ax and y == ay) or (x == lx and y == ly) or (x == rx and y == ry)
-                    ):
+        zl = np.float64(heights[r0 + ly, c0 + lx])
+        zr = np.float64(heights[r0 + ry, c0 + rx])
+        span = max(abs(rx - lx), abs(ry - ly))
+        inv = 1.0 / span
+        if lx == rx or ly == ry:
+            # Hypotenuse along an axis: rows k = 0 (the hypotenuse) to h − 1 towards the
+            # apex, centred at m + k·n, h − k points either side (the outer two on the legs).
+            h = span // 2
+            dx = (rx - lx) // span
+            dy = (ry - ly) // span
+            mx = (lx + rx) // 2
+            my = (ly + ry) // 2
+            nx = (ax - mx) // h
+            ny = (ay - my) // h
+            zm = (zl + zr) * 0.5
+            g = (zr - zl) * inv
+            rise = (za - zm) * (2.0 * inv)
+            for k in range(h):
+                centre = zm + rise * k
+                w = h - k
+                px0 = mx + k * nx
+                py0 = my + k * ny
+                for t in range(-w, w + 1):
+                    px = px0 + t * dx
+                    py = py0 + t * dy
+                    if k == 0 or t == -w or t == w:
+                        if mark[py * cols + px] != -1:
+                            continue
+                        mark[py * cols + px] = -2
+                    z = heights[r0 + py, c0 + px]
+                    if np.isnan(z):
+                        # Nodata under a drawn triangle: the mesh would cover a hole.
+                        vmax = np.inf
                         continue
-                    if mark[row + x] != -1:
+                    e = abs(z - (centre + g * t))
+                    count += 1
+                    sumsq += e * e
+                    if e > vmax:
+                        vmax = e
+            continue
+        # Hypotenuse diagonal: p = l + i·u + j·v, u = (a − l)/span, v = (r − a)/span,
+        # 0 <= j <= i <= span (j = 0, j = i and i = span on the edges).
+        ux = (ax - lx) // span
+        uy = (ay - ly) // span
+        vx = (rx - ax) // span
+        vy = (ry - ay) // span
+        gu = (za - zl) * inv
+        gv = (zr - za) * inv
+        for i in range(1, span + 1):
+            base = zl + gu * i
+            px0 = lx + i * ux
+            py0 = ly + i * uy
+            for j in range(i + 1):
+                px = px0 + j * vx
+                py = py0 + j * vy
+                if j == 0 or j == i or i == span:
+                    if mark[py * cols + px] != -1:
                         continue
-                    mark[row + x] = -2
-                z = heights[r0 + y, c0 + x]
+                    mark[py * cols + px] = -2
+                z = heights[r0 + py, c0 + px]
                 if np.isnan(z):
-                    # Nodata under a drawn triangle: the mesh would cover a hole.
                     vmax = np.inf
                     continue
-                e = abs(z - (base + gx * i))
+                e = abs(z - (base + gv * j))
                 count += 1
                 sumsq += e * e
                 if e > vmax:
