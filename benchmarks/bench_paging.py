@@ -445,7 +445,7 @@ def loop_compare_main(args: argparse.Namespace) -> None:
         "frames": args.frames,
         "size": args.size,
         "alpha": args.alpha,
-        "gamma": None,
+        "gamma": "off",
         "max_uploads": args.max_uploads,
         "machine": {"platform": platform.platform(), "cpus": psutil.cpu_count()},
         "runs": runs,
