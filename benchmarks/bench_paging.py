@@ -53,6 +53,8 @@ import numpy as np
 import psutil
 
 RESULTS = Path(__file__).resolve().parent / "results"
+#: Per-frame series and provider figures of a loop run: in the JSON, not on the console.
+SERIES = ("frame_ms", "frame_cpu_ms", "stand_in_frames", "mesh_stand_in_frames", "provider")
 
 
 def loop_cameras(tree, frames: int, scale) -> list:
@@ -380,10 +382,11 @@ def main() -> None:
                 *(sys.executable, __file__, "--one", "--tree", args.tree),
                 *("--frames", str(args.frames), "--size", args.size, "--alpha", str(args.alpha)),
                 *("--cache-mb", str(cache_mb), "--max-uploads", str(args.max_uploads)),
+                "--plain",  # Paging's defaults and --max-uploads, as this comparison always ran
             ]
             out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
             runs.append(json.loads(out.strip().splitlines()[-1]))
-            print(json.dumps({k: v for k, v in runs[-1].items() if k != "provider"}), flush=True)
+            print(json.dumps({k: v for k, v in runs[-1].items() if k not in SERIES}), flush=True)
         tree_bytes = (
             sum(p.stat().st_size for p in Path(args.tree).rglob("*"))
             if Path(args.tree).is_dir()
@@ -435,9 +438,7 @@ def loop_compare_main(args: argparse.Namespace) -> None:
             out = subprocess.run(cmd, check=True, capture_output=True, text=True, env=env).stdout
             run = json.loads(out.strip().splitlines()[-1]) | {"name": name, "round": r}
             runs.append(run)
-            skip = ("frame_ms", "frame_cpu_ms", "stand_in_frames", "mesh_stand_in_frames")
-            skip += ("provider",)
-            skip += tuple(k for k in run if k.endswith("_by_decile"))
+            skip = (*SERIES, *(k for k in run if k.endswith("_by_decile")))
             print(json.dumps({k: v for k, v in run.items() if k not in skip}), flush=True)
     result = {
         "scenario": "loop",
