@@ -16,6 +16,15 @@ the terrain seen).
         [--alpha 1] [--cache-mb 512] [--peer-cache-mb 64] [--dem-size 2049] [--max-uploads 32]
         [--out benchmarks/results/paging.json]
 
+With ``--baseline-lib`` (an earlier checkout) the loop runs that checkout, this one with
+``Paging``'s defaults and this one with the viewer's paging (``--lookahead``,
+``--frame-margin-ms``) in interleaved processes, ``--rounds`` rounds, one cache size; per run
+also the share of frames drawing a mesh stand-in (and any, normal patches included), the
+frame times and the load average; JSON and a plot:
+
+    python benchmarks/bench_paging.py --tree fractal_32768.zarr --frames 600 --cache-mb 512 \
+        --baseline-lib /tmp/before --rounds 2 --out benchmarks/results/paging_32768.json
+
 ``--scenario flyover`` (issue 26, item 3): a low fly-over of ``--tree`` textured by
 ``--textures`` (a baked hillshade) at α ``--alpha``, γ ``--gamma``, in four straight legs with a
 camera cut between them (``flyover_cameras``), against ``--baseline-lib`` (a checkout of main,
@@ -44,6 +53,8 @@ import numpy as np
 import psutil
 
 RESULTS = Path(__file__).resolve().parent / "results"
+#: Per-frame series and provider figures of a loop run: in the JSON, not on the console.
+SERIES = ("frame_ms", "frame_cpu_ms", "stand_in_frames", "mesh_stand_in_frames", "provider")
 
 
 def loop_cameras(tree, frames: int, scale) -> list:
@@ -115,27 +126,31 @@ def rss_parts() -> tuple[int, int]:
 def run_one(args: argparse.Namespace) -> dict:
     """One fly-over in this process; returns its figures."""
     from approxtree import load_tree
-    from approxtree.render import Cut, Engine, Paging
+    from approxtree.render import Cut, Engine
 
     proc = psutil.Process()
     rss0 = proc.memory_info().rss
     tree = load_tree(args.tree)
     w, h = (int(v) for v in args.size.lower().split("x"))
     cache = int(args.cache_mb * (1 << 20))
+    paging = _paging(args)
     rows = []
     with Engine(tree, cache_bytes=cache, cpu_cache_bytes=cache) as eng:
         cams = loop_cameras(tree, args.frames, eng.scale)
         rss_open = proc.memory_info().rss
         for cam in cams:
-            t0 = time.perf_counter()
-            frame = eng.render(
-                cam, (w, h), Cut(args.alpha, math.inf), paging=Paging(False, args.max_uploads)
-            )
+            t0, c0 = time.perf_counter(), time.process_time()
+            frame = eng.render(cam, (w, h), Cut(args.alpha, math.inf), paging=paging)
             ms = (time.perf_counter() - t0) * 1e3
             rows.append(
                 {
                     "ms": ms,
+                    # CPU time of the whole process (llvmpipe's and the loaders' threads too):
+                    # the frame's work, less at the mercy of other jobs than its wall time.
+                    "cpu_ms": (time.process_time() - c0) * 1e3,
                     "stand_ins": frame.stats["stand_ins"],
+                    # Normal patches (a grid over the normal map's side) stood in for.
+                    "texture_stand_ins": frame.stats.get("texture_stand_ins", 0),
                     "pending": frame.stats["pending"],
                     "patches": frame.stats["patches"],
                     "triangles": frame.stats["triangles"],
@@ -153,12 +168,28 @@ def run_one(args: argparse.Namespace) -> dict:
     file_backed = np.array([r["rss_file"] for r in rows]) / 2**20
     warm = max(1, len(rows) // 10)
     mb = 1 << 20
+    cpu_ms = np.array([r["cpu_ms"] for r in rows])
+    mesh = np.array([r["stand_ins"] > 0 for r in rows])
+    drew = mesh | np.array([r["texture_stand_ins"] > 0 for r in rows])
+    # The flight starts with empty caches: the frames until the first without a stand-in
+    # fill them (a cold start), the others show whether loads keep up with the motion.
+    clear = np.flatnonzero(~drew)
+    cold = int(clear[0]) if len(clear) else len(rows)
     return {
         "cache_mb": args.cache_mb,
+        "paging": repr(paging),
         "frames": len(rows),
         "frame_ms_median": round(float(np.median(ms)), 2),
         "frame_ms_p95": round(float(np.percentile(ms, 95)), 2),
-        "frames_with_stand_ins": int(sum(r["stand_ins"] > 0 for r in rows)),
+        "frame_cpu_ms_median": round(float(np.median(cpu_ms)), 2),
+        "frame_cpu_ms_p95": round(float(np.percentile(cpu_ms, 95)), 2),
+        "cold_start_frames": cold,
+        "stand_in_frames_after_cold_start": int(drew[cold:].sum()),
+        "frames_with_stand_ins": int(mesh.sum()),
+        # Any stand-in: a mesh, or a normal patch (texture) not loaded yet.
+        "frames_with_any_stand_in": int(drew.sum()),
+        "mesh_stand_in_share": round(float(mesh.mean()), 4),
+        "stand_in_share": round(float(drew.mean()), 4),
         "frames_pending": int(sum(r["pending"] > 0 for r in rows)),
         "stand_ins_median": float(np.median([r["stand_ins"] for r in rows])),
         "pending_median": float(np.median([r["pending"] for r in rows])),
@@ -184,8 +215,28 @@ def run_one(args: argparse.Namespace) -> dict:
         "caches_mb_by_decile": _deciles(
             np.array([r["cpu_bytes"] + r["gpu_bytes"] for r in rows]) / mb
         ),
+        "frame_ms": [round(float(v), 2) for v in ms],
+        "frame_cpu_ms": [round(float(v), 2) for v in cpu_ms],
+        "stand_in_frames": [int(v) for v in drew],
+        "mesh_stand_in_frames": [int(v) for v in mesh],
         "provider": provider,
+        "loadavg": list(os_loadavg()),
     }
+
+
+def _paging(args: argparse.Namespace):
+    """The Paging of a loop run: ``--plain``, the library's defaults with ``--max-uploads``
+    (as the loop always ran); otherwise also ``--lookahead`` and ``--frame-margin-ms`` (the
+    viewer's settings) where the library has them."""
+    import dataclasses
+
+    from approxtree.render import Paging
+
+    fields = {f.name for f in dataclasses.fields(Paging)}
+    extra = {}
+    if not args.plain and "lookahead" in fields:
+        extra = {"lookahead": args.lookahead, "frame_margin_ms": args.frame_margin_ms}
+    return Paging(False, args.max_uploads, **extra)
 
 
 def run_flyover(args: argparse.Namespace) -> dict:
@@ -303,8 +354,8 @@ def main() -> None:
     parser.add_argument("--gamma", type=float, default=math.inf)
     parser.add_argument("--lookahead", type=int, default=4)
     parser.add_argument("--frame-margin-ms", type=float, default=4.0)
-    parser.add_argument("--plain", action="store_true", help="flyover: page as main did")
-    parser.add_argument("--baseline-lib", help="flyover: a checkout of main, run interleaved")
+    parser.add_argument("--plain", action="store_true", help="page with Paging's defaults")
+    parser.add_argument("--baseline-lib", help="an earlier checkout, run interleaved")
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--one", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -314,6 +365,9 @@ def main() -> None:
         return
     if args.scenario == "flyover":
         flyover_main(args)
+        return
+    if args.baseline_lib:
+        loop_compare_main(args)
         return
     with tempfile.TemporaryDirectory() as tmp:
         built = None
@@ -328,10 +382,11 @@ def main() -> None:
                 *(sys.executable, __file__, "--one", "--tree", args.tree),
                 *("--frames", str(args.frames), "--size", args.size, "--alpha", str(args.alpha)),
                 *("--cache-mb", str(cache_mb), "--max-uploads", str(args.max_uploads)),
+                "--plain",  # Paging's defaults and --max-uploads, as this comparison always ran
             ]
             out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
             runs.append(json.loads(out.strip().splitlines()[-1]))
-            print(json.dumps({k: v for k, v in runs[-1].items() if k != "provider"}), flush=True)
+            print(json.dumps({k: v for k, v in runs[-1].items() if k not in SERIES}), flush=True)
         tree_bytes = (
             sum(p.stat().st_size for p in Path(args.tree).rglob("*"))
             if Path(args.tree).is_dir()
@@ -352,6 +407,55 @@ def main() -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1))
     print(f"wrote {out}")
+
+
+def loop_compare_main(args: argparse.Namespace) -> None:
+    """The loop with ``--cache-mb`` caches: ``--baseline-lib`` (an earlier checkout) against
+    this checkout with the library's default Paging and with the viewer's (``--lookahead``,
+    ``--frame-margin-ms``), interleaved, ``--rounds`` rounds, each run in its own process;
+    JSON and a plot into ``--out``."""
+    import os
+
+    if args.tree is None:
+        raise SystemExit("--baseline-lib with the loop needs --tree (build it once)")
+    here = str(Path(__file__).resolve().parent.parent)
+    variants = [
+        ("before", str(Path(args.baseline_lib).resolve()), ["--plain"]),
+        ("default", here, ["--plain"]),
+        ("viewer", here, []),
+    ]
+    runs = []
+    for r in range(args.rounds):
+        for name, lib, flags in variants:
+            cmd = [
+                *(sys.executable, __file__, "--one", "--tree", args.tree),
+                *("--frames", str(args.frames), "--size", args.size, "--alpha", str(args.alpha)),
+                *("--cache-mb", str(args.cache_mb), "--max-uploads", str(args.max_uploads)),
+                *("--lookahead", str(args.lookahead)),
+                *("--frame-margin-ms", str(args.frame_margin_ms), *flags),
+            ]
+            env = {**os.environ, "PYTHONPATH": lib}
+            out = subprocess.run(cmd, check=True, capture_output=True, text=True, env=env).stdout
+            run = json.loads(out.strip().splitlines()[-1]) | {"name": name, "round": r}
+            runs.append(run)
+            skip = (*SERIES, *(k for k in run if k.endswith("_by_decile")))
+            print(json.dumps({k: v for k, v in run.items() if k not in skip}), flush=True)
+    result = {
+        "scenario": "loop",
+        "tree": args.tree,
+        "frames": args.frames,
+        "size": args.size,
+        "alpha": args.alpha,
+        "gamma": "off",
+        "max_uploads": args.max_uploads,
+        "machine": {"platform": platform.platform(), "cpus": psutil.cpu_count()},
+        "runs": runs,
+    }
+    out_path = Path(args.out)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    out_path.write_text(json.dumps(result, indent=1))
+    plot_flyover(result, out_path.with_suffix(".png"))
+    print(f"wrote {out_path}")
 
 
 def flyover_main(args: argparse.Namespace) -> None:
@@ -419,7 +523,9 @@ def plot_flyover(result: dict, path: Path) -> None:
         ax.plot(marks, ms[marks], ".", ms=3, color=line[0].get_color())
     ax.set_xlabel("frame (dots: a stand-in drawn)")
     ax.set_ylabel("ms per frame")
-    ax.set_title(f"paging fly-over, {result['size']}, α {result['alpha']}, γ {result['gamma']}")
+    ax.set_title(
+        f"paging {result['scenario']}, {result['size']}, α {result['alpha']}, γ {result['gamma']}"
+    )
     ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=110)
