@@ -139,6 +139,11 @@ class ApproximationTreeSource:
         if cut.full_resolution:
             plan = self.full.plan(wanted)
             self._texture(plan, plan.meshes, wanted.nodes.copy(), np.zeros(len(wanted.nodes)))
+            if self.binding is None and self.normals.active:
+                # Each chunk shaded by its own normal patch, as finely as the cut's nodes.
+                chunks, zscale = self.full.normal_patches(self._shading_side), self._zscale
+                keys = [chunks.key(int(i), zscale) for i in wanted.nodes]
+                plan.groups = group_meshes(plan.meshes, keys)
             return plan
         interactive = not paging.wait
         figures, requests, ahead = dict.fromkeys(PAGING_KEYS, 0), list[Any](), list[Any]()
@@ -182,7 +187,7 @@ class ApproximationTreeSource:
         and requested (returned)."""
         drawn = plan.selection
         nodes, gammas = texture_nodes(self.tree.parents, drawn, cut.gamma, cut.share_textures)
-        zscale = float(self._shading_scale[2])
+        zscale = self._zscale
         plan.groups = group_meshes(plan.meshes, [self.normals.key(i, zscale) for i in nodes])
         plan.texture_nodes, plan.texture_gammas = nodes, gammas
         if paged is None:
@@ -193,6 +198,11 @@ class ApproximationTreeSource:
         )
         figures["texture_stand_ins"] = len(requests)
         return requests
+
+    @property
+    def _zscale(self) -> float:
+        """The display z scale the normal patches are computed for."""
+        return float(self._shading_scale[2])
 
     def _texture_keys(self, selection: Selection, cut: Cut) -> list[TextureKey]:
         """The texture patches the nodes of ``selection`` are drawn with (with a pyramid)."""
@@ -274,7 +284,7 @@ class ApproximationTreeSource:
         if self.binding is not None or not self.normals.active:
             return None
         normals, origin = self.normals, self.tree.origin
-        return lambda key: normals.uv(key, origin)
+        return lambda key: normals.upload_uv(key, origin)
 
     def set_skirts(self, skirts: bool) -> bool:
         """Hang skirts or not; True when that changes the meshes (the cached ones dropped)."""
@@ -401,7 +411,7 @@ class ApproximationTreeSource:
         """The payload of ``key``, built now: the provider's loader (it runs on the provider's
         threads and reads the tree's store without keeping the patch, ``read_patch``)."""
         if isinstance(key, NormalKey):
-            texels = self.normals.texels_of(key, self.tree.origin, self._shading_scale)
+            texels = self.normals.upload_texels(key, self.tree.origin, self._shading_scale)
             return Payload(texels=texels)
         if isinstance(key, TextureKey):
             if self.binding is None:  # the pyramid was dropped while this load waited
