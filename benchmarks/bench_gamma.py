@@ -15,7 +15,8 @@ Helens (USGS DEM, 30 m, steep) and a 1024² crop of the SRTM 3″ Mount Washingt
 ../shared/data (ε = 1 m, the CLI's default); --no-dems and --no-textures leave those out.
 
     PYTHONPATH=<checkout> python benchmarks/bench_gamma.py --fractal F.zarr --work DIR \\
-        --images DIR/after [--compare DIR/before] [--out benchmarks/results/gamma.json]
+        --images DIR/after [--compare DIR/before] [--out benchmarks/results/gamma.json] \\
+        [--plot benchmarks/results/gamma.png]
 
 Frame times against another checkout (``--interleave CHECKOUT --rounds R``): this script runs
 itself R times on each checkout in turn (``--repeat`` warm frames per row after the first,
@@ -187,6 +188,35 @@ def compare(images: Path, before: Path) -> dict[str, float]:
     return out
 
 
+def plot(rows: list[dict], path: Path) -> None:
+    """Bars of the γ = 2 cut's triangles over the γ-off cut's (the target line at 1.25) and
+    its largest γ (the threshold at 2), one bar per terrain, view, textures and α."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    on = [r for r in rows if r["gamma"] != "inf"]
+    labels = [f"{r['terrain']} {r['view']} {r['textures']} α{r['alpha']:g}" for r in on]
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(max(8.0, 0.32 * len(on)), 8), sharex=True)
+    x = np.arange(len(on))
+    top.bar(x, [r["ratio_to_gamma_off"] for r in on], color="tab:blue")
+    top.axhline(1.25, color="tab:red", linestyle="--", label="target 1.25×")
+    top.set_ylabel("triangles γ 2 / γ off")
+    top.legend()
+    bottom.bar(x, [r["max_gamma"] for r in on], color="tab:green")
+    bottom.axhline(2.0, color="tab:red", linestyle="--", label="γ = 2")
+    bottom.set_yscale("log")
+    bottom.set_ylabel("largest γ drawn (px²)")
+    bottom.legend()
+    bottom.set_xticks(x, labels, rotation=90, fontsize=7)
+    fig.suptitle(f"γ on texture and normal patches, {SIZE[0]} × {SIZE[1]}")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def interleave(argv: list[str], other: Path, rounds: int) -> list[dict]:
     """Run this script with ``argv`` on ``other``'s checkout and on this one in turn,
     ``rounds`` times; per row (terrain, view, textures, α, γ) the median over rounds of each
@@ -233,6 +263,7 @@ def main() -> None:
     ap.add_argument("--interleave", type=Path, help="another checkout: frame times against it")
     ap.add_argument("--rounds", type=int, default=3, help="interleaved rounds per checkout")
     ap.add_argument("--out", type=Path, help="JSON results")
+    ap.add_argument("--plot", type=Path, help="PNG of the ratios and the largest γ")
     args = ap.parse_args()
     if args.interleave is not None:
         argv = [a for f in args.fractal for a in ("--fractal", str(f))]
@@ -281,6 +312,8 @@ def main() -> None:
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(result, indent=1))
+    if args.plot is not None:
+        plot(rows, args.plot)
 
 
 if __name__ == "__main__":

@@ -262,3 +262,25 @@ def test_low_view_gamma_within_threshold_with_the_finest_level(
     monkeypatch.setattr(normal_map_module, "PATCH_UPSAMPLE_MAX", 4)
     with Engine(tree, context=gl_context, offscreen=True) as eng:
         assert eng.render(cam, SIZE, Cut(alpha=4.0)).stats["max_gamma"] > Cut().gamma
+
+
+def test_lit_textured_frames_bind_normal_patches(gl_context, tree, small_map, tmp_path):
+    """A textured frame lit at runtime lights its groups with normal patches (an unlit one
+    computes none), and γ refines wherever the texture or the normal patch runs over γ with a
+    finer one of its kind below: every node drawn over γ has neither."""
+    from approxtree.render import Style
+    from approxtree.render.selector import finer_below
+    from approxtree.textures.bake import bake
+
+    pyramid = bake(tree.terrain, tmp_path / "hillshade", max_texture_size=128, gl=False).pyramid
+    cam, cut = low_camera(tree, 0.1, 0.1), Cut(alpha=2.0)
+    with Engine(tree, textures=pyramid, context=gl_context, offscreen=True) as eng:
+        unlit = eng.render(cam, SIZE, cut)
+        assert not any(isinstance(k, NormalKey) for k in eng.cache.keys())
+        lit = eng.render(cam, SIZE, cut, style=Style(lighting=True))
+        assert any(isinstance(k, NormalKey) for k in eng.cache.keys())
+        finer = finer_below(tree, eng.texels) | finer_below(tree, eng.source.normals.texels)
+    assert not np.array_equal(lit.image, unlit.image)
+    assert lit.stats["max_alpha"] <= cut.alpha
+    over = lit.selection.nodes[lit.selection.gammas > cut.gamma]
+    assert not finer[over].any()

@@ -19,16 +19,21 @@ texel is finer).
 
 A Grid over NORMAL_MAP_MAX cells a side gets a strided map, coarser than its data. There the
 shading is a pyramid of normal patches (``NormalPatches``, ``pyramid_levels``): level 0 holds
-the data's normals upsampled UPSAMPLE_MAX times (as a small grid's map), the next levels 2×,
-4×, ... coarser (the data's own normals, then every 2nd, 4th, ... line); a node's patch is
-the finest level's window covering D_N within the largest texture side, and a node whose
-patch would be no finer than the strided map keeps the map (``NormalKey`` None). Patches are
-computed on demand from the heights (a window with one line of halo: the same central
-differences as over the whole level) and cached like texture patches (the provider's CPU
-cache, the GPU cache, least recently used out); nodes share an ancestor's patch as they
-share texture patches (render/texture_sharing.py). γ_N is then its patch's texel, and
-``finer_below`` sees the finer patches below the large nodes. A terrain
-within NORMAL_MAP_MAX a side has no patches: its frames are drawn as before.
+the data's normals upsampled PATCH_UPSAMPLE_MAX times (8: a node near a low camera whose ×4
+texel still projects over γ has a finer one), the next levels 4×, 2× upsampled, the data's
+own normals, then every 2nd, 4th, ... line; a node's patch is the finest level's window
+covering D_N within the largest texture side, and a node whose patch would be no finer than
+the strided map keeps the map (``NormalKey`` None). A patch is uploaded as the normals of its
+window's lattice lines (``upload_texels``, ``upload_uv``): the GPU's bilinear filter draws the
+upsampled level's texels between them (``texels_of``: the same values, up to 8-bit rounding),
+so a 4096-texel patch at ×4 is 1024² texels on the GPU, not 4096². Patches are computed on
+demand from the heights (a window with one line of halo: the same central differences as over
+the whole level) and cached like texture patches (the provider's CPU cache, the GPU cache,
+least recently used out); nodes share an ancestor's patch as they share texture patches
+(render/texture_sharing.py), and full-resolution chunks are shaded each by its own patch
+(render/full_resolution.py). γ_N is then its patch's texel, and ``finer_below`` sees the finer
+patches below the large nodes. A terrain within NORMAL_MAP_MAX a side has no patches: its
+frames are drawn as before.
 """
 
 from __future__ import annotations

@@ -35,7 +35,7 @@ import numpy as np
 from approxtree.errors import EmptyTerrainError, InvalidParameterError
 from approxtree.geometry.rect import Rect
 from approxtree.render.budget import node_triangles, select_budget
-from approxtree.render.cache_keys import CHUNK, NODE, MeshKey, TextureKey, node_keys
+from approxtree.render.cache_keys import CHUNK, NODE, LitKey, MeshKey, TextureKey, node_keys
 from approxtree.render.cut import Cut
 from approxtree.render.frame import PAGING_KEYS, FramePlan
 from approxtree.render.frame_state import FrameState
@@ -94,6 +94,8 @@ class ApproximationTreeSource:
         self.payload_check: Callable[[], None] | None = None
         #: Camera motion and frame times of interactive frames (render/prefetch.py).
         self.prefetch = Prefetcher()
+        #: Frames are lit (set per frame by the Engine, ``set_lighting``).
+        self._lit = False
         self._node_figures()
 
     def _node_figures(self) -> None:
@@ -116,6 +118,7 @@ class ApproximationTreeSource:
         self.skirt_base = skirt_base(tree.errors, tree.terrain.z_range, extents)
         #: Triangles drawn per node (the budget's counts), made on first use.
         self._node_triangles: np.ndarray | None = None
+        self._lit_texels: tuple[np.ndarray, np.ndarray] | None = None
 
     # -- the protocol ---------------------------------------------------------------------------
 
@@ -124,13 +127,12 @@ class ApproximationTreeSource:
         view = cut.frozen or fs
         if cut.full_resolution:
             return self.full.select(view)
+        texels, finer = self._lit_figures() if self._lit_patches else (self.texels, self.finer)
         if cut.max_triangles is not None:
             if self._node_triangles is None:
                 self._node_triangles = node_triangles(self.tree, self.skirts)
-            return select_budget(
-                self.tree, view, cut.max_triangles, self._node_triangles, self.texels
-            )
-        return select(self.tree, view, cut.alpha, cut.gamma, self.texels, self.finer)
+            return select_budget(self.tree, view, cut.max_triangles, self._node_triangles, texels)
+        return select(self.tree, view, cut.alpha, cut.gamma, texels, finer)
 
     def plan(
         self, wanted: Selection, fs: FrameState, cut: Cut, paging: Paging, renderer: Renderer
@@ -157,6 +159,9 @@ class ApproximationTreeSource:
                 self.tree.parents, drawn, cut.gamma, cut.share_textures, self.sources
             )
             self._texture(plan, node_keys(tex_nodes), tex_nodes, tex_gammas)
+            if self._lit_patches and not interactive:
+                # Lit: each texture group split by its meshes' normal patches (LitKey).
+                plan.groups = self._lit_groups(plan, cut)
             if interactive:
                 # Texture patches not loaded yet: the root's stands in, the rest is requested.
                 cache, provider = renderer.cache, self.provider
@@ -177,6 +182,46 @@ class ApproximationTreeSource:
             # then what the next frames will want (loaded only where it evicts none of those).
             self.provider.request(requests, ahead)
         return plan
+
+    def set_lighting(self, lit: bool) -> None:
+        """Whether the next frames are lit: a lit textured frame of a grid with normal patches
+        lights each group with its normal patch, and γ_N is measured on the coarser of the
+        node's texture and normal patch texels (the light draws the normal patch's detail)."""
+        self._lit = bool(lit)
+
+    @property
+    def _lit_patches(self) -> bool:
+        """Textured frames lit with normal patches."""
+        return self._lit and self.binding is not None and self.normals.active
+
+    def _lit_figures(self) -> tuple[np.ndarray, np.ndarray]:
+        """(n, 2) texel of a lit textured frame's nodes and (n,) bool where a finer one lies
+        below: γ refines a node where its texture or its normal patch's texel is over γ and
+        that kind has a finer patch below, so its texel is the coarser in area of the kinds
+        with a finer one below (of both where neither has: the drawn γ, refining nothing)."""
+        if self._lit_texels is None:
+            tex, nrm = self.texels, self.shading_texels
+            ft, fn = self.finer, self.shading_finer
+            coarser = nrm[:, 0] * nrm[:, 1] > tex[:, 0] * tex[:, 1]
+            use_normal = (fn & ~ft) | (coarser & (fn == ft))
+            self._lit_texels = np.where(use_normal[:, None], nrm, tex), ft | fn
+        return self._lit_texels
+
+    def _lit_groups(self, plan: FramePlan, cut: Cut) -> list:
+        """``plan``'s texture groups, each split by its meshes' normal patches (each node's
+        own or its ancestor's within γ, as untextured): [(LitKey or TextureKey, meshes)]."""
+        nodes, _ = texture_nodes(self.tree.parents, plan.selection, cut.gamma, cut.share_textures)
+        zscale = self._zscale
+        normal = {
+            mesh: self.normals.key(int(i), zscale)
+            for mesh, i in zip(plan.meshes, nodes, strict=True)
+        }
+        groups = []
+        for tex_key, meshes in plan.groups:
+            patches = [normal[m] for m in meshes]
+            keys = [tex_key if n is None else LitKey(tex_key, n) for n in patches]
+            groups += group_meshes(meshes, keys)
+        return groups
 
     def _normal_groups(
         self, plan: FramePlan, cut: Cut, paged: Renderer | None, figures: dict[str, int]
@@ -237,6 +282,7 @@ class ApproximationTreeSource:
             self.binding = TextureBinding(pyramid, self.tree.origin, self._rect_of, self._level_of)
             self.texels, self.sources = self._texture_texels(pyramid)
             self.finer = finer_below(self.tree, self.texels)
+        self._lit_texels = None
         stale = stale_textures(before, pyramids_of(self.binding))
         self.provider.drop(stale)
         return stale
@@ -261,6 +307,7 @@ class ApproximationTreeSource:
         if scale is not None:
             self._shading_scale = np.asarray(scale, dtype=np.float64).copy()
         self._shading_figures()
+        self._lit_texels = None
         if self.binding is None:
             self.texels, self.finer = self.shading_texels, self.shading_finer
 
@@ -279,9 +326,9 @@ class ApproximationTreeSource:
 
     @property
     def shading_uv(self) -> Callable[[Any], tuple[float, float, float, float]] | None:
-        """The uv transform of a normal patch key, None when untextured frames draw only the
-        normal map (no normal patches, or a texture pyramid)."""
-        if self.binding is not None or not self.normals.active:
+        """The uv transform of a normal patch key, None when frames draw only the normal map
+        (no normal patches)."""
+        if not self.normals.active:
             return None
         normals, origin = self.normals, self.tree.origin
         return lambda key: normals.upload_uv(key, origin)
