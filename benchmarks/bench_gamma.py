@@ -4,8 +4,9 @@ For each terrain, at 1280 × 720 from the CLI's default view (``framing_camera``
 oblique one (``cameras``), the cut at
 α ∈ {2, 4} with the default γ = 2 and with γ off (inf): triangles, their ratio, and the
 frame's largest drawn α and γ (frame stats). Untextured (the normal map's shading) and with a
-hillshade pyramid baked by ``approxtree.textures.bake`` (textures given) at the cell size and
-at a half (fractal) or a quarter (DEMs) of it. The untextured
+hillshade pyramid baked by ``approxtree.textures.bake`` (textures given) at the cell size (also
+lit at runtime: "hillshade+lit", its groups lit by normal patches) and at a half (fractal) or
+a quarter (DEMs) of it. The untextured
 frames are saved as PNGs, so that a run on another checkout can be compared pixel by
 pixel (``--compare``: PSNR of this run's images against those of the other).
 
@@ -102,13 +103,22 @@ def cameras(tree, scale: np.ndarray) -> list[tuple[str, object]]:
 
 
 def measure(
-    tree, textures, images: Path | None, name: str, label: str = "none", repeat: int = 0
+    tree,
+    textures,
+    images: Path | None,
+    name: str,
+    label: str = "none",
+    repeat: int = 0,
+    lit: bool = False,
 ) -> list[dict]:
     """The cuts at ALPHAS × GAMMAS of both views; untextured images saved; ``repeat`` warm
-    frames more per row (their median: warm_ms)."""
+    frames more per row (their median: warm_ms); ``lit``: textures lit at runtime (their
+    groups by normal patch too, γ on both kinds of patch)."""
     from PIL import Image
 
-    from approxtree.render import Cut, Engine
+    from approxtree.render import Cut, Engine, Style
+
+    style = Style(lighting=True) if lit else Style()
 
     rows = []
     with Engine(tree, textures=textures) as engine:
@@ -117,12 +127,12 @@ def measure(
         ]
         for view, camera, alpha, gamma in runs:
             t0 = time.perf_counter()
-            frame = engine.render(camera, SIZE, Cut(alpha=alpha, gamma=gamma))
+            frame = engine.render(camera, SIZE, Cut(alpha=alpha, gamma=gamma), style=style)
             ms = (time.perf_counter() - t0) * 1e3
             warm = []
             for _ in range(repeat):
                 t1 = time.perf_counter()
-                engine.render(camera, SIZE, Cut(alpha=alpha, gamma=gamma))
+                engine.render(camera, SIZE, Cut(alpha=alpha, gamma=gamma), style=style)
                 warm.append((time.perf_counter() - t1) * 1e3)
             s = frame.stats
             rows.append(
@@ -289,6 +299,7 @@ def main() -> None:
             continue
         pyramid = bake_hillshade(tree, args.work / f"{name}_hillshade")
         rows += measure(tree, str(pyramid), None, name, "hillshade", args.repeat)
+        rows += measure(tree, str(pyramid), None, name, "hillshade+lit", args.repeat, lit=True)
         # Texels finer than the cells: a pyramid of several levels over the 4097² fractal.
         divisor = 2 if name.startswith("fractal") else 4
         fine = bake_hillshade(tree, args.work / f"{name}_hillshade_fine{divisor}", divisor)

@@ -53,6 +53,10 @@ NORMAL_MAP_MAX = OVERVIEW_SIDE  # the overview a tree store keeps is this map's 
 SCATTERED_SIDE = 1024
 #: Most texels of the shading lattice per data cell edge (a power of two).
 UPSAMPLE_MAX = 4
+#: Largest side of a normal patch's level (texels, upsampled): smaller than the texture limit,
+#: so that a frame computes patches near the size of what it draws (a 4096² patch of an
+#: ancestor shared by a few near nodes cost seconds to compute).
+NORMAL_PATCH_MAX = 1024
 #: Most texels per data cell edge of the normal patches' finest level (a power of two): a
 #: node near the camera whose ×UPSAMPLE_MAX texel still projects over γ has a finer one.
 PATCH_UPSAMPLE_MAX = 8
@@ -226,36 +230,12 @@ def _derivative(f0, f1, f2, c0, c1, c2, i, n, uniform):
     return a * f0 + b * f1 + c * f2
 
 
-@njit(cache=True, inline="always")
-def _normal_at(z, xs, ys, ux, uy, r, k):
-    """Unit normal's (x, y) at row r, column k of heights z (ny, nx): see ``_normal_xy``."""
-    ny, nx = z.shape
-    r0, r2 = max(r - 1, 0), min(r + 1, ny - 1)
-    k0, k2 = max(k - 1, 0), min(k + 1, nx - 1)
-    # Uniform spacing: np.gradient divides by twice the first step, as here.
-    if ux and 0 < k < nx - 1:
-        gx = (z[r, k2] - z[r, k0]) / (2.0 * (xs[1] - xs[0]))
-    else:
-        gx = _derivative(z[r, k0], z[r, k], z[r, k2], xs[k0], xs[k], xs[k2], k, nx, False)
-    if uy and 0 < r < ny - 1:
-        gy = (z[r2, k] - z[r0, k]) / (2.0 * (ys[1] - ys[0]))
-    else:
-        gy = _derivative(z[r0, k], z[r, k], z[r2, k], ys[r0], ys[r], ys[r2], r, ny, False)
-    nrm = math.sqrt(gx * gx + gy * gy + 1.0)
-    vx, vy, vz = -gx / nrm, -gy / nrm, 1.0 / nrm
-    if math.isfinite(vx) and math.isfinite(vy) and math.isfinite(vz):
-        return vx, vy
-    return 0.0, 0.0
-
-
 @njit(cache=True)
 def _normal_xy_kernel(z, xs, ys, ux, uy):
     """Unit normals' x, y (ny, nx, 2) of heights z (ny, nx): see ``_normal_xy``."""
     ny, nx = z.shape
     out = np.empty((ny, nx, 2))
-    for r in range(ny):
-        for k in range(nx):
-            out[r, k, 0], out[r, k, 1] = _normal_at(z, xs, ys, ux, uy, r, k)
+    _normals_into(z, xs, ys, ux, uy, 0, 0, out)
     return out
 
 
@@ -263,14 +243,43 @@ def _normal_xy_kernel(z, xs, ys, ux, uy):
 def _normal_rgba_kernel(z, xs, ys, ux, uy, top, left, out):
     """``out`` (h, w, 4) uint8: the normals of rows top.., columns left.. of heights z (a
     window with its halo), encoded as ``normal_texels`` does, then 0, 255."""
+    _normals_into(z, xs, ys, ux, uy, top, left, out)
+
+
+@njit(cache=True)
+def _normals_into(z, xs, ys, ux, uy, top, left, out):
+    """Unit normals' x, y of rows top.., columns left.. of heights z (ny, nx) into ``out``
+    (h, w, 2) float64, or encoded (h, w, 4) uint8: rint((n · 0.5 + 0.5) · 255), 0, 255."""
+    ny, nx = z.shape
     h, w = out.shape[0], out.shape[1]
-    for r in range(h):
-        for k in range(w):
-            vx, vy = _normal_at(z, xs, ys, ux, uy, top + r, left + k)
-            out[r, k, 0] = np.uint8(np.rint((vx * 0.5 + 0.5) * 255.0))
-            out[r, k, 1] = np.uint8(np.rint((vy * 0.5 + 0.5) * 255.0))
-            out[r, k, 2] = 0
-            out[r, k, 3] = 255
+    encode = out.shape[2] == 4
+    # Uniform spacing: np.gradient divides by twice the first step, as here.
+    sx, sy = xs[1] - xs[0], ys[1] - ys[0]
+    for i in range(h):
+        r = top + i
+        r0, r2 = max(r - 1, 0), min(r + 1, ny - 1)
+        for j in range(w):
+            k = left + j
+            k0, k2 = max(k - 1, 0), min(k + 1, nx - 1)
+            if ux and 0 < k < nx - 1:
+                gx = (z[r, k2] - z[r, k0]) / (2.0 * sx)
+            else:
+                gx = _derivative(z[r, k0], z[r, k], z[r, k2], xs[k0], xs[k], xs[k2], k, nx, False)
+            if uy and 0 < r < ny - 1:
+                gy = (z[r2, k] - z[r0, k]) / (2.0 * sy)
+            else:
+                gy = _derivative(z[r0, k], z[r, k], z[r2, k], ys[r0], ys[r], ys[r2], r, ny, False)
+            nrm = math.sqrt(gx * gx + gy * gy + 1.0)
+            vx, vy, vz = -gx / nrm, -gy / nrm, 1.0 / nrm
+            if not (math.isfinite(vx) and math.isfinite(vy) and math.isfinite(vz)):
+                vx, vy = 0.0, 0.0
+            if encode:
+                out[i, j, 0] = np.uint8(np.rint((vx * 0.5 + 0.5) * 255.0))
+                out[i, j, 1] = np.uint8(np.rint((vy * 0.5 + 0.5) * 255.0))
+                out[i, j, 2] = 0
+                out[i, j, 3] = 255
+            else:
+                out[i, j, 0], out[i, j, 1] = vx, vy
 
 
 @njit(cache=True)
@@ -355,7 +364,7 @@ class NormalPatches:
         self.pyramid = pyramid_levels(stride) if self.active else []
         if not self.active or n == 0:
             return
-        limit = min(NORMAL_MAP_MAX, max_side)
+        limit = min(NORMAL_MAP_MAX, max_side, NORMAL_PATCH_MAX)
         ranges = terrain.index_ranges(np.asarray(rects, dtype=np.float64))
         rows, cols = terrain.shape
         cell = np.array(terrain.cell_size, dtype=np.float64)
