@@ -21,7 +21,10 @@ Texel sizes (γ): the texture patch's with a pyramid (``set_textures``), else th
 patch's (render/normal_map.py: the normal map every node shares, or, on a grid over
 NORMAL_MAP_MAX a side, each node's normal patch, shared with ancestors as texture patches
 are), and per node whether a descendant's texel is finer (``selector.finer_below``): γ
-refines only there.
+refines only there. A textured frame lit at runtime (``set_lighting``) over normal patches
+lights each texture group by its nodes' normal patches (groups keyed by LitKey), and γ
+refines where either kind of patch is over γ with a finer one below. Full-resolution chunks
+are shaded by their own normal patches (full_resolution.py).
 """
 
 from __future__ import annotations
