@@ -147,7 +147,7 @@ class ApproximationTreeSource:
             if self.binding is None and self.normals.active:
                 # Each chunk shaded by its own normal patch, as finely as the cut's nodes.
                 chunks, zscale = self.full.normal_patches(self._shading_side), self._zscale
-                keys = [chunks.key(int(i), zscale) for i in wanted.nodes]
+                keys: list[Hashable | None] = [chunks.key(int(i), zscale) for i in wanted.nodes]
                 plan.groups = group_meshes(plan.meshes, keys)
             return plan
         interactive = not paging.wait
@@ -222,7 +222,9 @@ class ApproximationTreeSource:
         groups = []
         for tex_key, meshes in plan.groups:
             patches = [normal[m] for m in meshes]
-            keys = [tex_key if n is None else LitKey(tex_key, n) for n in patches]
+            keys: list[Hashable | None] = [
+                tex_key if n is None else LitKey(tex_key, n) for n in patches
+            ]
             groups += group_meshes(meshes, keys)
         return groups
 
