@@ -188,8 +188,9 @@ class ApproximationTreeSource:
 
     def set_lighting(self, lit: bool) -> None:
         """Whether the next frames are lit: a lit textured frame of a grid with normal patches
-        lights each group with its normal patch, and γ_N is measured on the coarser of the
-        node's texture and normal patch texels (the light draws the normal patch's detail)."""
+        lights each group with its normal patch (a frame that waits; an interactive one, and
+        full-resolution chunks, keep the normal map), and γ refines where the texture or the
+        normal patch is over γ with a finer one of its kind below (``_lit_figures``)."""
         self._lit = bool(lit)
 
     @property
