@@ -284,3 +284,25 @@ def test_lit_textured_frames_bind_normal_patches(gl_context, tree, small_map, tm
     assert lit.stats["max_alpha"] <= cut.alpha
     over = lit.selection.nodes[lit.selection.gammas > cut.gamma]
     assert not finer[over].any()
+
+
+def test_interactive_lit_textured_frame_requests_its_normal_patches(
+    gl_context, tree, small_map, tmp_path
+):
+    """An interactive lit textured frame lights groups whose normal patch is not loaded yet
+    with the normal map and requests them; once loaded, a frame binds them."""
+    from approxtree.render import Style
+    from approxtree.textures.bake import bake
+
+    pyramid = bake(tree.terrain, tmp_path / "hillshade", max_texture_size=128, gl=False).pyramid
+    cam, cut, style = low_camera(tree, 0.1, 0.1), Cut(alpha=2.0), Style(lighting=True)
+    with Engine(tree, textures=pyramid, context=gl_context, offscreen=True) as eng:
+        settled = eng.render(cam, SIZE, cut, style=style)
+        bound = {k for k in eng.cache.keys() if isinstance(k, NormalKey)}
+        eng.cache.drop(lambda key: isinstance(key, NormalKey))
+        eng.provider.drop(lambda key: isinstance(key, NormalKey))
+        frame = eng.render(cam, SIZE, cut, style=style, paging=Paging(wait=False))
+        assert not any(isinstance(k, NormalKey) for k in eng.cache.keys())
+        assert frame.stats["texture_stand_ins"] >= len(bound) > 0
+        again = eng.render(cam, SIZE, cut, style=style)
+    np.testing.assert_array_equal(again.image, settled.image)

@@ -162,15 +162,23 @@ class ApproximationTreeSource:
                 self.tree.parents, drawn, cut.gamma, cut.share_textures, self.sources
             )
             self._texture(plan, node_keys(tex_nodes), tex_nodes, tex_gammas)
-            if self._lit_patches and not interactive:
-                # Lit: each texture group split by its meshes' normal patches (LitKey).
-                plan.groups = self._lit_groups(plan, cut)
+            cache, provider = renderer.cache, self.provider
+
+            def loaded(key: Hashable) -> bool:
+                return key in cache or key in provider
+
+            tex_requests: list = []
             if interactive:
                 # Texture patches not loaded yet: the root's stands in, the rest is requested.
-                cache, provider = renderer.cache, self.provider
-                plan.groups, tex_requests = self.binding.page(
-                    plan.groups, lambda key: key in cache or key in provider
+                plan.groups, tex_requests = self.binding.page(plan.groups, loaded)
+            if self._lit_patches:
+                # Lit: each texture group split by its meshes' normal patches (LitKey); in an
+                # interactive frame one not loaded yet is lit by the map, and requested.
+                plan.groups, normal_requests = self._lit_groups(
+                    plan, cut, loaded if interactive else None
                 )
+                tex_requests += normal_requests
+            if interactive:
                 figures["texture_stand_ins"] = len(tex_requests)
                 # Meshes first: a few kB each against MBs of texels, and a missing mesh
                 # coarsens the geometry (α), a missing texture only the colour.
@@ -188,9 +196,9 @@ class ApproximationTreeSource:
 
     def set_lighting(self, lit: bool) -> None:
         """Whether the next frames are lit: a lit textured frame of a grid with normal patches
-        lights each group with its normal patch (a frame that waits; an interactive one, and
-        full-resolution chunks, keep the normal map), and γ refines where the texture or the
-        normal patch is over γ with a finer one of its kind below (``_lit_figures``)."""
+        lights each group with its normal patch (an interactive frame the map where one is not
+        loaded yet; full-resolution chunks keep the map), and γ refines where the texture or
+        the normal patch is over γ with a finer one of its kind below (``_lit_figures``)."""
         self._lit = bool(lit)
 
     @property
@@ -211,23 +219,29 @@ class ApproximationTreeSource:
             self._lit_texels = np.where(use_normal[:, None], nrm, tex), ft | fn
         return self._lit_texels
 
-    def _lit_groups(self, plan: FramePlan, cut: Cut) -> list:
+    def _lit_groups(
+        self, plan: FramePlan, cut: Cut, loaded: Callable[[Hashable], bool] | None
+    ) -> tuple[list, list]:
         """``plan``'s texture groups, each split by its meshes' normal patches (each node's
-        own or its ancestor's within γ, as untextured): [(LitKey or TextureKey, meshes)]."""
+        own or its ancestor's within γ, as untextured): [(LitKey or TextureKey, meshes)], and
+        the normal patches to request: those not ``loaded`` (None: all are drawn), lit by the
+        normal map meanwhile."""
         nodes, _ = texture_nodes(self.tree.parents, plan.selection, cut.gamma, cut.share_textures)
         zscale = self._zscale
         normal = {
             mesh: self.normals.key(int(i), zscale)
             for mesh, i in zip(plan.meshes, nodes, strict=True)
         }
+        wanted = {n for n in normal.values() if n is not None}
+        missing = set() if loaded is None else {n for n in wanted if not loaded(n)}
         groups = []
         for tex_key, meshes in plan.groups:
             patches = [normal[m] for m in meshes]
             keys: list[Hashable | None] = [
-                tex_key if n is None else LitKey(tex_key, n) for n in patches
+                tex_key if n is None or n in missing else LitKey(tex_key, n) for n in patches
             ]
             groups += group_meshes(meshes, keys)
-        return groups
+        return groups, sorted(missing)
 
     def _normal_groups(
         self, plan: FramePlan, cut: Cut, paged: Renderer | None, figures: dict[str, int]
