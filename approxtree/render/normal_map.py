@@ -22,11 +22,11 @@ shading is a pyramid of normal patches (``NormalPatches``, ``pyramid_levels``): 
 the data's normals upsampled PATCH_UPSAMPLE_MAX times (8: a node near a low camera whose ×4
 texel still projects over γ has a finer one), the next levels 4×, 2× upsampled, the data's
 own normals, then every 2nd, 4th, ... line; a node's patch is the finest level's window
-covering D_N within the largest texture side, and a node whose patch would be no finer than
+covering D_N within NORMAL_PATCH_MAX texels a side, and a node whose patch would be no finer than
 the strided map keeps the map (``NormalKey`` None). A patch is uploaded as the normals of its
 window's lattice lines (``upload_texels``, ``upload_uv``): the GPU's bilinear filter draws the
 upsampled level's texels between them (``texels_of``: the same values, up to 8-bit rounding),
-so a 4096-texel patch at ×4 is 1024² texels on the GPU, not 4096². Patches are computed on
+so a 1024-texel patch at ×4 is 256² texels on the GPU, not 1024². Patches are computed on
 demand from the heights (a window with one line of halo: the same central differences as over
 the whole level) and cached like texture patches (the provider's CPU cache, the GPU cache,
 least recently used out); nodes share an ancestor's patch as they share texture patches
