@@ -4,8 +4,9 @@ For each terrain, at 1280 × 720 from the CLI's default view (``framing_camera``
 oblique one (``cameras``), the cut at
 α ∈ {2, 4} with the default γ = 2 and with γ off (inf): triangles, their ratio, and the
 frame's largest drawn α and γ (frame stats). Untextured (the normal map's shading) and with a
-hillshade pyramid baked by ``approxtree.textures.bake`` (textures given) at the cell size and
-at a half (fractal) or a quarter (DEMs) of it. The untextured
+hillshade pyramid baked by ``approxtree.textures.bake`` (textures given) at the cell size (also
+lit at runtime: "hillshade+lit", its groups lit by normal patches) and at a half (fractal) or
+a quarter (DEMs) of it. The untextured
 frames are saved as PNGs, so that a run on another checkout can be compared pixel by
 pixel (``--compare``: PSNR of this run's images against those of the other).
 
@@ -15,7 +16,8 @@ Helens (USGS DEM, 30 m, steep) and a 1024² crop of the SRTM 3″ Mount Washingt
 ../shared/data (ε = 1 m, the CLI's default); --no-dems and --no-textures leave those out.
 
     PYTHONPATH=<checkout> python benchmarks/bench_gamma.py --fractal F.zarr --work DIR \\
-        --images DIR/after [--compare DIR/before] [--out benchmarks/results/gamma.json]
+        --images DIR/after [--compare DIR/before] [--out benchmarks/results/gamma.json] \\
+        [--plot benchmarks/results/gamma.png]
 
 Frame times against another checkout (``--interleave CHECKOUT --rounds R``): this script runs
 itself R times on each checkout in turn (``--repeat`` warm frames per row after the first,
@@ -101,13 +103,22 @@ def cameras(tree, scale: np.ndarray) -> list[tuple[str, object]]:
 
 
 def measure(
-    tree, textures, images: Path | None, name: str, label: str = "none", repeat: int = 0
+    tree,
+    textures,
+    images: Path | None,
+    name: str,
+    label: str = "none",
+    repeat: int = 0,
+    lit: bool = False,
 ) -> list[dict]:
     """The cuts at ALPHAS × GAMMAS of both views; untextured images saved; ``repeat`` warm
-    frames more per row (their median: warm_ms)."""
+    frames more per row (their median: warm_ms); ``lit``: textures lit at runtime (their
+    groups by normal patch too, γ on both kinds of patch)."""
     from PIL import Image
 
-    from approxtree.render import Cut, Engine
+    from approxtree.render import Cut, Engine, Style
+
+    style = Style(lighting=True) if lit else Style()
 
     rows = []
     with Engine(tree, textures=textures) as engine:
@@ -116,12 +127,12 @@ def measure(
         ]
         for view, camera, alpha, gamma in runs:
             t0 = time.perf_counter()
-            frame = engine.render(camera, SIZE, Cut(alpha=alpha, gamma=gamma))
+            frame = engine.render(camera, SIZE, Cut(alpha=alpha, gamma=gamma), style=style)
             ms = (time.perf_counter() - t0) * 1e3
             warm = []
             for _ in range(repeat):
                 t1 = time.perf_counter()
-                engine.render(camera, SIZE, Cut(alpha=alpha, gamma=gamma))
+                engine.render(camera, SIZE, Cut(alpha=alpha, gamma=gamma), style=style)
                 warm.append((time.perf_counter() - t1) * 1e3)
             s = frame.stats
             rows.append(
@@ -187,6 +198,35 @@ def compare(images: Path, before: Path) -> dict[str, float]:
     return out
 
 
+def plot(rows: list[dict], path: Path) -> None:
+    """Bars of the γ = 2 cut's triangles over the γ-off cut's (the target line at 1.25) and
+    its largest γ (the threshold at 2), one bar per terrain, view, textures and α."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    on = [r for r in rows if r["gamma"] != "inf"]
+    labels = [f"{r['terrain']} {r['view']} {r['textures']} α{r['alpha']:g}" for r in on]
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(max(8.0, 0.32 * len(on)), 8), sharex=True)
+    x = np.arange(len(on))
+    top.bar(x, [r["ratio_to_gamma_off"] for r in on], color="tab:blue")
+    top.axhline(1.25, color="tab:red", linestyle="--", label="target 1.25×")
+    top.set_ylabel("triangles γ 2 / γ off")
+    top.legend()
+    bottom.bar(x, [r["max_gamma"] for r in on], color="tab:green")
+    bottom.axhline(2.0, color="tab:red", linestyle="--", label="γ = 2")
+    bottom.set_yscale("log")
+    bottom.set_ylabel("largest γ drawn (px²)")
+    bottom.legend()
+    bottom.set_xticks(x, labels, rotation=90, fontsize=7)
+    fig.suptitle(f"γ on texture and normal patches, {SIZE[0]} × {SIZE[1]}")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def interleave(argv: list[str], other: Path, rounds: int) -> list[dict]:
     """Run this script with ``argv`` on ``other``'s checkout and on this one in turn,
     ``rounds`` times; per row (terrain, view, textures, α, γ) the median over rounds of each
@@ -233,6 +273,7 @@ def main() -> None:
     ap.add_argument("--interleave", type=Path, help="another checkout: frame times against it")
     ap.add_argument("--rounds", type=int, default=3, help="interleaved rounds per checkout")
     ap.add_argument("--out", type=Path, help="JSON results")
+    ap.add_argument("--plot", type=Path, help="PNG of the ratios and the largest γ")
     args = ap.parse_args()
     if args.interleave is not None:
         argv = [a for f in args.fractal for a in ("--fractal", str(f))]
@@ -258,6 +299,7 @@ def main() -> None:
             continue
         pyramid = bake_hillshade(tree, args.work / f"{name}_hillshade")
         rows += measure(tree, str(pyramid), None, name, "hillshade", args.repeat)
+        rows += measure(tree, str(pyramid), None, name, "hillshade+lit", args.repeat, lit=True)
         # Texels finer than the cells: a pyramid of several levels over the 4097² fractal.
         divisor = 2 if name.startswith("fractal") else 4
         fine = bake_hillshade(tree, args.work / f"{name}_hillshade_fine{divisor}", divisor)
@@ -281,6 +323,8 @@ def main() -> None:
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(result, indent=1))
+    if args.plot is not None:
+        plot(rows, args.plot)
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ import pytest
 
 from approxtree import ApproximationTree
 from approxtree.datasets import fractal_terrain
-from approxtree.render import Camera, Cut, Engine, Paging, display_scale
+from approxtree.render import Camera, Cut, Engine, Paging, display_scale, full_resolution
 from approxtree.render import normal_map as normal_map_module
 from approxtree.render.context import create_context
 from approxtree.render.normal_map import NormalKey, NormalPatches, normal_texels, normals
@@ -202,3 +202,107 @@ def test_compiled_normals_equal_numpys(uniform):
         xs, ys = np.arange(57) * 0.7 + 3.1, np.arange(40) * 1.3 - 2.2
     want = np.rint((normals(z, xs, ys)[..., :2] * 0.5 + 0.5) * 255.0).astype(np.uint8)
     np.testing.assert_array_equal(normal_texels(z, xs, ys), want)
+
+
+def test_uploaded_patch_is_every_upsample_th_texel(tree, small_map):
+    """A patch's texture (``upload_texels``) holds its lattice lines' normals, the texels of
+    its level at every ``upsample``-th texel, and its uv maps a point to the same place on
+    that lattice: the GPU's bilinear filter upsamples as ``normal_texels`` does."""
+    patches = NormalPatches(tree.terrain, np.asarray(tree.rects))
+    origin = np.asarray(tree.origin)
+    scale = np.array([1.0, 1.0, 2.0])
+    levels = set()
+    for i in np.flatnonzero(patches.levels >= 0):
+        key = patches.key(int(i), scale[2])
+        if (key.step, key.upsample) in levels:
+            continue
+        levels.add((key.step, key.upsample))
+        u = key.upsample
+        level, texture = (
+            patches.texels_of(key, origin, scale),
+            patches.upload_texels(key, origin, scale),
+        )
+        assert texture.shape == (key.rows, key.cols, 4)
+        np.testing.assert_array_equal(level[::u, ::u], texture)
+        a, b = patches.uv(key, origin), patches.upload_uv(key, origin)
+        x = float(tree.bboxes[i, 0] - origin[0]) + 1.7
+        on_level = (x * a[0] + a[2]) * level.shape[1] - 0.5
+        on_texture = (x * b[0] + b[2]) * texture.shape[1] - 0.5
+        assert on_level == pytest.approx(u * on_texture)
+    assert {u for _, u in levels} >= {1, normal_map_module.PATCH_UPSAMPLE_MAX}
+
+
+def test_full_resolution_frames_use_normal_patches(gl_context, tree, small_map, monkeypatch):
+    """Full-resolution chunks of a grid whose normal map is strided are shaded each by its
+    own normal patch (finer than the map), not by the strided map."""
+    monkeypatch.setattr(full_resolution, "CHUNK", 33)
+    with Engine(tree, context=gl_context, offscreen=True) as eng:
+        frame = eng.render(low_camera(tree), SIZE, Cut(full_resolution=True))
+        keys = [k for k in eng.cache.keys() if isinstance(k, NormalKey)]
+        assert frame.stats["texture_patches"] == len(keys) == frame.stats["patches"] > 1
+        map_texel = eng.source.normals.texels[0, 0]
+        assert all(k.step * abs(tree.terrain.cell_size[0]) / k.upsample < map_texel for k in keys)
+
+
+def test_low_view_gamma_within_threshold_with_the_finest_level(
+    gl_context, tree, small_map, monkeypatch
+):
+    """In a low view where the ×4 patches' texels still project over γ, the ×8 level keeps the
+    frame's largest γ (and α) within their thresholds at α 2 and 4, with at most 1.25× the
+    triangles of the γ-off cut."""
+    cam = low_camera(tree, 0.1, 0.1)
+    for alpha in (2.0, 4.0):
+        with Engine(tree, context=gl_context, offscreen=True) as eng:
+            on = eng.render(cam, SIZE, Cut(alpha=alpha))
+            off = eng.render(cam, SIZE, Cut(alpha=alpha, gamma=math.inf))
+        assert on.stats["max_gamma"] <= Cut().gamma
+        assert on.stats["max_alpha"] <= alpha
+        assert on.stats["triangles"] <= 1.25 * off.stats["triangles"]
+    # The same view without the ×8 level draws γ over the threshold.
+    monkeypatch.setattr(normal_map_module, "PATCH_UPSAMPLE_MAX", 4)
+    with Engine(tree, context=gl_context, offscreen=True) as eng:
+        assert eng.render(cam, SIZE, Cut(alpha=4.0)).stats["max_gamma"] > Cut().gamma
+
+
+def test_lit_textured_frames_bind_normal_patches(gl_context, tree, small_map, tmp_path):
+    """A textured frame lit at runtime lights its groups with normal patches (an unlit one
+    computes none), and γ refines wherever the texture or the normal patch runs over γ with a
+    finer one of its kind below: every node drawn over γ has neither."""
+    from approxtree.render import Style
+    from approxtree.render.selector import finer_below
+    from approxtree.textures.bake import bake
+
+    pyramid = bake(tree.terrain, tmp_path / "hillshade", max_texture_size=128, gl=False).pyramid
+    cam, cut = low_camera(tree, 0.1, 0.1), Cut(alpha=2.0)
+    with Engine(tree, textures=pyramid, context=gl_context, offscreen=True) as eng:
+        unlit = eng.render(cam, SIZE, cut)
+        assert not any(isinstance(k, NormalKey) for k in eng.cache.keys())
+        lit = eng.render(cam, SIZE, cut, style=Style(lighting=True))
+        assert any(isinstance(k, NormalKey) for k in eng.cache.keys())
+        finer = finer_below(tree, eng.texels) | finer_below(tree, eng.source.normals.texels)
+    assert not np.array_equal(lit.image, unlit.image)
+    assert lit.stats["max_alpha"] <= cut.alpha
+    over = lit.selection.nodes[lit.selection.gammas > cut.gamma]
+    assert not finer[over].any()
+
+
+def test_interactive_lit_textured_frame_requests_its_normal_patches(
+    gl_context, tree, small_map, tmp_path
+):
+    """An interactive lit textured frame lights groups whose normal patch is not loaded yet
+    with the normal map and requests them; once loaded, a frame binds them."""
+    from approxtree.render import Style
+    from approxtree.textures.bake import bake
+
+    pyramid = bake(tree.terrain, tmp_path / "hillshade", max_texture_size=128, gl=False).pyramid
+    cam, cut, style = low_camera(tree, 0.1, 0.1), Cut(alpha=2.0), Style(lighting=True)
+    with Engine(tree, textures=pyramid, context=gl_context, offscreen=True) as eng:
+        settled = eng.render(cam, SIZE, cut, style=style)
+        bound = {k for k in eng.cache.keys() if isinstance(k, NormalKey)}
+        eng.cache.drop(lambda key: isinstance(key, NormalKey))
+        eng.provider.drop(lambda key: isinstance(key, NormalKey))
+        frame = eng.render(cam, SIZE, cut, style=style, paging=Paging(wait=False))
+        assert not any(isinstance(k, NormalKey) for k in eng.cache.keys())
+        assert frame.stats["texture_stand_ins"] >= len(bound) > 0
+        again = eng.render(cam, SIZE, cut, style=style)
+    np.testing.assert_array_equal(again.image, settled.image)

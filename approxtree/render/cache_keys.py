@@ -61,3 +61,12 @@ class TextureKey(NamedTuple):
     def of(cls, patch: Any, source: int = 0) -> TextureKey:
         """The key of a TexturePatch (textures/patch.py) of pyramid ``source``."""
         return cls(patch.level, patch.col0, patch.row0, patch.width, patch.height, source)
+
+
+class LitKey(NamedTuple):
+    """The group key of a lit textured frame's meshes (render/tree_source.py): ``texture``
+    (a TextureKey) colours them, ``normal`` (a render/normal_map.NormalKey) lights them in
+    place of the normal map."""
+
+    texture: Any
+    normal: Any

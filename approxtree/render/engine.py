@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -269,6 +270,8 @@ class Engine:
         self.follow_tree()
         fs = self.frame_state(camera, size)
         uploads = self.cache.uploads
+        # Lit textured frames may light with normal patches (their γ and groups follow).
+        self.source.set_lighting(style.lit(self.source.binding is not None))
         t0 = time.perf_counter()
         wanted = self.source.select(fs, cut)
         t1 = time.perf_counter()
@@ -360,11 +363,20 @@ class Engine:
         ctx.finish(), triangles, texture binds)."""
         binding = self.source.binding
         program = "terrain" if binding is None else "textured"
-        # Untextured: per-group normal patches where the source has them.
-        uv = self.source.shading_uv if binding is None else binding.uv
+        # Untextured: per-group normal patches where the source has them; textured: the
+        # texture patches', and the normal patches' of lit groups (LitKey).
+        shading_uv = self.source.shading_uv
+        uv = shading_uv if binding is None else binding.uv
+        if binding is not None and shading_uv is not None:
+            uv = _either_uv(binding.uv, shading_uv)
         lit, shade = style.lit(binding is not None), binding is not None and binding.shading
         args = (program, style, lit, self.source.load, uv, shade)
         return self.renderer.draw(target, fs, groups, resident, *args)
+
+
+def _either_uv(texture_uv: Callable, normal_uv: Callable) -> Callable:
+    """The uv of a texture patch (TextureKey) or of a normal patch (any other key)."""
+    return lambda key: texture_uv(key) if isinstance(key, TextureKey) else normal_uv(key)
 
 
 def _check_exaggeration(factor: Any) -> None:

@@ -23,6 +23,7 @@ from approxtree.render.cache_keys import MeshKey
 from approxtree.render.frame import FramePlan
 from approxtree.render.frame_state import FrameState
 from approxtree.render.frustum import boxes_in_frustum
+from approxtree.render.normal_map import NormalPatches
 from approxtree.render.provider import Payload
 from approxtree.render.selector import Selection, eye_below_ground
 
@@ -36,6 +37,7 @@ class FullResolutionSource:
     def __init__(self, tree: Any) -> None:
         self.tree = tree
         self._chunks: list[tuple[Any, np.ndarray]] | None = None
+        self._normals: NormalPatches | None = None
 
     def chunks(self) -> list[tuple[Any, np.ndarray]]:
         """(patch, bbox (6,)) of every chunk, made on first use."""
@@ -47,6 +49,14 @@ class FullResolutionSource:
                 else [(tree.patch(int(i)), tree.bboxes[i]) for i in tree.leaves]
             )
         return self._chunks
+
+    def normal_patches(self, side: int) -> NormalPatches:
+        """The normal patches of the chunks (ids as ``chunks()``) within a texture side of
+        ``side`` texels, made on first use (again when the side changes)."""
+        if self._normals is None or self._normals.max_side != side:
+            rects = np.array([b[[0, 1, 3, 4]] for _, b in self.chunks()]).reshape(-1, 4)
+            self._normals = NormalPatches(self.tree.terrain, rects, side)
+        return self._normals
 
     def select(self, fs: FrameState) -> Selection:
         """A Selection over the chunks in the frustum (ids index ``chunks()``)."""

@@ -19,16 +19,21 @@ texel is finer).
 
 A Grid over NORMAL_MAP_MAX cells a side gets a strided map, coarser than its data. There the
 shading is a pyramid of normal patches (``NormalPatches``, ``pyramid_levels``): level 0 holds
-the data's normals upsampled UPSAMPLE_MAX times (as a small grid's map), the next levels 2×,
-4×, ... coarser (the data's own normals, then every 2nd, 4th, ... line); a node's patch is
-the finest level's window covering D_N within the largest texture side, and a node whose
-patch would be no finer than the strided map keeps the map (``NormalKey`` None). Patches are
-computed on demand from the heights (a window with one line of halo: the same central
-differences as over the whole level) and cached like texture patches (the provider's CPU
-cache, the GPU cache, least recently used out); nodes share an ancestor's patch as they
-share texture patches (render/texture_sharing.py). γ_N is then its patch's texel, and
-``finer_below`` sees the finer patches below the large nodes. A terrain
-within NORMAL_MAP_MAX a side has no patches: its frames are drawn as before.
+the data's normals upsampled PATCH_UPSAMPLE_MAX times (8: a node near a low camera whose ×4
+texel still projects over γ has a finer one), the next levels 4×, 2× upsampled, the data's
+own normals, then every 2nd, 4th, ... line; a node's patch is the finest level's window
+covering D_N within NORMAL_PATCH_MAX texels a side, and a node whose patch would be no finer than
+the strided map keeps the map (``NormalKey`` None). A patch is uploaded as the normals of its
+window's lattice lines (``upload_texels``, ``upload_uv``): the GPU's bilinear filter draws the
+upsampled level's texels between them (``texels_of``: the same values, up to 8-bit rounding),
+so a 1024-texel patch at ×4 is 256² texels on the GPU, not 1024². Patches are computed on
+demand from the heights (a window with one line of halo: the same central differences as over
+the whole level) and cached like texture patches (the provider's CPU cache, the GPU cache,
+least recently used out); nodes share an ancestor's patch as they share texture patches
+(render/texture_sharing.py), and full-resolution chunks are shaded each by its own patch
+(render/full_resolution.py). γ_N is then its patch's texel, and ``finer_below`` sees the finer
+patches below the large nodes. A terrain within NORMAL_MAP_MAX a side has no patches: its
+frames are drawn as before.
 """
 
 from __future__ import annotations
@@ -48,6 +53,13 @@ NORMAL_MAP_MAX = OVERVIEW_SIDE  # the overview a tree store keeps is this map's 
 SCATTERED_SIDE = 1024
 #: Most texels of the shading lattice per data cell edge (a power of two).
 UPSAMPLE_MAX = 4
+#: Largest side of a normal patch's level (texels, upsampled): smaller than the texture limit,
+#: so that a frame computes patches near the size of what it draws (a 4096² patch of an
+#: ancestor shared by a few near nodes cost seconds to compute).
+NORMAL_PATCH_MAX = 1024
+#: Most texels per data cell edge of the normal patches' finest level (a power of two): a
+#: node near the camera whose ×UPSAMPLE_MAX texel still projects over γ has a finer one.
+PATCH_UPSAMPLE_MAX = 8
 #: Rows of the normal map computed at once: its float64 temporaries stay a few tens of MB
 #: (the whole 4096² map at once took 1.4 GB).
 _NORMAL_STRIP_ROWS = 256
@@ -223,11 +235,31 @@ def _normal_xy_kernel(z, xs, ys, ux, uy):
     """Unit normals' x, y (ny, nx, 2) of heights z (ny, nx): see ``_normal_xy``."""
     ny, nx = z.shape
     out = np.empty((ny, nx, 2))
+    _normals_into(z, xs, ys, ux, uy, 0, 0, out)
+    return out
+
+
+@njit(cache=True)
+def _normal_rgba_kernel(z, xs, ys, ux, uy, top, left, out):
+    """``out`` (h, w, 4) uint8: the normals of rows top.., columns left.. of heights z (a
+    window with its halo), encoded as ``normal_texels`` does, then 0, 255."""
+    _normals_into(z, xs, ys, ux, uy, top, left, out)
+
+
+@njit(cache=True)
+def _normals_into(z, xs, ys, ux, uy, top, left, out):
+    """Unit normals' x, y of rows top.., columns left.. of heights z (ny, nx) into ``out``
+    (h, w, 2) float64, or encoded (h, w, 4) uint8: rint((n · 0.5 + 0.5) · 255), 0, 255."""
+    ny, nx = z.shape
+    h, w = out.shape[0], out.shape[1]
+    encode = out.shape[2] == 4
     # Uniform spacing: np.gradient divides by twice the first step, as here.
     sx, sy = xs[1] - xs[0], ys[1] - ys[0]
-    for r in range(ny):
+    for i in range(h):
+        r = top + i
         r0, r2 = max(r - 1, 0), min(r + 1, ny - 1)
-        for k in range(nx):
+        for j in range(w):
+            k = left + j
             k0, k2 = max(k - 1, 0), min(k + 1, nx - 1)
             if ux and 0 < k < nx - 1:
                 gx = (z[r, k2] - z[r, k0]) / (2.0 * sx)
@@ -239,11 +271,15 @@ def _normal_xy_kernel(z, xs, ys, ux, uy):
                 gy = _derivative(z[r0, k], z[r, k], z[r2, k], ys[r0], ys[r], ys[r2], r, ny, False)
             nrm = math.sqrt(gx * gx + gy * gy + 1.0)
             vx, vy, vz = -gx / nrm, -gy / nrm, 1.0 / nrm
-            if math.isfinite(vx) and math.isfinite(vy) and math.isfinite(vz):
-                out[r, k, 0], out[r, k, 1] = vx, vy
+            if not (math.isfinite(vx) and math.isfinite(vy) and math.isfinite(vz)):
+                vx, vy = 0.0, 0.0
+            if encode:
+                out[i, j, 0] = np.uint8(np.rint((vx * 0.5 + 0.5) * 255.0))
+                out[i, j, 1] = np.uint8(np.rint((vy * 0.5 + 0.5) * 255.0))
+                out[i, j, 2] = 0
+                out[i, j, 3] = 255
             else:
-                out[r, k, 0], out[r, k, 1] = 0.0, 0.0
-    return out
+                out[i, j, 0], out[i, j, 1] = vx, vy
 
 
 @njit(cache=True)
@@ -290,10 +326,10 @@ class NormalKey(NamedTuple):
 
 def pyramid_levels(stride: int) -> list[tuple[int, int]]:
     """[(step, upsample)] of the normal pyramid's levels finer than a map strided by
-    ``stride``, finest first: the data's normals upsampled UPSAMPLE_MAX, ..., 2 times (the
-    small grid's normal map), the data's own, then every 2nd, 4th, ... line."""
+    ``stride``, finest first: the data's normals upsampled PATCH_UPSAMPLE_MAX, ..., 2 times
+    (as the small grid's normal map), the data's own, then every 2nd, 4th, ... line."""
     levels = []
-    u = UPSAMPLE_MAX
+    u = PATCH_UPSAMPLE_MAX
     while u > 1:
         levels.append((1, u))
         u //= 2
@@ -314,6 +350,7 @@ class NormalPatches:
 
     def __init__(self, terrain: Any, rects: np.ndarray, max_side: int = NORMAL_MAP_MAX) -> None:
         self.terrain = terrain
+        self.max_side = max_side
         lattice = shading_lattice(terrain, max_side)
         n = len(rects)
         #: (n, 2) float64 texel (world x, y) of the patch each node is drawn with (γ_N).
@@ -327,7 +364,7 @@ class NormalPatches:
         self.pyramid = pyramid_levels(stride) if self.active else []
         if not self.active or n == 0:
             return
-        limit = min(NORMAL_MAP_MAX, max_side)
+        limit = min(NORMAL_MAP_MAX, max_side, NORMAL_PATCH_MAX)
         ranges = terrain.index_ranges(np.asarray(rects, dtype=np.float64))
         rows, cols = terrain.shape
         cell = np.array(terrain.cell_size, dtype=np.float64)
@@ -356,11 +393,42 @@ class NormalPatches:
         return NormalKey(step, u, r0, c0, nr, nc, float(zscale))
 
     def texels_of(self, key: NormalKey, origin: np.ndarray, scale: np.ndarray) -> np.ndarray:
-        """(h, w, 4) uint8 texels of a patch (``key.shape``): normal x, y (display units: x, y
-        × ``scale`` (3,), z × key.zscale), 0, 255; row 0 the southernmost line, column 0 the
-        westernmost (the normal map's order). Reads the window's heights with one line of
-        halo each side (within the grid)."""
-        grid, s, u = self.terrain, key.step, key.upsample
+        """(h, w, 4) uint8 texels of a patch's level (``key.shape``): normal x, y (display
+        units: x, y × ``scale`` (3,), z × key.zscale), 0, 255; row 0 the southernmost line,
+        column 0 the westernmost (the normal map's order). What the GPU draws from
+        ``upload_texels``: every ``key.upsample``-th texel is one of those, the others the
+        bilinear filter's values between them."""
+        z, xs, ys, top, left = self._window(key, origin, scale)
+        u = key.upsample
+        xy = normal_texels(z, xs, ys, u)
+        h, w = key.shape
+        out = np.zeros((h, w, 4), dtype=np.uint8)
+        out[..., :2] = xy[top * u : top * u + h, left * u : left * u + w]
+        out[..., 3] = 255
+        return out
+
+    def upload_texels(self, key: NormalKey, origin: np.ndarray, scale: np.ndarray) -> np.ndarray:
+        """(rows, cols, 4) uint8: the texture of a patch, its lattice lines' normals (as
+        ``texels_of``, which holds them at every ``key.upsample``-th texel); the GPU's
+        bilinear filter upsamples them as ``normal_texels`` does, so an upsampled level costs
+        no more texels than the data's (a 4096-texel patch at ×4 is 1024² texels, not 4096²)."""
+        z, xs, ys, top, left = self._window(key, origin, scale)
+        out = np.zeros((key.rows, key.cols, 4), dtype=np.uint8)
+        if z.shape[0] < 2 or z.shape[1] < 2:
+            out[..., :2], out[..., 3] = 128, 255  # a single line: the up vector
+            return out
+        dx, dy = np.diff(xs), np.diff(ys)
+        ux, uy = bool((dx == dx[0]).all()), bool((dy == dy[0]).all())
+        _normal_rgba_kernel(np.ascontiguousarray(z), xs, ys, ux, uy, top, left, out)
+        return out
+
+    def _window(
+        self, key: NormalKey, origin: np.ndarray, scale: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
+        """Heights (display z) of a patch's window with one line of halo each side (within
+        the grid), rows south to north, its display axes xs, ys, and the window's first row
+        and column in them."""
+        grid, s = self.terrain, key.step
         rows, cols = grid.shape
         a, b = key.row0, key.row0 + key.rows - 1
         c, d = key.col0, key.col0 + key.cols - 1
@@ -378,21 +446,25 @@ class NormalPatches:
             z, xs, left = z[:, ::-1], xs[::-1], hd - d
         ox, oy, _ = origin
         sx, sy, _ = scale
-        xy = normal_texels(z * key.zscale, (xs - ox) * sx, (ys - oy) * sy, u)
-        h, w = key.shape
-        out = np.zeros((h, w, 4), dtype=np.uint8)
-        out[..., :2] = xy[top * u : top * u + h, left * u : left * u + w]
-        out[..., 3] = 255
-        return out
+        return z * key.zscale, (xs - ox) * sx, (ys - oy) * sy, top, left
 
     def uv(self, key: NormalKey, origin: np.ndarray) -> tuple[float, float, float, float]:
-        """uv = local.xy * t[:2] + t[2:] of a patch (texel centres on its lattice lines)."""
+        """uv = local.xy * t[:2] + t[2:] of a patch's level (``texels_of``: texel centres on
+        its lattice lines and every 1/upsample between)."""
+        return self._uv(key, origin, key.upsample)
+
+    def upload_uv(self, key: NormalKey, origin: np.ndarray) -> tuple[float, float, float, float]:
+        """uv of a patch's texture (``upload_texels``: texel centres on its lattice lines)."""
+        return self._uv(key, origin, 1)
+
+    def _uv(self, key: NormalKey, origin: np.ndarray, u: int) -> tuple[float, float, float, float]:
+        """uv of a patch's lattice lines cut into ``u`` texels per cell."""
         grid, s = self.terrain, key.step
         xs = grid.x_coords[[key.col0 * s, (key.col0 + key.cols - 1) * s]]
         ys = grid.y_coords[[key.row0 * s, (key.row0 + key.rows - 1) * s]]
-        dx = grid.cell_size[0] * s / key.upsample
-        dy = grid.cell_size[1] * s / key.upsample
-        ny, nx = key.shape
+        dx = grid.cell_size[0] * s / u
+        dy = grid.cell_size[1] * s / u
+        ny, nx = (key.rows - 1) * u + 1, (key.cols - 1) * u + 1
         ox, oy, _ = origin
         return (
             1.0 / (dx * nx),

@@ -147,6 +147,9 @@ class PointQuadtreeSource:
     def set_shading_side(self, side: int, scale: np.ndarray | None = None) -> None:
         """Nothing changes: γ does not apply to a point quadtree."""
 
+    def set_lighting(self, lit: bool) -> None:
+        """Nothing changes: its frames are lit by the normal map."""
+
     @property
     def shading_uv(self) -> None:
         """No normal patches: every group is drawn with the normal map."""

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from approxtree.glsl import create_program
+from approxtree.render.cache_keys import LitKey
 from approxtree.render.frame_state import FrameState
 from approxtree.render.gpu_cache import GpuCache, GpuMesh, GpuTexture
 from approxtree.render.provider import Payload
@@ -101,13 +102,22 @@ class Renderer:
         4) uint8 texels) on a miss."""
         return self.cache.get_texture(key, lambda: load(key).texels)  # type: ignore[arg-type,return-value]
 
+    def _group_texture(self, key: Hashable, load: Load) -> Any:
+        """A group's texture, or (texture, normal patch) of a LitKey."""
+        if isinstance(key, LitKey):
+            return self.texture(key.texture, load), self.texture(key.normal, load)
+        return self.texture(key, load)
+
     def upload(self, groups: Sequence[tuple[Any, Sequence[Hashable]]], load: Load) -> Any:
         """Upload what a frame draws, the groups [(texture key or None, mesh keys)], from
         ``load``; returns the resident (texture, meshes) per group, or None when the frame
         exceeded the cache budget (entries were evicted: the draw fetches them again)."""
         evictions = self.cache.evictions
         resident = [
-            (None if tex is None else self.texture(tex, load), [self.mesh(k, load) for k in keys])
+            (
+                None if tex is None else self._group_texture(tex, load),
+                [self.mesh(k, load) for k in keys],
+            )
             for tex, keys in groups
         ]
         return resident if self.cache.evictions == evictions else None
@@ -193,7 +203,9 @@ class Renderer:
         background (drawn behind the terrain, its colour channels only: alpha stays 0 there).
         lit: the light modulates the colour. texture_uv(texture key): its uv transform
         ("textured"; with "terrain", the group's normal patch, None its key for the normal
-        map). shade_texture: the textures are grey shading that shades the palette.
+        map; a textured group keyed by a LitKey: its texture patch, and its normal patch lights
+        it instead of the normal map). shade_texture: the textures are grey shading that
+        shades the palette.
         Returns (ms incl. ctx.finish(), triangles, texture binds).
         """
         import moderngl
@@ -221,6 +233,7 @@ class Renderer:
             prog["u_shade_texture"].value = 1.0 if shade_texture else 0.0
         triangles = 0
         switches = 0
+        patched = False  # a normal patch is bound in place of the normal map
         t0 = time.perf_counter()
         with ctx.scope(framebuffer=target, enable_only=moderngl.DEPTH_TEST):
             ctx.viewport = (0, 0, w, h)
@@ -232,8 +245,19 @@ class Renderer:
                 for g, (tex_key, keys) in enumerate(groups):
                     if tex_key is not None and program == "textured":
                         # Pinned while its meshes are fetched, so it outlives their uploads.
-                        self.cache.pinned = {tex_key}
-                        tex = resident[g][0] if resident else self.texture(tex_key, load)
+                        pair = tex_key if isinstance(tex_key, LitKey) else None
+                        self.cache.pinned = set(pair) if pair else {tex_key}
+                        tex = resident[g][0] if resident else self._group_texture(tex_key, load)
+                        if pair is not None:
+                            # A lit group's normal patch replaces the normal map.
+                            tex, normal = tex
+                            normal.texture.use(location=0)
+                            prog["u_normal_uv"].value = texture_uv(pair.normal)  # type: ignore[misc]
+                            tex_key, patched = pair.texture, True
+                        elif patched:
+                            self.normal_map.use(location=0)
+                            prog["u_normal_uv"].value = tuple(self.normal_uv)
+                            patched = False
                         tex.texture.use(location=1)
                         prog["u_tex_uv"].value = texture_uv(tex_key)  # type: ignore[misc]
                         switches += 1

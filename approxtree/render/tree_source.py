@@ -21,7 +21,10 @@ Texel sizes (γ): the texture patch's with a pyramid (``set_textures``), else th
 patch's (render/normal_map.py: the normal map every node shares, or, on a grid over
 NORMAL_MAP_MAX a side, each node's normal patch, shared with ancestors as texture patches
 are), and per node whether a descendant's texel is finer (``selector.finer_below``): γ
-refines only there.
+refines only there. A textured frame lit at runtime (``set_lighting``) over normal patches
+lights each texture group by its nodes' normal patches (groups keyed by LitKey), and γ
+refines where either kind of patch is over γ with a finer one below. Full-resolution chunks
+are shaded by their own normal patches (full_resolution.py).
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ import numpy as np
 from approxtree.errors import EmptyTerrainError, InvalidParameterError
 from approxtree.geometry.rect import Rect
 from approxtree.render.budget import node_triangles, select_budget
-from approxtree.render.cache_keys import CHUNK, NODE, MeshKey, TextureKey, node_keys
+from approxtree.render.cache_keys import CHUNK, NODE, LitKey, MeshKey, TextureKey, node_keys
 from approxtree.render.cut import Cut
 from approxtree.render.frame import PAGING_KEYS, FramePlan
 from approxtree.render.frame_state import FrameState
@@ -94,6 +97,8 @@ class ApproximationTreeSource:
         self.payload_check: Callable[[], None] | None = None
         #: Camera motion and frame times of interactive frames (render/prefetch.py).
         self.prefetch = Prefetcher()
+        #: Frames are lit (set per frame by the Engine, ``set_lighting``).
+        self._lit = False
         self._node_figures()
 
     def _node_figures(self) -> None:
@@ -116,6 +121,7 @@ class ApproximationTreeSource:
         self.skirt_base = skirt_base(tree.errors, tree.terrain.z_range, extents)
         #: Triangles drawn per node (the budget's counts), made on first use.
         self._node_triangles: np.ndarray | None = None
+        self._lit_texels: tuple[np.ndarray, np.ndarray] | None = None
 
     # -- the protocol ---------------------------------------------------------------------------
 
@@ -124,13 +130,12 @@ class ApproximationTreeSource:
         view = cut.frozen or fs
         if cut.full_resolution:
             return self.full.select(view)
+        texels, finer = self._lit_figures() if self._lit_patches else (self.texels, self.finer)
         if cut.max_triangles is not None:
             if self._node_triangles is None:
                 self._node_triangles = node_triangles(self.tree, self.skirts)
-            return select_budget(
-                self.tree, view, cut.max_triangles, self._node_triangles, self.texels
-            )
-        return select(self.tree, view, cut.alpha, cut.gamma, self.texels, self.finer)
+            return select_budget(self.tree, view, cut.max_triangles, self._node_triangles, texels)
+        return select(self.tree, view, cut.alpha, cut.gamma, texels, finer)
 
     def plan(
         self, wanted: Selection, fs: FrameState, cut: Cut, paging: Paging, renderer: Renderer
@@ -139,6 +144,11 @@ class ApproximationTreeSource:
         if cut.full_resolution:
             plan = self.full.plan(wanted)
             self._texture(plan, plan.meshes, wanted.nodes.copy(), np.zeros(len(wanted.nodes)))
+            if self.binding is None and self.normals.active:
+                # Each chunk shaded by its own normal patch, as finely as the cut's nodes.
+                chunks, zscale = self.full.normal_patches(self._shading_side), self._zscale
+                keys: list[Hashable | None] = [chunks.key(int(i), zscale) for i in wanted.nodes]
+                plan.groups = group_meshes(plan.meshes, keys)
             return plan
         interactive = not paging.wait
         figures, requests, ahead = dict.fromkeys(PAGING_KEYS, 0), list[Any](), list[Any]()
@@ -152,12 +162,23 @@ class ApproximationTreeSource:
                 self.tree.parents, drawn, cut.gamma, cut.share_textures, self.sources
             )
             self._texture(plan, node_keys(tex_nodes), tex_nodes, tex_gammas)
+            cache, provider = renderer.cache, self.provider
+
+            def loaded(key: Hashable) -> bool:
+                return key in cache or key in provider
+
+            tex_requests: list = []
             if interactive:
                 # Texture patches not loaded yet: the root's stands in, the rest is requested.
-                cache, provider = renderer.cache, self.provider
-                plan.groups, tex_requests = self.binding.page(
-                    plan.groups, lambda key: key in cache or key in provider
+                plan.groups, tex_requests = self.binding.page(plan.groups, loaded)
+            if self._lit_patches:
+                # Lit: each texture group split by its meshes' normal patches (LitKey); in an
+                # interactive frame one not loaded yet is lit by the map, and requested.
+                plan.groups, normal_requests = self._lit_groups(
+                    plan, cut, loaded if interactive else None
                 )
+                tex_requests += normal_requests
+            if interactive:
                 figures["texture_stand_ins"] = len(tex_requests)
                 # Meshes first: a few kB each against MBs of texels, and a missing mesh
                 # coarsens the geometry (α), a missing texture only the colour.
@@ -173,6 +194,55 @@ class ApproximationTreeSource:
             self.provider.request(requests, ahead)
         return plan
 
+    def set_lighting(self, lit: bool) -> None:
+        """Whether the next frames are lit: a lit textured frame of a grid with normal patches
+        lights each group with its normal patch (an interactive frame the map where one is not
+        loaded yet; full-resolution chunks keep the map), and γ refines where the texture or
+        the normal patch is over γ with a finer one of its kind below (``_lit_figures``)."""
+        self._lit = bool(lit)
+
+    @property
+    def _lit_patches(self) -> bool:
+        """Textured frames lit with normal patches."""
+        return self._lit and self.binding is not None and self.normals.active
+
+    def _lit_figures(self) -> tuple[np.ndarray, np.ndarray]:
+        """(n, 2) texel of a lit textured frame's nodes and (n,) bool where a finer one lies
+        below: γ refines a node where its texture or its normal patch's texel is over γ and
+        that kind has a finer patch below, so its texel is the coarser in area of the kinds
+        with a finer one below (of both where neither has: the drawn γ, refining nothing)."""
+        if self._lit_texels is None:
+            tex, nrm = self.texels, self.shading_texels
+            ft, fn = self.finer, self.shading_finer
+            coarser = nrm[:, 0] * nrm[:, 1] > tex[:, 0] * tex[:, 1]
+            use_normal = (fn & ~ft) | (coarser & (fn == ft))
+            self._lit_texels = np.where(use_normal[:, None], nrm, tex), ft | fn
+        return self._lit_texels
+
+    def _lit_groups(
+        self, plan: FramePlan, cut: Cut, loaded: Callable[[Hashable], bool] | None
+    ) -> tuple[list, list]:
+        """``plan``'s texture groups, each split by its meshes' normal patches (each node's
+        own or its ancestor's within γ, as untextured): [(LitKey or TextureKey, meshes)], and
+        the normal patches to request: those not ``loaded`` (None: all are drawn), lit by the
+        normal map meanwhile."""
+        nodes, _ = texture_nodes(self.tree.parents, plan.selection, cut.gamma, cut.share_textures)
+        zscale = self._zscale
+        normal = {
+            mesh: self.normals.key(int(i), zscale)
+            for mesh, i in zip(plan.meshes, nodes, strict=True)
+        }
+        wanted = {n for n in normal.values() if n is not None}
+        missing = set() if loaded is None else {n for n in wanted if not loaded(n)}
+        groups = []
+        for tex_key, meshes in plan.groups:
+            patches = [normal[m] for m in meshes]
+            keys: list[Hashable | None] = [
+                tex_key if n is None or n in missing else LitKey(tex_key, n) for n in patches
+            ]
+            groups += group_meshes(meshes, keys)
+        return groups, sorted(missing)
+
     def _normal_groups(
         self, plan: FramePlan, cut: Cut, paged: Renderer | None, figures: dict[str, int]
     ) -> list:
@@ -182,7 +252,7 @@ class ApproximationTreeSource:
         and requested (returned)."""
         drawn = plan.selection
         nodes, gammas = texture_nodes(self.tree.parents, drawn, cut.gamma, cut.share_textures)
-        zscale = float(self._shading_scale[2])
+        zscale = self._zscale
         plan.groups = group_meshes(plan.meshes, [self.normals.key(i, zscale) for i in nodes])
         plan.texture_nodes, plan.texture_gammas = nodes, gammas
         if paged is None:
@@ -193,6 +263,11 @@ class ApproximationTreeSource:
         )
         figures["texture_stand_ins"] = len(requests)
         return requests
+
+    @property
+    def _zscale(self) -> float:
+        """The display z scale the normal patches are computed for."""
+        return float(self._shading_scale[2])
 
     def _texture_keys(self, selection: Selection, cut: Cut) -> list[TextureKey]:
         """The texture patches the nodes of ``selection`` are drawn with (with a pyramid)."""
@@ -227,6 +302,7 @@ class ApproximationTreeSource:
             self.binding = TextureBinding(pyramid, self.tree.origin, self._rect_of, self._level_of)
             self.texels, self.sources = self._texture_texels(pyramid)
             self.finer = finer_below(self.tree, self.texels)
+        self._lit_texels = None
         stale = stale_textures(before, pyramids_of(self.binding))
         self.provider.drop(stale)
         return stale
@@ -251,6 +327,7 @@ class ApproximationTreeSource:
         if scale is not None:
             self._shading_scale = np.asarray(scale, dtype=np.float64).copy()
         self._shading_figures()
+        self._lit_texels = None
         if self.binding is None:
             self.texels, self.finer = self.shading_texels, self.shading_finer
 
@@ -269,12 +346,12 @@ class ApproximationTreeSource:
 
     @property
     def shading_uv(self) -> Callable[[Any], tuple[float, float, float, float]] | None:
-        """The uv transform of a normal patch key, None when untextured frames draw only the
-        normal map (no normal patches, or a texture pyramid)."""
-        if self.binding is not None or not self.normals.active:
+        """The uv transform of a normal patch key, None when frames draw only the normal map
+        (no normal patches)."""
+        if not self.normals.active:
             return None
         normals, origin = self.normals, self.tree.origin
-        return lambda key: normals.uv(key, origin)
+        return lambda key: normals.upload_uv(key, origin)
 
     def set_skirts(self, skirts: bool) -> bool:
         """Hang skirts or not; True when that changes the meshes (the cached ones dropped)."""
@@ -401,7 +478,7 @@ class ApproximationTreeSource:
         """The payload of ``key``, built now: the provider's loader (it runs on the provider's
         threads and reads the tree's store without keeping the patch, ``read_patch``)."""
         if isinstance(key, NormalKey):
-            texels = self.normals.texels_of(key, self.tree.origin, self._shading_scale)
+            texels = self.normals.upload_texels(key, self.tree.origin, self._shading_scale)
             return Payload(texels=texels)
         if isinstance(key, TextureKey):
             if self.binding is None:  # the pyramid was dropped while this load waited
