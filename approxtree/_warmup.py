@@ -50,6 +50,7 @@ def _frame(tree) -> None:
     from approxtree.render import display_scale, overview_camera, select
     from approxtree.render.budget import node_triangles, select_budget
     from approxtree.render.frame_state import FrameState
+    from approxtree.render.normal_map import NormalPatches
     from approxtree.render.skirts import skirt_depths
     from approxtree.render.texture_sharing import texture_nodes
     from approxtree.render.visual_error import texel_sizes, visual_errors
@@ -63,6 +64,13 @@ def _frame(tree) -> None:
     drawn = np.asarray(sel.nodes, dtype=np.int64)
     visual_errors(tree.bboxes[drawn], tree.errors[drawn], texel_sizes(tree)[drawn], fs)
     skirt_depths(tree.errors, tree.terrain.z_range, None, tree.bboxes[:, [0, 1, 3, 4]])
+    # Normal patches (grids over the normal map's side): a texture limit below the terrain's
+    # side makes its normal map strided, so nodes get patches whose texels are computed.
+    patches = NormalPatches(tree.terrain, np.asarray(tree.rects), max_side=16)
+    for i in np.flatnonzero(patches.levels >= 0)[:1]:
+        key = patches.key(int(i), float(scale[2]))
+        if key is not None:
+            patches.upload_texels(key, np.asarray(tree.origin), np.asarray(scale))
     for i in sel.nodes:
         tree.patch(int(i)).vertices  # noqa: B018 (the mesh is built on first access)
     select_budget(tree, fs, 10**9, node_triangles(tree))
