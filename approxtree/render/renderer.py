@@ -12,13 +12,20 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Hashable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
 
 from approxtree.glsl import create_program
 from approxtree.render.frame_state import FrameState
-from approxtree.render.gpu_cache import GpuCache, GpuMesh, GpuTexture
+from approxtree.render.gpu_cache import (
+    GpuCache,
+    GpuMesh,
+    GpuTexture,
+    mip_chain,
+    staged_uploads_available,
+)
 from approxtree.render.provider import Payload
 from approxtree.render.style import WALL_COLOUR, Background, Style
 
@@ -42,6 +49,8 @@ class Renderer:
             "terrain": create_program(ctx, "terrain"),
             "position": create_program(ctx, "position"),
             "textured": create_program(ctx, "textured"),
+            # Colours as they are (no light, no shading texture): no normal map fetched.
+            "textured_decal": create_program(ctx, "textured", defines=("DECAL",)),
             "sky": create_program(ctx, "sky"),
         }
         # The background pass: one triangle covering the viewport (NDC).
@@ -57,6 +66,11 @@ class Renderer:
         self.domain = (0.0, 0.0, 0.0, 0.0)
         self.domain_tol = 0.0
         self.cache = GpuCache(ctx, cache_bytes)
+        # Texture patches of interactive frames: mip chains made on a worker thread, then
+        # written over frames (GpuCache.stage_texture); keys wanted since the last step.
+        self._mips: ThreadPoolExecutor | None = None
+        self._preparing: dict[Hashable, Future] = {}
+        self._wanted_textures: set[Hashable] = set()
         self.targets: dict[tuple[str, int, int], Any] = {}
         self.normal_map: Any = None
         self.normal_uv = np.zeros(4)
@@ -100,6 +114,40 @@ class Renderer:
         """The GPU texture of ``key``, uploaded from ``load(key)`` (a texture Payload: (h, w,
         4) uint8 texels) on a miss."""
         return self.cache.get_texture(key, lambda: load(key).texels)  # type: ignore[arg-type,return-value]
+
+    def texture_drawable(self, key: Hashable, texels: Callable[[], np.ndarray | None]) -> bool:
+        """Whether the texture of ``key`` can be drawn now without a hitch: complete on the
+        GPU. Otherwise, once ``texels()`` gives its (h, w, 4) uint8 texels (None: not loaded
+        yet), its mip chain is made on a worker thread and ``step_textures`` writes it over
+        the next frames; it becomes drawable when complete (a stand-in meanwhile)."""
+        if key in self.cache:
+            return True
+        if not staged_uploads_available():
+            # No GL library for the levels: the frame uploads it whole once loaded.
+            return texels() is not None
+        self._wanted_textures.add(key)
+        if key in self._preparing or self.cache.is_staged(key):
+            return False
+        data = texels()
+        if data is not None:
+            if self._mips is None:
+                self._mips = ThreadPoolExecutor(1, thread_name_prefix="approxtree-mips")
+            self._preparing[key] = self._mips.submit(mip_chain, np.ascontiguousarray(data))
+        return False
+
+    def step_textures(self, budget_ms: float) -> int:
+        """One frame's share of the texture work: stage the mip chains made, write staged
+        textures for about ``budget_ms``; textures no longer wanted are dropped. Returns how
+        many became drawable."""
+        wanted, self._wanted_textures = self._wanted_textures, set()
+        for key in [k for k in self._preparing if k not in wanted]:
+            self._preparing.pop(key).cancel()
+        self.cache.unstage(lambda key: key not in wanted)
+        for key in [k for k, f in self._preparing.items() if f.done()]:
+            levels = self._preparing.pop(key).result()
+            if key not in self.cache:
+                self.cache.stage_texture(key, levels)
+        return self.cache.upload_staged(budget_ms) if self.cache.staged() else 0
 
     def upload(self, groups: Sequence[tuple[Any, Sequence[Hashable]]], load: Load) -> Any:
         """Upload what a frame draws, the groups [(texture key or None, mesh keys)], from
@@ -199,26 +247,36 @@ class Renderer:
         import moderngl
 
         ctx = self.ctx
-        prog = self.programs[program]
+        decal = program == "textured" and not lit and not shade_texture
+        prog = self.programs["textured_decal" if decal else program]
         w, h = fs.viewport
         wireframe, background = style.wireframe, style.background
         prog["u_mvp"].write(fs.local_to_clip.T.astype("f4").tobytes())
         if program in ("terrain", "textured"):
-            prog["u_palette_z"].value = self.palette_z
-            prog["u_light"].value = tuple(float(v) for v in style.sun.direction)
-            prog["u_wall"].value = WALL_COLOUR
-            prog["u_domain"].value = self.domain
-            prog["u_domain_tol"].value = self.domain_tol
-            prog["u_palette"].value = 2
+            # A variant compiles out the uniforms it does not use: set those it has.
+            uniforms = {
+                "u_palette_z": self.palette_z,
+                "u_light": tuple(float(v) for v in style.sun.direction),
+                "u_wall": WALL_COLOUR,
+                "u_domain": self.domain,
+                "u_domain_tol": self.domain_tol,
+                "u_palette": 2,
+                "u_normal_uv": tuple(self.normal_uv),
+                "u_line": 1.0 if wireframe else 0.0,
+                "u_lighting": 1.0 if lit else 0.0,
+                "u_normals": 0,
+            }
+            if program == "textured":
+                uniforms |= {"u_texture": 1, "u_shade_texture": 1.0 if shade_texture else 0.0}
+            for name, value in uniforms.items():
+                if name in prog:
+                    prog[name].value = value
             self.palette.use(location=2)
-            prog["u_normal_uv"].value = tuple(self.normal_uv)
-            prog["u_line"].value = 1.0 if wireframe else 0.0
-            prog["u_lighting"].value = 1.0 if lit else 0.0
-            prog["u_normals"].value = 0
             self.normal_map.use(location=0)
-        if program == "textured":
-            prog["u_texture"].value = 1
-            prog["u_shade_texture"].value = 1.0 if shade_texture else 0.0
+        if resident is not None:
+            # Front to back: llvmpipe (and GPUs) test depth before shading, so the nearer
+            # meshes drawn first spare the fragments they hide (skirts, far slopes).
+            groups, resident = _front_to_back(groups, resident, fs)
         triangles = 0
         switches = 0
         t0 = time.perf_counter()
@@ -263,18 +321,16 @@ class Renderer:
         return (time.perf_counter() - t0) * 1e3, triangles, switches
 
     def _draw_background(self, target: Any, background: Background) -> None:
-        """The background where no terrain was drawn (depth still 1), colour channels only."""
+        """The background where no terrain was drawn (depth still 1), its alpha left 0: the
+        sky writes alpha 0 itself, so no colour mask makes llvmpipe read back every pixel."""
         sky = self.programs["sky"]
         top, bottom = background.colours
         sky["u_top"].value = top
         sky["u_bottom"].value = bottom
         self.ctx.depth_func = "<="
-        mask = target.color_mask
-        target.color_mask = (True, True, True, False)
         try:
             self._sky_vao.render(_TRIANGLES)
         finally:
-            target.color_mask = mask
             self.ctx.depth_func = "<"
 
     # -- housekeeping -------------------------------------------------------------------------
@@ -284,6 +340,9 @@ class Renderer:
         if self.released:
             return
         self.released = True
+        if self._mips is not None:
+            self._mips.shutdown(wait=True, cancel_futures=True)
+        self._preparing.clear()
         self.cache.release()
         for fbo in self.targets.values():
             _release_fbo(fbo)
@@ -300,6 +359,28 @@ class Renderer:
             prog.release()
         if self.owns_context:
             self.ctx.release()
+
+
+def _front_to_back(
+    groups: Sequence[tuple[Any, Sequence[Hashable]]],
+    resident: list[tuple[Any, list[Any]]],
+    fs: FrameState,
+) -> tuple[list[tuple[Any, Sequence[Hashable]]], list[tuple[Any, list[Any]]]]:
+    """The groups and their resident meshes, each group's meshes nearest first (distance of
+    their centres to the eye, display units) and the groups by their nearest mesh. The keys
+    of a group keep their order (only the resident meshes are drawn)."""
+    eye = (np.asarray(fs.eye, dtype=np.float64) - fs.origin) * fs.scale
+    order = []
+    for g, (tex, meshes) in enumerate(resident):
+        if not meshes:
+            order.append((np.inf, g, tex, meshes))
+            continue
+        centres = np.array([m.centre for m in meshes]) * fs.scale
+        d = np.einsum("ij,ij->i", centres - eye, centres - eye)
+        rank = np.argsort(d, kind="stable")
+        order.append((float(d[rank[0]]), g, tex, [meshes[i] for i in rank]))
+    order.sort(key=lambda o: (o[0], o[1]))
+    return [groups[o[1]] for o in order], [(o[2], o[3]) for o in order]
 
 
 def _release_fbo(fbo: Any) -> None:
