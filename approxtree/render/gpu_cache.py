@@ -24,8 +24,7 @@ from approxtree.glsl import VERTEX_LAYOUT
 
 @dataclass
 class GpuMesh:
-    """One uploaded mesh. nbytes: vertex + index buffer bytes; triangles: index count / 3;
-    centre: (3,) float64 centre of its vertices' box, local coordinates (draw order).
+    """One uploaded mesh. nbytes: vertex + index buffer bytes; triangles: index count / 3.
 
     A mesh of no triangles has no buffers (vbo and ibo None) and is never drawn.
     """
@@ -35,7 +34,6 @@ class GpuMesh:
     nbytes: int
     triangles: int
     vaos: dict[int, Any] = field(default_factory=dict)
-    centre: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def vao(self, ctx: Any, program: Any) -> Any:
         """The vertex array binding this mesh to ``program`` (made on first use)."""
@@ -276,14 +274,12 @@ class GpuCache:
             return self._add(key, GpuMesh(None, None, 0, 0))
         vbo = self.ctx.buffer(np.ascontiguousarray(vertex_data, dtype="f4").tobytes())
         ibo = self.ctx.buffer(np.ascontiguousarray(triangles, dtype="u4").tobytes())
-        xyz = np.asarray(vertex_data)[:, :3]
-        centre = 0.5 * (xyz.min(axis=0).astype(np.float64) + xyz.max(axis=0))
-        mesh = GpuMesh(vbo, ibo, vbo.size + ibo.size, len(triangles), centre=centre)
-        return self._add(key, mesh)
+        return self._add(key, GpuMesh(vbo, ibo, vbo.size + ibo.size, len(triangles)))
 
     def get_texture(self, key: Hashable, build: Callable[[], np.ndarray]) -> GpuTexture:
         """The texture of ``key``; on a miss ``build()`` gives (h, w, 4) uint8 texels, row 0 at
-        texture coordinate v = 0, uploaded with mipmaps and trilinear filtering."""
+        texture coordinate v = 0, uploaded now with mipmaps and trilinear filtering (the mip
+        chain of ``mip_chain``, as the textures written over frames get)."""
         import moderngl
 
         entry = self._entries.get(key)
@@ -292,10 +288,19 @@ class GpuCache:
             return entry  # type: ignore[return-value]
         texels = np.ascontiguousarray(build(), dtype=np.uint8)
         h, w = texels.shape[:2]
+        if staged_uploads_available():
+            # The same mipmaps whether a patch was written at once or over frames.
+            self.unstage(lambda k: k == key)
+            self.stage_texture(key, mip_chain(texels))
+            upload = self._staged.pop(key)
+            while not upload.write(upload.nbytes):
+                pass
+            return self._add(key, GpuTexture(upload.texture, mipmap_bytes(w, h)))
         tex = self.ctx.texture((w, h), 4, texels, dtype="f1")
         tex.repeat_x = False
         tex.repeat_y = False
-        # Hardware mipmaps per texture patch (core paper, 3.3), sampled trilinearly.
+        # Hardware mipmaps per texture patch (core paper, 3.3), sampled trilinearly (where
+        # GL's library cannot be called: the driver's filter, within a few levels of ours).
         tex.build_mipmaps()
         tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
         return self._add(key, GpuTexture(tex, mipmap_bytes(w, h)))

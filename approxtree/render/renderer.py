@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from approxtree.glsl import create_program
+from approxtree.render.frame import Groups
 from approxtree.render.frame_state import FrameState
 from approxtree.render.gpu_cache import (
     GpuCache,
@@ -273,10 +274,6 @@ class Renderer:
                     prog[name].value = value
             self.palette.use(location=2)
             self.normal_map.use(location=0)
-        if resident is not None:
-            # Front to back: llvmpipe (and GPUs) test depth before shading, so the nearer
-            # meshes drawn first spare the fragments they hide (skirts, far slopes).
-            groups, resident = _front_to_back(groups, resident, fs)
         triangles = 0
         switches = 0
         t0 = time.perf_counter()
@@ -361,26 +358,21 @@ class Renderer:
             self.ctx.release()
 
 
-def _front_to_back(
-    groups: Sequence[tuple[Any, Sequence[Hashable]]],
-    resident: list[tuple[Any, list[Any]]],
-    fs: FrameState,
-) -> tuple[list[tuple[Any, Sequence[Hashable]]], list[tuple[Any, list[Any]]]]:
-    """The groups and their resident meshes, each group's meshes nearest first (distance of
-    their centres to the eye, display units) and the groups by their nearest mesh. The keys
-    of a group keep their order (only the resident meshes are drawn)."""
-    eye = (np.asarray(fs.eye, dtype=np.float64) - fs.origin) * fs.scale
-    order = []
-    for g, (tex, meshes) in enumerate(resident):
-        if not meshes:
-            order.append((np.inf, g, tex, meshes))
-            continue
-        centres = np.array([m.centre for m in meshes]) * fs.scale
-        d = np.einsum("ij,ij->i", centres - eye, centres - eye)
-        rank = np.argsort(d, kind="stable")
-        order.append((float(d[rank[0]]), g, tex, [meshes[i] for i in rank]))
+def front_to_back(groups: Groups, centres: np.ndarray, eye: np.ndarray) -> Groups:
+    """``groups`` drawn nearest first: each group's keys by the distance of their ``centres``
+    to ``eye`` (the keys in group order, (k, 3) display units), the groups by their nearest
+    key. Depth is tested before shading (llvmpipe and GPUs), so what is drawn first hides
+    the fragments behind it from the shader. Ties keep the planned order."""
+    d = np.einsum("ij,ij->i", centres - eye, centres - eye)
+    order, start = [], 0
+    for g, (tex, keys) in enumerate(groups):
+        mine = d[start : start + len(keys)]
+        rank = np.argsort(mine, kind="stable")
+        nearest = float(mine[rank[0]]) if len(keys) else np.inf
+        order.append((nearest, g, (tex, [keys[i] for i in rank])))
+        start += len(keys)
     order.sort(key=lambda o: (o[0], o[1]))
-    return [groups[o[1]] for o in order], [(o[2], o[3]) for o in order]
+    return [o[2] for o in order]
 
 
 def _release_fbo(fbo: Any) -> None:
