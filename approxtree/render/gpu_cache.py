@@ -330,21 +330,30 @@ class GpuCache:
         tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
         self._staged[key] = TextureUpload(tex, levels)
 
-    def upload_staged(self, budget_ms: float, step_bytes: int = UPLOAD_STEP_BYTES) -> int:
-        """Write staged textures, oldest first, for about ``budget_ms`` (one step of
-        ``step_bytes`` at least); a complete one becomes an entry (drawable). Returns how
-        many were completed."""
+    def upload_staged(
+        self,
+        budget_ms: float,
+        step_bytes: int = UPLOAD_STEP_BYTES,
+        order: Sequence[Hashable] | None = None,
+    ) -> int:
+        """Write staged textures in ``order`` (staged keys; None: oldest first) for about
+        ``budget_ms`` (one step of ``step_bytes`` at least); a complete one becomes an entry
+        (drawable). Returns how many were completed."""
         t0 = time.perf_counter()
         completed = 0
-        while self._staged:
-            key, upload = next(iter(self._staged.items()))
-            if upload.write(step_bytes):
-                del self._staged[key]
-                h, w = upload.levels[0].shape[:2]
-                self._add(key, GpuTexture(upload.texture, mipmap_bytes(w, h)))
-                completed += 1
-            if (time.perf_counter() - t0) * 1e3 >= budget_ms:
-                break
+        for key in list(self._staged) if order is None else order:
+            upload = self._staged[key]
+            while True:
+                done = upload.write(step_bytes)
+                if done:
+                    del self._staged[key]
+                    h, w = upload.levels[0].shape[:2]
+                    self._add(key, GpuTexture(upload.texture, mipmap_bytes(w, h)))
+                    completed += 1
+                if (time.perf_counter() - t0) * 1e3 >= budget_ms:
+                    return completed
+                if done:
+                    break
         return completed
 
     def unstage(self, predicate: Callable[[Hashable], bool]) -> int:

@@ -37,6 +37,10 @@ _TRIANGLES = 0x0004
 Load = Callable[[Any], Payload]
 
 
+#: Frames a texture patch being prepared or written is kept without being wanted.
+STAGED_KEEP_STEPS = 30
+
+
 class Renderer:
     """GL state on ``ctx``: programs, a GpuCache of ``cache_bytes``, the normal map, targets.
 
@@ -68,10 +72,11 @@ class Renderer:
         self.domain_tol = 0.0
         self.cache = GpuCache(ctx, cache_bytes)
         # Texture patches of interactive frames: mip chains made on a worker thread, then
-        # written over frames (GpuCache.stage_texture); keys wanted since the last step.
+        # written over frames (GpuCache.stage_texture); the step each key was last wanted in.
         self._mips: ThreadPoolExecutor | None = None
         self._preparing: dict[Hashable, Future] = {}
-        self._wanted_textures: set[Hashable] = set()
+        self._wanted_at: dict[Hashable, int] = {}
+        self._step = 0
         self.targets: dict[tuple[str, int, int], Any] = {}
         self.normal_map: Any = None
         self.normal_uv = np.zeros(4)
@@ -126,7 +131,7 @@ class Renderer:
         if not staged_uploads_available():
             # No GL library for the levels: the frame uploads it whole once loaded.
             return texels() is not None
-        self._wanted_textures.add(key)
+        self._wanted_at[key] = self._step
         if key in self._preparing or self.cache.is_staged(key):
             return False
         data = texels()
@@ -138,17 +143,29 @@ class Renderer:
 
     def step_textures(self, budget_ms: float) -> int:
         """One frame's share of the texture work: stage the mip chains made, write staged
-        textures for about ``budget_ms``; textures no longer wanted are dropped. Returns how
-        many became drawable."""
-        wanted, self._wanted_textures = self._wanted_textures, set()
-        for key in [k for k in self._preparing if k not in wanted]:
-            self._preparing.pop(key).cancel()
-        self.cache.unstage(lambda key: key not in wanted)
-        for key in [k for k, f in self._preparing.items() if f.done()]:
+        textures for about ``budget_ms`` (those this frame wants first); a texture not wanted
+        for STAGED_KEEP_STEPS steps is dropped (the camera left it; one wanted again sooner
+        is not made twice). Returns how many became drawable."""
+        now, self._step = self._step, self._step + 1
+        for key in [k for k, at in self._wanted_at.items() if now - at > STAGED_KEEP_STEPS]:
+            del self._wanted_at[key]
+            future = self._preparing.pop(key, None)
+            if future is not None:
+                future.cancel()
+        self.cache.unstage(lambda key: key not in self._wanted_at)
+        # GL storage (a 4096² patch: about 40 ms on llvmpipe) only for what this frame wants;
+        # a chain made for a view already left waits, on the CPU, until wanted again.
+        ready = [k for k, f in self._preparing.items() if f.done() and self._wanted_at[k] == now]
+        for key in ready:
             levels = self._preparing.pop(key).result()
             if key not in self.cache:
                 self.cache.stage_texture(key, levels)
-        return self.cache.upload_staged(budget_ms) if self.cache.staged() else 0
+        staged = self.cache.staged()
+        if not staged:
+            return 0
+        first = [k for k in staged if self._wanted_at.get(k) == now]
+        rest = [k for k in staged if self._wanted_at.get(k) != now]
+        return self.cache.upload_staged(budget_ms, order=first + rest)
 
     def upload(self, groups: Sequence[tuple[Any, Sequence[Hashable]]], load: Load) -> Any:
         """Upload what a frame draws, the groups [(texture key or None, mesh keys)], from
