@@ -59,3 +59,31 @@ def test_staged_texture_is_drawable_only_once_every_level_is_written(gl_context)
     cache.stage_texture("u", mip_chain(texels))
     assert cache.unstage(lambda key: key == "u") == 1 and not cache.is_staged("u")
     cache.release()
+
+
+def test_a_forgotten_texture_is_never_staged_from_stale_texels(gl_context):
+    """A re-bake forgets the patches being prepared: their old mip chains are not written."""
+    if not staged_uploads_available():
+        pytest.skip("no GL library to write mip levels with")
+    from approxtree.render.renderer import Renderer
+
+    renderer = Renderer(gl_context, 1 << 30, owns_context=False)
+    try:
+        texels = np.zeros((16, 16, 4), dtype=np.uint8)
+        assert not renderer.texture_drawable("t", lambda: texels)
+        renderer.forget_textures(lambda key: key == "t")
+        for _ in range(3):
+            renderer.step_textures(budget_ms=100.0)
+        assert "t" not in renderer.cache and not renderer.cache.is_staged("t")
+        # Wanted again, it is prepared afresh and becomes drawable within a few frames.
+        fresh = np.full((16, 16, 4), 7, dtype=np.uint8)
+        frames = 0
+        while not renderer.texture_drawable("t", lambda: fresh):
+            renderer.wait_textures()
+            renderer.step_textures(budget_ms=100.0)
+            frames += 1
+            assert frames <= 2
+        got = renderer.cache.get_texture("t", lambda: fresh).texture.read()
+        assert np.array_equal(np.frombuffer(got, dtype=np.uint8).reshape(16, 16, 4), fresh)
+    finally:
+        renderer.release()

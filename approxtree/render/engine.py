@@ -150,6 +150,7 @@ class Engine:
     def _rekey(self, mapping: Any) -> None:
         """Re-key the GPU cache after a tree change; the normal map and palette follow."""
         before = len(self.cache)
+        self.renderer.forget_textures(lambda key: True)
         dropped = self.cache.rekey(mapping)
         self.update_figures |= {"gpu_dropped": dropped, "gpu_kept": before - dropped}
         self.set_vertical_exaggeration(self.exaggeration)
@@ -169,6 +170,7 @@ class Engine:
         self._check_alive()
         stale = self.source.set_textures(textures)
         before = sum(isinstance(key, TextureKey) for key in self.cache.keys())
+        self.renderer.forget_textures(stale)
         dropped = self.cache.drop(stale)
         self.update_figures |= {
             "texture_gpu_dropped": dropped,

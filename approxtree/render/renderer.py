@@ -153,10 +153,10 @@ class Renderer:
             if future is not None:
                 future.cancel()
         self.cache.unstage(lambda key: key not in self._wanted_at)
-        # GL storage (a 4096² patch: about 40 ms on llvmpipe) only for what this frame wants;
-        # a chain made for a view already left waits, on the CPU, until wanted again.
+        # GL storage (a 4096² patch: about 40 ms on llvmpipe) for one patch a frame, one this
+        # frame wants; a chain made for a view already left waits on the CPU until wanted.
         ready = [k for k, f in self._preparing.items() if f.done() and self._wanted_at[k] == now]
-        for key in ready:
+        for key in ready[:1]:
             levels = self._preparing.pop(key).result()
             if key not in self.cache:
                 self.cache.stage_texture(key, levels)
@@ -166,6 +166,22 @@ class Renderer:
         first = [k for k in staged if self._wanted_at.get(k) == now]
         rest = [k for k in staged if self._wanted_at.get(k) != now]
         return self.cache.upload_staged(budget_ms, order=first + rest)
+
+    def wait_textures(self) -> None:
+        """Wait until the mip chains being made are done (scripted replays: the same frames
+        on any machine); ``step_textures`` stages them."""
+        for future in list(self._preparing.values()):
+            if not future.cancelled():
+                future.exception()
+
+    def forget_textures(self, predicate: Callable[[Hashable], bool]) -> None:
+        """Abandon the texture patches being prepared or written whose key satisfies
+        ``predicate`` (their texels are stale: a re-bake, a new pyramid, a tree change)."""
+        for key in [k for k in self._preparing if predicate(k)]:
+            self._preparing.pop(key).cancel()
+        for key in [k for k in self._wanted_at if predicate(k)]:
+            del self._wanted_at[key]
+        self.cache.unstage(predicate)
 
     def upload(self, groups: Sequence[tuple[Any, Sequence[Hashable]]], load: Load) -> Any:
         """Upload what a frame draws, the groups [(texture key or None, mesh keys)], from
