@@ -153,7 +153,7 @@ class Renderer:
             if future is not None:
                 future.cancel()
         self.cache.unstage(lambda key: key not in self._wanted_at)
-        # GL storage (a 4096² patch: about 40 ms on llvmpipe) for one patch a frame, one this
+        # GL storage (a 4096² patch: 20-45 ms on llvmpipe) for one patch a frame, one this
         # frame wants; a chain made for a view already left waits on the CPU until wanted.
         ready = [k for k, f in self._preparing.items() if f.done() and self._wanted_at[k] == now]
         for key in ready[:1]:
