@@ -17,6 +17,7 @@ every program's active attributes are checked against it.
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -99,8 +100,9 @@ def _expand(text: str, file_no: int, files: list[str], root: Path, depth: int) -
     return "\n".join(out)
 
 
-def load_source(name: str, root: Path | None = None) -> ShaderSource:
-    """Read ``<name>.glsl`` and build the source of each stage it defines."""
+def load_source(name: str, root: Path | None = None, defines: Sequence[str] = ()) -> ShaderSource:
+    """Read ``<name>.glsl`` and build the source of each stage it defines; ``defines``: macro
+    names defined in every stage (a program's variants, ``#if defined NAME``)."""
     root = shader_dir() if root is None else root
     text = _read(root / f"{name}.glsl")
     first, _, rest = text.partition("\n")
@@ -114,19 +116,23 @@ def load_source(name: str, root: Path | None = None) -> ShaderSource:
     for stage in STAGES:
         if re.search(rf"defined\s*\(?\s*{stage}\b", text):
             # Line 2 of the file follows the injected define.
-            stages[stage] = f"{first}\n#define {stage}\n#line 2 0\n{body}\n"
+            head = "".join(f"#define {d}\n" for d in (stage, *defines))
+            stages[stage] = f"{first}\n{head}#line 2 0\n{body}\n"
     if "VERTEX_SHADER" not in stages or "FRAGMENT_SHADER" not in stages:
         raise ShaderError(f"{name}.glsl needs a VERTEX_SHADER and a FRAGMENT_SHADER section.")
     return ShaderSource(name, stages, tuple(files))
 
 
-def create_program(ctx: Any, name: str, root: Path | None = None) -> Any:
-    """Compile ``<name>.glsl`` into a moderngl Program on ``ctx``.
+def create_program(
+    ctx: Any, name: str, root: Path | None = None, defines: Sequence[str] = ()
+) -> Any:
+    """Compile ``<name>.glsl`` into a moderngl Program on ``ctx`` (``defines``: its variant's
+    macro names, see ``load_source``).
 
     Compiler messages are re-raised as ShaderError, prefixed with the source-file table so
     ``0:12`` style locations can be read back.
     """
-    src = load_source(name, root)
+    src = load_source(name, root, defines)
     try:
         program = ctx.program(
             vertex_shader=src.stages["VERTEX_SHADER"],

@@ -32,7 +32,8 @@ nodes and triangles, the pyramid's bytes, the viewer's peak RSS and the GPU byte
 
 ``--quick``: a quarter of the microstructures and a 3072 × 1536 texture (a smoke test).
 ``--reuse-build``: keep the tree and land use of an earlier run in ``--work`` (its
-build.json), re-bake and fly only. Writes benchmarks/results/case_study.json, with the load
+build.json), re-bake and fly only; ``--reuse-bake`` with it: keep the baked textures too (their
+bake.json), fly only. Writes benchmarks/results/case_study.json, with the load
 average before each phase (1-minute figure: other processes share the cores) and the OpenGL
 renderer the viewer got. On a GPU machine run it as it is where a display is set (an X server
 on the GPU); without one it opens Xvfb, whose renderer is llvmpipe whatever the machine: the
@@ -294,13 +295,20 @@ def main() -> None:
     ap.add_argument(
         "--reuse-build", action="store_true", help="keep --work's tree and land use (build.json)"
     )
+    ap.add_argument(
+        "--reuse-bake",
+        action="store_true",
+        help="with --reuse-build: keep --work's textures too (bake.json), fly only",
+    )
     args = ap.parse_args()
     if not (DATA / "nc" / "elev_ned_30m.tif").exists():
         sys.exit(f"the NC data is absent under {DATA}: set APPROXTREE_DATA")
     work = args.work.resolve()
     work.mkdir(parents=True, exist_ok=True)
     reuse = args.reuse_build and (work / "build.json").exists()
-    for stale in ("textures",) if reuse else ("case.zarr", "textures", "build.json"):
+    keep_bake = reuse and args.reuse_bake and (work / "bake.json").exists()
+    stale_paths = ("case.zarr", "textures", "build.json", "bake.json")
+    for stale in () if keep_bake else ("textures", "bake.json") if reuse else stale_paths:
         if (work / stale).exists():
             import shutil
 
@@ -317,7 +325,11 @@ def main() -> None:
     width = args.texture_width // 4 if args.quick else args.texture_width
     texel = (COLS - 1) * 30.0 / (width - 1)
     loads["bake"] = _load()
-    baked = _child(_BAKE, str(work), repr(texel))
+    if keep_bake:
+        baked = json.loads((work / "bake.json").read_text())
+    else:
+        baked = _child(_BAKE, str(work), repr(texel))
+        (work / "bake.json").write_text(json.dumps(baked))
     print("bake", json.dumps(baked), flush=True)
 
     import approxtree as at
@@ -351,6 +363,7 @@ def main() -> None:
         "renderer": drawn_by,
         "load_before": loads,
         "build_reused": reuse,
+        "bake_reused": keep_bake,
         "quick": args.quick,
         "alpha": ALPHA,
         "gamma": GAMMA,

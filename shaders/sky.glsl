@@ -22,7 +22,8 @@ out vec4 f_color;
 void main() {
     // Pale near the horizon, deepening upwards (eased, as an atmosphere does).
     float t = clamp(v_height, 0.0, 1.0);
-    f_color = vec4(mix(u_bottom, u_top, t * (2.0 - t)), 1.0);
+    // Alpha 0: the background is no terrain (drawn only where depth is still 1).
+    f_color = vec4(mix(u_bottom, u_top, t * (2.0 - t)), 0.0);
 }
 
 #endif

@@ -34,15 +34,23 @@ out vec4 f_color;
 
 void main() {
     vec4 texel = texture(u_texture, v_local.xy * u_tex_uv.xy + u_tex_uv.zw);
+#if defined DECAL
+    // Colours drawn as they are (no light, no shading texture; the renderer's
+    // "textured_decal"): no normal map fetched, no shading arithmetic (a sixth of a frame's
+    // fill on llvmpipe, which runs every branch of a uniform choice).
+    vec3 tint = hypsometric(v_local.z);
+    vec3 colour = mix(tint, texel.rgb, texel.a);
+#else
+    vec3 tint = hypsometric(v_local.z);
     // Transparent texels (no texture data) show the hypsometric palette instead. A shading
     // texture is the light baked once: the palette times the shade, flat ground (the shade
     // of a 45° sun, 0.707) keeping the palette's colour.
-    vec3 tint = hypsometric(v_local.z);
     vec3 shaded = tint * clamp(0.3 + 0.7 * texel.r / 0.7071, 0.0, 1.25);
     vec3 base = mix(tint, mix(texel.rgb, shaded, u_shade_texture), texel.a);
     vec2 nxy = texture(u_normals, v_local.xy * u_normal_uv.xy + u_normal_uv.zw).rg * 2.0 - 1.0;
     vec3 normal = vec3(nxy, sqrt(max(1.0 - dot(nxy, nxy), 0.0)));
     vec3 colour = mix(base, lit(base, normal), u_lighting);
+#endif
     vec4 wall = side_wall(v_local, v_skirt);
     colour = mix(colour, wall.rgb, wall.a);
     f_color = vec4(mix(colour, colour * 0.35, u_line), 1.0);

@@ -49,7 +49,7 @@ from approxtree.render.frame_state import FrameState, display_scale, overview_ca
 from approxtree.render.gpu_cache import GpuCache
 from approxtree.render.normal_map import normal_map
 from approxtree.render.provider import DEFAULT_CPU_CACHE_BYTES, PayloadProvider
-from approxtree.render.renderer import Renderer
+from approxtree.render.renderer import Renderer, front_to_back
 from approxtree.render.source import TileSource, source_for
 from approxtree.render.style import Style
 from approxtree.render.traversal import Paging
@@ -151,6 +151,7 @@ class Engine:
     def _rekey(self, mapping: Any) -> None:
         """Re-key the GPU cache after a tree change; the normal map and palette follow."""
         before = len(self.cache)
+        self.renderer.forget_textures(lambda key: True)
         dropped = self.cache.rekey(mapping)
         self.update_figures |= {"gpu_dropped": dropped, "gpu_kept": before - dropped}
         self.set_vertical_exaggeration(self.exaggeration)
@@ -170,6 +171,7 @@ class Engine:
         self._check_alive()
         stale = self.source.set_textures(textures)
         before = sum(isinstance(key, TextureKey) for key in self.cache.keys())
+        self.renderer.forget_textures(stale)
         dropped = self.cache.drop(stale)
         self.update_figures |= {
             "texture_gpu_dropped": dropped,
@@ -276,6 +278,7 @@ class Engine:
         wanted = self.source.select(fs, cut)
         t1 = time.perf_counter()
         plan = self.source.plan(wanted, fs, cut, paging, self.renderer)
+        plan.groups = self._front_to_back(plan.groups, fs)
         resident = self._upload(plan.groups)
         t2 = time.perf_counter()
         own = target is None and self.offscreen
@@ -352,6 +355,16 @@ class Engine:
     def _check_alive(self) -> None:
         if self._released:
             raise InvalidParameterError("This Engine was released; create a new one.")
+
+    def _front_to_back(self, groups: Groups, fs: FrameState) -> Groups:
+        """``groups`` nearest first (renderer.front_to_back) by their nodes' box centres, when
+        every key draws a tree node (else as planned); the same order whatever is cached."""
+        keys = [key for _, ks in groups for key in ks]
+        if not keys or any(k.kind != NODE or k.shape for k in keys):
+            return groups
+        boxes = np.asarray(self.tree.bboxes, dtype=np.float64)[[k.item for k in keys]]
+        centres = 0.5 * (boxes[:, :3] + boxes[:, 3:]) * fs.scale
+        return front_to_back(groups, centres, np.asarray(fs.eye, dtype=np.float64) * fs.scale)
 
     def _upload(self, groups: Groups) -> Any:
         return self.renderer.upload(groups, self.source.load)

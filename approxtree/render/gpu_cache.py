@@ -11,6 +11,7 @@ patch larger than the budget can still be drawn. Nothing relies on the garbage c
 
 from __future__ import annotations
 
+import time
 from collections import OrderedDict
 from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass, field
@@ -76,7 +77,153 @@ class GpuTexture:
     nbytes: int
 
     def release(self) -> None:
-        self.texture.release()
+        release_texture(self.texture)
+
+
+def release_texture(texture: Any) -> None:
+    """Release a moderngl texture, and its GL texture when made by ``_GL.storage`` (moderngl
+    deletes none it wraps)."""
+    glo = texture.glo
+    texture.release()
+    if glo in _EXTERNAL:
+        _EXTERNAL.discard(glo)
+        _gl().delete(glo)
+
+
+def mip_chain(texels: np.ndarray) -> list[np.ndarray]:
+    """The mipmap chain of (h, w, 4) uint8 ``texels``, level 0 first (``texels`` itself), down
+    to 1 × 1: each level the 2 × 2 box mean of the one above, rounded half up, of size
+    max(1, ⌊w/2⌋) × max(1, ⌊h/2⌋) (an odd last row or column is dropped, as GL sizes it).
+
+    Numpy only: it runs on a worker thread (numpy releases the GIL), off the frame.
+    """
+    levels = [texels]
+    a = texels
+    while a.shape[0] > 1 or a.shape[1] > 1:
+        h, w = a.shape[:2]
+        # A side of 1 stays 1: its texels pair with themselves.
+        r = a[: 2 * (h // 2)] if h > 1 else np.concatenate([a, a])
+        r = r[:, : 2 * (w // 2)] if w > 1 else np.concatenate([r, r], axis=1)
+        total = r[0::2, 0::2].astype(np.uint16)
+        total += r[1::2, 0::2]
+        total += r[0::2, 1::2]
+        total += r[1::2, 1::2]
+        total += 2
+        a = (total >> 2).astype(np.uint8)
+        levels.append(a)
+    return levels
+
+
+@dataclass
+class TextureUpload:
+    """A texture patch written over several frames: ``texture`` with every mip level
+    allocated, ``levels`` its texels (level 0 first, (h, w, 4) uint8 each), and the next
+    ``level`` and ``row`` to write. Drawn only once complete (``GpuCache.upload_staged``)."""
+
+    texture: Any
+    levels: list[np.ndarray]
+    level: int = 0
+    row: int = 0
+
+    @property
+    def nbytes(self) -> int:
+        return sum(a.nbytes for a in self.levels)
+
+    def write(self, max_bytes: int) -> bool:
+        """Write the next rows of at most ``max_bytes`` (one row at least); True when the
+        last level's last row is written."""
+        a = self.levels[self.level]
+        h = a.shape[0]
+        rows = max(1, min(h - self.row, max_bytes // max(a[0].nbytes, 1)))
+        band = np.ascontiguousarray(a[self.row : self.row + rows])
+        _gl().sub_image(self.texture.glo, self.level, self.row, band)
+        self.row += rows
+        if self.row >= h:
+            self.level, self.row = self.level + 1, 0
+        return self.level >= len(self.levels)
+
+    def release(self) -> None:
+        release_texture(self.texture)
+
+
+class _GL:
+    """The few GL calls moderngl lacks (a texture's storage with every mip level, writing a
+    level other than 0), called through ctypes on the current context (libglvnd's
+    libOpenGL dispatches to it)."""
+
+    TEXTURE_2D, RGBA8, RGBA, UNSIGNED_BYTE, TEXTURE0 = 0x0DE1, 0x8058, 0x1908, 0x1401, 0x84C0
+
+    def __init__(self) -> None:
+        import ctypes
+
+        lib = None
+        for name in ("libOpenGL.so.0", "libGL.so.1"):
+            try:
+                lib = ctypes.CDLL(name)
+                break
+            except OSError:
+                continue
+        if lib is None or not hasattr(lib, "glTexStorage2D"):
+            raise OSError("no libOpenGL or libGL with glTexStorage2D")
+        u, i, p = ctypes.c_uint, ctypes.c_int, ctypes.c_void_p
+        lib.glGenTextures.argtypes = [i, p]
+        lib.glDeleteTextures.argtypes = [i, p]
+        lib.glTexStorage2D.argtypes = [u, i, u, i, i]
+        lib.glTexSubImage2D.argtypes = [u, i, i, i, i, i, u, u, p]
+        lib.glBindTexture.argtypes = [u, u]
+        lib.glActiveTexture.argtypes = [u]
+        self.ctypes, self.lib = ctypes, lib
+
+    def _bind(self, glo: int) -> None:
+        # Unit 0: every draw binds its own textures again (the renderer's per frame).
+        self.lib.glActiveTexture(self.TEXTURE0)
+        self.lib.glBindTexture(self.TEXTURE_2D, glo)
+
+    def storage(self, w: int, h: int, levels: int) -> int:
+        """A new RGBA8 texture of w × h with ``levels`` mip levels, allocated at once (one
+        allocation: levels defined one by one would be copied into one at the first draw)."""
+        ids = (self.ctypes.c_uint * 1)()
+        self.lib.glGenTextures(1, ids)
+        self._bind(ids[0])
+        self.lib.glTexStorage2D(self.TEXTURE_2D, levels, self.RGBA8, w, h)
+        return int(ids[0])
+
+    def sub_image(self, glo: int, level: int, row: int, band: np.ndarray) -> None:
+        """Write (rows, w, 4) uint8 ``band`` at ``row`` of ``level`` of texture ``glo``."""
+        self._bind(glo)
+        rows, w = band.shape[:2]
+        self.lib.glTexSubImage2D(
+            self.TEXTURE_2D, level, 0, row, w, rows, self.RGBA, self.UNSIGNED_BYTE,
+            band.ctypes.data,
+        )  # fmt: skip
+
+    def delete(self, glo: int) -> None:
+        self.lib.glDeleteTextures(1, (self.ctypes.c_uint * 1)(glo))
+
+
+_GL_CALLS: list[_GL] = []
+#: GL names of the textures made by ``_GL.storage`` (moderngl wraps them, GL deletes them).
+_EXTERNAL: set[int] = set()
+
+
+def _gl() -> _GL:
+    """The process's _GL (loaded on first use)."""
+    if not _GL_CALLS:
+        _GL_CALLS.append(_GL())
+    return _GL_CALLS[0]
+
+
+def staged_uploads_available() -> bool:
+    """Whether textures can be written over frames here (the GL library loads)."""
+    try:
+        _gl()
+    except OSError:
+        return False
+    return True
+
+
+#: Bytes of texels written in one step of a staged texture upload (about 2 ms on llvmpipe).
+UPLOAD_STEP_BYTES = 4 << 20
 
 
 class GpuCache:
@@ -91,6 +238,8 @@ class GpuCache:
         self.ctx = ctx
         self.budget_bytes = int(budget_bytes)
         self._entries: OrderedDict[Hashable, GpuMesh | GpuTexture] = OrderedDict()
+        # Texture patches being written over frames (not drawable until complete), oldest first.
+        self._staged: OrderedDict[Hashable, TextureUpload] = OrderedDict()
         #: Keys never evicted (set by the caller around a draw).
         self.pinned: set[Hashable] = set()
         self.nbytes = 0
@@ -129,7 +278,8 @@ class GpuCache:
 
     def get_texture(self, key: Hashable, build: Callable[[], np.ndarray]) -> GpuTexture:
         """The texture of ``key``; on a miss ``build()`` gives (h, w, 4) uint8 texels, row 0 at
-        texture coordinate v = 0, uploaded with mipmaps and trilinear filtering."""
+        texture coordinate v = 0, uploaded now with mipmaps and trilinear filtering (the mip
+        chain of ``mip_chain``, as the textures written over frames get)."""
         import moderngl
 
         entry = self._entries.get(key)
@@ -138,16 +288,84 @@ class GpuCache:
             return entry  # type: ignore[return-value]
         texels = np.ascontiguousarray(build(), dtype=np.uint8)
         h, w = texels.shape[:2]
-        tex = self.ctx.texture((w, h), 4, texels.tobytes(), dtype="f1")
+        if staged_uploads_available():
+            # The same mipmaps whether a patch was written at once or over frames.
+            self.unstage(lambda k: k == key)
+            self.stage_texture(key, mip_chain(texels))
+            upload = self._staged.pop(key)
+            while not upload.write(upload.nbytes):
+                pass
+            return self._add(key, GpuTexture(upload.texture, mipmap_bytes(w, h)))
+        tex = self.ctx.texture((w, h), 4, texels, dtype="f1")
         tex.repeat_x = False
         tex.repeat_y = False
-        # Hardware mipmaps per texture patch (core paper, 3.3), sampled trilinearly.
+        # Hardware mipmaps per texture patch (core paper, 3.3), sampled trilinearly (where
+        # GL's library cannot be called: the driver's filter, within a few levels of ours).
         tex.build_mipmaps()
         tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
         return self._add(key, GpuTexture(tex, mipmap_bytes(w, h)))
 
+    # -- texture patches written over frames ---------------------------------------------------
+
+    def is_staged(self, key: Hashable) -> bool:
+        """Whether ``key``'s texture is being written over frames (not drawable yet)."""
+        return key in self._staged
+
+    def staged(self) -> list[Hashable]:
+        """Keys of the textures being written, oldest first."""
+        return list(self._staged)
+
+    def stage_texture(self, key: Hashable, levels: list[np.ndarray]) -> None:
+        """Allocate ``key``'s texture with the mip chain ``levels`` ((h, w, 4) uint8, level 0
+        first, ``mip_chain``), to be written by ``upload_staged`` over the next frames."""
+        import moderngl
+
+        h, w = levels[0].shape[:2]
+        # moderngl neither allocates nor writes mip levels itself: GL makes the texture,
+        # moderngl wraps it (external: released by release_texture).
+        tex = self.ctx.external_texture(_gl().storage(w, h, len(levels)), (w, h), 4, 0, "f1")
+        _EXTERNAL.add(tex.glo)
+        tex.repeat_x = False
+        tex.repeat_y = False
+        tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+        self._staged[key] = TextureUpload(tex, levels)
+
+    def upload_staged(
+        self,
+        budget_ms: float,
+        step_bytes: int = UPLOAD_STEP_BYTES,
+        order: Sequence[Hashable] | None = None,
+    ) -> int:
+        """Write staged textures in ``order`` (staged keys; None: oldest first) for about
+        ``budget_ms`` (one step of ``step_bytes`` at least); a complete one becomes an entry
+        (drawable). Returns how many were completed."""
+        t0 = time.perf_counter()
+        completed = 0
+        for key in list(self._staged) if order is None else order:
+            upload = self._staged[key]
+            while True:
+                done = upload.write(step_bytes)
+                if done:
+                    del self._staged[key]
+                    h, w = upload.levels[0].shape[:2]
+                    self._add(key, GpuTexture(upload.texture, mipmap_bytes(w, h)))
+                    completed += 1
+                if (time.perf_counter() - t0) * 1e3 >= budget_ms:
+                    return completed
+                if done:
+                    break
+        return completed
+
+    def unstage(self, predicate: Callable[[Hashable], bool]) -> int:
+        """Release the staged textures whose key satisfies ``predicate``; returns how many."""
+        keys = [k for k in self._staged if predicate(k)]
+        for k in keys:
+            self._staged.pop(k).release()
+        return len(keys)
+
     def drop(self, predicate: Callable[[Hashable], bool]) -> int:
         """Release the entries whose key satisfies ``predicate``; returns how many."""
+        self.unstage(predicate)
         keys = [k for k in self._entries if predicate(k)]
         for k in keys:
             entry = self._entries.pop(k)
@@ -159,6 +377,8 @@ class GpuCache:
         """Give every entry the key ``mapping(key)`` (its node renumbered by a tree update),
         keeping the LRU order; entries mapped to None are released. Returns how many."""
         kept: OrderedDict[Hashable, GpuMesh | GpuTexture] = OrderedDict()
+        # Half-written textures are simply written again under their new keys.
+        self.unstage(lambda key: True)
         dropped = 0
         for key, entry in self._entries.items():
             new = mapping(key)
@@ -198,6 +418,7 @@ class GpuCache:
 
     def release(self) -> None:
         """Free every buffer and vertex array now; the cache stays usable (empty)."""
+        self.unstage(lambda key: True)
         for entry in self._entries.values():
             entry.release()
         self._entries.clear()

@@ -12,14 +12,22 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Hashable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
 
 from approxtree.glsl import create_program
 from approxtree.render.cache_keys import LitKey
+from approxtree.render.frame import Groups
 from approxtree.render.frame_state import FrameState
-from approxtree.render.gpu_cache import GpuCache, GpuMesh, GpuTexture
+from approxtree.render.gpu_cache import (
+    GpuCache,
+    GpuMesh,
+    GpuTexture,
+    mip_chain,
+    staged_uploads_available,
+)
 from approxtree.render.provider import Payload
 from approxtree.render.style import WALL_COLOUR, Background, Style
 
@@ -28,6 +36,10 @@ _TRIANGLES = 0x0004
 
 #: load(key) -> the Payload of a mesh or texture key (a tile source's ``load``).
 Load = Callable[[Any], Payload]
+
+
+#: Frames a texture patch being prepared or written is kept without being wanted.
+STAGED_KEEP_STEPS = 30
 
 
 class Renderer:
@@ -43,6 +55,8 @@ class Renderer:
             "terrain": create_program(ctx, "terrain"),
             "position": create_program(ctx, "position"),
             "textured": create_program(ctx, "textured"),
+            # Colours as they are (no light, no shading texture): no normal map fetched.
+            "textured_decal": create_program(ctx, "textured", defines=("DECAL",)),
             "sky": create_program(ctx, "sky"),
         }
         # The background pass: one triangle covering the viewport (NDC).
@@ -58,6 +72,12 @@ class Renderer:
         self.domain = (0.0, 0.0, 0.0, 0.0)
         self.domain_tol = 0.0
         self.cache = GpuCache(ctx, cache_bytes)
+        # Texture patches of interactive frames: mip chains made on a worker thread, then
+        # written over frames (GpuCache.stage_texture); the step each key was last wanted in.
+        self._mips: ThreadPoolExecutor | None = None
+        self._preparing: dict[Hashable, Future] = {}
+        self._wanted_at: dict[Hashable, int] = {}
+        self._step = 0
         self.targets: dict[tuple[str, int, int], Any] = {}
         self.normal_map: Any = None
         self.normal_uv = np.zeros(4)
@@ -107,6 +127,68 @@ class Renderer:
         if isinstance(key, LitKey):
             return self.texture(key.texture, load), self.texture(key.normal, load)
         return self.texture(key, load)
+
+    def texture_drawable(self, key: Hashable, texels: Callable[[], np.ndarray | None]) -> bool:
+        """Whether the texture of ``key`` can be drawn now without a hitch: complete on the
+        GPU. Otherwise, once ``texels()`` gives its (h, w, 4) uint8 texels (None: not loaded
+        yet), its mip chain is made on a worker thread and ``step_textures`` writes it over
+        the next frames; it becomes drawable when complete (a stand-in meanwhile)."""
+        if key in self.cache:
+            return True
+        if not staged_uploads_available():
+            # No GL library for the levels: the frame uploads it whole once loaded.
+            return texels() is not None
+        self._wanted_at[key] = self._step
+        if key in self._preparing or self.cache.is_staged(key):
+            return False
+        data = texels()
+        if data is not None:
+            if self._mips is None:
+                self._mips = ThreadPoolExecutor(1, thread_name_prefix="approxtree-mips")
+            self._preparing[key] = self._mips.submit(mip_chain, np.ascontiguousarray(data))
+        return False
+
+    def step_textures(self, budget_ms: float) -> int:
+        """One frame's share of the texture work: stage the mip chains made, write staged
+        textures for about ``budget_ms`` (those this frame wants first); a texture not wanted
+        for STAGED_KEEP_STEPS steps is dropped (the camera left it; one wanted again sooner
+        is not made twice). Returns how many became drawable."""
+        now, self._step = self._step, self._step + 1
+        for key in [k for k, at in self._wanted_at.items() if now - at > STAGED_KEEP_STEPS]:
+            del self._wanted_at[key]
+            future = self._preparing.pop(key, None)
+            if future is not None:
+                future.cancel()
+        self.cache.unstage(lambda key: key not in self._wanted_at)
+        # GL storage (a 4096² patch: 20-45 ms on llvmpipe) for one patch a frame, one this
+        # frame wants; a chain made for a view already left waits on the CPU until wanted.
+        ready = [k for k, f in self._preparing.items() if f.done() and self._wanted_at[k] == now]
+        for key in ready[:1]:
+            levels = self._preparing.pop(key).result()
+            if key not in self.cache:
+                self.cache.stage_texture(key, levels)
+        staged = self.cache.staged()
+        if not staged:
+            return 0
+        first = [k for k in staged if self._wanted_at.get(k) == now]
+        rest = [k for k in staged if self._wanted_at.get(k) != now]
+        return self.cache.upload_staged(budget_ms, order=first + rest)
+
+    def wait_textures(self) -> None:
+        """Wait until the mip chains being made are done (scripted replays: the same frames
+        on any machine); ``step_textures`` stages them."""
+        for future in list(self._preparing.values()):
+            if not future.cancelled():
+                future.exception()
+
+    def forget_textures(self, predicate: Callable[[Hashable], bool]) -> None:
+        """Abandon the texture patches being prepared or written whose key satisfies
+        ``predicate`` (their texels are stale: a re-bake, a new pyramid, a tree change)."""
+        for key in [k for k in self._preparing if predicate(k)]:
+            self._preparing.pop(key).cancel()
+        for key in [k for k in self._wanted_at if predicate(k)]:
+            del self._wanted_at[key]
+        self.cache.unstage(predicate)
 
     def upload(self, groups: Sequence[tuple[Any, Sequence[Hashable]]], load: Load) -> Any:
         """Upload what a frame draws, the groups [(texture key or None, mesh keys)], from
@@ -211,26 +293,32 @@ class Renderer:
         import moderngl
 
         ctx = self.ctx
-        prog = self.programs[program]
+        decal = program == "textured" and not lit and not shade_texture
+        prog = self.programs["textured_decal" if decal else program]
         w, h = fs.viewport
         wireframe, background = style.wireframe, style.background
         prog["u_mvp"].write(fs.local_to_clip.T.astype("f4").tobytes())
         if program in ("terrain", "textured"):
-            prog["u_palette_z"].value = self.palette_z
-            prog["u_light"].value = tuple(float(v) for v in style.sun.direction)
-            prog["u_wall"].value = WALL_COLOUR
-            prog["u_domain"].value = self.domain
-            prog["u_domain_tol"].value = self.domain_tol
-            prog["u_palette"].value = 2
+            # A variant compiles out the uniforms it does not use: set those it has.
+            uniforms = {
+                "u_palette_z": self.palette_z,
+                "u_light": tuple(float(v) for v in style.sun.direction),
+                "u_wall": WALL_COLOUR,
+                "u_domain": self.domain,
+                "u_domain_tol": self.domain_tol,
+                "u_palette": 2,
+                "u_normal_uv": tuple(self.normal_uv),
+                "u_line": 1.0 if wireframe else 0.0,
+                "u_lighting": 1.0 if lit else 0.0,
+                "u_normals": 0,
+            }
+            if program == "textured":
+                uniforms |= {"u_texture": 1, "u_shade_texture": 1.0 if shade_texture else 0.0}
+            for name, value in uniforms.items():
+                if name in prog:
+                    prog[name].value = value
             self.palette.use(location=2)
-            prog["u_normal_uv"].value = tuple(self.normal_uv)
-            prog["u_line"].value = 1.0 if wireframe else 0.0
-            prog["u_lighting"].value = 1.0 if lit else 0.0
-            prog["u_normals"].value = 0
             self.normal_map.use(location=0)
-        if program == "textured":
-            prog["u_texture"].value = 1
-            prog["u_shade_texture"].value = 1.0 if shade_texture else 0.0
         triangles = 0
         switches = 0
         patched = False  # a normal patch is bound in place of the normal map
@@ -287,18 +375,16 @@ class Renderer:
         return (time.perf_counter() - t0) * 1e3, triangles, switches
 
     def _draw_background(self, target: Any, background: Background) -> None:
-        """The background where no terrain was drawn (depth still 1), colour channels only."""
+        """The background where no terrain was drawn (depth still 1), its alpha left 0: the
+        sky writes alpha 0 itself, so no colour mask makes llvmpipe read back every pixel."""
         sky = self.programs["sky"]
         top, bottom = background.colours
         sky["u_top"].value = top
         sky["u_bottom"].value = bottom
         self.ctx.depth_func = "<="
-        mask = target.color_mask
-        target.color_mask = (True, True, True, False)
         try:
             self._sky_vao.render(_TRIANGLES)
         finally:
-            target.color_mask = mask
             self.ctx.depth_func = "<"
 
     # -- housekeeping -------------------------------------------------------------------------
@@ -308,6 +394,9 @@ class Renderer:
         if self.released:
             return
         self.released = True
+        if self._mips is not None:
+            self._mips.shutdown(wait=True, cancel_futures=True)
+        self._preparing.clear()
         self.cache.release()
         for fbo in self.targets.values():
             _release_fbo(fbo)
@@ -324,6 +413,23 @@ class Renderer:
             prog.release()
         if self.owns_context:
             self.ctx.release()
+
+
+def front_to_back(groups: Groups, centres: np.ndarray, eye: np.ndarray) -> Groups:
+    """``groups`` drawn nearest first: each group's keys by the distance of their ``centres``
+    to ``eye`` (the keys in group order, (k, 3) display units), the groups by their nearest
+    key. Depth is tested before shading (llvmpipe and GPUs), so what is drawn first hides
+    the fragments behind it from the shader. Ties keep the planned order."""
+    d = np.einsum("ij,ij->i", centres - eye, centres - eye)
+    order, start = [], 0
+    for g, (tex, keys) in enumerate(groups):
+        mine = d[start : start + len(keys)]
+        rank = np.argsort(mine, kind="stable")
+        nearest = float(mine[rank[0]]) if len(keys) else np.inf
+        order.append((nearest, g, (tex, [keys[i] for i in rank])))
+        start += len(keys)
+    order.sort(key=lambda o: (o[0], o[1]))
+    return [o[2] for o in order]
 
 
 def _release_fbo(fbo: Any) -> None:

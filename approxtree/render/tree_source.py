@@ -61,6 +61,9 @@ from approxtree.render.traversal import Paging, plan_frame
 from approxtree.textures.detail import DetailTextures
 from approxtree.textures.patch import patch_texel_sizes
 
+#: Milliseconds a frame spends writing texture patches when the paging sets no upload budget.
+TEXTURE_STEP_MS = 4.0
+
 
 class ApproximationTreeSource:
     """The tile source of an ApproximationTree (see the module docstring).
@@ -169,8 +172,21 @@ class ApproximationTreeSource:
 
             tex_requests: list = []
             if interactive:
-                # Texture patches not loaded yet: the root's stands in, the rest is requested.
-                plan.groups, tex_requests = self.binding.page(plan.groups, loaded)
+                # Texture patches not drawable yet: the root's stands in, the rest is
+                # requested. A patch is drawable once complete on the GPU: its mip chain is
+                # made on a worker thread and written over frames within the upload budget.
+                provider = self.provider
+
+                def texels(key: Any) -> Any:
+                    payload = provider.get(key) if key in provider else None
+                    return None if payload is None else payload.texels
+
+                plan.groups, tex_requests = self.binding.page(
+                    plan.groups, lambda key: renderer.texture_drawable(key, lambda: texels(key))
+                )
+                renderer.step_textures(
+                    TEXTURE_STEP_MS if paging.upload_ms is None else paging.upload_ms
+                )
             if self._lit_patches:
                 # Lit: each texture group split by its meshes' normal patches (LitKey); in an
                 # interactive frame one not loaded yet is lit by the map, and requested.

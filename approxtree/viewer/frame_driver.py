@@ -160,9 +160,11 @@ class FrameDriver:
         return frame
 
     def settle(self) -> None:
-        """Wait until the payloads this frame requested are loaded (scripted replays)."""
+        """Wait until the payloads this frame requested are loaded and the texture patches'
+        mip chains made (scripted replays)."""
         if self.engine.provider is not None:
             self.engine.provider.wait()
+        self.engine.renderer.wait_textures()
         if self.live is not None:
             self.live.settle()
 

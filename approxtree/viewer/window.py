@@ -12,6 +12,7 @@ nothing itself.
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -25,6 +26,10 @@ _INSTALL_HINT = (
     "The viewer needs a display: run it on a desktop, or under a virtual X server "
     "(Debian/Ubuntu: apt-get install -y xvfb; then xvfb-run -a approxtree view ...)."
 )
+
+
+#: Seconds between window title updates (the title shows the frame time).
+TITLE_INTERVAL_S = 0.25
 
 
 def _glfw() -> Any:
@@ -78,6 +83,13 @@ class Window:
         glfw.make_context_current(self.handle)
         glfw.swap_interval(0)
         self.ctx = moderngl.create_context()
+        # Sizes kept from glfw's resize events: each query is an X round trip (about 1 ms
+        # under Xvfb, several a frame). The title is set a few times a second at most.
+        self._fb_size = tuple(int(v) for v in glfw.get_framebuffer_size(self.handle))
+        self._win_size = tuple(int(v) for v in glfw.get_window_size(self.handle))
+        glfw.set_framebuffer_size_callback(self.handle, self._on_framebuffer_size)
+        glfw.set_window_size_callback(self.handle, self._on_window_size)
+        self._titled_at = -TITLE_INTERVAL_S
 
     # -- keys and events ------------------------------------------------------------------------
 
@@ -116,14 +128,19 @@ class Window:
 
     # -- sizes and coordinates ------------------------------------------------------------------
 
+    def _on_framebuffer_size(self, window: Any, w: int, h: int) -> None:
+        self._fb_size = (int(w), int(h))
+
+    def _on_window_size(self, window: Any, w: int, h: int) -> None:
+        self._win_size = (int(w), int(h))
+
     def framebuffer_size(self) -> tuple[int, int]:
-        w, h = self.glfw.get_framebuffer_size(self.handle)
-        return int(w), int(h)
+        """The framebuffer's size in pixels (as of the last events polled)."""
+        return self._fb_size  # type: ignore[return-value]
 
     def size(self) -> tuple[int, int]:
-        """The window's size in screen units (imgui's coordinates)."""
-        w, h = self.glfw.get_window_size(self.handle)
-        return int(w), int(h)
+        """The window's size in screen units (imgui's coordinates; as of the last events)."""
+        return self._win_size  # type: ignore[return-value]
 
     def cursor(self) -> tuple[float, float]:
         """The cursor, window coordinates."""
@@ -151,8 +168,12 @@ class Window:
     # -- frames ---------------------------------------------------------------------------------
 
     def show(self, title: str) -> None:
-        """Title the window and swap the back buffer to the screen."""
-        self.glfw.set_window_title(self.handle, title)
+        """Title the window (at most every TITLE_INTERVAL_S) and swap the back buffer to the
+        screen."""
+        now = time.perf_counter()
+        if now - self._titled_at >= TITLE_INTERVAL_S:
+            self.glfw.set_window_title(self.handle, title)
+            self._titled_at = now
         self.glfw.swap_buffers(self.handle)
 
     def save_png(self, path: str | Path) -> Path:
