@@ -62,7 +62,7 @@ def test_near_nodes_get_patches_finer_than_the_map(gl_context, tree, small_map):
     """Near the camera the frame shades with normal patches whose texels are finer than the
     strided normal map's (the root's)."""
     with Engine(tree, context=gl_context, offscreen=True) as eng:
-        patches = eng.source.normals
+        patches = eng.source.shading.normals
         assert patches.active
         frame = eng.render(low_camera(tree), SIZE, Cut(alpha=2.0))
         texels = patches.texels[frame.texture_nodes]
@@ -240,7 +240,7 @@ def test_full_resolution_frames_use_normal_patches(gl_context, tree, small_map, 
         frame = eng.render(low_camera(tree), SIZE, Cut(full_resolution=True))
         keys = [k for k in eng.cache.keys() if isinstance(k, NormalKey)]
         assert frame.stats["texture_patches"] == len(keys) == frame.stats["patches"] > 1
-        map_texel = eng.source.normals.texels[0, 0]
+        map_texel = eng.source.shading.normals.texels[0, 0]
         assert all(k.step * abs(tree.terrain.cell_size[0]) / k.upsample < map_texel for k in keys)
 
 
@@ -279,7 +279,7 @@ def test_lit_textured_frames_bind_normal_patches(gl_context, tree, small_map, tm
         assert not any(isinstance(k, NormalKey) for k in eng.cache.keys())
         lit = eng.render(cam, SIZE, cut, style=Style(lighting=True))
         assert any(isinstance(k, NormalKey) for k in eng.cache.keys())
-        finer = finer_below(tree, eng.texels) | finer_below(tree, eng.source.normals.texels)
+        finer = finer_below(tree, eng.texels) | finer_below(tree, eng.source.shading.normals.texels)
     assert not np.array_equal(lit.image, unlit.image)
     assert lit.stats["max_alpha"] <= cut.alpha
     over = lit.selection.nodes[lit.selection.gammas > cut.gamma]

@@ -21,10 +21,11 @@ Texel sizes (γ): the texture patch's with a pyramid (``set_textures``), else th
 patch's (render/normal_map.py: the normal map every node shares, or, on a grid over
 NORMAL_MAP_MAX a side, each node's normal patch, shared with ancestors as texture patches
 are), and per node whether a descendant's texel is finer (``selector.finer_below``): γ
-refines only there. A textured frame lit at runtime (``set_lighting``) over normal patches
-lights each texture group by its nodes' normal patches (groups keyed by LitKey), and γ
-refines where either kind of patch is over γ with a finer one below. Full-resolution chunks
-are shaded by their own normal patches (full_resolution.py).
+refines only there (render/node_shading.py holds the shading's figures and groups). A
+textured frame lit at runtime (``set_lighting``) over normal patches lights each texture
+group by its nodes' normal patches (groups keyed by LitKey), and γ refines where either kind
+of patch is over γ with a finer one below. Full-resolution chunks are shaded by their own
+normal patches (full_resolution.py).
 """
 
 from __future__ import annotations
@@ -38,12 +39,13 @@ import numpy as np
 from approxtree.errors import EmptyTerrainError, InvalidParameterError
 from approxtree.geometry.rect import Rect
 from approxtree.render.budget import node_triangles, select_budget
-from approxtree.render.cache_keys import CHUNK, NODE, LitKey, MeshKey, TextureKey, node_keys
+from approxtree.render.cache_keys import CHUNK, NODE, MeshKey, TextureKey, node_keys
 from approxtree.render.cut import Cut
 from approxtree.render.frame import PAGING_KEYS, FramePlan
 from approxtree.render.frame_state import FrameState
 from approxtree.render.full_resolution import FullResolutionSource
-from approxtree.render.normal_map import NORMAL_MAP_MAX, NormalKey, NormalPatches
+from approxtree.render.node_shading import NodeShading
+from approxtree.render.normal_map import NormalKey
 from approxtree.render.prefetch import Prefetcher
 from approxtree.render.provider import DEFAULT_CPU_CACHE_BYTES, Payload, PayloadProvider
 from approxtree.render.renderer import Renderer
@@ -53,7 +55,6 @@ from approxtree.render.texture_binding import (
     TextureBinding,
     as_pyramid,
     group_meshes,
-    page_groups,
 )
 from approxtree.render.texture_follow import pyramids_of, stale_textures
 from approxtree.render.texture_sharing import texture_nodes
@@ -92,26 +93,25 @@ class ApproximationTreeSource:
         self._node_borders = patches_reach_rect(tree.terrain)
         d = tree.terrain.domain
         self._domain = (d.xmin, d.ymin, d.xmax, d.ymax)
-        self._shading_side = NORMAL_MAP_MAX
-        #: The display scale the normal patches are computed for (the Engine's, once set).
-        self._shading_scale = np.ones(3)
+        #: The nodes' untextured shading: normal patches, their texels (render/node_shading.py).
+        self.shading = NodeShading(tree)
         #: Called after each node's patch is read from the tree; raises to refuse a payload
         #: read from a store another process swapped meanwhile (render/live.py).
         self.payload_check: Callable[[], None] | None = None
         #: Camera motion and frame times of interactive frames (render/prefetch.py).
         self.prefetch = Prefetcher()
-        #: Frames are lit (set per frame by the Engine, ``set_lighting``).
-        self._lit = False
-        self._node_figures()
+        self._node_figures(refresh=False)
 
-    def _node_figures(self) -> None:
-        """Per-node figures used every frame, computed once (and again after a tree update)."""
+    def _node_figures(self, refresh: bool = True) -> None:
+        """Per-node figures used every frame, computed once (and again after a tree update;
+        ``refresh``: the shading's too)."""
         tree = self.tree
         # The untextured shading's texels (the normal map's for every node, γ refining nothing,
         # or each node's normal patch's); with a pyramid, each node's texture patch's; and
         # where a finer one lies below.
-        self._shading_figures()
-        self.texels, self.finer = self.shading_texels, self.shading_finer
+        if refresh:
+            self.shading.refresh(tree)
+        self.texels, self.finer = self.shading.texels, self.shading.finer
         self.sources = np.zeros(len(tree), dtype=np.int64)
         if self.binding is not None:
             pyramid = self.binding.detail or self.binding.pyramid
@@ -124,7 +124,6 @@ class ApproximationTreeSource:
         self.skirt_base = skirt_base(tree.errors, tree.terrain.z_range, extents)
         #: Triangles drawn per node (the budget's counts), made on first use.
         self._node_triangles: np.ndarray | None = None
-        self._lit_texels: tuple[np.ndarray, np.ndarray] | None = None
 
     # -- the protocol ---------------------------------------------------------------------------
 
@@ -133,7 +132,11 @@ class ApproximationTreeSource:
         view = cut.frozen or fs
         if cut.full_resolution:
             return self.full.select(view)
-        texels, finer = self._lit_figures() if self._lit_patches else (self.texels, self.finer)
+        texels, finer = (
+            self.shading.lit_figures(self.texels, self.finer)
+            if self._lit_patches
+            else (self.texels, self.finer)
+        )
         if cut.max_triangles is not None:
             if self._node_triangles is None:
                 self._node_triangles = node_triangles(self.tree, self.skirts)
@@ -147,9 +150,10 @@ class ApproximationTreeSource:
         if cut.full_resolution:
             plan = self.full.plan(wanted)
             self._texture(plan, plan.meshes, wanted.nodes.copy(), np.zeros(len(wanted.nodes)))
-            if self.binding is None and self.normals.active:
+            if self.binding is None and self.shading.active:
                 # Each chunk shaded by its own normal patch, as finely as the cut's nodes.
-                chunks, zscale = self.full.normal_patches(self._shading_side), self._zscale
+                chunks = self.full.normal_patches(self.shading.side)
+                zscale = self.shading.zscale
                 keys: list[Hashable | None] = [chunks.key(int(i), zscale) for i in wanted.nodes]
                 plan.groups = group_meshes(plan.meshes, keys)
             return plan
@@ -165,11 +169,7 @@ class ApproximationTreeSource:
                 self.tree.parents, drawn, cut.gamma, cut.share_textures, self.sources
             )
             self._texture(plan, node_keys(tex_nodes), tex_nodes, tex_gammas)
-            cache, provider = renderer.cache, self.provider
-
-            def loaded(key: Hashable) -> bool:
-                return key in cache or key in provider
-
+            loaded = loaded_by(renderer, self.provider)
             tex_requests: list = []
             if interactive:
                 # Texture patches not drawable yet: the root's stands in, the rest is
@@ -190,7 +190,7 @@ class ApproximationTreeSource:
             if self._lit_patches:
                 # Lit: each texture group split by its meshes' normal patches (LitKey); in an
                 # interactive frame one not loaded yet is lit by the map, and requested.
-                plan.groups, normal_requests = self._lit_groups(
+                plan.groups, normal_requests = self.shading.lit_groups(
                     plan, cut, loaded if interactive else None
                 )
                 tex_requests += normal_requests
@@ -200,10 +200,15 @@ class ApproximationTreeSource:
                 # coarsens the geometry (α), a missing texture only the colour.
                 requests = requests + tex_requests
                 ahead = ahead + [key for view in views for key in self._texture_keys(view, cut)]
-        elif self.normals.active:
-            # Normal patches after the meshes too, for the same reason.
-            paged = renderer if interactive else None
-            requests = requests + self._normal_groups(plan, cut, paged, figures)
+        elif self.shading.active:
+            # Normal patches after the meshes too, for the same reason; in an interactive
+            # frame one not loaded yet is drawn with the normal map and requested.
+            normal_requests = self.shading.normal_groups(
+                plan, cut, loaded_by(renderer, self.provider) if interactive else None
+            )
+            if interactive:
+                figures["texture_stand_ins"] = len(normal_requests)
+            requests = requests + normal_requests
         if interactive:
             # One request per frame (it replaces the previous frame's): meshes, then textures,
             # then what the next frames will want (loaded only where it evicts none of those).
@@ -214,76 +219,14 @@ class ApproximationTreeSource:
         """Whether the next frames are lit: a lit textured frame of a grid with normal patches
         lights each group with its normal patch (an interactive frame the map where one is not
         loaded yet; full-resolution chunks keep the map), and γ refines where the texture or
-        the normal patch is over γ with a finer one of its kind below (``_lit_figures``)."""
-        self._lit = bool(lit)
+        the normal patch is over γ with a finer one of its kind below
+        (``NodeShading.lit_figures``)."""
+        self.shading.lit = bool(lit)
 
     @property
     def _lit_patches(self) -> bool:
         """Textured frames lit with normal patches."""
-        return self._lit and self.binding is not None and self.normals.active
-
-    def _lit_figures(self) -> tuple[np.ndarray, np.ndarray]:
-        """(n, 2) texel of a lit textured frame's nodes and (n,) bool where a finer one lies
-        below: γ refines a node where its texture or its normal patch's texel is over γ and
-        that kind has a finer patch below, so its texel is the coarser in area of the kinds
-        with a finer one below (of both where neither has: the drawn γ, refining nothing)."""
-        if self._lit_texels is None:
-            tex, nrm = self.texels, self.shading_texels
-            ft, fn = self.finer, self.shading_finer
-            coarser = nrm[:, 0] * nrm[:, 1] > tex[:, 0] * tex[:, 1]
-            use_normal = (fn & ~ft) | (coarser & (fn == ft))
-            self._lit_texels = np.where(use_normal[:, None], nrm, tex), ft | fn
-        return self._lit_texels
-
-    def _lit_groups(
-        self, plan: FramePlan, cut: Cut, loaded: Callable[[Hashable], bool] | None
-    ) -> tuple[list, list]:
-        """``plan``'s texture groups, each split by its meshes' normal patches (each node's
-        own or its ancestor's within γ, as untextured): [(LitKey or TextureKey, meshes)], and
-        the normal patches to request: those not ``loaded`` (None: all are drawn), lit by the
-        normal map meanwhile."""
-        nodes, _ = texture_nodes(self.tree.parents, plan.selection, cut.gamma, cut.share_textures)
-        zscale = self._zscale
-        normal = {
-            mesh: self.normals.key(int(i), zscale)
-            for mesh, i in zip(plan.meshes, nodes, strict=True)
-        }
-        wanted = {n for n in normal.values() if n is not None}
-        missing = set() if loaded is None else {n for n in wanted if not loaded(n)}
-        groups = []
-        for tex_key, meshes in plan.groups:
-            patches = [normal[m] for m in meshes]
-            keys: list[Hashable | None] = [
-                tex_key if n is None or n in missing else LitKey(tex_key, n) for n in patches
-            ]
-            groups += group_meshes(meshes, keys)
-        return groups, sorted(missing)
-
-    def _normal_groups(
-        self, plan: FramePlan, cut: Cut, paged: Renderer | None, figures: dict[str, int]
-    ) -> list:
-        """Group an untextured plan's meshes by normal patch: each node's own or the one of
-        its ancestor closest to the root within γ (texture_sharing.py); in an interactive
-        frame (``paged``: its renderer) a patch not loaded yet is drawn with the normal map
-        and requested (returned)."""
-        drawn = plan.selection
-        nodes, gammas = texture_nodes(self.tree.parents, drawn, cut.gamma, cut.share_textures)
-        zscale = self._zscale
-        plan.groups = group_meshes(plan.meshes, [self.normals.key(i, zscale) for i in nodes])
-        plan.texture_nodes, plan.texture_gammas = nodes, gammas
-        if paged is None:
-            return []
-        cache, provider = paged.cache, self.provider
-        plan.groups, requests = page_groups(
-            plan.groups, lambda key: key in cache or key in provider, None
-        )
-        figures["texture_stand_ins"] = len(requests)
-        return requests
-
-    @property
-    def _zscale(self) -> float:
-        """The display z scale the normal patches are computed for."""
-        return float(self._shading_scale[2])
+        return self.shading.lit and self.binding is not None and self.shading.active
 
     def _texture_keys(self, selection: Selection, cut: Cut) -> list[TextureKey]:
         """The texture patches the nodes of ``selection`` are drawn with (with a pyramid)."""
@@ -312,13 +255,13 @@ class ApproximationTreeSource:
         pyramid = as_pyramid(textures, self.tree.terrain)
         before = pyramids_of(self.binding)
         if pyramid is None:
-            self.binding, self.texels, self.finer = None, self.shading_texels, self.shading_finer
+            self.binding, self.texels, self.finer = None, self.shading.texels, self.shading.finer
             self.sources = np.zeros(len(self.tree), dtype=np.int64)
         else:
             self.binding = TextureBinding(pyramid, self.tree.origin, self._rect_of, self._level_of)
             self.texels, self.sources = self._texture_texels(pyramid)
             self.finer = finer_below(self.tree, self.texels)
-        self._lit_texels = None
+        self.shading.forget_lit()
         stale = stale_textures(before, pyramids_of(self.binding))
         self.provider.drop(stale)
         return stale
@@ -339,35 +282,15 @@ class ApproximationTreeSource:
     def set_shading_side(self, side: int, scale: np.ndarray | None = None) -> None:
         """The normal map's largest side (the context's texture limit) and the display scale
         (3,) of the normals (None: as before): untextured texels and normal patches follow."""
-        self._shading_side = side
-        if scale is not None:
-            self._shading_scale = np.asarray(scale, dtype=np.float64).copy()
-        self._shading_figures()
-        self._lit_texels = None
+        self.shading.set_side(side, scale)
         if self.binding is None:
-            self.texels, self.finer = self.shading_texels, self.shading_finer
-
-    def _shading_figures(self) -> None:
-        """The normal patches of the nodes, their texels and where finer ones lie below."""
-        tree = self.tree
-        self.normals = NormalPatches(
-            tree.terrain, np.asarray(tree.rects, dtype=np.float64), self._shading_side
-        )
-        self.shading_texels = self.normals.texels
-        self.shading_finer = (
-            finer_below(tree, self.shading_texels)
-            if self.normals.active
-            else np.zeros(len(tree), dtype=bool)
-        )
+            self.texels, self.finer = self.shading.texels, self.shading.finer
 
     @property
     def shading_uv(self) -> Callable[[Any], tuple[float, float, float, float]] | None:
         """The uv transform of a normal patch key, None when frames draw only the normal map
         (no normal patches)."""
-        if not self.normals.active:
-            return None
-        normals, origin = self.normals, self.tree.origin
-        return lambda key: normals.upload_uv(key, origin)
+        return self.shading.uv
 
     def set_skirts(self, skirts: bool) -> bool:
         """Hang skirts or not; True when that changes the meshes (the cached ones dropped)."""
@@ -494,7 +417,7 @@ class ApproximationTreeSource:
         """The payload of ``key``, built now: the provider's loader (it runs on the provider's
         threads and reads the tree's store without keeping the patch, ``read_patch``)."""
         if isinstance(key, NormalKey):
-            texels = self.normals.upload_texels(key, self.tree.origin, self._shading_scale)
+            texels = self.shading.normals.upload_texels(key, self.tree.origin, self.shading.scale)
             return Payload(texels=texels)
         if isinstance(key, TextureKey):
             if self.binding is None:  # the pyramid was dropped while this load waited
@@ -537,6 +460,12 @@ class ApproximationTreeSource:
         if owner.kind == CHUNK:
             return self.full.rect(owner.item)
         return self.tree.node(owner.item).rect
+
+
+def loaded_by(renderer: Renderer, provider: PayloadProvider) -> Callable[[Hashable], bool]:
+    """Whether a key's payload is at hand: on the GPU or in the CPU cache."""
+    cache = renderer.cache
+    return lambda key: key in cache or key in provider
 
 
 def _check_drawable(tree: Any) -> None:
