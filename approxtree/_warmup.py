@@ -50,6 +50,7 @@ def _frame(tree) -> None:
     from approxtree.render import display_scale, overview_camera, select
     from approxtree.render.budget import node_triangles, select_budget
     from approxtree.render.frame_state import FrameState
+    from approxtree.render.gpu_cache import mip_chain
     from approxtree.render.normal_map import NormalPatches
     from approxtree.render.skirts import skirt_depths
     from approxtree.render.texture_sharing import texture_nodes
@@ -74,6 +75,8 @@ def _frame(tree) -> None:
     for i in sel.nodes:
         tree.patch(int(i)).vertices  # noqa: B018 (the mesh is built on first access)
     select_budget(tree, fs, 10**9, node_triangles(tree))
+    # The mip chain of a texture patch (made on a worker thread in interactive frames).
+    mip_chain(np.zeros((4, 4, 4), dtype=np.uint8))
 
 
 def tree_step(work: Path) -> None:

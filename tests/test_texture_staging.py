@@ -68,6 +68,7 @@ def test_a_forgotten_texture_is_never_staged_from_stale_texels(gl_context):
     from approxtree.render.renderer import Renderer
 
     renderer = Renderer(gl_context, 1 << 30, owns_context=False)
+    renderer.at_once_bytes = 0  # every patch written over frames
     try:
         texels = np.zeros((16, 16, 4), dtype=np.uint8)
         assert not renderer.texture_drawable("t", lambda: texels)
@@ -85,5 +86,46 @@ def test_a_forgotten_texture_is_never_staged_from_stale_texels(gl_context):
             assert frames <= 2
         got = renderer.cache.get_texture("t", lambda: fresh).texture.read()
         assert np.array_equal(np.frombuffer(got, dtype=np.uint8).reshape(16, 16, 4), fresh)
+    finally:
+        renderer.release()
+
+
+def test_small_patches_are_drawable_when_their_texels_arrive(gl_context):
+    """A patch within ``at_once_bytes`` is uploaded whole in the frame its texels arrive,
+    with the CPU mip chain; one still loading (texels None) is not drawable."""
+    from approxtree.render.renderer import Renderer
+
+    renderer = Renderer(gl_context, 1 << 30, owns_context=False)
+    try:
+        texels = np.random.default_rng(2).integers(0, 256, (32, 32, 4), dtype=np.uint8)
+        assert not renderer.texture_drawable("s", lambda: None)
+        assert renderer.texture_drawable("s", lambda: texels)
+        assert "s" in renderer.cache and not renderer.cache.is_staged("s")
+        got = renderer.cache.get_texture("s", lambda: texels).texture.read()
+        assert np.array_equal(np.frombuffer(got, dtype=np.uint8).reshape(32, 32, 4), texels)
+    finally:
+        renderer.release()
+
+
+def test_a_late_patch_is_finished_whatever_the_budget(gl_context):
+    """A large patch wanted in every frame since its texels arrived is drawable after
+    TEXTURE_LATE_STEPS frames even with no upload budget: the bound on settling."""
+    if not staged_uploads_available():
+        pytest.skip("no GL library to write mip levels with")
+    from approxtree.render.renderer import TEXTURE_LATE_STEPS, Renderer
+
+    renderer = Renderer(gl_context, 1 << 30, owns_context=False)
+    renderer.at_once_bytes = 0
+    try:
+        # 2048² RGBA and its mips: 21 MB, six 4 MB steps at one step a frame without the rule.
+        texels = np.random.default_rng(3).integers(0, 256, (2048, 2048, 4), dtype=np.uint8)
+        frames = 0
+        while not renderer.texture_drawable("big", lambda: texels):
+            renderer.step_textures(budget_ms=0.0)
+            frames += 1
+        # Finished by the rule, not by the steps (six would be needed).
+        assert frames == TEXTURE_LATE_STEPS + 1 < 6
+        got = renderer.cache.get_texture("big", lambda: texels).texture.read()
+        assert np.array_equal(np.frombuffer(got, dtype=np.uint8).reshape(2048, 2048, 4), texels)
     finally:
         renderer.release()

@@ -161,3 +161,28 @@ def bands_into_rgba(planes: np.ndarray, out: np.ndarray) -> None:
             for c in range(cols):
                 for k in range(4):
                     out[r, c, k] = planes[k, r, c]
+
+
+@njit(cache=True, nogil=True)
+def box_halve_rgba(src: np.ndarray, out: np.ndarray) -> None:
+    """2 × 2 box mean of (rows, cols, channels) uint8 texels into ``out`` (⌊rows/2⌋,
+    ⌊cols/2⌋, channels) uint8, rounded half up ((sum + 2) >> 2): one mip level from the one
+    above (an odd last row or column is dropped, as GL sizes mip levels).
+
+    Serial and without the GIL: texture patches' mip chains are made on a worker thread
+    while the main thread draws.
+    """
+    rows, cols, channels = out.shape
+    for i in range(rows):
+        a = src[2 * i]
+        b = src[2 * i + 1]
+        o = out[i]
+        for j in range(cols):
+            for k in range(channels):
+                s = (
+                    np.uint16(a[2 * j, k])
+                    + np.uint16(a[2 * j + 1, k])
+                    + np.uint16(b[2 * j, k])
+                    + np.uint16(b[2 * j + 1, k])
+                )
+                o[j, k] = np.uint8((s + np.uint16(2)) >> np.uint16(2))

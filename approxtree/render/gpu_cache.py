@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from approxtree.glsl import VERTEX_LAYOUT
+from approxtree.kernels.rgba import box_halve_rgba
 
 
 @dataclass
@@ -95,10 +96,17 @@ def mip_chain(texels: np.ndarray) -> list[np.ndarray]:
     to 1 × 1: each level the 2 × 2 box mean of the one above, rounded half up, of size
     max(1, ⌊w/2⌋) × max(1, ⌊h/2⌋) (an odd last row or column is dropped, as GL sizes it).
 
-    Numpy only: it runs on a worker thread (numpy releases the GIL), off the frame.
+    It runs on a worker thread, off the frame: a compiled kernel without the GIL
+    (``kernels.rgba.box_halve_rgba``) while both sides exceed 1.
     """
     levels = [texels]
     a = texels
+    while a.shape[0] > 1 and a.shape[1] > 1:
+        h, w = a.shape[:2]
+        half = np.empty((h // 2, w // 2, a.shape[2]), dtype=np.uint8)
+        box_halve_rgba(np.ascontiguousarray(a), half)
+        a = half
+        levels.append(a)
     while a.shape[0] > 1 or a.shape[1] > 1:
         h, w = a.shape[:2]
         # A side of 1 stays 1: its texels pair with themselves.

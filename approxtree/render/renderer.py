@@ -41,6 +41,15 @@ Load = Callable[[Any], Payload]
 #: Frames a texture patch being prepared or written is kept without being wanted.
 STAGED_KEEP_STEPS = 30
 
+#: Frames a wanted texture patch may stand in, once its texels are loaded, before a frame
+#: finishes it whatever the cost (waits for its mip chain, writes it whole): the bound on how
+#: long a frame takes to settle after a camera cut.
+TEXTURE_LATE_STEPS = 2
+
+#: Texels (bytes) of a texture patch uploaded whole in the frame its texels arrive (1024²
+#: RGBA: its mip chain and upload take a few ms); larger ones are written over frames.
+TEXTURE_AT_ONCE_BYTES = 4 << 20
+
 
 class Renderer:
     """GL state on ``ctx``: programs, a GpuCache of ``cache_bytes``, the normal map, targets.
@@ -77,6 +86,10 @@ class Renderer:
         self._mips: ThreadPoolExecutor | None = None
         self._preparing: dict[Hashable, Future] = {}
         self._wanted_at: dict[Hashable, int] = {}
+        # The step since which each key is wanted in every step (with its texels loaded).
+        self._wanted_since: dict[Hashable, int] = {}
+        #: Texture patches of at most these bytes are uploaded whole when their texels arrive.
+        self.at_once_bytes = TEXTURE_AT_ONCE_BYTES
         self._step = 0
         self.targets: dict[tuple[str, int, int], Any] = {}
         self.normal_map: Any = None
@@ -139,10 +152,18 @@ class Renderer:
             # No GL library for the levels: the frame uploads it whole once loaded.
             return texels() is not None
         self._wanted_at[key] = self._step
+        self._wanted_since.setdefault(key, self._step)
         if key in self._preparing or self.cache.is_staged(key):
             return False
         data = texels()
-        if data is not None:
+        if data is None:
+            # Still loading: the frames it stands in for count from its texels' arrival.
+            self._wanted_since[key] = self._step
+        elif data.nbytes <= self.at_once_bytes:
+            # Small enough to cost no hitch: drawable in this frame.
+            self.cache.get_texture(key, lambda: data)
+            return True
+        else:
             if self._mips is None:
                 self._mips = ThreadPoolExecutor(1, thread_name_prefix="approxtree-mips")
             self._preparing[key] = self._mips.submit(mip_chain, np.ascontiguousarray(data))
@@ -159,7 +180,21 @@ class Renderer:
             future = self._preparing.pop(key, None)
             if future is not None:
                 future.cancel()
+        # A key left out of a step starts counting again when wanted again.
+        for key in [k for k in self._wanted_since if self._wanted_at.get(k) != now]:
+            del self._wanted_since[key]
         self.cache.unstage(lambda key: key not in self._wanted_at)
+        # Late patches (wanted for TEXTURE_LATE_STEPS steps with their texels loaded): their
+        # mip chains waited for and staged now, written whole below.
+        late = [
+            k
+            for k, since in self._wanted_since.items()
+            if now - since >= TEXTURE_LATE_STEPS and k not in self.cache
+        ]
+        for key in late:
+            future = self._preparing.pop(key, None)
+            if future is not None and not future.cancelled():
+                self.cache.stage_texture(key, future.result())
         # GL storage (a 4096² patch: 20-45 ms on llvmpipe) for one patch a frame, one this
         # frame wants; a chain made for a view already left waits on the CPU until wanted.
         ready = [k for k, f in self._preparing.items() if f.done() and self._wanted_at[k] == now]
@@ -170,9 +205,12 @@ class Renderer:
         staged = self.cache.staged()
         if not staged:
             return 0
+        late = [k for k in late if k in staged]
+        completed = self.cache.upload_staged(float("inf"), order=late) if late else 0
+        staged = self.cache.staged()
         first = [k for k in staged if self._wanted_at.get(k) == now]
         rest = [k for k in staged if self._wanted_at.get(k) != now]
-        return self.cache.upload_staged(budget_ms, order=first + rest)
+        return completed + self.cache.upload_staged(budget_ms, order=first + rest)
 
     def wait_textures(self) -> None:
         """Wait until the mip chains being made are done (scripted replays: the same frames
@@ -188,6 +226,7 @@ class Renderer:
             self._preparing.pop(key).cancel()
         for key in [k for k in self._wanted_at if predicate(k)]:
             del self._wanted_at[key]
+            self._wanted_since.pop(key, None)
         self.cache.unstage(predicate)
 
     def upload(self, groups: Sequence[tuple[Any, Sequence[Hashable]]], load: Load) -> Any:
