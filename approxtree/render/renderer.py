@@ -184,13 +184,15 @@ class Renderer:
         for key in [k for k in self._wanted_since if self._wanted_at.get(k) != now]:
             del self._wanted_since[key]
         self.cache.unstage(lambda key: key not in self._wanted_at)
-        # Late patches (wanted for TEXTURE_LATE_STEPS steps with their texels loaded): their
-        # mip chains waited for and staged now, written whole below.
-        late = [
-            k
-            for k, since in self._wanted_since.items()
+        # The latest patch (wanted for TEXTURE_LATE_STEPS steps or more with its texels
+        # loaded): its mip chain waited for and staged now, written whole below. One a frame,
+        # so a cut to a view of many large patches costs a frame of one patch at a time.
+        overdue = sorted(
+            (since, i, k)
+            for i, (k, since) in enumerate(self._wanted_since.items())
             if now - since >= TEXTURE_LATE_STEPS and k not in self.cache
-        ]
+        )
+        late = [k for _, _, k in overdue[:1]]
         for key in late:
             future = self._preparing.pop(key, None)
             if future is not None and not future.cancelled():
