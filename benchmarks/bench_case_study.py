@@ -375,7 +375,32 @@ def main() -> None:
     RESULTS.mkdir(exist_ok=True)
     name = "case_study_quick.json" if args.quick else "case_study.json"
     (RESULTS / name).write_text(json.dumps(out, indent=2))
-    print(f"wrote {RESULTS / name}")
+    plot_flights(work, args.sizes, (RESULTS / name).with_suffix(".png"))
+    print(f"wrote {RESULTS / name} and its .png")
+
+
+def plot_flights(work: Path, sizes: list[str], path: Path) -> None:
+    """Frame time per frame of each window size's flight (its stats_<size>.jsonl in
+    ``work``), the frames drawing a stand-in marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(10, 4))
+    for size in sizes:
+        rows = [json.loads(line) for line in (work / f"stats_{size}.jsonl").open()]
+        ms = np.array([r.get("frame_ms") or 0.0 for r in rows])
+        line = ax.plot(ms, lw=0.8, label=f"{size}: median {np.median(ms):.1f} ms")
+        marks = np.flatnonzero([bool(r.get("stand_ins")) for r in rows])
+        ax.plot(marks, ms[marks], ".", ms=3, color=line[0].get_color())
+    ax.set_yscale("log")
+    ax.set_xlabel("frame (dots: a stand-in drawn)")
+    ax.set_ylabel("ms per frame")
+    ax.set_title("case study flight (bench_case_study.py)")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
 
 
 if __name__ == "__main__":
