@@ -45,6 +45,24 @@ def _mid_error(heights, r0, c0, ux, uy, vx, vy) -> float:
     return abs(zm - 0.5 * (zu + zv))
 
 
+@njit(cache=True, inline="always")
+def _axis_frame(ax, ay, lx, ly, rx, ry, span):
+    """A triangle whose hypotenuse l–r spans ``span`` steps along an axis: (h, dx, dy, mx,
+    my, nx, ny) — h = span / 2 rows k = 0 (the hypotenuse) to h − 1 towards the apex a, row k
+    centred at m + k·n with h − k points either side, d the unit step along the hypotenuse."""
+    h = span // 2
+    mx = (lx + rx) // 2
+    my = (ly + ry) // 2
+    return h, (rx - lx) // span, (ry - ly) // span, mx, my, (ax - mx) // h, (ay - my) // h
+
+
+@njit(cache=True, inline="always")
+def _diagonal_frame(ax, ay, lx, ly, rx, ry, span):
+    """A triangle whose hypotenuse l–r is diagonal: (ux, uy, vx, vy), the points
+    l + i·u + j·v for 0 <= j <= i <= span, u = (a − l)/span, v = (r − a)/span."""
+    return (ax - lx) // span, (ay - ly) // span, (rx - ax) // span, (ry - ay) // span
+
+
 @njit(cache=True)
 def _small_error(heights, r0, c0, ax, ay, lx, ly, rx, ry, span) -> float:
     """Exact max |z − plane| over the non-corner points of a small hierarchy triangle, its
@@ -60,13 +78,7 @@ def _small_error(heights, r0, c0, ax, ay, lx, ly, rx, ry, span) -> float:
         # Hypotenuse along an axis (legs diagonal): rows k = 0 (the hypotenuse) to h − 1
         # towards the apex, row k centred at m + k·n with h − k points either side (d the unit
         # step along the hypotenuse, n towards the apex).
-        h = span // 2
-        dx = (rx - lx) // span
-        dy = (ry - ly) // span
-        mx = (lx + rx) // 2
-        my = (ly + ry) // 2
-        nx = (ax - mx) // h
-        ny = (ay - my) // h
+        h, dx, dy, mx, my, nx, ny = _axis_frame(ax, ay, lx, ly, rx, ry, span)
         zm = (zl + zr) * 0.5
         g = (zr - zl) * inv
         rise = (za - zm) * (2.0 * inv)
@@ -80,10 +92,7 @@ def _small_error(heights, r0, c0, ax, ay, lx, ly, rx, ry, span) -> float:
         return best
     # Hypotenuse diagonal (legs along the axes): p = l + i·u + j·v, u = (a − l)/span,
     # v = (r − a)/span, 0 <= j <= i <= span, the plane zl + i·(za − zl)/span + j·(zr − za)/span.
-    ux = (ax - lx) // span
-    uy = (ay - ly) // span
-    vx = (rx - ax) // span
-    vy = (ry - ay) // span
+    ux, uy, vx, vy = _diagonal_frame(ax, ay, lx, ly, rx, ry, span)
     gu = (za - zl) * inv
     gv = (zr - za) * inv
     for i in range(1, span + 1):
@@ -582,13 +591,7 @@ def _walk(
         if lx == rx or ly == ry:
             # Hypotenuse along an axis: rows k = 0 (the hypotenuse) to h − 1 towards the
             # apex, centred at m + k·n, h − k points either side (the outer two on the legs).
-            h = span // 2
-            dx = (rx - lx) // span
-            dy = (ry - ly) // span
-            mx = (lx + rx) // 2
-            my = (ly + ry) // 2
-            nx = (ax - mx) // h
-            ny = (ay - my) // h
+            h, dx, dy, mx, my, nx, ny = _axis_frame(ax, ay, lx, ly, rx, ry, span)
             zm = (zl + zr) * 0.5
             g = (zr - zl) * inv
             rise = (za - zm) * (2.0 * inv)
@@ -617,10 +620,7 @@ def _walk(
             continue
         # Hypotenuse diagonal: p = l + i·u + j·v, u = (a − l)/span, v = (r − a)/span,
         # 0 <= j <= i <= span (j = 0, j = i and i = span on the edges).
-        ux = (ax - lx) // span
-        uy = (ay - ly) // span
-        vx = (rx - ax) // span
-        vy = (ry - ay) // span
+        ux, uy, vx, vy = _diagonal_frame(ax, ay, lx, ly, rx, ry, span)
         gu = (za - zl) * inv
         gv = (zr - za) * inv
         for i in range(1, span + 1):
